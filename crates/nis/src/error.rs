@@ -1,0 +1,45 @@
+//! Typed errors of the library. Only front ends (the CLI) turn them into messages.
+
+use std::path::PathBuf;
+
+/// Everything that can go wrong in `nis`, as a value.
+#[derive(Debug, thiserror::Error)]
+pub enum Error {
+    /// A configuration that cannot describe a valid flow or training run.
+    #[error("invalid configuration: {0}")]
+    Config(String),
+    /// Input of the wrong shape.
+    #[error("dimension mismatch in {what}: expected {expected}, got {got}")]
+    Dimension {
+        what: &'static str,
+        expected: usize,
+        got: usize,
+    },
+    /// A point outside the unit hypercube, or not a number.
+    #[error("point {index}, coordinate {coord} is {value}, outside [0, 1]")]
+    OutOfDomain {
+        index: usize,
+        coord: usize,
+        value: f64,
+    },
+    /// A NaN or infinite value where a finite one is required.
+    #[error("non-finite {what} at sample {index}: {value}")]
+    NonFinite {
+        what: &'static str,
+        index: usize,
+        value: f64,
+    },
+    /// A model file that cannot be read back as the flow it claims to be.
+    #[error("model file {path}: {reason}")]
+    Model { path: PathBuf, reason: String },
+    /// An operating-system error while reading or writing a file.
+    #[error("{path}: {source}")]
+    Io {
+        path: PathBuf,
+        #[source]
+        source: std::io::Error,
+    },
+}
+
+/// Shorthand for results of this crate.
+pub type Result<T, E = Error> = std::result::Result<T, E>;

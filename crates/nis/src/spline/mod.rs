@@ -1,0 +1,179 @@
+//! One-dimensional monotone transforms of [0, 1] onto itself: the coupling transforms.
+//!
+//! Each transform is a CDF whose shape is set by a short vector of *unnormalised* parameters that a
+//! conditioner network predicts (Müller et al. 2019, "Neural Importance Sampling", Sec. 3; Durkan et
+//! al. 2019 for the rational-quadratic spline). All four share one small surface, [`Spline`]:
+//! forward (x ↦ y and log dy/dx), inverse (y ↦ x and the same log-derivative), and the reverse-mode
+//! gradient of a scalar loss with respect to the input and the unnormalised parameters. The
+//! coupling layer knows transforms only through this surface and the [`Transform`] enum.
+//!
+//! Parameters arrive as `f32` (the network's precision); the arithmetic inside runs in `f64`, so a
+//! round trip loses only what storing y as `f32` loses, and gradient checks can be tight.
+
+mod affine;
+mod linear;
+mod quadratic;
+mod rational_quadratic;
+
+pub use affine::Affine;
+pub use linear::Linear;
+pub use quadratic::Quadratic;
+pub use rational_quadratic::RationalQuadratic;
+
+use serde::{Deserialize, Serialize};
+
+use crate::error::{Error, Result};
+
+/// The most bins a spline may have; per-scalar work buffers live on the stack at this size.
+pub const MAX_BINS: usize = 256;
+
+/// The surface every coupling transform implements.
+///
+/// `p` holds the [`Spline::param_count`] unnormalised parameters of one transformed scalar.
+pub trait Spline {
+    /// Number of unnormalised parameters per transformed dimension.
+    fn param_count(&self) -> usize;
+    /// y = C(x) and log C'(x), for x in [0, 1].
+    fn forward(&self, p: &[f32], x: f64) -> (f64, f64);
+    /// x = C⁻¹(y) and log C'(x), for y in [0, 1].
+    fn inverse(&self, p: &[f32], y: f64) -> (f64, f64);
+    /// The bin edges in x (K + 1 values from 0 to 1; `[0, 1]` for the affine transform).
+    fn bin_edges(&self, p: &[f32]) -> Vec<f64>;
+    /// Reverse mode at x: given ∂L/∂y and ∂L/∂log C'(x), writes ∂L/∂p into `g_p` (overwriting it)
+    /// and returns ∂L/∂x.
+    fn backward(&self, p: &[f32], x: f64, g_y: f64, g_log_det: f64, g_p: &mut [f32]) -> f64;
+}
+
+/// Which coupling transform a flow uses, with its bin count.
+///
+/// ```
+/// use nis::spline::{Spline, Transform};
+/// let t = Transform::Quadratic { bins: 8 };
+/// let p = vec![0.0_f32; t.param_count()]; // zero parameters: the identity
+/// let (y, log_det) = t.forward(&p, 0.3);
+/// assert!((y - 0.3).abs() < 1e-12 && log_det.abs() < 1e-12);
+/// ```
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(tag = "kind", rename_all = "snake_case")]
+pub enum Transform {
+    /// RealNVP's affine coupling, moved to [0, 1] through logit and sigmoid.
+    Affine,
+    /// Piecewise-linear CDF (piecewise-constant density), `bins` equal bins.
+    Linear { bins: usize },
+    /// Piecewise-quadratic CDF (piecewise-linear density), `bins` adaptive bins.
+    Quadratic { bins: usize },
+    /// Monotone rational-quadratic spline, `bins` adaptive bins.
+    RationalQuadratic { bins: usize },
+}
+
+impl Transform {
+    /// Checks the bin count.
+    pub fn validate(&self) -> Result<()> {
+        match *self {
+            Transform::Affine => Ok(()),
+            Transform::Linear { bins }
+            | Transform::Quadratic { bins }
+            | Transform::RationalQuadratic { bins } => {
+                if bins == 0 || bins > MAX_BINS {
+                    Err(Error::Config(format!(
+                        "a spline needs between 1 and {MAX_BINS} bins, got {bins}"
+                    )))
+                } else {
+                    Ok(())
+                }
+            }
+        }
+    }
+
+    /// A short name for tables: `affine`, `pl32`, `pq32`, `rq8`.
+    pub fn label(&self) -> String {
+        match *self {
+            Transform::Affine => "affine".into(),
+            Transform::Linear { bins } => format!("pl{bins}"),
+            Transform::Quadratic { bins } => format!("pq{bins}"),
+            Transform::RationalQuadratic { bins } => format!("rq{bins}"),
+        }
+    }
+}
+
+/// Calls `$body` with `$s` bound to the concrete transform, so hot loops are monomorphised.
+macro_rules! with_spline {
+    ($t:expr, $s:ident => $body:expr) => {
+        match $t {
+            $crate::spline::Transform::Affine => {
+                let $s = $crate::spline::Affine;
+                $body
+            }
+            $crate::spline::Transform::Linear { bins } => {
+                let $s = $crate::spline::Linear { bins };
+                $body
+            }
+            $crate::spline::Transform::Quadratic { bins } => {
+                let $s = $crate::spline::Quadratic { bins };
+                $body
+            }
+            $crate::spline::Transform::RationalQuadratic { bins } => {
+                let $s = $crate::spline::RationalQuadratic { bins };
+                $body
+            }
+        }
+    };
+}
+pub(crate) use with_spline;
+
+impl Spline for Transform {
+    fn param_count(&self) -> usize {
+        with_spline!(*self, s => s.param_count())
+    }
+    fn forward(&self, p: &[f32], x: f64) -> (f64, f64) {
+        with_spline!(*self, s => s.forward(p, x))
+    }
+    fn inverse(&self, p: &[f32], y: f64) -> (f64, f64) {
+        with_spline!(*self, s => s.inverse(p, y))
+    }
+    fn bin_edges(&self, p: &[f32]) -> Vec<f64> {
+        with_spline!(*self, s => s.bin_edges(p))
+    }
+    fn backward(&self, p: &[f32], x: f64, g_y: f64, g_log_det: f64, g_p: &mut [f32]) -> f64 {
+        with_spline!(*self, s => s.backward(p, x, g_y, g_log_det, g_p))
+    }
+}
+
+/// Softmax with a floor: `out_k = floor/K + (1 − floor)·softmax(logits)_k`, so the entries sum to
+/// one and none is below `floor` times their mean. Shifting by the maximum keeps exp finite.
+fn softmax_floor(logits: &[f32], floor: f64, out: &mut [f64]) {
+    let k = logits.len();
+    let max = logits.iter().fold(f32::NEG_INFINITY, |m, &l| m.max(l)) as f64;
+    let mut sum = 0.0;
+    for (o, &l) in out.iter_mut().zip(logits) {
+        *o = (l as f64 - max).exp();
+        sum += *o;
+    }
+    let scale = (1.0 - floor) / sum;
+    let base = floor / k as f64;
+    for o in out[..k].iter_mut() {
+        *o = base + scale * *o;
+    }
+}
+
+/// Reverse mode of [`softmax_floor`]: from ∂L/∂out and out, writes ∂L/∂logits.
+fn softmax_floor_backward(out: &[f64], g_out: &[f64], floor: f64, g_logits: &mut [f32]) {
+    let k = g_logits.len();
+    let base = floor / k as f64;
+    let inv = 1.0 / (1.0 - floor);
+    // softmax σ_k = (out_k − base)/(1 − floor); ∂L/∂logit_j = (1 − floor)·σ_j·(g_j − Σ σ_k g_k).
+    let dot: f64 = (0..k).map(|i| (out[i] - base) * inv * g_out[i]).sum();
+    for j in 0..k {
+        g_logits[j] = ((out[j] - base) * (g_out[j] - dot)) as f32;
+    }
+}
+
+/// Bin index and relative position of `x` in `K` equal bins; x = 1 lies at the end of the last bin.
+fn equal_bin(x: f64, k: usize) -> (usize, f64) {
+    let s = x * k as f64;
+    let b = (s.floor() as usize).min(k - 1);
+    (b, (s - b as f64).clamp(0.0, 1.0))
+}
+
+#[cfg(test)]
+pub(crate) mod testing;

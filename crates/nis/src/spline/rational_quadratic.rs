@@ -1,0 +1,242 @@
+//! Monotone rational-quadratic spline (Durkan, Bekasov, Murray, Papamakarios 2019, "Neural Spline
+//! Flows", Sec. 3.1; the spline of Gregory & Delbourgo 1982), on [0, 1] without tails.
+//!
+//! K adaptive bins with widths w_k, heights h_k and K+1 knot derivatives d_k. Inside bin k at
+//! relative position ξ, with slope s = h/w,
+//!   C = y_k + h·(s ξ² + d_k ξ(1−ξ)) / (s + (d_{k+1} + d_k − 2s) ξ(1−ξ)).
+//! Unlike the unbounded-domain original (whose boundary derivatives are 1 to meet linear tails),
+//! the two boundary derivatives are learned too: on [0, 1] nothing forces the density at the ends.
+
+use super::{softmax_floor, softmax_floor_backward, Spline, MAX_BINS};
+
+/// Smallest bin width as a fraction of the mean width.
+pub const MIN_BIN_WIDTH: f64 = 1e-3;
+/// Smallest bin slope h/w: heights are `h_k = m·w_k + (1 − m)·softmax_k`, which still sum to one.
+pub const MIN_SLOPE: f64 = 1e-2;
+/// Smallest knot derivative; `d = MIN_DERIVATIVE + softplus(d̂ + DERIVATIVE_SHIFT)` is 1 at d̂ = 0,
+/// so zero parameters give the identity.
+pub const MIN_DERIVATIVE: f64 = 1e-2;
+
+/// softplus⁻¹(1 − MIN_DERIVATIVE) = ln(e^{1−m} − 1).
+fn derivative_shift() -> f64 {
+    ((1.0 - MIN_DERIVATIVE).exp() - 1.0).ln()
+}
+
+fn softplus(x: f64) -> f64 {
+    if x > 30.0 {
+        x
+    } else {
+        x.exp().ln_1p()
+    }
+}
+
+fn sigmoid(x: f64) -> f64 {
+    1.0 / (1.0 + (-x).exp())
+}
+
+/// Rational-quadratic spline with `bins` bins; `3·bins + 1` parameters per dimension.
+#[derive(Clone, Copy, Debug)]
+pub struct RationalQuadratic {
+    pub bins: usize,
+}
+
+struct Knots {
+    w: [f64; MAX_BINS],
+    h: [f64; MAX_BINS],
+    /// softmax of the height logits, before the slope floor is mixed in.
+    h_soft: [f64; MAX_BINS],
+    d: [f64; MAX_BINS + 1],
+}
+
+/// One bin's local quantities.
+struct Bin {
+    b: usize,
+    x0: f64,
+    y0: f64,
+}
+
+impl RationalQuadratic {
+    #[inline]
+    fn knots(&self, p: &[f32]) -> Knots {
+        let k = self.bins;
+        let mut kn = Knots {
+            w: [0.0; MAX_BINS],
+            h: [0.0; MAX_BINS],
+            h_soft: [0.0; MAX_BINS],
+            d: [0.0; MAX_BINS + 1],
+        };
+        softmax_floor(&p[..k], MIN_BIN_WIDTH, &mut kn.w);
+        softmax_floor(&p[k..2 * k], 0.0, &mut kn.h_soft);
+        for i in 0..k {
+            kn.h[i] = MIN_SLOPE * kn.w[i] + (1.0 - MIN_SLOPE) * kn.h_soft[i];
+        }
+        let shift = derivative_shift();
+        for j in 0..=k {
+            kn.d[j] = MIN_DERIVATIVE + softplus(p[2 * k + j] as f64 + shift);
+        }
+        kn
+    }
+
+    #[inline]
+    fn locate_x(&self, kn: &Knots, x: f64) -> Bin {
+        let (mut b, mut x0, mut y0) = (0, 0.0, 0.0);
+        while b + 1 < self.bins && x >= x0 + kn.w[b] {
+            x0 += kn.w[b];
+            y0 += kn.h[b];
+            b += 1;
+        }
+        Bin { b, x0, y0 }
+    }
+}
+
+impl Spline for RationalQuadratic {
+    fn param_count(&self) -> usize {
+        3 * self.bins + 1
+    }
+
+    #[inline]
+    fn forward(&self, p: &[f32], x: f64) -> (f64, f64) {
+        let kn = self.knots(p);
+        let Bin { b, x0, y0 } = self.locate_x(&kn, x);
+        let (w, h, d0, d1) = (kn.w[b], kn.h[b], kn.d[b], kn.d[b + 1]);
+        let s = h / w;
+        let xi = ((x - x0) / w).clamp(0.0, 1.0);
+        let t = xi * (1.0 - xi);
+        let den = s + (d1 + d0 - 2.0 * s) * t;
+        let y = (y0 + h * (s * xi * xi + d0 * t) / den).clamp(0.0, 1.0);
+        let dnum = d1 * xi * xi + 2.0 * s * t + d0 * (1.0 - xi) * (1.0 - xi);
+        (y, 2.0 * s.ln() + dnum.ln() - 2.0 * den.ln())
+    }
+
+    #[inline]
+    fn inverse(&self, p: &[f32], y: f64) -> (f64, f64) {
+        let k = self.bins;
+        let kn = self.knots(p);
+        let (mut b, mut x0, mut y0) = (0, 0.0, 0.0);
+        while b + 1 < k && y >= y0 + kn.h[b] {
+            x0 += kn.w[b];
+            y0 += kn.h[b];
+            b += 1;
+        }
+        let (w, h, d0, d1) = (kn.w[b], kn.h[b], kn.d[b], kn.d[b + 1]);
+        let s = h / w;
+        let dy = (y - y0).clamp(0.0, h);
+        let sum = d1 + d0 - 2.0 * s;
+        // Durkan et al. Eq. 6–8: a ξ² + b ξ + c = 0, taking the root that lies in [0, 1] in the
+        // cancellation-free form 2c/(−b − √(b² − 4ac)).
+        let a = h * (s - d0) + dy * sum;
+        let bb = h * d0 - dy * sum;
+        let c = -s * dy;
+        let disc = (bb * bb - 4.0 * a * c).max(0.0);
+        let xi = if c == 0.0 {
+            0.0
+        } else {
+            (2.0 * c / (-bb - disc.sqrt())).clamp(0.0, 1.0)
+        };
+        let x = (x0 + xi * w).clamp(0.0, 1.0);
+        let t = xi * (1.0 - xi);
+        let den = s + sum * t;
+        let dnum = d1 * xi * xi + 2.0 * s * t + d0 * (1.0 - xi) * (1.0 - xi);
+        (x, 2.0 * s.ln() + dnum.ln() - 2.0 * den.ln())
+    }
+
+    fn bin_edges(&self, p: &[f32]) -> Vec<f64> {
+        let kn = self.knots(p);
+        let mut edges = vec![0.0];
+        let mut x = 0.0;
+        for w in &kn.w[..self.bins] {
+            x += w;
+            edges.push(x);
+        }
+        *edges.last_mut().unwrap() = 1.0;
+        edges
+    }
+
+    fn backward(&self, p: &[f32], x: f64, g_y: f64, g_log_det: f64, g_p: &mut [f32]) -> f64 {
+        let k = self.bins;
+        let kn = self.knots(p);
+        let Bin { b, x0, .. } = self.locate_x(&kn, x);
+        let (w, h, d0, d1) = (kn.w[b], kn.h[b], kn.d[b], kn.d[b + 1]);
+        let s = h / w;
+        let xi = ((x - x0) / w).clamp(0.0, 1.0);
+        let t = xi * (1.0 - xi);
+        let num = h * (s * xi * xi + d0 * t);
+        let den = s + (d1 + d0 - 2.0 * s) * t;
+        let dnum = d1 * xi * xi + 2.0 * s * t + d0 * (1.0 - xi) * (1.0 - xi);
+
+        // Reverse sweep over y = y_b + num/den and log_det = 2 ln s + ln dnum − 2 ln den.
+        let (mut g_s, mut g_h, mut g_d0, mut g_d1, mut g_xi, mut g_t) =
+            (0.0, 0.0, 0.0, 0.0, 0.0, 0.0);
+        let g_num = g_y / den;
+        let mut g_den = -g_y * num / (den * den);
+        g_s += 2.0 * g_log_det / s;
+        let g_dnum = g_log_det / dnum;
+        g_den -= 2.0 * g_log_det / den;
+        // num = h(sξ² + d0 t)
+        g_h += g_num * (s * xi * xi + d0 * t);
+        g_s += g_num * h * xi * xi;
+        g_d0 += g_num * h * t;
+        g_xi += g_num * h * 2.0 * s * xi;
+        g_t += g_num * h * d0;
+        // den = s + (d1 + d0 − 2s) t
+        g_s += g_den * (1.0 - 2.0 * t);
+        g_d0 += g_den * t;
+        g_d1 += g_den * t;
+        g_t += g_den * (d1 + d0 - 2.0 * s);
+        // dnum = d1 ξ² + 2 s t + d0 (1 − ξ)²
+        g_d1 += g_dnum * xi * xi;
+        g_xi += g_dnum * (2.0 * d1 * xi - 2.0 * d0 * (1.0 - xi));
+        g_s += g_dnum * 2.0 * t;
+        g_t += g_dnum * 2.0 * s;
+        g_d0 += g_dnum * (1.0 - xi) * (1.0 - xi);
+        // t = ξ − ξ²
+        g_xi += g_t * (1.0 - 2.0 * xi);
+        // s = h/w, ξ = (x − x_b)/w
+        g_h += g_s / w;
+        let g_w_b = -g_s * h / (w * w) - g_xi * xi / w;
+        let g_x = g_xi / w;
+        let g_x0 = -g_xi / w;
+
+        let mut g_w = [0.0; MAX_BINS];
+        let mut g_hh = [0.0; MAX_BINS];
+        for i in 0..b {
+            g_w[i] += g_x0;
+            g_hh[i] += g_y; // y_b = Σ_{i<b} h_i
+        }
+        g_hh[b] += g_h;
+        g_w[b] += g_w_b;
+        // h_i = m w_i + (1 − m) softmax_i
+        let mut g_soft = [0.0; MAX_BINS];
+        for i in 0..k {
+            g_w[i] += MIN_SLOPE * g_hh[i];
+            g_soft[i] = (1.0 - MIN_SLOPE) * g_hh[i];
+        }
+        softmax_floor_backward(&kn.w[..k], &g_w[..k], MIN_BIN_WIDTH, &mut g_p[..k]);
+        softmax_floor_backward(&kn.h_soft[..k], &g_soft[..k], 0.0, &mut g_p[k..2 * k]);
+        let shift = derivative_shift();
+        for j in 0..=k {
+            let g_d = if j == b {
+                g_d0
+            } else if j == b + 1 {
+                g_d1
+            } else {
+                0.0
+            };
+            g_p[2 * k + j] = (g_d * sigmoid(p[2 * k + j] as f64 + shift)) as f32;
+        }
+        g_x
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::spline::testing;
+
+    #[test]
+    fn rational_quadratic_round_trips_and_gradients() {
+        for bins in [1, 2, 5, 32] {
+            testing::check_transform(&RationalQuadratic { bins }, false);
+        }
+    }
+}
