@@ -1,9 +1,24 @@
 //! # nis: neural importance sampling
 //!
 //! Monte Carlo integration on the unit hypercube whose sampling density is a normalizing flow
-//! learned from the integrand itself (Müller, McWilliams, Rousselle, Gross, Novák 2019).
+//! learned from the integrand itself (Müller, McWilliams, Rousselle, Gross, Novák 2019, "Neural
+//! Importance Sampling"; workshop version "Monte Carlo Integration with Normalizing Flows").
+//!
+//! - [`spline`]: the 1-D coupling transforms (affine, piecewise-linear, piecewise-quadratic,
+//!   rational-quadratic).
+//! - [`flow`]: coupling layers, masks, the flow and its config.
+//! - [`loss`] and [`train`]: sample weights of the KL, χ² and NLL gradients; Adam steps.
+//! - [`io`]: saving and loading flows (config JSON + safetensors, atomic writes).
+//! - [`kernels`] and [`nn`]: the fused CPU kernels, the MLP and Adam.
 
 pub mod error;
+pub mod flow;
+pub mod kernels;
+pub mod loss;
+pub mod nn;
 pub mod spline;
+pub mod train;
 
 pub use error::{Error, Result};
+pub use flow::{Flow, FlowConfig};
+pub use spline::Transform;

@@ -1,0 +1,470 @@
+//! Whole-flow checks: Jacobians, normalisation, gradients, the on-policy fast path, determinism
+//! and input validation.
+
+use rand::{Rng, SeedableRng};
+use rand_pcg::Pcg64Mcg;
+
+use super::*;
+use crate::spline::Transform;
+
+const TRANSFORMS: [Transform; 4] = [
+    Transform::Affine,
+    Transform::Linear { bins: 8 },
+    Transform::Quadratic { bins: 8 },
+    Transform::RationalQuadratic { bins: 8 },
+];
+
+/// A flow whose every parameter got uniform noise of half-width `scale`: not the identity.
+fn random_flow(dim: usize, transform: Transform, context_dim: usize, scale: f32) -> Flow {
+    let config = FlowConfig {
+        dim,
+        transform,
+        hidden_layers: 2,
+        hidden_width: 16,
+        blob_bins: 8,
+        context_dim,
+        ..FlowConfig::new(dim)
+    };
+    let mut flow = Flow::new(config).unwrap();
+    let mut rng = Pcg64Mcg::seed_from_u64(dim as u64 * 31 + 7);
+    for p in flow.params_mut() {
+        *p += scale * (2.0 * rng.random::<f32>() - 1.0);
+    }
+    flow
+}
+
+fn uniform_points(n: usize, dim: usize, seed: u64) -> Vec<f32> {
+    let mut rng = Pcg64Mcg::seed_from_u64(seed);
+    (0..n * dim).map(|_| rng.random::<f32>()).collect()
+}
+
+/// log|det J| of the whole flow by central differences in f64 arithmetic on the f32 map.
+fn fd_log_det(flow: &Flow, x: &[f32], h: f32) -> f64 {
+    let d = flow.dim();
+    let mut jac = vec![0.0f64; d * d];
+    for j in 0..d {
+        let (mut xp, mut xm) = (x.to_vec(), x.to_vec());
+        xp[j] += h;
+        xm[j] -= h;
+        let step = (xp[j] - xm[j]) as f64;
+        let (zp, _) = flow.forward(&xp, None).unwrap();
+        let (zm, _) = flow.forward(&xm, None).unwrap();
+        for i in 0..d {
+            jac[i * d + j] = (zp[i] as f64 - zm[i] as f64) / step;
+        }
+    }
+    // Determinant by Gaussian elimination with partial pivoting.
+    let mut logdet = 0.0;
+    for c in 0..d {
+        let p = (c..d)
+            .max_by(|&a, &b| jac[a * d + c].abs().total_cmp(&jac[b * d + c].abs()))
+            .unwrap();
+        for k in 0..d {
+            jac.swap(c * d + k, p * d + k);
+        }
+        let piv = jac[c * d + c];
+        logdet += piv.abs().ln();
+        for r in c + 1..d {
+            let f = jac[r * d + c] / piv;
+            for k in c..d {
+                jac[r * d + k] -= f * jac[c * d + k];
+            }
+        }
+    }
+    logdet
+}
+
+#[test]
+fn log_det_matches_finite_difference_jacobian() {
+    for dim in [2, 3, 5] {
+        for t in TRANSFORMS {
+            let flow = random_flow(dim, t, 0, 0.3);
+            let mut rng = Pcg64Mcg::seed_from_u64(3);
+            let mut checked = 0;
+            while checked < 10 {
+                let x: Vec<f32> = (0..dim).map(|_| 0.05 + 0.9 * rng.random::<f32>()).collect();
+                let lq = flow.log_density(&x, None).unwrap()[0];
+                // Two step sizes: where they disagree the stencil straddles a bin edge (a kink
+                // of C') or the map curves too fast for it; such points are skipped.
+                let (fd, fd_half) = (fd_log_det(&flow, &x, 2e-3), fd_log_det(&flow, &x, 1e-3));
+                if (fd - fd_half).abs() > 5e-4 {
+                    continue;
+                }
+                // The determinant of a finite-difference Jacobian of the composite map is only as
+                // good as its conditioning allows: later layers depend steeply on earlier outputs
+                // through their conditioners, so the entries are large and cancel. Seen here:
+                // ~3e-3 off where each layer's own finite difference (below) agrees to 3e-4.
+                assert!(
+                    (fd_half - lq).abs() < 1e-2,
+                    "dim {dim} {t:?}: log q {lq} vs finite-difference {fd_half}"
+                );
+                // Layer by layer, the Jacobian is triangular with C' on the B diagonal.
+                let mut u = x.clone();
+                for c in flow.couplings() {
+                    let mut ld = [0.0f64];
+                    let u0 = u.clone();
+                    let apply = |u: &mut Vec<f32>, ld: &mut [f64; 1]| {
+                        let t = flow.config.transform;
+                        c.apply(
+                            &flow.params,
+                            t,
+                            flow.config.blob_bins,
+                            u,
+                            dim,
+                            None,
+                            ld,
+                            Direction::Forward,
+                        );
+                    };
+                    apply(&mut u, &mut ld);
+                    let mut fd = 0.0;
+                    for &d in &c.b {
+                        // A step relative to the distance from the ends: the affine density
+                        // varies like x^(e^s − 1) there.
+                        let h = (1e-2 * u0[d].min(1.0 - u0[d])).clamp(1e-5, 1e-3);
+                        let (mut up, mut um) = (u0.clone(), u0.clone());
+                        up[d] += h;
+                        um[d] -= h;
+                        let step = (up[d] - um[d]) as f64;
+                        apply(&mut up, &mut [0.0]);
+                        apply(&mut um, &mut [0.0]);
+                        fd += ((up[d] - um[d]) as f64 / step).ln();
+                        // y_B depends on u_B only through its own coordinate.
+                        for &e in &c.b {
+                            if e != d {
+                                assert!((up[e] - um[e]).abs() < 1e-6);
+                            }
+                        }
+                    }
+                    assert!(
+                        (fd - ld[0]).abs() < 2e-3,
+                        "{t:?} layer {:?}: {fd} vs {}",
+                        c.b,
+                        ld[0]
+                    );
+                }
+                checked += 1;
+            }
+        }
+    }
+}
+
+#[test]
+fn density_integrates_to_one_on_a_grid() {
+    // Midpoint rule on a 1000² grid. The affine transform's density behaves like x^(e^s − 1) at
+    // the ends, an integrable singularity a plain grid misses, so there the grid is graded:
+    // x = g(t) = t³(10 − 15t + 6t²), whose g' = 30t²(1 − t)² vanishes at the ends and makes the
+    // integrand smooth. (The piecewise-linear density is discontinuous, which a graded grid with
+    // its coarser middle would resolve worse; the splines are bounded, so they use a plain grid.)
+    let n = 1000;
+    let ts: Vec<f64> = (0..n).map(|i| (i as f64 + 0.5) / n as f64).collect();
+    for t in TRANSFORMS {
+        let graded = t == Transform::Affine;
+        let g = |t: f64| {
+            if graded {
+                t * t * t * (10.0 - 15.0 * t + 6.0 * t * t)
+            } else {
+                t
+            }
+        };
+        let dg = |t: f64| {
+            if graded {
+                30.0 * t * t * (1.0 - t) * (1.0 - t)
+            } else {
+                1.0
+            }
+        };
+        let flow = random_flow(2, t, 0, 0.3);
+        let x: Vec<f32> = (0..n * n)
+            .flat_map(|i| [g(ts[i / n]) as f32, g(ts[i % n]) as f32])
+            .collect();
+        let lq = flow.log_density(&x, None).unwrap();
+        let integral = (0..n * n)
+            .map(|i| lq[i].exp() * dg(ts[i / n]) * dg(ts[i % n]))
+            .sum::<f64>()
+            / (n * n) as f64;
+        assert!((integral - 1.0).abs() < 1e-3, "{t:?}: ∫q = {integral}");
+        // And the flow is not the identity.
+        assert!(lq.iter().map(|l| l.abs()).fold(0.0, f64::max) > 0.3);
+    }
+}
+
+#[test]
+fn density_integrates_to_one_by_monte_carlo_in_four_dimensions() {
+    for t in TRANSFORMS {
+        let flow = random_flow(4, t, 0, 0.3);
+        let n = 200_000;
+        let lq = flow.log_density(&uniform_points(n, 4, 5), None).unwrap();
+        let q: Vec<f64> = lq.iter().map(|l| l.exp()).collect();
+        let mean = q.iter().sum::<f64>() / n as f64;
+        let var = q.iter().map(|v| (v - mean).powi(2)).sum::<f64>() / (n - 1) as f64;
+        let sigma = (var / n as f64).sqrt();
+        assert!((mean - 1.0).abs() < 5.0 * sigma, "{t:?}: {mean} ± {sigma}");
+    }
+}
+
+#[test]
+fn sampling_inverts_the_density_pass() {
+    for t in TRANSFORMS {
+        let flow = random_flow(3, t, 2, 0.3);
+        let mut rng = Pcg64Mcg::seed_from_u64(9);
+        let ctx: Vec<f32> = (0..600 * 2).map(|_| rng.random::<f32>()).collect();
+        let s = flow.sample(600, Some(&ctx), &mut rng).unwrap();
+        let lq = flow.log_density(&s.x, Some(&ctx)).unwrap();
+        for (a, b) in s.log_q.iter().zip(&lq) {
+            // Sampling computes log q at the exact inverse; the density pass starts from x
+            // rounded to f32, an error the forward map amplifies where it expands (q ≫ 1).
+            assert!((a - b).abs() < 1e-3 * a.abs().max(1.0), "{t:?}: {a} vs {b}");
+        }
+        let (z, ld) = flow.forward(&s.x, Some(&ctx)).unwrap();
+        let (x2, ld_inv) = flow.inverse(&z, Some(&ctx)).unwrap();
+        for (a, b) in s.x.iter().zip(&x2) {
+            assert!((a - b).abs() < 1e-4);
+        }
+        assert!((ld[0] + ld_inv[0]).abs() < 1e-3);
+    }
+}
+
+/// L(θ) = −Σ w_i ln q(x_i; θ) for fixed points and weights.
+fn loss_at(flow: &Flow, x: &[f32], ctx: Option<&[f32]>, w: &[f32]) -> f64 {
+    let lq = flow.log_density(x, ctx).unwrap();
+    -lq.iter().zip(w).map(|(l, &w)| l * w as f64).sum::<f64>()
+}
+
+#[test]
+fn parameter_gradients_match_finite_differences() {
+    for (dim, cdim) in [(2, 0), (3, 2), (1, 0)] {
+        for t in TRANSFORMS {
+            let flow = random_flow(dim, t, cdim, 0.3);
+            let n = 64;
+            let x = uniform_points(n, dim, 11);
+            let ctx_v = uniform_points(n, cdim, 12);
+            let ctx = (cdim > 0).then_some(&ctx_v[..]);
+            let mut rng = Pcg64Mcg::seed_from_u64(13);
+            let w: Vec<f32> = (0..n).map(|_| rng.random::<f32>() / n as f32).collect();
+            let eval = flow.log_density_for_training(&x, ctx).unwrap();
+            let grad = flow.backward(&eval.tape, &w).unwrap();
+            // One directional derivative per weight and bias block of every conditioner layer
+            // (the first layers' blocks reach the loss through later layers' one-blob encodings).
+            for c in flow.couplings() {
+                let mut off = c.offset;
+                for j in 0..c.mlp.layers() {
+                    let (i, o) = (c.mlp.dims[j], c.mlp.dims[j + 1]);
+                    for len in [i * o, o] {
+                        let block = off..off + len;
+                        off += len;
+                        if len == 0 {
+                            continue;
+                        }
+                        // Direction: the gradient plus noise, unit length.
+                        let mut v: Vec<f32> = grad[block.clone()]
+                            .iter()
+                            .map(|g| {
+                                g + 0.1
+                                    * (rng.random::<f32>() - 0.5)
+                                    * grad[block.clone()]
+                                        .iter()
+                                        .map(|g| g.abs())
+                                        .fold(0.0, f32::max)
+                            })
+                            .collect();
+                        let norm = v.iter().map(|a| (a * a) as f64).sum::<f64>().sqrt() as f32;
+                        if norm == 0.0 {
+                            continue;
+                        }
+                        v.iter_mut().for_each(|a| *a /= norm);
+                        let analytic: f64 = grad[block.clone()]
+                            .iter()
+                            .zip(&v)
+                            .map(|(g, v)| (g * v) as f64)
+                            .sum();
+                        // A small step: the ReLU network is only piecewise smooth, and a large
+                        // step crosses units switching on or off.
+                        let fd_at = |h: f32| {
+                            let mut fp = flow.clone();
+                            let mut fm = flow.clone();
+                            for (k, p) in block.clone().enumerate() {
+                                fp.params_mut()[p] += h * v[k];
+                                fm.params_mut()[p] -= h * v[k];
+                            }
+                            (loss_at(&fp, &x, ctx, &w) - loss_at(&fm, &x, ctx, &w))
+                                / (2.0 * h as f64)
+                        };
+                        // Where parameters move a bin edge across a point, log q has a kink in
+                        // θ; a step that straddles it is off. Two step sizes rarely both do,
+                        // while a wrong gradient fails both.
+                        let fd = fd_at(1e-3);
+                        let close = |fd: f64| {
+                            (fd - analytic).abs() <= 1e-2 * fd.abs().max(analytic.abs()) + 1e-5
+                        };
+                        assert!(
+                            close(fd) || close(fd_at(2e-4)),
+                            "dim {dim} {t:?} layer offset {}: analytic {analytic} vs finite difference {fd}",
+                            block.start
+                        );
+                    }
+                }
+            }
+        }
+    }
+}
+
+#[test]
+fn on_policy_tape_gives_the_recomputed_gradient() {
+    for t in TRANSFORMS {
+        let flow = random_flow(3, t, 0, 0.3);
+        let mut rng = Pcg64Mcg::seed_from_u64(17);
+        let s = flow.sample_for_training(700, None, &mut rng).unwrap();
+        let w: Vec<f32> = (0..700).map(|_| rng.random::<f32>() / 700.0).collect();
+        let g_fast = flow.backward(s.tape.as_ref().unwrap(), &w).unwrap();
+        let eval = flow.log_density_for_training(&s.x, None).unwrap();
+        let g_slow = flow.backward(&eval.tape, &w).unwrap();
+        let scale = g_slow.iter().map(|g| g.abs()).fold(0.0f32, f32::max);
+        let worst = g_fast
+            .iter()
+            .zip(&g_slow)
+            .map(|(a, b)| (a - b).abs())
+            .fold(0.0f32, f32::max);
+        // The two passes differ only by the round trip of intermediate values through f32.
+        assert!(
+            worst <= 1e-3 * scale,
+            "{t:?}: worst difference {worst} of {scale}"
+        );
+    }
+}
+
+#[test]
+fn stale_tapes_and_bad_weights_are_errors() {
+    let mut flow = random_flow(2, Transform::Quadratic { bins: 4 }, 0, 0.1);
+    let mut rng = Pcg64Mcg::seed_from_u64(1);
+    let s = flow.sample_for_training(10, None, &mut rng).unwrap();
+    assert!(flow.backward(s.tape.as_ref().unwrap(), &[0.1; 9]).is_err());
+    flow.params_mut()[0] += 1.0;
+    assert!(flow.backward(s.tape.as_ref().unwrap(), &[0.1; 10]).is_err());
+}
+
+fn run_threads<T: Send>(threads: usize, f: impl FnOnce() -> T + Send) -> T {
+    rayon::ThreadPoolBuilder::new()
+        .num_threads(threads)
+        .build()
+        .unwrap()
+        .install(f)
+}
+
+#[test]
+fn same_seed_gives_identical_results_on_one_and_two_threads() {
+    let job = || {
+        let flow = random_flow(4, Transform::Quadratic { bins: 8 }, 0, 0.3);
+        let mut trainer =
+            crate::train::Trainer::new(flow, crate::loss::Loss::Kl, Default::default()).unwrap();
+        let mut rng = Pcg64Mcg::seed_from_u64(5);
+        for _ in 0..3 {
+            let s = trainer
+                .flow()
+                .sample_for_training(1500, None, &mut rng)
+                .unwrap();
+            let f: Vec<f64> =
+                s.x.chunks(4)
+                    .map(|p| p.iter().map(|&v| v as f64).product())
+                    .collect();
+            trainer.step_on_policy(&s, &f).unwrap();
+        }
+        let s = trainer.flow().sample(1500, None, &mut rng).unwrap();
+        let lq = trainer.flow().log_density(&s.x, None).unwrap();
+        (s.x, s.log_q, lq, trainer.flow().params().to_vec())
+    };
+    let one = run_threads(1, job);
+    let two = run_threads(2, job);
+    assert!(one
+        .0
+        .iter()
+        .zip(&two.0)
+        .all(|(a, b)| a.to_bits() == b.to_bits()));
+    assert!(one
+        .1
+        .iter()
+        .zip(&two.1)
+        .all(|(a, b)| a.to_bits() == b.to_bits()));
+    assert!(one
+        .2
+        .iter()
+        .zip(&two.2)
+        .all(|(a, b)| a.to_bits() == b.to_bits()));
+    assert!(one
+        .3
+        .iter()
+        .zip(&two.3)
+        .all(|(a, b)| a.to_bits() == b.to_bits()));
+}
+
+#[test]
+fn bad_input_is_an_error() {
+    let flow = random_flow(2, Transform::Quadratic { bins: 4 }, 0, 0.1);
+    assert!(matches!(
+        flow.log_density(&[0.5, 1.5], None),
+        Err(Error::OutOfDomain { .. })
+    ));
+    assert!(matches!(
+        flow.log_density(&[0.5, -0.0001], None),
+        Err(Error::OutOfDomain { .. })
+    ));
+    assert!(matches!(
+        flow.log_density(&[f32::NAN, 0.5], None),
+        Err(Error::OutOfDomain { .. })
+    ));
+    assert!(matches!(
+        flow.log_density(&[0.5, 0.5, 0.5], None),
+        Err(Error::Dimension { .. })
+    ));
+    assert!(matches!(
+        flow.log_density(&[0.5, 0.5], Some(&[1.0])),
+        Err(Error::Dimension { .. })
+    ));
+    // Ends of the cube are valid.
+    assert!(flow.log_density(&[0.0, 1.0], None).unwrap()[0].is_finite());
+    let ctx_flow = random_flow(2, Transform::Affine, 3, 0.1);
+    let mut rng = Pcg64Mcg::seed_from_u64(0);
+    assert!(ctx_flow.sample(2, None, &mut rng).is_err());
+    assert!(ctx_flow.sample(2, Some(&[0.0; 5]), &mut rng).is_err());
+    assert!(ctx_flow
+        .sample(1, Some(&[0.0, f32::NAN, 1.0]), &mut rng)
+        .is_err());
+    for bad in [
+        FlowConfig {
+            dim: 0,
+            ..FlowConfig::new(2)
+        },
+        FlowConfig {
+            transform: Transform::Quadratic { bins: 0 },
+            ..FlowConfig::new(2)
+        },
+        FlowConfig {
+            transform: Transform::Linear { bins: 100_000 },
+            ..FlowConfig::new(2)
+        },
+        FlowConfig {
+            hidden_width: 0,
+            ..FlowConfig::new(2)
+        },
+        FlowConfig {
+            blob_bins: 0,
+            ..FlowConfig::new(2)
+        },
+    ] {
+        assert!(matches!(Flow::new(bad), Err(Error::Config(_))));
+    }
+}
+
+#[test]
+fn densities_stay_finite_at_the_ends_and_for_extreme_weights() {
+    for t in TRANSFORMS {
+        let flow = random_flow(2, t, 0, 3.0);
+        let x = [0.0, 0.0, 1.0, 1.0, 0.0, 1.0, 1.0, 0.0, 0.5, 1.0];
+        let lq = flow.log_density(&x, None).unwrap();
+        assert!(lq.iter().all(|l| l.is_finite()), "{t:?}: {lq:?}");
+        let mut rng = Pcg64Mcg::seed_from_u64(2);
+        let s = flow.sample(5000, None, &mut rng).unwrap();
+        assert!(s.log_q.iter().all(|l| l.is_finite()));
+        assert!(s.x.iter().all(|v| (0.0..=1.0).contains(v)));
+    }
+}

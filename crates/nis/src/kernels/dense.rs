@@ -1,0 +1,203 @@
+//! Dense (fully connected) layers on row-major `[rows, features]` f32 matrices, via `gemm`.
+
+use gemm::{gemm, Parallelism};
+
+/// `out[n×o] = x[n×i] · w[i×o] + b`.
+pub fn forward(x: &[f32], w: &[f32], b: &[f32], out: &mut [f32], n: usize, i: usize, o: usize) {
+    assert!(x.len() >= n * i && w.len() == i * o && b.len() == o && out.len() >= n * o);
+    for row in out[..n * o].chunks_exact_mut(o) {
+        row.copy_from_slice(b);
+    }
+    if n == 0 || i == 0 || o == 0 {
+        return;
+    }
+    // SAFETY: the asserts above bound every index the strides reach: dst n×o with row stride o,
+    // lhs n×i with row stride i, rhs i×o with row stride o, all column strides 1.
+    unsafe {
+        gemm(
+            n,
+            o,
+            i,
+            out.as_mut_ptr(),
+            1,
+            o as isize,
+            true,
+            x.as_ptr(),
+            1,
+            i as isize,
+            w.as_ptr(),
+            1,
+            o as isize,
+            1.0,
+            1.0,
+            false,
+            false,
+            false,
+            Parallelism::None,
+        );
+    }
+}
+
+/// `g_x[n×i] = g_out[n×o] · wᵀ` (overwrites `g_x`).
+pub fn backward_input(g_out: &[f32], w: &[f32], g_x: &mut [f32], n: usize, i: usize, o: usize) {
+    assert!(g_out.len() >= n * o && w.len() == i * o && g_x.len() >= n * i);
+    if n == 0 || i == 0 {
+        return;
+    }
+    if o == 0 {
+        g_x[..n * i].fill(0.0);
+        return;
+    }
+    // SAFETY: dst n×i (row stride i), lhs n×o (row stride o), rhs = wᵀ read from w (i×o) as an
+    // o×i matrix with row stride 1 and column stride o; all within the asserted lengths.
+    unsafe {
+        gemm(
+            n,
+            i,
+            o,
+            g_x.as_mut_ptr(),
+            1,
+            i as isize,
+            false,
+            g_out.as_ptr(),
+            1,
+            o as isize,
+            w.as_ptr(),
+            o as isize,
+            1,
+            0.0,
+            1.0,
+            false,
+            false,
+            false,
+            Parallelism::None,
+        );
+    }
+}
+
+/// `g_w[r0..r0+m, :] (+)= x[:, r0..r0+m]ᵀ · g_out` over `n` rows, for the block of rows
+/// `r0..r0+m` of the `i×o` weight gradient; adds to the block when `accumulate`, else overwrites.
+/// One block is one work item that walks the batch's chunks in order, so weight gradients do not
+/// depend on how blocks are scheduled.
+pub fn backward_weights_block(
+    x: &[f32],
+    g_out: &[f32],
+    g_w_block: &mut [f32],
+    n: usize,
+    i: usize,
+    o: usize,
+    r0: usize,
+    m: usize,
+    accumulate: bool,
+) {
+    assert!(x.len() >= n * i && g_out.len() >= n * o && g_w_block.len() == m * o && r0 + m <= i);
+    if n == 0 {
+        if !accumulate {
+            g_w_block.fill(0.0);
+        }
+        return;
+    }
+    // SAFETY: dst m×o (row stride o); lhs = xᵀ rows r0..r0+m: element (r, c) = x[c·i + r0 + r],
+    // row stride 1, column stride i, c < n; rhs n×o with row stride o.
+    unsafe {
+        gemm(
+            m,
+            o,
+            n,
+            g_w_block.as_mut_ptr(),
+            1,
+            o as isize,
+            accumulate,
+            x.as_ptr().add(r0),
+            i as isize,
+            1,
+            g_out.as_ptr(),
+            1,
+            o as isize,
+            if accumulate { 1.0 } else { 0.0 },
+            1.0,
+            false,
+            false,
+            false,
+            Parallelism::None,
+        );
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn naive(a: &[f32], b: &[f32], n: usize, k: usize, m: usize) -> Vec<f32> {
+        let mut c = vec![0.0f32; n * m];
+        for r in 0..n {
+            for j in 0..m {
+                c[r * m + j] = (0..k)
+                    .map(|t| a[r * k + t] as f64 * b[t * m + j] as f64)
+                    .sum::<f64>() as f32;
+            }
+        }
+        c
+    }
+
+    fn transpose(a: &[f32], r: usize, c: usize) -> Vec<f32> {
+        let mut t = vec![0.0; r * c];
+        for i in 0..r {
+            for j in 0..c {
+                t[j * r + i] = a[i * c + j];
+            }
+        }
+        t
+    }
+
+    fn filled(len: usize, seed: u32) -> Vec<f32> {
+        (0..len)
+            .map(|t| {
+                (((t as u32).wrapping_mul(2654435761).wrapping_add(seed)) % 1000) as f32 / 500.0
+                    - 1.0
+            })
+            .collect()
+    }
+
+    #[test]
+    fn dense_kernels_match_naive_products() {
+        for (n, i, o) in [(1, 1, 1), (7, 5, 3), (33, 64, 17), (300, 40, 70)] {
+            let x = filled(n * i, 1);
+            let w = filled(i * o, 2);
+            let b = filled(o, 3);
+            let g = filled(n * o, 4);
+            let mut out = vec![0.0; n * o];
+            forward(&x, &w, &b, &mut out, n, i, o);
+            let want = naive(&x, &w, n, i, o);
+            for r in 0..n {
+                for j in 0..o {
+                    assert!((out[r * o + j] - want[r * o + j] - b[j]).abs() < 1e-4);
+                }
+            }
+            let mut gx = vec![0.0; n * i];
+            backward_input(&g, &w, &mut gx, n, i, o);
+            let want = naive(&g, &transpose(&w, i, o), n, o, i);
+            assert!(gx.iter().zip(&want).all(|(a, b)| (a - b).abs() < 1e-4));
+            let want = naive(&transpose(&x, n, i), &g, i, n, o);
+            let split = i / 2;
+            let mut gw = vec![0.0; i * o];
+            let (lo, hi) = gw.split_at_mut(split * o);
+            // Two row blocks, the second accumulated over two halves of the batch.
+            backward_weights_block(&x, &g, lo, n, i, o, 0, split, false);
+            let h = n / 2;
+            backward_weights_block(&x, &g, hi, h, i, o, split, i - split, false);
+            backward_weights_block(
+                &x[h * i..],
+                &g[h * o..],
+                hi,
+                n - h,
+                i,
+                o,
+                split,
+                i - split,
+                true,
+            );
+            assert!(gw.iter().zip(&want).all(|(a, b)| (a - b).abs() < 1e-3));
+        }
+    }
+}

@@ -1,0 +1,177 @@
+//! Adam (Kingma & Ba 2014) over a flat parameter vector, with optional clipping of the global
+//! gradient norm and exponential learning-rate decay.
+
+use serde::{Deserialize, Serialize};
+
+use crate::error::{Error, Result};
+use crate::kernels::elementwise;
+
+/// Optimiser settings.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct AdamConfig {
+    pub learning_rate: f32,
+    pub beta1: f32,
+    pub beta2: f32,
+    pub eps: f32,
+    /// Rescale the gradient when its Euclidean norm exceeds this (none when `None`).
+    pub clip_norm: Option<f32>,
+    /// Learning rate after t steps: `learning_rate · decay^t`.
+    pub decay: f32,
+}
+
+impl Default for AdamConfig {
+    fn default() -> Self {
+        AdamConfig {
+            learning_rate: 1e-3,
+            beta1: 0.9,
+            beta2: 0.999,
+            eps: 1e-8,
+            clip_norm: None,
+            decay: 1.0,
+        }
+    }
+}
+
+impl AdamConfig {
+    /// Rejects settings Adam cannot run with.
+    pub fn validate(&self) -> Result<()> {
+        let ok = self.learning_rate > 0.0
+            && self.learning_rate.is_finite()
+            && (0.0..1.0).contains(&self.beta1)
+            && (0.0..1.0).contains(&self.beta2)
+            && self.eps > 0.0
+            && self.decay > 0.0
+            && self.decay <= 1.0
+            && self.clip_norm.is_none_or(|c| c > 0.0 && c.is_finite());
+        if ok {
+            Ok(())
+        } else {
+            Err(Error::Config(format!("invalid Adam settings: {self:?}")))
+        }
+    }
+}
+
+/// Adam's state: first and second moments and the step count.
+#[derive(Clone, Debug)]
+pub struct Adam {
+    pub config: AdamConfig,
+    m: Vec<f32>,
+    v: Vec<f32>,
+    step: u64,
+}
+
+impl Adam {
+    /// A fresh optimiser for `n` parameters.
+    pub fn new(config: AdamConfig, n: usize) -> Result<Adam> {
+        config.validate()?;
+        Ok(Adam {
+            config,
+            m: vec![0.0; n],
+            v: vec![0.0; n],
+            step: 0,
+        })
+    }
+
+    /// Steps taken so far.
+    pub fn steps(&self) -> u64 {
+        self.step
+    }
+
+    /// The learning rate the next step uses.
+    pub fn learning_rate(&self) -> f32 {
+        self.config.learning_rate * self.config.decay.powf(self.step as f32)
+    }
+
+    /// One update of `params` with gradient `grad`; returns the gradient's norm before clipping.
+    pub fn step(&mut self, params: &mut [f32], grad: &[f32]) -> Result<f64> {
+        if params.len() != self.m.len() || grad.len() != self.m.len() {
+            return Err(Error::Dimension {
+                what: "Adam parameters",
+                expected: self.m.len(),
+                got: grad.len().min(params.len()),
+            });
+        }
+        let norm = grad
+            .iter()
+            .map(|&g| g as f64 * g as f64)
+            .sum::<f64>()
+            .sqrt();
+        if !norm.is_finite() {
+            return Err(Error::NonFinite {
+                what: "gradient norm",
+                index: 0,
+                value: norm,
+            });
+        }
+        let scale = match self.config.clip_norm {
+            Some(c) if norm > c as f64 => (c as f64 / norm) as f32,
+            _ => 1.0,
+        };
+        let lr = self.learning_rate();
+        self.step += 1;
+        let t = self.step as i32;
+        let c = &self.config;
+        let lr_t = lr * (1.0 - c.beta2.powi(t)).sqrt() / (1.0 - c.beta1.powi(t));
+        elementwise::adam(
+            params,
+            grad,
+            &mut self.m,
+            &mut self.v,
+            lr_t,
+            c.beta1,
+            c.beta2,
+            c.eps,
+            scale,
+        );
+        Ok(norm)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn adam_minimises_a_quadratic() {
+        let mut p = vec![3.0f32, -2.0];
+        let mut adam = Adam::new(
+            AdamConfig {
+                learning_rate: 0.1,
+                ..Default::default()
+            },
+            2,
+        )
+        .unwrap();
+        for _ in 0..500 {
+            let g = vec![2.0 * p[0], 8.0 * p[1]];
+            adam.step(&mut p, &g).unwrap();
+        }
+        assert!(p[0].abs() < 1e-2 && p[1].abs() < 1e-2, "{p:?}");
+    }
+
+    #[test]
+    fn adam_first_step_moves_each_parameter_by_the_learning_rate() {
+        // With bias correction, step one is lr·g/|g| per coordinate.
+        let mut p = vec![1.0f32, 1.0];
+        let mut adam = Adam::new(AdamConfig::default(), 2).unwrap();
+        adam.step(&mut p, &[0.5, -3.0]).unwrap();
+        assert!((p[0] - (1.0 - 1e-3)).abs() < 1e-6 && (p[1] - (1.0 + 1e-3)).abs() < 1e-6);
+    }
+
+    #[test]
+    fn clipping_and_bad_settings() {
+        assert!(Adam::new(
+            AdamConfig {
+                learning_rate: 0.0,
+                ..Default::default()
+            },
+            1
+        )
+        .is_err());
+        let mut adam = Adam::new(AdamConfig::default(), 2).unwrap();
+        let mut p = vec![0.0; 2];
+        assert!(adam.step(&mut p, &[f32::NAN, 0.0]).is_err());
+        assert!(adam.step(&mut p, &[1.0]).is_err());
+    }
+}

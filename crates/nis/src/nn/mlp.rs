@@ -1,0 +1,154 @@
+//! A multilayer perceptron with ReLU hidden layers whose weights live in a slice of the flow's
+//! flat parameter vector. Activations are row-major `[rows, features]` and kept per chunk of
+//! rows (the tape), so a backward pass can reuse what the forward pass computed.
+//!
+//! Layout of one layer's parameters: weights `[in, out]` row-major, then the `out` biases.
+
+use rand::Rng;
+use rayon::prelude::*;
+
+use crate::kernels::{dense, elementwise};
+
+/// Rows of the weight gradient computed by one work item.
+const WEIGHT_BLOCK_ROWS: usize = 32;
+
+/// Shape of an MLP: `dims[0]` inputs, `dims[1..len−1]` hidden ReLU layers, `dims[len−1]` outputs.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Mlp {
+    pub dims: Vec<usize>,
+}
+
+/// Activations of one chunk of rows: `acts[0]` is the input, `acts[last]` the output.
+#[derive(Clone, Debug, Default)]
+pub struct MlpTape {
+    pub rows: usize,
+    pub acts: Vec<Vec<f32>>,
+}
+
+impl Mlp {
+    /// Number of layers with weights.
+    pub fn layers(&self) -> usize {
+        self.dims.len() - 1
+    }
+
+    /// Offsets of layer `j`'s weights and biases within this MLP's parameters.
+    fn offsets(&self, j: usize) -> (usize, usize) {
+        let mut off = 0;
+        for l in 0..j {
+            off += (self.dims[l] + 1) * self.dims[l + 1];
+        }
+        (off, off + self.dims[j] * self.dims[j + 1])
+    }
+
+    /// Total number of parameters.
+    pub fn param_count(&self) -> usize {
+        self.dims.windows(2).map(|d| (d[0] + 1) * d[1]).sum()
+    }
+
+    /// He-uniform weights and zero biases for hidden layers; an all-zero output layer, so a new
+    /// conditioner outputs zeros (the identity transform for every spline).
+    pub fn init(&self, params: &mut [f32], rng: &mut impl Rng) {
+        params.fill(0.0);
+        for j in 0..self.layers() - 1 {
+            let (w, _) = self.offsets(j);
+            let bound = (6.0 / self.dims[j].max(1) as f32).sqrt();
+            for p in &mut params[w..w + self.dims[j] * self.dims[j + 1]] {
+                *p = bound * (2.0 * rng.random::<f32>() - 1.0);
+            }
+        }
+    }
+
+    /// A tape for `rows` rows with the input `acts[0]` allocated (to be filled by the caller).
+    pub fn tape(&self, rows: usize) -> MlpTape {
+        MlpTape {
+            rows,
+            acts: self.dims.iter().map(|&d| vec![0.0; rows * d]).collect(),
+        }
+    }
+
+    /// Forward pass of one chunk: fills `tape.acts[1..]` from `tape.acts[0]`.
+    pub fn forward(&self, params: &[f32], tape: &mut MlpTape) {
+        let n = tape.rows;
+        for j in 0..self.layers() {
+            let (i, o) = (self.dims[j], self.dims[j + 1]);
+            let (wo, bo) = self.offsets(j);
+            let (prev, next) = tape.acts.split_at_mut(j + 1);
+            let out = &mut next[0];
+            dense::forward(&prev[j], &params[wo..bo], &params[bo..bo + o], out, n, i, o);
+            if j + 1 < self.layers() {
+                elementwise::relu(out);
+            }
+        }
+    }
+
+    /// Backward pass over all chunks of a batch. `g_out[c]` is ∂L/∂output of chunk `c`. Writes
+    /// ∂L/∂parameters into `grads` (overwriting) and returns ∂L/∂input per chunk when asked.
+    pub fn backward(
+        &self,
+        params: &[f32],
+        tapes: &[&MlpTape],
+        mut g: Vec<Vec<f32>>,
+        grads: &mut [f32],
+        want_input_grad: bool,
+    ) -> Option<Vec<Vec<f32>>> {
+        for j in (0..self.layers()).rev() {
+            let (i, o) = (self.dims[j], self.dims[j + 1]);
+            let (wo, bo) = self.offsets(j);
+            let (g_w, rest) = grads[wo..].split_at_mut(bo - wo);
+            let g_b = &mut rest[..o];
+            let g_ref = &g;
+            // Weight and bias gradients: each block walks the chunks in order.
+            rayon::join(
+                || {
+                    g_w.par_chunks_mut(WEIGHT_BLOCK_ROWS * o)
+                        .enumerate()
+                        .for_each(|(blk, g_w)| {
+                            let r0 = blk * WEIGHT_BLOCK_ROWS;
+                            let m = g_w.len() / o.max(1);
+                            for (c, tape) in tapes.iter().enumerate() {
+                                dense::backward_weights_block(
+                                    &tape.acts[j],
+                                    &g_ref[c],
+                                    g_w,
+                                    tape.rows,
+                                    i,
+                                    o,
+                                    r0,
+                                    m,
+                                    c > 0,
+                                );
+                            }
+                        })
+                },
+                || {
+                    g_b.fill(0.0);
+                    let mut sums = vec![0.0; o];
+                    for (c, tape) in tapes.iter().enumerate() {
+                        elementwise::column_sums(&g_ref[c][..tape.rows * o], o, 0, &mut sums);
+                        for (a, s) in g_b.iter_mut().zip(&sums) {
+                            *a += s;
+                        }
+                    }
+                },
+            );
+            if j == 0 && !want_input_grad {
+                return None;
+            }
+            // Gradient with respect to this layer's input, through the previous ReLU.
+            let w = &params[wo..bo];
+            g = g
+                .par_iter()
+                .zip(tapes.par_iter())
+                .map(|(g, tape)| {
+                    let mut g_in = vec![0.0; tape.rows * i];
+                    dense::backward_input(g, w, &mut g_in, tape.rows, i, o);
+                    if j > 0 {
+                        elementwise::relu_backward(&tape.acts[j], &mut g_in);
+                    }
+                    g_in
+                })
+                .collect();
+        }
+        Some(g)
+    }
+}

@@ -1,0 +1,108 @@
+//! Training a flow from Monte Carlo samples: weights from [`crate::loss`], the gradient from
+//! [`Flow::backward`], the update from [`Adam`].
+//!
+//! ```
+//! use nis::{flow::{Flow, FlowConfig}, loss::Loss, nn::AdamConfig, train::Trainer};
+//! use rand::SeedableRng;
+//! let flow = Flow::new(FlowConfig::new(2)).unwrap();
+//! let mut trainer = Trainer::new(flow, Loss::Kl, AdamConfig::default()).unwrap();
+//! let mut rng = rand_pcg::Pcg64Mcg::seed_from_u64(0);
+//! for _ in 0..3 {
+//!     let s = trainer.flow().sample_for_training(1024, None, &mut rng).unwrap();
+//!     let f: Vec<f64> = s.x.chunks(2).map(|p| (-(p[0] - 0.3).powi(2) * 50.0).exp() as f64).collect();
+//!     trainer.step_on_policy(&s, &f).unwrap();
+//! }
+//! ```
+
+use crate::error::{Error, Result};
+use crate::flow::{Flow, Samples};
+use crate::loss::{self, Loss};
+use crate::nn::{Adam, AdamConfig};
+
+/// A flow with its optimiser and loss.
+#[derive(Clone, Debug)]
+pub struct Trainer {
+    flow: Flow,
+    adam: Adam,
+    loss: Loss,
+}
+
+/// What one step saw.
+#[derive(Clone, Copy, Debug)]
+pub struct StepStats {
+    /// Batch estimate of ∫|f| (0 for NLL).
+    pub integral: f64,
+    /// Batch estimate of Var(|f|/q_s)/F² (0 for NLL).
+    pub rel_var: f64,
+    /// Mean −ln q over the batch (the NLL in nats for density estimation).
+    pub mean_nll: f64,
+    /// Gradient norm before clipping.
+    pub grad_norm: f64,
+}
+
+impl Trainer {
+    /// A trainer for `flow`.
+    pub fn new(flow: Flow, loss: Loss, adam: AdamConfig) -> Result<Trainer> {
+        let adam = Adam::new(adam, flow.param_count())?;
+        Ok(Trainer { flow, adam, loss })
+    }
+
+    /// The flow being trained.
+    pub fn flow(&self) -> &Flow {
+        &self.flow
+    }
+
+    /// Gives the trained flow back.
+    pub fn into_flow(self) -> Flow {
+        self.flow
+    }
+
+    /// The loss.
+    pub fn loss(&self) -> Loss {
+        self.loss
+    }
+
+    /// The optimiser.
+    pub fn adam(&self) -> &Adam {
+        &self.adam
+    }
+
+    /// On-policy step: `samples` were drawn from the current flow with
+    /// [`Flow::sample_for_training`], `f` holds the integrand at them. Reuses the sampling pass's
+    /// conditioner outputs (they depend only on x_A) instead of recomputing them.
+    pub fn step_on_policy(&mut self, samples: &Samples, f: &[f64]) -> Result<StepStats> {
+        let tape = samples.tape.as_ref().ok_or_else(|| {
+            Error::Config("on-policy step needs samples drawn with sample_for_training".into())
+        })?;
+        let w = loss::weights(self.loss, f, &samples.log_q, &samples.log_q)?;
+        let grad = self.flow.backward(tape, &w.w)?;
+        self.apply(grad, &w, &samples.log_q)
+    }
+
+    /// Off-policy step on points `x` (`n × D`) drawn from a proposal with log-density
+    /// `log_q_sample` (zeros for uniform samples), with integrand values `f` (ignored for NLL).
+    /// Recomputes the flow's pass at `x`.
+    pub fn step(
+        &mut self,
+        x: &[f32],
+        ctx: Option<&[f32]>,
+        f: &[f64],
+        log_q_sample: &[f64],
+    ) -> Result<StepStats> {
+        let eval = self.flow.log_density_for_training(x, ctx)?;
+        let w = loss::weights(self.loss, f, &eval.log_q, log_q_sample)?;
+        let grad = self.flow.backward(&eval.tape, &w.w)?;
+        self.apply(grad, &w, &eval.log_q)
+    }
+
+    fn apply(&mut self, grad: Vec<f32>, w: &loss::Weights, log_q: &[f64]) -> Result<StepStats> {
+        let grad_norm = self.adam.step(self.flow.params_mut(), &grad)?;
+        let mean_nll = -log_q.iter().sum::<f64>() / log_q.len().max(1) as f64;
+        Ok(StepStats {
+            integral: w.integral,
+            rel_var: w.rel_var,
+            mean_nll,
+            grad_norm,
+        })
+    }
+}
