@@ -13,6 +13,7 @@
 
 pub mod error;
 pub mod flow;
+pub mod io;
 pub mod kernels;
 pub mod loss;
 pub mod nn;
