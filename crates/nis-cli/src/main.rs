@@ -1,1 +1,64 @@
-fn main() {}
+//! `nis`: neural importance sampling from the command line. A thin layer over the `nis` library:
+//! it parses arguments, shows progress and prints; all logic lives in the library.
+
+mod bench;
+mod demo;
+mod report;
+
+use std::path::PathBuf;
+use std::process::ExitCode;
+
+use clap::{Parser, Subcommand};
+
+#[derive(Parser)]
+#[command(
+    name = "nis",
+    version,
+    about = "Neural importance sampling: Monte Carlo integration with normalizing flows",
+    long_about = "Neural importance sampling: Monte Carlo integration whose sampling density is a \
+                  normalizing flow learned from the integrand itself.\n\nExample:\n  nis demo"
+)]
+struct Cli {
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Subcommand)]
+enum Command {
+    /// Train a flow on a built-in 2-D target and print the variance reduction.
+    ///
+    /// Example: nis demo --steps 300
+    Demo(demo::DemoArgs),
+    /// Measure throughput and write it to docs/BENCHMARKS.md.
+    #[command(subcommand)]
+    Bench(BenchCommand),
+}
+
+#[derive(Subcommand)]
+enum BenchCommand {
+    /// Samples/s of sampling and of a training step on the reference flows (R1, R2), against
+    /// bare gemm. Example: nis bench flow
+    Flow {
+        /// Batch size.
+        #[arg(long, default_value_t = 16384)]
+        batch: usize,
+        /// Markdown file the results go to.
+        #[arg(long, default_value = "docs/BENCHMARKS.md")]
+        docs: PathBuf,
+    },
+}
+
+fn main() -> ExitCode {
+    let cli = Cli::parse();
+    let result = match cli.command {
+        Command::Demo(args) => demo::run(&args),
+        Command::Bench(BenchCommand::Flow { batch, docs }) => bench::run_flow(batch, &docs),
+    };
+    match result {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(e) => {
+            eprintln!("error: {e}");
+            ExitCode::FAILURE
+        }
+    }
+}

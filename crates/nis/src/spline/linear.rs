@@ -4,7 +4,7 @@
 //! relative position of x in its bin. Bin widths are fixed: the paper's Appendix A shows why
 //! learnable widths cannot be trained by these gradients.
 
-use super::{equal_bin, softmax_floor, softmax_floor_backward, Spline, MAX_BINS};
+use super::{equal_bin, softmax_floor, softmax_floor_backward, with_scratch, Spline};
 
 /// Smallest bin mass, as a fraction of the mean mass 1/K: the density never falls below this
 /// value, which keeps log-densities finite, the inverse well conditioned in f32 (its error is
@@ -25,28 +25,30 @@ impl Spline for Linear {
     #[inline]
     fn forward(&self, p: &[f32], x: f64) -> (f64, f64) {
         let k = self.bins;
-        let mut q = [0.0; MAX_BINS];
-        softmax_floor(&p[..k], MIN_BIN_MASS, &mut q);
-        let (b, alpha) = equal_bin(x, k);
-        let cdf: f64 = q[..b].iter().sum();
-        let y = (cdf + alpha * q[b]).clamp(0.0, 1.0);
-        (y, (k as f64 * q[b]).ln())
+        with_scratch(k, |q| {
+            softmax_floor(&p[..k], MIN_BIN_MASS, q);
+            let (b, alpha) = equal_bin(x, k);
+            let cdf: f64 = q[..b].iter().sum();
+            let y = (cdf + alpha * q[b]).clamp(0.0, 1.0);
+            (y, (k as f64 * q[b]).ln())
+        })
     }
 
     #[inline]
     fn inverse(&self, p: &[f32], y: f64) -> (f64, f64) {
         let k = self.bins;
-        let mut q = [0.0; MAX_BINS];
-        softmax_floor(&p[..k], MIN_BIN_MASS, &mut q);
-        let mut cdf = 0.0;
-        let mut b = 0;
-        while b + 1 < k && cdf + q[b] <= y {
-            cdf += q[b];
-            b += 1;
-        }
-        let alpha = ((y - cdf) / q[b]).clamp(0.0, 1.0);
-        let x = ((b as f64 + alpha) / k as f64).clamp(0.0, 1.0);
-        (x, (k as f64 * q[b]).ln())
+        with_scratch(k, |q| {
+            softmax_floor(&p[..k], MIN_BIN_MASS, q);
+            let mut cdf = 0.0;
+            let mut b = 0;
+            while b + 1 < k && cdf + q[b] <= y {
+                cdf += q[b];
+                b += 1;
+            }
+            let alpha = ((y - cdf) / q[b]).clamp(0.0, 1.0);
+            let x = ((b as f64 + alpha) / k as f64).clamp(0.0, 1.0);
+            (x, (k as f64 * q[b]).ln())
+        })
     }
 
     fn bin_edges(&self, _p: &[f32]) -> Vec<f64> {
@@ -57,15 +59,17 @@ impl Spline for Linear {
 
     fn backward(&self, p: &[f32], x: f64, g_y: f64, g_log_det: f64, g_p: &mut [f32]) -> f64 {
         let k = self.bins;
-        let mut q = [0.0; MAX_BINS];
-        softmax_floor(&p[..k], MIN_BIN_MASS, &mut q);
-        let (b, alpha) = equal_bin(x, k);
-        let mut g_q = [0.0; MAX_BINS];
-        g_q[..b].fill(g_y);
-        g_q[b] = g_y * alpha + g_log_det / q[b];
-        softmax_floor_backward(&q[..k], &g_q[..k], MIN_BIN_MASS, &mut g_p[..k]);
-        // The density is constant inside a bin: only y depends on x.
-        g_y * k as f64 * q[b]
+        with_scratch(2 * k, |buf| {
+            let (q, g_q) = buf.split_at_mut(k);
+            softmax_floor(&p[..k], MIN_BIN_MASS, q);
+            let (b, alpha) = equal_bin(x, k);
+            g_q.fill(0.0);
+            g_q[..b].fill(g_y);
+            g_q[b] = g_y * alpha + g_log_det / q[b];
+            softmax_floor_backward(q, g_q, MIN_BIN_MASS, &mut g_p[..k]);
+            // The density is constant inside a bin: only y depends on x.
+            g_y * k as f64 * q[b]
+        })
     }
 }
 

@@ -168,6 +168,24 @@ fn softmax_floor_backward(out: &[f64], g_out: &[f64], floor: f64, g_logits: &mut
     }
 }
 
+thread_local! {
+    static SCRATCH: std::cell::RefCell<Vec<f64>> = const { std::cell::RefCell::new(Vec::new()) };
+}
+
+/// Runs `f` on a per-thread scratch buffer of `len` values (contents unspecified). Splines need a
+/// few arrays of K values per scalar; stack arrays of the maximum size would be zeroed on every
+/// call (kilobytes per scalar), and a heap allocation per call is worse. Not re-entrant.
+#[inline]
+fn with_scratch<R>(len: usize, f: impl FnOnce(&mut [f64]) -> R) -> R {
+    SCRATCH.with(|s| {
+        let mut v = s.borrow_mut();
+        if v.len() < len {
+            v.resize(len, 0.0);
+        }
+        f(&mut v[..len])
+    })
+}
+
 /// Bin index and relative position of `x` in `K` equal bins; x = 1 lies at the end of the last bin.
 fn equal_bin(x: f64, k: usize) -> (usize, f64) {
     let s = x * k as f64;

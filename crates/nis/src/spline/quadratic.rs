@@ -7,7 +7,7 @@
 //! V_b + α(V_{b+1} − V_b) and the CDF a quadratic in α. Unlike bin widths of the piecewise-linear
 //! transform, these widths get correct gradients because the density is continuous.
 
-use super::{softmax_floor, softmax_floor_backward, Spline, MAX_BINS};
+use super::{softmax_floor, softmax_floor_backward, with_scratch, Spline};
 
 /// Smallest bin width as a fraction of the mean width 1/K: no bin collapses to zero.
 pub const MIN_BIN_WIDTH: f64 = 1e-3;
@@ -22,73 +22,45 @@ pub struct Quadratic {
 }
 
 /// Normalised widths W, vertex heights V and the pieces needed to differentiate them.
-struct Knots {
-    w: [f64; MAX_BINS],
-    v: [f64; MAX_BINS + 1],
+struct Knots<'a> {
+    w: &'a mut [f64],
+    v: &'a mut [f64],
     /// exp(V̂ − max V̂) and the normaliser N = Σ ½(E_k + E_{k+1}) W_k.
-    e: [f64; MAX_BINS + 1],
+    e: &'a mut [f64],
     norm: f64,
 }
 
 impl Quadratic {
+    /// Scratch values one call needs: the knots and the backward pass's gradient buffers.
+    fn scratch(&self) -> usize {
+        5 * self.bins + 3
+    }
+
+    /// Computes the knots into the front of `buf`; returns them and the rest of `buf`.
     #[inline]
-    fn knots(&self, p: &[f32]) -> Knots {
+    fn knots<'a>(&self, p: &[f32], buf: &'a mut [f64]) -> (Knots<'a>, &'a mut [f64]) {
         let k = self.bins;
-        let mut kn = Knots {
-            w: [0.0; MAX_BINS],
-            v: [0.0; MAX_BINS + 1],
-            e: [0.0; MAX_BINS + 1],
-            norm: 0.0,
-        };
-        softmax_floor(&p[..k], MIN_BIN_WIDTH, &mut kn.w);
+        let (w, rest) = buf.split_at_mut(k);
+        let (v, rest) = rest.split_at_mut(k + 1);
+        let (e, rest) = rest.split_at_mut(k + 1);
+        softmax_floor(&p[..k], MIN_BIN_WIDTH, w);
         let vl = &p[k..2 * k + 1];
         let max = vl.iter().fold(f32::NEG_INFINITY, |m, &l| m.max(l)) as f64;
         for j in 0..=k {
-            kn.e[j] = (vl[j] as f64 - max).exp();
+            e[j] = (vl[j] as f64 - max).exp();
         }
-        kn.norm = (0..k)
-            .map(|i| 0.5 * (kn.e[i] + kn.e[i + 1]) * kn.w[i])
-            .sum();
-        let scale = (1.0 - MIN_DENSITY) / kn.norm;
+        let norm: f64 = (0..k).map(|i| 0.5 * (e[i] + e[i + 1]) * w[i]).sum();
+        let scale = (1.0 - MIN_DENSITY) / norm;
         for j in 0..=k {
-            kn.v[j] = MIN_DENSITY + scale * kn.e[j];
+            v[j] = MIN_DENSITY + scale * e[j];
         }
-        kn
-    }
-
-    /// Bin of `x`: (b, left edge X_b, CDF at X_b). The last bin takes whatever rounding leaves.
-    #[inline]
-    fn locate(&self, kn: &Knots, x: f64) -> (usize, f64, f64) {
-        let (mut b, mut edge, mut cdf) = (0, 0.0, 0.0);
-        while b + 1 < self.bins && x >= edge + kn.w[b] {
-            edge += kn.w[b];
-            cdf += 0.5 * (kn.v[b] + kn.v[b + 1]) * kn.w[b];
-            b += 1;
-        }
-        (b, edge, cdf)
-    }
-}
-
-impl Spline for Quadratic {
-    fn param_count(&self) -> usize {
-        2 * self.bins + 1
+        (Knots { w, v, e, norm }, rest)
     }
 
     #[inline]
-    fn forward(&self, p: &[f32], x: f64) -> (f64, f64) {
-        let kn = self.knots(p);
-        let (b, edge, cdf) = self.locate(&kn, x);
-        let w = kn.w[b];
-        let alpha = ((x - edge) / w).clamp(0.0, 1.0);
-        let (v0, dv) = (kn.v[b], kn.v[b + 1] - kn.v[b]);
-        let y = (cdf + w * alpha * (v0 + 0.5 * alpha * dv)).clamp(0.0, 1.0);
-        (y, (v0 + alpha * dv).ln())
-    }
-
-    #[inline]
-    fn inverse(&self, p: &[f32], y: f64) -> (f64, f64) {
+    fn inverse_in(&self, p: &[f32], y: f64, buf: &mut [f64]) -> (f64, f64) {
         let k = self.bins;
-        let kn = self.knots(p);
+        let (kn, _) = self.knots(p, buf);
         let (mut b, mut edge, mut cdf) = (0, 0.0, 0.0);
         loop {
             let mass = 0.5 * (kn.v[b] + kn.v[b + 1]) * kn.w[b];
@@ -113,21 +85,80 @@ impl Spline for Quadratic {
         (x, (v0 + alpha * dv).ln())
     }
 
-    fn bin_edges(&self, p: &[f32]) -> Vec<f64> {
-        let kn = self.knots(p);
-        let mut edges = vec![0.0];
-        let mut x = 0.0;
-        for w in &kn.w[..self.bins] {
-            x += w;
-            edges.push(x);
+    /// Bin of `x`: (b, left edge X_b, CDF at X_b). The last bin takes whatever rounding leaves.
+    #[inline]
+    fn locate(&self, kn: &Knots, x: f64) -> (usize, f64, f64) {
+        let (mut b, mut edge, mut cdf) = (0, 0.0, 0.0);
+        while b + 1 < self.bins && x >= edge + kn.w[b] {
+            edge += kn.w[b];
+            cdf += 0.5 * (kn.v[b] + kn.v[b + 1]) * kn.w[b];
+            b += 1;
         }
-        *edges.last_mut().unwrap() = 1.0;
-        edges
+        (b, edge, cdf)
+    }
+}
+
+impl Spline for Quadratic {
+    fn param_count(&self) -> usize {
+        2 * self.bins + 1
+    }
+
+    #[inline]
+    fn forward(&self, p: &[f32], x: f64) -> (f64, f64) {
+        with_scratch(self.scratch(), |buf| {
+            let (kn, _) = self.knots(p, buf);
+            let (b, edge, cdf) = self.locate(&kn, x);
+            let w = kn.w[b];
+            let alpha = ((x - edge) / w).clamp(0.0, 1.0);
+            let (v0, dv) = (kn.v[b], kn.v[b + 1] - kn.v[b]);
+            let y = (cdf + w * alpha * (v0 + 0.5 * alpha * dv)).clamp(0.0, 1.0);
+            (y, (v0 + alpha * dv).ln())
+        })
+    }
+
+    #[inline]
+    fn inverse(&self, p: &[f32], y: f64) -> (f64, f64) {
+        with_scratch(self.scratch(), |buf| self.inverse_in(p, y, buf))
+    }
+
+    fn bin_edges(&self, p: &[f32]) -> Vec<f64> {
+        with_scratch(self.scratch(), |buf| {
+            let (kn, _) = self.knots(p, buf);
+            let mut edges = vec![0.0];
+            let mut x = 0.0;
+            for w in kn.w.iter() {
+                x += w;
+                edges.push(x);
+            }
+            *edges.last_mut().unwrap() = 1.0;
+            edges
+        })
     }
 
     fn backward(&self, p: &[f32], x: f64, g_y: f64, g_log_det: f64, g_p: &mut [f32]) -> f64 {
+        with_scratch(self.scratch(), |buf| {
+            self.backward_in(p, x, g_y, g_log_det, g_p, buf)
+        })
+    }
+}
+
+impl Quadratic {
+    #[inline]
+    fn backward_in(
+        &self,
+        p: &[f32],
+        x: f64,
+        g_y: f64,
+        g_log_det: f64,
+        g_p: &mut [f32],
+        buf: &mut [f64],
+    ) -> f64 {
         let k = self.bins;
-        let kn = self.knots(p);
+        let (kn, rest) = self.knots(p, buf);
+        let (g_w, rest) = rest.split_at_mut(k);
+        let g_v = &mut rest[..k + 1];
+        g_w.fill(0.0);
+        g_v.fill(0.0);
         let (b, edge, _) = self.locate(&kn, x);
         let w = kn.w[b];
         let alpha = ((x - edge) / w).clamp(0.0, 1.0);
@@ -135,8 +166,6 @@ impl Spline for Quadratic {
         let dv = v1 - v0;
         let q = v0 + alpha * dv;
 
-        let mut g_w = [0.0; MAX_BINS];
-        let mut g_v = [0.0; MAX_BINS + 1];
         // log q with q = V_b(1 − α) + V_{b+1}α.
         let g_q = g_log_det / q;
         // y = Y_b + W_b(αV_b + ½α²ΔV): ∂y/∂α = W_b·q.
@@ -165,7 +194,7 @@ impl Spline for Quadratic {
                 0.5 * (if j > 0 { kn.w[j - 1] } else { 0.0 } + if j < k { kn.w[j] } else { 0.0 });
             g_p[k + j] = ((g_v[j] * scale - s * dn) * kn.e[j]) as f32;
         }
-        softmax_floor_backward(&kn.w[..k], &g_w[..k], MIN_BIN_WIDTH, &mut g_p[..k]);
+        softmax_floor_backward(kn.w, g_w, MIN_BIN_WIDTH, &mut g_p[..k]);
         g_x
     }
 }

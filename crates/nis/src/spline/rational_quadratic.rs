@@ -7,7 +7,7 @@
 //! Unlike the unbounded-domain original (whose boundary derivatives are 1 to meet linear tails),
 //! the two boundary derivatives are learned too: on [0, 1] nothing forces the density at the ends.
 
-use super::{softmax_floor, softmax_floor_backward, Spline, MAX_BINS};
+use super::{softmax_floor, softmax_floor_backward, with_scratch, Spline};
 
 /// Smallest bin width as a fraction of the mean width.
 pub const MIN_BIN_WIDTH: f64 = 1e-3;
@@ -40,12 +40,12 @@ pub struct RationalQuadratic {
     pub bins: usize,
 }
 
-struct Knots {
-    w: [f64; MAX_BINS],
-    h: [f64; MAX_BINS],
+struct Knots<'a> {
+    w: &'a mut [f64],
+    h: &'a mut [f64],
     /// softmax of the height logits, before the slope floor is mixed in.
-    h_soft: [f64; MAX_BINS],
-    d: [f64; MAX_BINS + 1],
+    h_soft: &'a mut [f64],
+    d: &'a mut [f64],
 }
 
 /// One bin's local quantities.
@@ -56,25 +56,29 @@ struct Bin {
 }
 
 impl RationalQuadratic {
+    /// Scratch values one call needs: the knots and the backward pass's gradient buffers.
+    fn scratch(&self) -> usize {
+        7 * self.bins + 1
+    }
+
+    /// Computes the knots into the front of `buf`; returns them and the rest of `buf`.
     #[inline]
-    fn knots(&self, p: &[f32]) -> Knots {
+    fn knots<'a>(&self, p: &[f32], buf: &'a mut [f64]) -> (Knots<'a>, &'a mut [f64]) {
         let k = self.bins;
-        let mut kn = Knots {
-            w: [0.0; MAX_BINS],
-            h: [0.0; MAX_BINS],
-            h_soft: [0.0; MAX_BINS],
-            d: [0.0; MAX_BINS + 1],
-        };
-        softmax_floor(&p[..k], MIN_BIN_WIDTH, &mut kn.w);
-        softmax_floor(&p[k..2 * k], 0.0, &mut kn.h_soft);
+        let (w, rest) = buf.split_at_mut(k);
+        let (h, rest) = rest.split_at_mut(k);
+        let (h_soft, rest) = rest.split_at_mut(k);
+        let (d, rest) = rest.split_at_mut(k + 1);
+        softmax_floor(&p[..k], MIN_BIN_WIDTH, w);
+        softmax_floor(&p[k..2 * k], 0.0, h_soft);
         for i in 0..k {
-            kn.h[i] = MIN_SLOPE * kn.w[i] + (1.0 - MIN_SLOPE) * kn.h_soft[i];
+            h[i] = MIN_SLOPE * w[i] + (1.0 - MIN_SLOPE) * h_soft[i];
         }
         let shift = derivative_shift();
         for j in 0..=k {
-            kn.d[j] = MIN_DERIVATIVE + softplus(p[2 * k + j] as f64 + shift);
+            d[j] = MIN_DERIVATIVE + softplus(p[2 * k + j] as f64 + shift);
         }
-        kn
+        (Knots { w, h, h_soft, d }, rest)
     }
 
     #[inline]
@@ -96,7 +100,39 @@ impl Spline for RationalQuadratic {
 
     #[inline]
     fn forward(&self, p: &[f32], x: f64) -> (f64, f64) {
-        let kn = self.knots(p);
+        with_scratch(self.scratch(), |buf| self.forward_in(p, x, buf))
+    }
+
+    #[inline]
+    fn inverse(&self, p: &[f32], y: f64) -> (f64, f64) {
+        with_scratch(self.scratch(), |buf| self.inverse_in(p, y, buf))
+    }
+
+    fn bin_edges(&self, p: &[f32]) -> Vec<f64> {
+        with_scratch(self.scratch(), |buf| {
+            let (kn, _) = self.knots(p, buf);
+            let mut edges = vec![0.0];
+            let mut x = 0.0;
+            for w in kn.w.iter() {
+                x += w;
+                edges.push(x);
+            }
+            *edges.last_mut().unwrap() = 1.0;
+            edges
+        })
+    }
+
+    fn backward(&self, p: &[f32], x: f64, g_y: f64, g_log_det: f64, g_p: &mut [f32]) -> f64 {
+        with_scratch(self.scratch(), |buf| {
+            self.backward_in(p, x, g_y, g_log_det, g_p, buf)
+        })
+    }
+}
+
+impl RationalQuadratic {
+    #[inline]
+    fn forward_in(&self, p: &[f32], x: f64, buf: &mut [f64]) -> (f64, f64) {
+        let (kn, _) = self.knots(p, buf);
         let Bin { b, x0, y0 } = self.locate_x(&kn, x);
         let (w, h, d0, d1) = (kn.w[b], kn.h[b], kn.d[b], kn.d[b + 1]);
         let s = h / w;
@@ -109,9 +145,9 @@ impl Spline for RationalQuadratic {
     }
 
     #[inline]
-    fn inverse(&self, p: &[f32], y: f64) -> (f64, f64) {
+    fn inverse_in(&self, p: &[f32], y: f64, buf: &mut [f64]) -> (f64, f64) {
         let k = self.bins;
-        let kn = self.knots(p);
+        let (kn, _) = self.knots(p, buf);
         let (mut b, mut x0, mut y0) = (0, 0.0, 0.0);
         while b + 1 < k && y >= y0 + kn.h[b] {
             x0 += kn.w[b];
@@ -140,21 +176,23 @@ impl Spline for RationalQuadratic {
         (x, 2.0 * s.ln() + dnum.ln() - 2.0 * den.ln())
     }
 
-    fn bin_edges(&self, p: &[f32]) -> Vec<f64> {
-        let kn = self.knots(p);
-        let mut edges = vec![0.0];
-        let mut x = 0.0;
-        for w in &kn.w[..self.bins] {
-            x += w;
-            edges.push(x);
-        }
-        *edges.last_mut().unwrap() = 1.0;
-        edges
-    }
-
-    fn backward(&self, p: &[f32], x: f64, g_y: f64, g_log_det: f64, g_p: &mut [f32]) -> f64 {
+    #[inline]
+    fn backward_in(
+        &self,
+        p: &[f32],
+        x: f64,
+        g_y: f64,
+        g_log_det: f64,
+        g_p: &mut [f32],
+        buf: &mut [f64],
+    ) -> f64 {
         let k = self.bins;
-        let kn = self.knots(p);
+        let (kn, rest) = self.knots(p, buf);
+        let (g_w, rest) = rest.split_at_mut(k);
+        let (g_hh, rest) = rest.split_at_mut(k);
+        let g_soft = &mut rest[..k];
+        g_w.fill(0.0);
+        g_hh.fill(0.0);
         let Bin { b, x0, .. } = self.locate_x(&kn, x);
         let (w, h, d0, d1) = (kn.w[b], kn.h[b], kn.d[b], kn.d[b + 1]);
         let s = h / w;
@@ -197,8 +235,6 @@ impl Spline for RationalQuadratic {
         let g_x = g_xi / w;
         let g_x0 = -g_xi / w;
 
-        let mut g_w = [0.0; MAX_BINS];
-        let mut g_hh = [0.0; MAX_BINS];
         for i in 0..b {
             g_w[i] += g_x0;
             g_hh[i] += g_y; // y_b = Σ_{i<b} h_i
@@ -206,13 +242,12 @@ impl Spline for RationalQuadratic {
         g_hh[b] += g_h;
         g_w[b] += g_w_b;
         // h_i = m w_i + (1 − m) softmax_i
-        let mut g_soft = [0.0; MAX_BINS];
         for i in 0..k {
             g_w[i] += MIN_SLOPE * g_hh[i];
             g_soft[i] = (1.0 - MIN_SLOPE) * g_hh[i];
         }
-        softmax_floor_backward(&kn.w[..k], &g_w[..k], MIN_BIN_WIDTH, &mut g_p[..k]);
-        softmax_floor_backward(&kn.h_soft[..k], &g_soft[..k], 0.0, &mut g_p[k..2 * k]);
+        softmax_floor_backward(kn.w, g_w, MIN_BIN_WIDTH, &mut g_p[..k]);
+        softmax_floor_backward(kn.h_soft, g_soft, 0.0, &mut g_p[k..2 * k]);
         let shift = derivative_shift();
         for j in 0..=k {
             let g_d = if j == b {
