@@ -3,6 +3,7 @@
 
 mod bench;
 mod demo;
+mod integrate;
 mod report;
 
 use std::path::PathBuf;
@@ -16,7 +17,7 @@ use clap::{Parser, Subcommand};
     version,
     about = "Neural importance sampling: Monte Carlo integration with normalizing flows",
     long_about = "Neural importance sampling: Monte Carlo integration whose sampling density is a \
-                  normalizing flow learned from the integrand itself.\n\nExample:\n  nis demo"
+                  normalizing flow learned from the integrand itself.\n\nExample:\n  nis integrate camel --dim 4"
 )]
 struct Cli {
     #[command(subcommand)]
@@ -25,6 +26,12 @@ struct Cli {
 
 #[derive(Subcommand)]
 enum Command {
+    /// Integrate a built-in integrand with NIS, VEGAS+ and plain Monte Carlo.
+    ///
+    /// Example: nis integrate camel --dim 4
+    Integrate(integrate::IntegrateArgs),
+    /// List the built-in integrands.
+    List,
     /// Train a flow on a built-in 2-D target and print the variance reduction.
     ///
     /// Example: nis demo --steps 300
@@ -52,6 +59,11 @@ fn main() -> ExitCode {
     let cli = Cli::parse();
     let result = match cli.command {
         Command::Demo(args) => demo::run(&args),
+        Command::Integrate(args) => integrate::run(&args),
+        Command::List => {
+            integrate::list();
+            Ok(())
+        }
         Command::Bench(BenchCommand::Flow { batch, docs }) => bench::run_flow(batch, &docs),
     };
     match result {

@@ -29,6 +29,9 @@ pub enum Error {
         index: usize,
         value: f64,
     },
+    /// The integrand returned NaN or ±∞.
+    #[error("the integrand returned {value} at the point {point:?}")]
+    Integrand { point: Vec<f64>, value: f64 },
     /// A model file that cannot be read back as the flow it claims to be.
     #[error("model file {path}: {reason}")]
     Model { path: PathBuf, reason: String },

@@ -13,6 +13,8 @@
 
 pub mod error;
 pub mod flow;
+pub mod integrands;
+pub mod integrate;
 pub mod io;
 pub mod kernels;
 pub mod loss;

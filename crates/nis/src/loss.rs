@@ -54,6 +54,18 @@ pub struct Weights {
 /// Computes the weights of `loss` for integrand values `f` at points with current log-density
 /// `log_q` and proposal log-density `log_q_sample`. Non-finite inputs are errors.
 pub fn weights(loss: Loss, f: &[f64], log_q: &[f64], log_q_sample: &[f64]) -> Result<Weights> {
+    weights_annealed(loss, f, log_q, log_q_sample, 1.0)
+}
+
+/// [`weights`] for the tempered target |f|^β (β ≤ 1 flattens it): early in training, a flow that
+/// has not yet found every mode sees them all through the flattened target (annealing).
+pub fn weights_annealed(
+    loss: Loss,
+    f: &[f64],
+    log_q: &[f64],
+    log_q_sample: &[f64],
+    beta: f64,
+) -> Result<Weights> {
     let n = log_q_sample.len();
     if log_q.len() != n || (loss != Loss::Nll && f.len() != n) {
         return Err(Error::Dimension {
@@ -113,8 +125,8 @@ pub fn weights(loss: Loss, f: &[f64], log_q: &[f64], log_q_sample: &[f64]) -> Re
         .iter()
         .zip(log_q.iter().zip(log_q_sample))
         .map(|(&fi, (&lq, &ls))| match loss {
-            Loss::Kl => fi.abs().ln() - ls,
-            _ => 2.0 * fi.abs().ln() - lq - ls,
+            Loss::Kl => beta * fi.abs().ln() - ls,
+            _ => 2.0 * beta * fi.abs().ln() - lq - ls,
         })
         .collect();
     let max = log_w.iter().copied().fold(f64::NEG_INFINITY, f64::max);

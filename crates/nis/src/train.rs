@@ -25,6 +25,8 @@ pub struct Trainer {
     flow: Flow,
     adam: Adam,
     loss: Loss,
+    /// Exponent of the tempered target |f|^β (1: the integrand itself).
+    beta: f64,
 }
 
 /// What one step saw.
@@ -44,7 +46,12 @@ impl Trainer {
     /// A trainer for `flow`.
     pub fn new(flow: Flow, loss: Loss, adam: AdamConfig) -> Result<Trainer> {
         let adam = Adam::new(adam, flow.param_count())?;
-        Ok(Trainer { flow, adam, loss })
+        Ok(Trainer {
+            flow,
+            adam,
+            loss,
+            beta: 1.0,
+        })
     }
 
     /// The flow being trained.
@@ -62,6 +69,11 @@ impl Trainer {
         self.loss
     }
 
+    /// Trains on the tempered target |f|^β from now on (β in (0, 1]).
+    pub fn set_temperature(&mut self, beta: f64) {
+        self.beta = beta.clamp(1e-3, 1.0);
+    }
+
     /// The optimiser.
     pub fn adam(&self) -> &Adam {
         &self.adam
@@ -74,7 +86,7 @@ impl Trainer {
         let tape = samples.tape.as_ref().ok_or_else(|| {
             Error::Config("on-policy step needs samples drawn with sample_for_training".into())
         })?;
-        let w = loss::weights(self.loss, f, &samples.log_q, &samples.log_q)?;
+        let w = loss::weights_annealed(self.loss, f, &samples.log_q, &samples.log_q, self.beta)?;
         let grad = self.flow.backward(tape, &w.w)?;
         self.apply(grad, &w, &samples.log_q)
     }
@@ -90,7 +102,7 @@ impl Trainer {
         log_q_sample: &[f64],
     ) -> Result<StepStats> {
         let eval = self.flow.log_density_for_training(x, ctx)?;
-        let w = loss::weights(self.loss, f, &eval.log_q, log_q_sample)?;
+        let w = loss::weights_annealed(self.loss, f, &eval.log_q, log_q_sample, self.beta)?;
         let grad = self.flow.backward(&eval.tape, &w.w)?;
         self.apply(grad, &w, &eval.log_q)
     }

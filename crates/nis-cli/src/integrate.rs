@@ -1,0 +1,220 @@
+//! `nis integrate` and `nis list`: integrate a built-in integrand with NIS, VEGAS+ and plain MC.
+
+use std::path::PathBuf;
+
+use indicatif::{ProgressBar, ProgressStyle};
+use nis::integrands::{self, Builtin, SUITE};
+use nis::integrate::{nis::NisConfig, nis::NisIntegrator, uniform, vegas, IntegrationResult};
+use nis::loss::Loss;
+use nis::Transform;
+
+#[derive(Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub enum Method {
+    Nis,
+    Vegas,
+    Uniform,
+}
+
+#[derive(Clone, Copy, clap::ValueEnum)]
+pub enum Coupling {
+    Pq,
+    Pl,
+    Rq,
+    Affine,
+}
+
+#[derive(clap::Args)]
+pub struct IntegrateArgs {
+    /// Built-in integrand (see `nis list`).
+    pub name: String,
+    /// Dimension (default: the integrand's smallest).
+    #[arg(long)]
+    pub dim: Option<usize>,
+    /// Method; without it, NIS, VEGAS+ and plain MC run side by side.
+    #[arg(long, value_enum)]
+    pub method: Option<Method>,
+    /// Coupling transform of the flow.
+    #[arg(long, value_enum, default_value = "pq")]
+    pub coupling: Coupling,
+    /// Bins of the coupling transform.
+    #[arg(long, default_value_t = 16)]
+    pub bins: usize,
+    /// Training loss: kl or chi2.
+    #[arg(long, default_value = "kl")]
+    pub loss: Loss,
+    /// Evaluations per method (NIS training included).
+    #[arg(long, default_value_t = 1_000_000)]
+    pub evals: u64,
+    /// Random seed.
+    #[arg(long, default_value_t = 0)]
+    pub seed: u64,
+    /// Print one JSON object (for one method; NIS if none is given).
+    #[arg(long)]
+    pub json: bool,
+    /// Save the trained NIS integrator to this file.
+    #[arg(long, conflicts_with = "load")]
+    pub save: Option<PathBuf>,
+    /// Load a trained NIS integrator and spend all evaluations on the estimate.
+    #[arg(long)]
+    pub load: Option<PathBuf>,
+}
+
+type Error = Box<dyn std::error::Error>;
+
+impl IntegrateArgs {
+    pub fn nis_config(&self) -> NisConfig {
+        let mut c = NisConfig {
+            loss: self.loss,
+            ..NisConfig::default()
+        };
+        c.flow.transform = match self.coupling {
+            Coupling::Pq => Transform::Quadratic { bins: self.bins },
+            Coupling::Pl => Transform::Linear { bins: self.bins },
+            Coupling::Rq => Transform::RationalQuadratic { bins: self.bins },
+            Coupling::Affine => Transform::Affine,
+        };
+        c.flow.seed = self.seed;
+        c
+    }
+}
+
+fn bar(label: &str) -> ProgressBar {
+    ProgressBar::new(1)
+        .with_style(
+            ProgressStyle::with_template("{prefix:>8} {bar:40} {percent:>3}% {msg}")
+                .expect("valid template"),
+        )
+        .with_prefix(label.to_string())
+}
+
+/// Runs one method on a built-in integrand.
+pub fn run_method(
+    f: &Builtin,
+    method: Method,
+    args: &IntegrateArgs,
+) -> Result<IntegrationResult, Error> {
+    let pb = bar(match method {
+        Method::Nis => "nis",
+        Method::Vegas => "vegas",
+        Method::Uniform => "uniform",
+    });
+    let mut progress = |done: u64, total: u64, msg: &str| {
+        pb.set_length(total.max(1));
+        pb.set_position(done);
+        pb.set_message(msg.to_string());
+    };
+    let r = match method {
+        Method::Nis => {
+            if let Some(path) = &args.load {
+                let started = std::time::Instant::now();
+                let nis = NisIntegrator::load(path)?;
+                if nis.flow().dim() != f.dim {
+                    return Err(format!(
+                        "{} holds a {}-dimensional integrator, the integrand has {} dimensions",
+                        path.display(),
+                        nis.flow().dim(),
+                        f.dim
+                    )
+                    .into());
+                }
+                let acc = nis.estimate(f, args.evals, args.seed, &mut progress)?;
+                acc.finish(args.evals, started, Vec::new())
+            } else {
+                let (r, nis) = nis::integrate::nis::integrate(
+                    f,
+                    f.dim,
+                    &args.nis_config(),
+                    args.evals,
+                    args.seed,
+                    &mut progress,
+                )?;
+                if let Some(path) = &args.save {
+                    nis.save(path)?;
+                }
+                r
+            }
+        }
+        Method::Vegas => vegas::Vegas::new(Default::default())?.integrate(
+            f,
+            f.dim,
+            args.evals,
+            args.seed,
+            &mut progress,
+        )?,
+        Method::Uniform => uniform::integrate(f, f.dim, args.evals, 10, args.seed, &mut progress)?,
+    };
+    pb.finish_and_clear();
+    Ok(r)
+}
+
+/// A table row for one method.
+pub fn row(label: &str, r: &IntegrationResult, exact: f64) -> String {
+    format!(
+        "{label:<8} {:>14.7e} ± {:<10.3e} {:>7.2} {:>12.4e} {:>8.2} {:>9} {:>7.4} {:>8.2}",
+        r.value,
+        r.std_err,
+        (r.value - exact) / r.std_err,
+        r.rel_var_per_eval,
+        r.chi2_per_dof,
+        r.n_eval,
+        r.unweighting_efficiency,
+        r.seconds
+    )
+}
+
+pub const HEADER: &str = "method            value ± std_err          pull  rel.var/eval  χ²/dof    n_eval  unw.eff  seconds";
+
+pub fn run(args: &IntegrateArgs) -> Result<(), Error> {
+    let f = integrands::by_name(&args.name, args.dim)?;
+    let methods = match args.method {
+        Some(m) => vec![m],
+        None if args.json => vec![Method::Nis],
+        None => vec![Method::Nis, Method::Vegas, Method::Uniform],
+    };
+    if args.json {
+        let r = run_method(&f, methods[0], args)?;
+        let mut v = serde_json::to_value(&r)?;
+        v["exact"] = serde_json::json!(f.exact);
+        v["integrand"] = serde_json::json!(format!("{} (d = {})", f.name, f.dim));
+        println!("{}", serde_json::to_string(&v)?);
+        for w in &r.warnings {
+            eprintln!("warning: {w}");
+        }
+        return Ok(());
+    }
+    println!(
+        "{} in {} dimensions: exact {:.7e}{}  ({})",
+        f.name,
+        f.dim,
+        f.exact,
+        if f.exact_err > 0.0 {
+            format!(" ± {:.1e}", f.exact_err)
+        } else {
+            String::new()
+        },
+        f.source
+    );
+    println!("{HEADER}");
+    for m in methods {
+        let r = run_method(&f, m, args)?;
+        let label = match m {
+            Method::Nis => "nis",
+            Method::Vegas => "vegas+",
+            Method::Uniform => "uniform",
+        };
+        println!("{}", row(label, &r, f.exact));
+        for w in &r.warnings {
+            eprintln!("warning ({label}): {w}");
+        }
+    }
+    Ok(())
+}
+
+/// `nis list`.
+pub fn list() {
+    println!("{:<14} {:<14} description", "name", "dimensions");
+    for e in SUITE {
+        let dims: Vec<String> = e.dims.iter().map(|d| d.to_string()).collect();
+        println!("{:<14} {:<14} {}", e.name, dims.join(","), e.description);
+    }
+}

@@ -1,0 +1,280 @@
+//! Neural importance sampling (Müller et al. 2019, Sec. 3): a flow learns |f|/∫|f| from the
+//! integrand's own values during an adaptive phase, then is frozen and sampled for the estimate.
+//!
+//! Sampling uses a defensive mixture q_mix = λ·uniform + (1 − λ)·q with fixed counts per batch
+//! (the balance heuristic of multiple importance sampling): weights f/q_mix are bounded by f/λ
+//! wherever the flow has not (yet) put mass, which keeps error bars honest when the flow misses
+//! a sliver of the integrand. Training sees only the flow's share of each batch, on-policy.
+//! Early training optionally targets the tempered |f|^β with β rising to 1 (annealing), so that a
+//! flow which has only seen the far tails of several modes is pulled toward all of them.
+
+use std::collections::HashMap;
+use std::path::Path;
+use std::time::Instant;
+
+use rand::{Rng, SeedableRng};
+use rand_pcg::Pcg64Mcg;
+use serde::{Deserialize, Serialize};
+
+use super::{check_dim, evaluate, Accumulator, Integrand, IntegrationResult, Progress};
+use crate::error::{Error, Result};
+use crate::flow::{Flow, FlowConfig};
+use crate::loss::Loss;
+use crate::nn::AdamConfig;
+use crate::spline::Transform;
+use crate::train::Trainer;
+
+/// Settings of the NIS integrator. The defaults work across the built-in suite untuned.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct NisConfig {
+    /// The flow (its `dim` is set from the integrand).
+    pub flow: FlowConfig,
+    pub loss: Loss,
+    /// Samples per adaptive iteration (one Adam step each).
+    pub batch: usize,
+    /// Share of the evaluation budget spent in the adaptive phase.
+    pub train_fraction: f64,
+    pub adam: AdamConfig,
+    /// Share λ of uniform points in every batch (the defensive mixture).
+    pub uniform_fraction: f64,
+    /// Initial exponent β of the tempered target |f|^β; rises linearly to 1 over the first half
+    /// of training (1: no annealing).
+    pub anneal_from: f64,
+    /// Iterations of the final phase (for χ²/dof).
+    pub final_iterations: usize,
+}
+
+impl Default for NisConfig {
+    fn default() -> Self {
+        NisConfig {
+            flow: FlowConfig {
+                transform: Transform::Quadratic { bins: 16 },
+                hidden_layers: 2,
+                hidden_width: 32,
+                blob_bins: 16,
+                ..FlowConfig::default()
+            },
+            loss: Loss::Kl,
+            batch: 4096,
+            train_fraction: 0.4,
+            adam: AdamConfig {
+                learning_rate: 3e-3,
+                clip_norm: Some(10.0),
+                ..Default::default()
+            },
+            uniform_fraction: 0.05,
+            anneal_from: 1.0,
+            final_iterations: 10,
+        }
+    }
+}
+
+impl NisConfig {
+    fn validate(&self) -> Result<()> {
+        let ok = self.batch >= 2
+            && (0.0..1.0).contains(&self.train_fraction)
+            && (0.0..1.0).contains(&self.uniform_fraction)
+            && self.anneal_from > 0.0
+            && self.anneal_from <= 1.0
+            && self.final_iterations >= 1;
+        if ok {
+            Ok(())
+        } else {
+            Err(Error::Config(format!("invalid NIS settings: {self:?}")))
+        }
+    }
+}
+
+/// A flow-based integrator: train it, then estimate with it (again and again, or after saving).
+pub struct NisIntegrator {
+    pub config: NisConfig,
+    trainer: Trainer,
+    /// Evaluations spent training so far.
+    pub trained_evals: u64,
+}
+
+/// A batch from the defensive mixture: points (f32 for the flow, f64 for the integrand), the
+/// mixture's log-density, and the flow samples' tape when training.
+struct MixtureBatch {
+    x32: Vec<f32>,
+    x64: Vec<f64>,
+    log_q_mix: Vec<f64>,
+    flow_part: crate::flow::Samples,
+}
+
+impl NisIntegrator {
+    /// A new (untrained: uniform) integrator in `dim` dimensions.
+    pub fn new(dim: usize, config: NisConfig) -> Result<NisIntegrator> {
+        config.validate()?;
+        let flow = Flow::new(FlowConfig {
+            dim,
+            ..config.flow.clone()
+        })?;
+        let trainer = Trainer::new(flow, config.loss, config.adam)?;
+        Ok(NisIntegrator {
+            config,
+            trainer,
+            trained_evals: 0,
+        })
+    }
+
+    /// The flow.
+    pub fn flow(&self) -> &Flow {
+        self.trainer.flow()
+    }
+
+    fn draw(&self, n: usize, rng: &mut Pcg64Mcg, for_training: bool) -> Result<MixtureBatch> {
+        let flow = self.trainer.flow();
+        let dim = flow.dim();
+        let lambda = self.config.uniform_fraction;
+        let n_u = ((lambda * n as f64).round() as usize).min(n.saturating_sub(1));
+        let n_f = n - n_u;
+        let flow_part = if for_training {
+            flow.sample_for_training(n_f, None, rng)?
+        } else {
+            flow.sample(n_f, None, rng)?
+        };
+        let mut x32 = flow_part.x.clone();
+        x32.extend((0..n_u * dim).map(|_| rng.random::<f32>()));
+        let lq_u = flow.log_density(&x32[n_f * dim..], None)?;
+        let mix = |lq: f64| (lambda + (1.0 - lambda) * lq.exp()).ln();
+        let log_q_mix = flow_part
+            .log_q
+            .iter()
+            .chain(&lq_u)
+            .map(|&l| mix(l))
+            .collect();
+        let x64 = x32.iter().map(|&v| v as f64).collect();
+        Ok(MixtureBatch {
+            x32,
+            x64,
+            log_q_mix,
+            flow_part,
+        })
+    }
+
+    /// The adaptive phase: `evals` evaluations in batches, one training step per batch.
+    pub fn train(
+        &mut self,
+        f: &dyn Integrand,
+        evals: u64,
+        seed: u64,
+        progress: Progress,
+    ) -> Result<()> {
+        let dim = self.flow().dim();
+        check_dim(f, dim)?;
+        let mut rng = Pcg64Mcg::seed_from_u64(seed ^ 0x7261_696e);
+        let batch = self.config.batch;
+        let steps = (evals / batch as u64) as usize;
+        for step in 0..steps {
+            let beta = if steps > 1 {
+                let t = (2.0 * step as f64 / steps as f64).min(1.0);
+                self.config.anneal_from + t * (1.0 - self.config.anneal_from)
+            } else {
+                1.0
+            };
+            self.trainer.set_temperature(beta);
+            let b = self.draw(batch, &mut rng, true)?;
+            let fx = evaluate(f, &b.x64, dim)?;
+            self.trained_evals += batch as u64;
+            let n_f = b.flow_part.len();
+            // Skip the step when the flow's share saw nothing: there is no direction to learn.
+            if fx[..n_f].iter().any(|v| *v != 0.0) {
+                self.trainer.step_on_policy(&b.flow_part, &fx[..n_f])?;
+            }
+            progress(self.trained_evals, evals, "nis: training");
+        }
+        Ok(())
+    }
+
+    /// The final phase: the flow frozen, `evals` evaluations in `final_iterations` iterations.
+    pub fn estimate(
+        &self,
+        f: &dyn Integrand,
+        evals: u64,
+        seed: u64,
+        progress: Progress,
+    ) -> Result<Accumulator> {
+        let dim = self.flow().dim();
+        check_dim(f, dim)?;
+        let mut rng = Pcg64Mcg::seed_from_u64(seed ^ 0x6573_7469);
+        let iters = self.config.final_iterations.clamp(1, evals.max(1) as usize);
+        let mut acc = Accumulator::default();
+        let mut done = 0u64;
+        for it in 0..iters {
+            let n = ((evals * (it as u64 + 1)) / iters as u64 - done).max(2) as usize;
+            // Draw in pieces of bounded memory, pooled into one iteration.
+            let mut w = Vec::with_capacity(n);
+            while w.len() < n {
+                let m = (n - w.len()).min(1 << 16);
+                let b = self.draw(m, &mut rng, false)?;
+                let fx = evaluate(f, &b.x64, dim)?;
+                w.extend(fx.iter().zip(&b.log_q_mix).map(|(v, l)| v * (-l).exp()));
+                let _ = &b.x32;
+            }
+            acc.add_weights(&w);
+            done += n as u64;
+            progress(
+                self.trained_evals + done,
+                self.trained_evals + evals,
+                "nis: estimating",
+            );
+        }
+        Ok(acc)
+    }
+
+    /// Saves the trained flow with the integrator's settings beside it (atomically).
+    pub fn save(&self, path: &Path) -> Result<()> {
+        let mut meta = HashMap::new();
+        meta.insert(
+            "nis_integrator".into(),
+            serde_json::to_string(&self.config).expect("serialisable"),
+        );
+        meta.insert("trained_evals".into(), self.trained_evals.to_string());
+        crate::io::save_with(self.flow(), path, &meta)
+    }
+
+    /// Loads an integrator saved by [`NisIntegrator::save`].
+    pub fn load(path: &Path) -> Result<NisIntegrator> {
+        let (flow, meta) = crate::io::load_with(path)?;
+        let bad = |reason: &str| Error::Model {
+            path: path.to_path_buf(),
+            reason: reason.into(),
+        };
+        let config: NisConfig = serde_json::from_str(
+            meta.get("nis_integrator")
+                .ok_or_else(|| bad("not an integrator file (no settings)"))?,
+        )
+        .map_err(|e| bad(&format!("integrator settings: {e}")))?;
+        let trained_evals = meta
+            .get("trained_evals")
+            .and_then(|s| s.parse().ok())
+            .unwrap_or(0);
+        let trainer = Trainer::new(flow, config.loss, config.adam)?;
+        Ok(NisIntegrator {
+            config,
+            trainer,
+            trained_evals,
+        })
+    }
+}
+
+/// Trains a fresh integrator on `train_fraction` of `evals` and estimates with the rest.
+pub fn integrate(
+    f: &dyn Integrand,
+    dim: usize,
+    config: &NisConfig,
+    evals: u64,
+    seed: u64,
+    progress: Progress,
+) -> Result<(IntegrationResult, NisIntegrator)> {
+    let started = Instant::now();
+    let mut nis = NisIntegrator::new(dim, config.clone())?;
+    let train =
+        ((evals as f64 * config.train_fraction) as u64 / config.batch as u64) * config.batch as u64;
+    nis.train(f, train, seed, progress)?;
+    let acc = nis.estimate(f, evals - nis.trained_evals, seed, progress)?;
+    let n_eval = nis.trained_evals + acc.iterations.iter().map(|i| i.2).sum::<u64>();
+    Ok((acc.finish(n_eval, started, Vec::new()), nis))
+}
