@@ -8,6 +8,9 @@ use std::f64::consts::PI;
 use crate::error::{Error, Result};
 use crate::integrate::Integrand;
 
+/// A point function of the suite.
+type PointFn = Box<dyn Fn(&[f64]) -> f64 + Send + Sync>;
+
 /// A built-in integrand with its exact value.
 pub struct Builtin {
     /// Name as the CLI knows it.
@@ -19,7 +22,7 @@ pub struct Builtin {
     pub exact_err: f64,
     /// Where the integrand and its value come from.
     pub source: &'static str,
-    f: Box<dyn Fn(&[f64]) -> f64 + Send + Sync>,
+    f: PointFn,
 }
 
 impl std::fmt::Debug for Builtin {
