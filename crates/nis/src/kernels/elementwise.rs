@@ -14,13 +14,30 @@ const LN2_LO: f32 = 1.428_606_8e-6;
 #[inline(always)]
 pub fn exp(x: f32) -> f32 {
     let x = x.clamp(-87.0, 88.0);
-    let n = (x * LOG2E + 0.5).floor();
+    // Round to nearest by adding 1.5·2²³: the sum's low mantissa bits then hold the integer n,
+    // which gives n both as a float (subtract again) and as bits for the exponent — no
+    // float-to-int conversion (saturating in Rust, slow in vector code) and no libm `floor`.
+    const SHIFTER: f32 = 12_582_912.0;
+    let t = x * LOG2E + SHIFTER;
+    let n = t - SHIFTER;
+    let ni = t.to_bits().wrapping_sub(SHIFTER.to_bits()) as i32;
     let r = x - n * LN2_HI - n * LN2_LO;
     let p = 1.0
         + r * (1.0
             + r * (0.5
                 + r * (1.0 / 6.0 + r * (1.0 / 24.0 + r * (1.0 / 120.0 + r * (1.0 / 720.0))))));
-    p * f32::from_bits(((n as i32 + 127) << 23) as u32)
+    p * f32::from_bits(((ni + 127) << 23) as u32)
+}
+
+/// `out[i] = e^(x[i] − shift)` (computed in f32, stored in f64) and returns Σ out: the
+/// exponentials of a spline's logits.
+#[multiversion(targets = "simd")]
+pub fn exp_shifted(x: &[f32], shift: f32, out: &mut [f64]) -> f64 {
+    // Two loops: a float sum in the first would chain every iteration and stop vectorisation.
+    for (o, &v) in out.iter_mut().zip(x) {
+        *o = exp(v - shift) as f64;
+    }
+    out[..x.len()].iter().sum()
 }
 
 /// In-place ReLU.

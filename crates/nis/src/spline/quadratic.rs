@@ -7,7 +7,7 @@
 //! V_b + α(V_{b+1} − V_b) and the CDF a quadratic in α. Unlike bin widths of the piecewise-linear
 //! transform, these widths get correct gradients because the density is continuous.
 
-use super::{softmax_floor, softmax_floor_backward, with_scratch, Spline};
+use super::{exponentials, softmax_floor, softmax_floor_backward, with_scratch, Spline};
 
 /// Smallest bin width as a fraction of the mean width 1/K: no bin collapses to zero.
 pub const MIN_BIN_WIDTH: f64 = 1e-3;
@@ -44,11 +44,7 @@ impl Quadratic {
         let (v, rest) = rest.split_at_mut(k + 1);
         let (e, rest) = rest.split_at_mut(k + 1);
         softmax_floor(&p[..k], MIN_BIN_WIDTH, w);
-        let vl = &p[k..2 * k + 1];
-        let max = vl.iter().fold(f32::NEG_INFINITY, |m, &l| m.max(l)) as f64;
-        for j in 0..=k {
-            e[j] = (vl[j] as f64 - max).exp();
-        }
+        exponentials(&p[k..2 * k + 1], e);
         let norm: f64 = (0..k).map(|i| 0.5 * (e[i] + e[i + 1]) * w[i]).sum();
         let scale = (1.0 - MIN_DENSITY) / norm;
         for j in 0..=k {
