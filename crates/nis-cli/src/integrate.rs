@@ -57,12 +57,16 @@ pub struct IntegrateArgs {
     /// Load a trained NIS integrator and spend all evaluations on the estimate.
     #[arg(long)]
     pub load: Option<PathBuf>,
+    /// NIS settings to change, as JSON merged into the defaults, e.g.
+    /// '{"batch": 2048, "flow": {"hidden_width": 64}, "adam": {"learning_rate": 0.001}}'.
+    #[arg(long, value_name = "JSON")]
+    pub nis_config: Option<String>,
 }
 
 type Error = Box<dyn std::error::Error>;
 
 impl IntegrateArgs {
-    pub fn nis_config(&self) -> NisConfig {
+    pub fn nis_config(&self) -> Result<NisConfig, Error> {
         let mut c = NisConfig {
             loss: self.loss,
             ..NisConfig::default()
@@ -74,7 +78,31 @@ impl IntegrateArgs {
             Coupling::Affine => Transform::Affine,
         };
         c.flow.seed = self.seed;
-        c
+        if let Some(patch) = &self.nis_config {
+            // Merge the given fields into the defaults, one level into "flow" and "adam".
+            let mut v = serde_json::to_value(&c)?;
+            let patch: serde_json::Value = serde_json::from_str(patch)
+                .map_err(|e| format!("--nis-config is not JSON: {e}"))?;
+            let obj = patch
+                .as_object()
+                .ok_or("--nis-config must be a JSON object")?;
+            for (k, val) in obj {
+                match (v.get_mut(k), val) {
+                    (Some(serde_json::Value::Object(inner)), serde_json::Value::Object(fields))
+                        if k == "flow" || k == "adam" =>
+                    {
+                        for (k2, v2) in fields {
+                            inner.insert(k2.clone(), v2.clone());
+                        }
+                    }
+                    _ => {
+                        v[k] = val.clone();
+                    }
+                }
+            }
+            c = serde_json::from_value(v).map_err(|e| format!("--nis-config: {e}"))?;
+        }
+        Ok(c)
     }
 }
 
@@ -123,7 +151,7 @@ pub fn run_method(
                 let (r, nis) = nis::integrate::nis::integrate(
                     f,
                     f.dim,
-                    &args.nis_config(),
+                    &args.nis_config()?,
                     args.evals,
                     args.seed,
                     &mut progress,

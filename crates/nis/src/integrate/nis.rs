@@ -31,8 +31,11 @@ pub struct NisConfig {
     /// The flow (its `dim` is set from the integrand).
     pub flow: FlowConfig,
     pub loss: Loss,
-    /// Samples per adaptive iteration (one Adam step each).
+    /// Samples per adaptive iteration.
     pub batch: usize,
+    /// Adam steps per batch: the first on-policy, the others reuse the batch off-policy (its
+    /// points keep the density they were drawn from), trading compute for evaluations.
+    pub steps_per_batch: usize,
     /// Share of the evaluation budget spent in the adaptive phase.
     pub train_fraction: f64,
     pub adam: AdamConfig,
@@ -57,6 +60,7 @@ impl Default for NisConfig {
             },
             loss: Loss::Kl,
             batch: 4096,
+            steps_per_batch: 1,
             train_fraction: 0.4,
             adam: AdamConfig {
                 learning_rate: 3e-3,
@@ -73,6 +77,7 @@ impl Default for NisConfig {
 impl NisConfig {
     fn validate(&self) -> Result<()> {
         let ok = self.batch >= 2
+            && self.steps_per_batch >= 1
             && (0.0..1.0).contains(&self.train_fraction)
             && (0.0..1.0).contains(&self.uniform_fraction)
             && self.anneal_from > 0.0
@@ -182,6 +187,10 @@ impl NisIntegrator {
             // Skip the step when the flow's share saw nothing: there is no direction to learn.
             if fx[..n_f].iter().any(|v| *v != 0.0) {
                 self.trainer.step_on_policy(&b.flow_part, &fx[..n_f])?;
+                for _ in 1..self.config.steps_per_batch {
+                    self.trainer
+                        .step(&b.flow_part.x, None, &fx[..n_f], &b.flow_part.log_q)?;
+                }
             }
             progress(self.trained_evals, evals, "nis: training");
         }

@@ -12,8 +12,8 @@ use super::{exponentials, softmax_floor, softmax_floor_backward, with_scratch, S
 /// Smallest bin width as a fraction of the mean width 1/K: no bin collapses to zero.
 pub const MIN_BIN_WIDTH: f64 = 1e-3;
 /// Smallest vertex height (density), mixed in as `V = m + (1 − m)·Ṽ` so that the area stays one.
-/// It keeps log-densities finite and the f32 inverse well conditioned.
-pub const MIN_DENSITY: f64 = 1e-2;
+/// It keeps log-densities finite; see [`super::linear::MIN_BIN_MASS`] for why it is small.
+pub const MIN_DENSITY: f64 = 1e-3;
 
 /// Piecewise-quadratic transform with `bins` adaptive bins; `2·bins + 1` parameters per dimension.
 #[derive(Clone, Copy, Debug)]

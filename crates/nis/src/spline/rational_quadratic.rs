@@ -12,10 +12,10 @@ use super::{softmax_floor, softmax_floor_backward, with_scratch, Spline};
 /// Smallest bin width as a fraction of the mean width.
 pub const MIN_BIN_WIDTH: f64 = 1e-3;
 /// Smallest bin slope h/w: heights are `h_k = m·w_k + (1 − m)·softmax_k`, which still sum to one.
-pub const MIN_SLOPE: f64 = 1e-2;
+pub const MIN_SLOPE: f64 = 1e-3;
 /// Smallest knot derivative; `d = MIN_DERIVATIVE + softplus(d̂ + DERIVATIVE_SHIFT)` is 1 at d̂ = 0,
 /// so zero parameters give the identity.
-pub const MIN_DERIVATIVE: f64 = 1e-2;
+pub const MIN_DERIVATIVE: f64 = 1e-3;
 
 /// softplus⁻¹(1 − MIN_DERIVATIVE) = ln(e^{1−m} − 1).
 fn derivative_shift() -> f64 {

@@ -57,13 +57,19 @@ pub(crate) fn check_transform<S: Spline>(t: &S, strict: bool) {
             // The latent is stored as f32 between layers: round through it.
             let (x2, ld2) = t.inverse(p, y as f32 as f64);
             // Rounding y to f32 moves it by up to half an ulp, which moves x by that over the
-            // density: the inverse's condition number. Transforms with a density floor of 1e-2
-            // (piecewise-linear and -quadratic) must round-trip within 1e-5 everywhere. The
-            // rational-quadratic and affine densities can dip far lower; there the inverse must be
-            // exact up to that rounding: C(x') equals the stored y within its half ulp.
+            // density: the inverse's condition number. Where the density is ≥ 1e-2 that stays
+            // within 1e-5 and the round trip must too. Where a transform's density dips lower
+            // (the floors are 1e-3, and the rational-quadratic and affine densities dip further
+            // between knots or at the ends), the inverse must be exact up to that rounding:
+            // C(x') equals the stored y within its half ulp.
             let err = (x2 - x32).abs();
             if err > 1e-5 {
-                assert!(!strict, "set {set}: round trip {x32} -> {y} -> {x2}");
+                // At a bin edge the density may jump, so the smaller of its values at x and x'.
+                assert!(
+                    ld.min(ld2) < (1e-2f64).ln() || !strict,
+                    "set {set}: round trip {x32} -> {y} -> {x2} where C' = {}",
+                    ld.exp()
+                );
                 let y2 = t.forward(p, x2).0;
                 assert!(
                     (y2 - y).abs() <= f32_half_ulp(y) + 1e-12,
