@@ -97,7 +97,10 @@ pub struct CompareArgs {
     pub max_error: f32,
 }
 
-fn load(args: &RenderArgs, params: &[(String, String)]) -> Result<Scene, Box<dyn std::error::Error>> {
+fn load(
+    args: &RenderArgs,
+    params: &[(String, String)],
+) -> Result<Scene, Box<dyn std::error::Error>> {
     if Path::new(&args.scene).is_file() {
         Ok(nis_render::xml::load_scene(Path::new(&args.scene), params)?)
     } else if nis_render::scenes::xml(&args.scene).is_some() {
@@ -158,9 +161,21 @@ pub fn run_render(args: &RenderArgs) -> Result<(), Box<dyn std::error::Error>> {
     )?);
     bar.enable_steady_tick(Duration::from_millis(250));
     let progress = |f: f64| bar.set_position((f * 1000.0) as u64);
-    let run = || render(&scene, &integrator, budget, args.seed, &mut NoGuide, &progress);
+    let run = || {
+        render(
+            &scene,
+            &integrator,
+            budget,
+            args.seed,
+            &mut NoGuide,
+            &progress,
+        )
+    };
     let out = match args.threads {
-        Some(n) => rayon::ThreadPoolBuilder::new().num_threads(n).build()?.install(run),
+        Some(n) => rayon::ThreadPoolBuilder::new()
+            .num_threads(n)
+            .build()?
+            .install(run),
         None => run(),
     };
     bar.finish_and_clear();
@@ -177,7 +192,10 @@ pub fn run_render(args: &RenderArgs) -> Result<(), Box<dyn std::error::Error>> {
         out.image.mean()
     );
     if out.stats.invalid > 0 {
-        eprintln!("warning: {} NaN/infinite samples were dropped", out.stats.invalid);
+        eprintln!(
+            "warning: {} NaN/infinite samples were dropped",
+            out.stats.invalid
+        );
     }
     for path in &args.out {
         if let Some(dir) = path.parent().filter(|d| !d.as_os_str().is_empty()) {

@@ -14,7 +14,7 @@ use glam::{Vec2, Vec3};
 use rand::RngCore;
 use rand_pcg::Pcg32;
 
-use crate::geometry::{offset_origin, Frame, Ray, Rgb};
+use crate::geometry::{offset_origin, Frame, Ray, Rgb, RAY_EPSILON};
 use crate::guiding::{Guide, GuideRecord, GuideVertex};
 use crate::sampling::power_heuristic;
 use crate::scene::{Scene, NO_LIGHT};
@@ -193,11 +193,16 @@ impl Integrator {
                     let f = material.f(wo, wi);
                     if f != Rgb::ZERO {
                         stats.shadow_rays += 1;
-                        let shadow = Ray::new(offset_origin(hit.p, hit.ng, ls.wi), ls.wi);
-                        let t_max = if ls.dist.is_finite() {
-                            ls.dist * (1.0 - 1e-3)
+                        // Aim from the offset origin at the light point, and stop short of
+                        // it by the same kind of offset, so neither surface occludes.
+                        let origin = offset_origin(hit.p, hit.ng, ls.wi);
+                        let (shadow, t_max) = if ls.dist.is_finite() {
+                            let to = ls.point - origin;
+                            let d = to.length();
+                            let margin = RAY_EPSILON * (1.0 + ls.point.abs().max_element());
+                            (Ray::new(origin, to / d), d - margin)
                         } else {
-                            f32::INFINITY
+                            (Ray::new(origin, ls.wi), f32::INFINITY)
                         };
                         if !scene.occluded(&shadow, t_max) {
                             let w = if self.strategy == Strategy::Mis {

@@ -57,6 +57,8 @@ pub struct LightSample {
     pub wi: Vec3,
     /// Distance to the sampled point (infinite for the environment).
     pub dist: f32,
+    /// The sampled point on the light (unused for the environment).
+    pub point: Vec3,
     /// Radiance arriving along `wi` if unoccluded.
     pub radiance: Rgb,
     /// Solid-angle density, including the choice of light.
@@ -110,6 +112,7 @@ impl Lights {
             return Some(LightSample {
                 wi,
                 dist: f32::INFINITY,
+                point: Vec3::ZERO,
                 radiance: self.environment?,
                 pdf: p_env / (4.0 * PI),
             });
@@ -144,6 +147,7 @@ impl Lights {
         Some(LightSample {
             wi,
             dist,
+            point: q,
             radiance: light.radiance,
             pdf: pmf / light.area * dist2 / cos_light,
         })

@@ -95,7 +95,7 @@ fn white_furnace_radiance_is_emission_over_one_minus_albedo() {
 
 #[test]
 fn nee_bsdf_and_mis_estimates_agree_within_noise() {
-    for name in ["cornell-box", "cornell-glossy"] {
+    for name in ["cornell-box", "cornell-indirect", "cornell-glossy"] {
         let params = [("res".to_string(), "16".to_string())];
         let scene = nis_render::scenes::load_with(name, &params).unwrap();
         let (mis, mis_err) = mean_and_std_err(&scene, Strategy::Mis, 8, 24);
