@@ -220,7 +220,7 @@ pub fn run_compare(args: &CompareArgs) -> Result<(), Box<dyn std::error::Error>>
         e.reference_mean,
         e.mean / e.reference_mean
     );
-    if !(args.max_error > 0.0) {
+    if args.max_error.is_nan() || args.max_error <= 0.0 {
         return Err("--max-error must be positive".into());
     }
     let map_path = args
