@@ -196,8 +196,9 @@ def main():
             print(row, flush=True)
 
     text = "\n".join(report) + "\n"
-    (args.out / "summary.md").write_text(text)
-    print(f"\nwrote {args.out / 'summary.md'}")
+    name = "benchmark.md" if args.bench_only else "summary.md"
+    (args.out / name).write_text(text)
+    print(f"\nwrote {args.out / name}")
 
 
 if __name__ == "__main__":

@@ -11,7 +11,7 @@
 //! meshes, the whole structure is ~250 lines, and owning it lets shadow rays stop at the first hit
 //! and keeps the triangle layout (`p0`, two edges) next to the nodes that reference it.
 
-use glam::Vec3;
+use glam::{Vec3, Vec3A};
 
 use crate::geometry::Ray;
 
@@ -99,26 +99,29 @@ impl Aabb {
         let d = (self.max - self.min).max(Vec3::ZERO);
         d.x * d.y + d.y * d.z + d.z * d.x
     }
+}
 
-    /// Slab test: whether the ray enters the box before `t_max`, and at what distance.
-    #[inline]
-    fn hit(&self, origin: Vec3, inv_dir: Vec3, t_max: f32) -> Option<f32> {
+/// A flattened node: an interior node's left child follows it, `offset` is its right child; a
+/// leaf holds `count` triangles starting at `offset`. Bounds are SIMD vectors for the slab test.
+#[derive(Clone, Copy, Debug)]
+struct Node {
+    min: Vec3A,
+    max: Vec3A,
+    offset: u32,
+    count: u16,
+    axis: u16,
+}
+
+impl Node {
+    /// Slab test: the entry distance if the ray meets the box before `t_max`.
+    #[inline(always)]
+    fn hit(&self, origin: Vec3A, inv_dir: Vec3A, t_max: f32) -> Option<f32> {
         let t0 = (self.min - origin) * inv_dir;
         let t1 = (self.max - origin) * inv_dir;
         let t_near = t0.min(t1).max_element().max(0.0);
         let t_far = t0.max(t1).min_element().min(t_max);
         (t_near <= t_far).then_some(t_near)
     }
-}
-
-/// A flattened node: an interior node's left child follows it, `offset` is its right child; a
-/// leaf holds `count` triangles starting at `offset`.
-#[derive(Clone, Copy, Debug)]
-struct Node {
-    bounds: Aabb,
-    offset: u32,
-    count: u16,
-    axis: u16,
 }
 
 /// Bins per axis for the SAH sweep.
@@ -170,78 +173,116 @@ impl Bvh {
 
     /// Closest hit before `t_max`.
     pub fn intersect(&self, ray: &Ray, mut t_max: f32) -> Option<TriangleHit> {
-        if self.nodes.is_empty() {
-            return None;
-        }
-        let inv_dir = ray.dir.recip();
-        let neg = [inv_dir.x < 0.0, inv_dir.y < 0.0, inv_dir.z < 0.0];
-        let mut stack = [0u32; 64];
+        let origin = Vec3A::from(ray.origin);
+        let inv_dir = Vec3A::from(ray.dir).recip();
+        let root = self.nodes.first()?;
+        root.hit(origin, inv_dir, t_max)?;
+        // Stack of (node, entry distance): far children whose boxes were hit.
+        let mut stack = [(0u32, 0.0f32); 64];
         let mut sp = 0usize;
         let mut idx = 0usize;
         let mut best: Option<TriangleHit> = None;
         loop {
             let node = &self.nodes[idx];
-            if node.bounds.hit(ray.origin, inv_dir, t_max).is_some() {
-                if node.count > 0 {
-                    let first = node.offset as usize;
-                    for (k, tri) in self.triangles[first..first + node.count as usize]
-                        .iter()
-                        .enumerate()
-                    {
-                        if let Some((t, u, v)) = tri.intersect(ray, t_max) {
-                            t_max = t;
-                            best = Some(TriangleHit {
-                                t,
-                                prim: (first + k) as u32,
-                                u,
-                                v,
-                            });
-                        }
+            if node.count > 0 {
+                let first = node.offset as usize;
+                for (k, tri) in self.triangles[first..first + node.count as usize]
+                    .iter()
+                    .enumerate()
+                {
+                    if let Some((t, u, v)) = tri.intersect(ray, t_max) {
+                        t_max = t;
+                        best = Some(TriangleHit {
+                            t,
+                            prim: (first + k) as u32,
+                            u,
+                            v,
+                        });
                     }
-                } else {
-                    // Visit the child on the ray's near side first.
-                    let (near, far) = if neg[node.axis as usize] {
-                        (node.offset as usize, idx + 1)
-                    } else {
-                        (idx + 1, node.offset as usize)
-                    };
-                    stack[sp] = far as u32;
-                    sp += 1;
-                    idx = near;
-                    continue;
+                }
+            } else {
+                let (left, right) = (idx + 1, node.offset as usize);
+                let hl = self.nodes[left].hit(origin, inv_dir, t_max);
+                let hr = self.nodes[right].hit(origin, inv_dir, t_max);
+                match (hl, hr) {
+                    (Some(tl), Some(tr)) => {
+                        let (near, far, t_far) = if tl <= tr {
+                            (left, right, tr)
+                        } else {
+                            (right, left, tl)
+                        };
+                        stack[sp] = (far as u32, t_far);
+                        sp += 1;
+                        idx = near;
+                        continue;
+                    }
+                    (Some(_), None) => {
+                        idx = left;
+                        continue;
+                    }
+                    (None, Some(_)) => {
+                        idx = right;
+                        continue;
+                    }
+                    (None, None) => {}
                 }
             }
-            if sp == 0 {
-                return best;
+            // Pop the next far child that may still hold a closer hit.
+            loop {
+                if sp == 0 {
+                    return best;
+                }
+                sp -= 1;
+                let (i, t) = stack[sp];
+                if t <= t_max {
+                    idx = i as usize;
+                    break;
+                }
             }
-            sp -= 1;
-            idx = stack[sp] as usize;
         }
     }
 
     /// Whether anything is hit before `t_max` (shadow rays: stops at the first hit).
     pub fn occluded(&self, ray: &Ray, t_max: f32) -> bool {
-        if self.nodes.is_empty() {
+        let origin = Vec3A::from(ray.origin);
+        let inv_dir = Vec3A::from(ray.dir).recip();
+        let Some(root) = self.nodes.first() else {
+            return false;
+        };
+        if root.hit(origin, inv_dir, t_max).is_none() {
             return false;
         }
-        let inv_dir = ray.dir.recip();
         let mut stack = [0u32; 64];
         let mut sp = 0usize;
         let mut idx = 0usize;
         loop {
             let node = &self.nodes[idx];
-            if node.bounds.hit(ray.origin, inv_dir, t_max).is_some() {
-                if node.count > 0 {
-                    let first = node.offset as usize;
-                    let leaf = &self.triangles[first..first + node.count as usize];
-                    if leaf.iter().any(|tri| tri.intersect(ray, t_max).is_some()) {
-                        return true;
+            if node.count > 0 {
+                let first = node.offset as usize;
+                let leaf = &self.triangles[first..first + node.count as usize];
+                if leaf.iter().any(|tri| tri.intersect(ray, t_max).is_some()) {
+                    return true;
+                }
+            } else {
+                let (left, right) = (idx + 1, node.offset as usize);
+                let hl = self.nodes[left].hit(origin, inv_dir, t_max).is_some();
+                let hr = self.nodes[right].hit(origin, inv_dir, t_max).is_some();
+                match (hl, hr) {
+                    (true, true) => {
+                        stack[sp] = right as u32;
+                        sp += 1;
+                        idx = left;
+                        continue;
                     }
-                } else {
-                    stack[sp] = node.offset;
-                    sp += 1;
-                    idx += 1;
-                    continue;
+                    (true, false) => {
+                        idx = left;
+                        continue;
+                    }
+                    (false, true) => {
+                        idx = right;
+                        continue;
+                    }
+                    (false, false) => {}
                 }
             }
             if sp == 0 {
@@ -283,7 +324,8 @@ fn build_node(
         .fold(Aabb::EMPTY, |b, &i| b.union(&bounds[i as usize]));
     let this = nodes.len();
     nodes.push(Node {
-        bounds: node_bounds,
+        min: node_bounds.min.into(),
+        max: node_bounds.max.into(),
         offset: first as u32,
         count: order.len() as u16,
         axis: 0,
