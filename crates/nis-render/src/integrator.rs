@@ -127,6 +127,9 @@ impl Integrator {
         let mut eta = 1.0f32;
         let mut prev_pdf = 0.0f32;
         let mut prev_delta = true;
+        // The previous vertex itself (not the offset ray origin), for light densities that
+        // must match the ones next-event estimation computed there.
+        let mut prev_p = ray.origin;
         let lights = &scene.lights;
         let mut depth = 0u32;
         loop {
@@ -150,7 +153,11 @@ impl Integrator {
                     let w = if self.strategy == Strategy::Mis && !prev_delta {
                         power_heuristic(
                             prev_pdf,
-                            lights.pdf_area(hit.light as usize, hit.t, cos_light),
+                            lights.pdf_area(
+                                hit.light as usize,
+                                (hit.p - prev_p).length(),
+                                cos_light,
+                            ),
                         )
                     } else {
                         self.emitter_weight(prev_delta, prev_pdf, 0.0)
@@ -261,6 +268,7 @@ impl Integrator {
                 });
             }
             prev_pdf = pdf;
+            prev_p = hit.p;
             prev_delta = sampled_delta;
             depth += 1;
             if depth >= self.rr_depth {
