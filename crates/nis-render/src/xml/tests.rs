@@ -96,3 +96,39 @@ fn defaults_are_overridden_by_parameters_and_must_exist() {
     let s = load_scene_str(xml, Path::new("."), "t", &params).unwrap();
     assert_eq!((s.camera.width(), s.camera.height()), (9, 5));
 }
+
+#[test]
+fn bsdfs_read_mitsuba_parameters() {
+    let xml = format!(
+        r#"<scene>{SENSOR}
+        <bsdf type="twosided" id="paper"><bsdf type="diffuse"><float name="reflectance" value="0.25"/></bsdf></bsdf>
+        <bsdf type="dielectric" id="water"><string name="int_ior" value="water"/><float name="ext_ior" value="1"/></bsdf>
+        <bsdf type="conductor" id="mirror"/>
+        <shape type="rectangle"><ref id="paper"/></shape>
+        <shape type="rectangle"><ref id="water"/></shape>
+        <shape type="rectangle"><ref id="mirror"/></shape>
+        <shape type="cube"/>
+        </scene>"#
+    );
+    let s = load(&xml).unwrap();
+    assert!(s.materials[0].two_sided);
+    assert_eq!(
+        s.materials[0].bsdf,
+        Bsdf::Diffuse {
+            reflectance: Rgb::splat(0.25)
+        }
+    );
+    assert!(
+        matches!(s.materials[1].bsdf, Bsdf::Dielectric { eta, .. } if (eta - 1.333).abs() < 1e-6)
+    );
+    assert!(
+        matches!(s.materials[2].bsdf, Bsdf::Conductor { eta, k, .. } if eta == Rgb::ZERO && k == Rgb::ONE)
+    );
+    // A shape without a bsdf gets Mitsuba's default: diffuse 0.5.
+    assert_eq!(
+        s.materials[3].bsdf,
+        Bsdf::Diffuse {
+            reflectance: Rgb::splat(0.5)
+        }
+    );
+}
