@@ -17,6 +17,8 @@
 //! assert_eq!(out.image.pixels.len(), 64);
 //! ```
 
+#![warn(missing_docs)]
+
 pub mod bsdf;
 pub mod bvh;
 pub mod camera;
