@@ -128,6 +128,9 @@ impl Node {
 const SAH_BINS: usize = 16;
 /// Largest leaf the builder makes.
 const MAX_LEAF: usize = 4;
+/// Depth from which nodes are split at the median instead of by SAH, keeping the tree (and
+/// the fixed traversal stack of 64 entries) shallow: at most this plus log2(n) levels.
+const MAX_SAH_DEPTH: usize = 30;
 /// Cost of one traversal step relative to one triangle test.
 const TRAVERSAL_COST: f32 = 1.0;
 
@@ -160,7 +163,7 @@ impl Bvh {
         let mut order: Vec<u32> = (0..triangles.len() as u32).collect();
         let mut nodes = Vec::with_capacity(2 * triangles.len() / MAX_LEAF + 1);
         if !triangles.is_empty() {
-            build_node(&mut nodes, &mut order, 0, &bounds, &centroids);
+            build_node(&mut nodes, &mut order, 0, 0, &bounds, &centroids);
         }
         let triangles = order.iter().map(|&i| triangles[i as usize]).collect();
         (Bvh { nodes, triangles }, order)
@@ -316,6 +319,7 @@ fn build_node(
     nodes: &mut Vec<Node>,
     order: &mut [u32],
     first: usize,
+    depth: usize,
     bounds: &[Aabb],
     centroids: &[Vec3],
 ) -> usize {
@@ -339,6 +343,18 @@ fn build_node(
     }
     let extent = cb.max - cb.min;
     let axis = extent.max_position();
+    if depth >= MAX_SAH_DEPTH {
+        // Deep below here SAH may be peeling off a few triangles at a time; split at the
+        // median instead, which bounds the remaining depth by log2(n) and so the
+        // traversal stack.
+        let mid = order.len() / 2;
+        order.select_nth_unstable_by(mid, |&a, &b| {
+            centroids[a as usize][axis].total_cmp(&centroids[b as usize][axis])
+        });
+        return finish_interior(
+            nodes, order, first, depth, bounds, centroids, this, mid, axis,
+        );
+    }
     let split = if extent[axis] > 0.0 {
         best_split(order, axis, &cb, bounds, centroids, &node_bounds)
     } else {
@@ -357,9 +373,26 @@ fn build_node(
     } else {
         mid
     };
+    finish_interior(
+        nodes, order, first, depth, bounds, centroids, this, mid, axis,
+    )
+}
+
+/// Build both children of node `this`, split at `mid`, and link them.
+fn finish_interior(
+    nodes: &mut Vec<Node>,
+    order: &mut [u32],
+    first: usize,
+    depth: usize,
+    bounds: &[Aabb],
+    centroids: &[Vec3],
+    this: usize,
+    mid: usize,
+    axis: usize,
+) -> usize {
     let (left, right) = order.split_at_mut(mid);
-    build_node(nodes, left, first, bounds, centroids);
-    let right_child = build_node(nodes, right, first + mid, bounds, centroids);
+    build_node(nodes, left, first, depth + 1, bounds, centroids);
+    let right_child = build_node(nodes, right, first + mid, depth + 1, bounds, centroids);
     nodes[this].offset = right_child as u32;
     nodes[this].count = 0;
     nodes[this].axis = axis as u16;
@@ -439,6 +472,26 @@ mod tests {
         tris.iter()
             .filter_map(|t| t.intersect(ray, f32::INFINITY).map(|h| h.0))
             .min_by(|a, b| a.total_cmp(b))
+    }
+
+    #[test]
+    fn adversarial_layouts_keep_the_tree_shallow() {
+        // Triangles at exponentially growing distances invite SAH to peel one off per level.
+        let tris: Vec<Triangle> = (0..300)
+            .map(|i| {
+                let x = 1.1f32.powi(i);
+                Triangle::new(
+                    Vec3::new(x, 0.0, 0.0),
+                    Vec3::new(x, 1.0, 0.0),
+                    Vec3::new(x, 0.0, 1.0),
+                )
+            })
+            .chain((0..100).map(|_| Triangle::new(Vec3::ZERO, Vec3::X, Vec3::Y)))
+            .collect();
+        let (bvh, _) = Bvh::build(&tris);
+        assert!(bvh.depth() <= MAX_SAH_DEPTH + 12, "depth {}", bvh.depth());
+        let ray = Ray::new(Vec3::new(-1.0, 0.2, 0.2), Vec3::X);
+        assert!(bvh.intersect(&ray, f32::INFINITY).is_some());
     }
 
     #[test]
