@@ -4,6 +4,7 @@
 mod bench;
 mod demo;
 mod integrate;
+mod render;
 mod report;
 
 use std::path::PathBuf;
@@ -36,6 +37,14 @@ enum Command {
     ///
     /// Example: nis demo --steps 300
     Demo(demo::DemoArgs),
+    /// Render a scene with the CPU path tracer.
+    ///
+    /// Example: nis render cornell-box --spp 64 --out cornell.exr
+    Render(render::RenderArgs),
+    /// Compare an image with a reference (MAPE, relMSE, error map).
+    ///
+    /// Example: nis compare cornell.exr reference.exr
+    Compare(render::CompareArgs),
     /// Measure throughput and write it to docs/BENCHMARKS.md.
     #[command(subcommand)]
     Bench(BenchCommand),
@@ -64,6 +73,8 @@ fn main() -> ExitCode {
             integrate::list();
             Ok(())
         }
+        Command::Render(args) => render::run_render(&args),
+        Command::Compare(args) => render::run_compare(&args),
         Command::Bench(BenchCommand::Flow { batch, docs }) => bench::run_flow(batch, &docs),
     };
     match result {

@@ -1,0 +1,281 @@
+//! Bidirectional scattering distribution functions (BSDFs): how a surface scatters light.
+//!
+//! Every BSDF works in the local shading frame (normal = +z) with pbrt's conventions (Pharr,
+//! Jakob & Humphreys, *PBR* 4th ed., ch. 9): `wo` points to where the path came from, `wi` to
+//! where it goes next, and `f(wo, wi)` excludes the cosine factor. Each BSDF can be evaluated,
+//! sampled, and asked the density of its sampling strategy, so that multiple importance
+//! sampling and path guiding can mix it with other strategies.
+//!
+//! The set mirrors Mitsuba 3's plugins of the same names, including their conventions: diffuse
+//! and conductors are one-sided (black when seen from below) unless wrapped as two-sided, and
+//! transmission carries the `1/η²` radiance scaling.
+
+mod fresnel;
+mod microfacet;
+
+use std::f32::consts::FRAC_1_PI;
+
+use glam::{Vec2, Vec3};
+
+pub use fresnel::{fresnel_conductor, fresnel_dielectric, refract};
+pub use microfacet::Ggx;
+
+use crate::geometry::{reflect_z, Rgb};
+use crate::sampling::square_to_cosine_hemisphere;
+use microfacet::{
+    rough_conductor_f, rough_conductor_pdf, rough_conductor_sample, rough_dielectric_f,
+    rough_dielectric_pdf, rough_dielectric_sample,
+};
+
+/// One scattering model with its parameters.
+#[derive(Clone, Debug, PartialEq)]
+pub enum Bsdf {
+    /// Lambertian reflection `reflectance / π` (Mitsuba `diffuse`).
+    Diffuse {
+        /// Albedo in `[0, 1]`.
+        reflectance: Rgb,
+    },
+    /// Smooth conductor: a mirror with conductor Fresnel (Mitsuba `conductor`).
+    /// `eta = 0, k = 1` is a perfect mirror.
+    Conductor {
+        /// Real part of the relative index of refraction.
+        eta: Rgb,
+        /// Imaginary part (absorption).
+        k: Rgb,
+        /// Extra multiplicative factor.
+        specular_reflectance: Rgb,
+    },
+    /// GGX rough conductor (Mitsuba `roughconductor`, `distribution = ggx`).
+    RoughConductor {
+        /// GGX roughness.
+        alpha: f32,
+        /// Real part of the relative index of refraction.
+        eta: Rgb,
+        /// Imaginary part (absorption).
+        k: Rgb,
+        /// Extra multiplicative factor.
+        specular_reflectance: Rgb,
+    },
+    /// Smooth dielectric interface, e.g. glass (Mitsuba `dielectric`).
+    Dielectric {
+        /// Interior over exterior index of refraction.
+        eta: f32,
+        /// Factor on reflection.
+        specular_reflectance: Rgb,
+        /// Factor on transmission.
+        specular_transmittance: Rgb,
+    },
+    /// GGX rough dielectric (Mitsuba `roughdielectric`, `distribution = ggx`).
+    RoughDielectric {
+        /// GGX roughness.
+        alpha: f32,
+        /// Interior over exterior index of refraction.
+        eta: f32,
+        /// Factor on reflection.
+        specular_reflectance: Rgb,
+        /// Factor on transmission.
+        specular_transmittance: Rgb,
+    },
+}
+
+/// A direction drawn from a BSDF.
+#[derive(Clone, Copy, Debug)]
+pub struct BsdfSample {
+    /// Sampled direction (local frame).
+    pub wi: Vec3,
+    /// BSDF value for `(wo, wi)`; for a delta lobe, the lobe's weight divided by `|cos θi|`.
+    pub f: Rgb,
+    /// Density (solid angle) or, for a delta lobe, the discrete probability of the lobe.
+    pub pdf: f32,
+    /// Whether `wi` came from a Dirac delta lobe (`f` and `pdf` are then not densities).
+    pub delta: bool,
+    /// Relative index of refraction crossed (1 for reflection).
+    pub eta: f32,
+}
+
+/// A surface's BSDF with Mitsuba's `twosided` switch.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Material {
+    /// The scattering model.
+    pub bsdf: Bsdf,
+    /// When set, the back side behaves like the front (Mitsuba `twosided`).
+    pub two_sided: bool,
+}
+
+impl Material {
+    /// A one-sided material.
+    pub fn new(bsdf: Bsdf) -> Self {
+        Self {
+            bsdf,
+            two_sided: false,
+        }
+    }
+
+    fn flip(&self, wo: Vec3) -> bool {
+        self.two_sided && wo.z < 0.0
+    }
+
+    /// Whether every lobe is a Dirac delta (no point in light sampling or MIS).
+    pub fn is_delta(&self) -> bool {
+        matches!(self.bsdf, Bsdf::Conductor { .. } | Bsdf::Dielectric { .. })
+    }
+
+    /// BSDF value `f(wo, wi)` (zero for delta lobes).
+    pub fn f(&self, wo: Vec3, wi: Vec3) -> Rgb {
+        if self.flip(wo) {
+            return self.bsdf.f(-wo, -wi);
+        }
+        self.bsdf.f(wo, wi)
+    }
+
+    /// Solid-angle density with which [`Material::sample`] draws `wi` (zero for delta lobes).
+    pub fn pdf(&self, wo: Vec3, wi: Vec3) -> f32 {
+        if self.flip(wo) {
+            return self.bsdf.pdf(-wo, -wi);
+        }
+        self.bsdf.pdf(wo, wi)
+    }
+
+    /// Draw `wi` given `wo` and three uniform numbers (`u_lobe` picks a lobe).
+    pub fn sample(&self, wo: Vec3, u_lobe: f32, u: Vec2) -> Option<BsdfSample> {
+        if self.flip(wo) {
+            let mut s = self.bsdf.sample(-wo, u_lobe, u)?;
+            s.wi = -s.wi;
+            return Some(s);
+        }
+        self.bsdf.sample(wo, u_lobe, u)
+    }
+}
+
+impl Bsdf {
+    /// BSDF value `f(wo, wi)` (zero for delta lobes).
+    pub fn f(&self, wo: Vec3, wi: Vec3) -> Rgb {
+        match *self {
+            Bsdf::Diffuse { reflectance } => {
+                if wo.z > 0.0 && wi.z > 0.0 {
+                    reflectance * FRAC_1_PI
+                } else {
+                    Rgb::ZERO
+                }
+            }
+            Bsdf::RoughConductor {
+                alpha,
+                eta,
+                k,
+                specular_reflectance,
+            } => rough_conductor_f(&Ggx { alpha }, eta, k, specular_reflectance, wo, wi),
+            Bsdf::RoughDielectric {
+                alpha,
+                eta,
+                specular_reflectance,
+                specular_transmittance,
+            } => rough_dielectric_f(
+                &Ggx { alpha },
+                eta,
+                specular_reflectance,
+                specular_transmittance,
+                wo,
+                wi,
+            ),
+            Bsdf::Conductor { .. } | Bsdf::Dielectric { .. } => Rgb::ZERO,
+        }
+    }
+
+    /// Solid-angle density of [`Bsdf::sample`] (zero for delta lobes).
+    pub fn pdf(&self, wo: Vec3, wi: Vec3) -> f32 {
+        match *self {
+            Bsdf::Diffuse { .. } => {
+                if wo.z > 0.0 && wi.z > 0.0 {
+                    wi.z * FRAC_1_PI
+                } else {
+                    0.0
+                }
+            }
+            Bsdf::RoughConductor { alpha, .. } => rough_conductor_pdf(&Ggx { alpha }, wo, wi),
+            Bsdf::RoughDielectric { alpha, eta, .. } => {
+                rough_dielectric_pdf(&Ggx { alpha }, eta, wo, wi)
+            }
+            Bsdf::Conductor { .. } | Bsdf::Dielectric { .. } => 0.0,
+        }
+    }
+
+    /// Draw `wi` given `wo`.
+    pub fn sample(&self, wo: Vec3, u_lobe: f32, u: Vec2) -> Option<BsdfSample> {
+        let from_density = |wi: Vec3| {
+            let pdf = self.pdf(wo, wi);
+            (pdf > 0.0).then(|| BsdfSample {
+                wi,
+                f: self.f(wo, wi),
+                pdf,
+                delta: false,
+                eta: 1.0,
+            })
+        };
+        match *self {
+            Bsdf::Diffuse { .. } => {
+                if wo.z <= 0.0 {
+                    return None;
+                }
+                from_density(square_to_cosine_hemisphere(u))
+            }
+            Bsdf::RoughConductor { alpha, .. } => {
+                from_density(rough_conductor_sample(&Ggx { alpha }, wo, u)?)
+            }
+            Bsdf::RoughDielectric { alpha, eta, .. } => {
+                let wi = rough_dielectric_sample(&Ggx { alpha }, eta, wo, u_lobe, u)?;
+                let mut s = from_density(wi)?;
+                if wi.z * wo.z < 0.0 {
+                    s.eta = if wo.z > 0.0 { eta } else { 1.0 / eta };
+                }
+                Some(s)
+            }
+            Bsdf::Conductor {
+                eta,
+                k,
+                specular_reflectance,
+            } => {
+                if wo.z <= 0.0 {
+                    return None;
+                }
+                let wi = reflect_z(wo);
+                Some(BsdfSample {
+                    wi,
+                    f: specular_reflectance * fresnel_conductor(wo.z, eta, k) / wi.z,
+                    pdf: 1.0,
+                    delta: true,
+                    eta: 1.0,
+                })
+            }
+            Bsdf::Dielectric {
+                eta,
+                specular_reflectance,
+                specular_transmittance,
+            } => {
+                let (f, cos_t, etap) = fresnel_dielectric(wo.z, eta);
+                if u_lobe < f {
+                    let wi = reflect_z(wo);
+                    Some(BsdfSample {
+                        wi,
+                        f: specular_reflectance * f / wi.z.abs(),
+                        pdf: f,
+                        delta: true,
+                        eta: 1.0,
+                    })
+                } else {
+                    let n = Vec3::new(0.0, 0.0, wo.z.signum());
+                    let wi = refract(wo, n, etap, cos_t);
+                    Some(BsdfSample {
+                        wi,
+                        f: specular_transmittance * (1.0 - f) / (wi.z.abs() * etap * etap),
+                        pdf: 1.0 - f,
+                        delta: true,
+                        eta: etap,
+                    })
+                }
+            }
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests;

@@ -1,0 +1,96 @@
+//! Path guiding: learned distributions of incident light that the integrator samples directions
+//! from, mixed with BSDF sampling.
+//!
+//! Guiding methods (Müller et al. 2017, "Practical Path Guiding"; Vorba et al. 2014, "On-line
+//! Learning of Parametric Mixture Models for Light Transport Simulation"; Müller et al. 2019,
+//! "Neural Importance Sampling") share one narrow interface, [`Guide`]: at a path vertex, draw
+//! a direction with its density and evaluate the density of any direction; after paths finish,
+//! learn from what they found ([`GuideRecord`]); and be told when a training iteration starts
+//! and ends. The integrator uses the *one-sample* mixture of the guide and the BSDF: with the
+//! guide's selection probability `α` it samples the guide, otherwise the BSDF, and always
+//! weights by the mixture density `α p_guide + (1 − α) p_bsdf`. [`NoGuide`] (α = 0) is plain
+//! unidirectional path tracing.
+
+use glam::{Vec2, Vec3};
+
+use crate::bsdf::Material;
+use crate::geometry::Rgb;
+
+/// What a guide may condition on at a path vertex (world space).
+#[derive(Clone, Copy, Debug)]
+pub struct GuideVertex {
+    /// Position.
+    pub p: Vec3,
+    /// Shading normal.
+    pub n: Vec3,
+    /// Unit direction back along the path (towards the camera).
+    pub wo: Vec3,
+}
+
+/// One training sample from a finished path: at `vertex`, direction `wi` was sampled with
+/// mixture density `pdf`, and `radiance` is the (single-sample) estimate of the radiance that
+/// arrived from `wi`, i.e. everything the rest of the path collected divided by the path
+/// throughput up to and including this vertex's scattering.
+#[derive(Clone, Copy, Debug)]
+pub struct GuideRecord {
+    /// Where the direction was sampled.
+    pub vertex: GuideVertex,
+    /// Sampled incident direction (world, unit).
+    pub wi: Vec3,
+    /// Mixture density the direction was drawn with.
+    pub pdf: f32,
+    /// BSDF value times `|cos θi|` for `(wo, wi)`, to learn the product if wanted.
+    pub bsdf_cos: Rgb,
+    /// Incident radiance estimate along `wi`.
+    pub radiance: Rgb,
+}
+
+/// A directional sampling distribution that may learn from finished paths.
+///
+/// Implementations are shared between render threads: sampling takes `&self`, learning
+/// (`record`) too (use interior mutability, e.g. a `Mutex`'d buffer), while iteration hooks
+/// take `&mut self` and are called between render passes.
+pub trait Guide: Send + Sync {
+    /// Probability `α` of sampling the guide rather than the BSDF at this vertex; 0 disables
+    /// guiding here.
+    fn selection_probability(&self, vertex: &GuideVertex, material: &Material) -> f32;
+
+    /// Draw a world-space direction and its solid-angle density.
+    fn sample(&self, vertex: &GuideVertex, u: Vec2) -> Option<(Vec3, f32)>;
+
+    /// Solid-angle density of [`Guide::sample`] producing `wi`.
+    fn pdf(&self, vertex: &GuideVertex, wi: Vec3) -> f32;
+
+    /// Whether the integrator should collect [`GuideRecord`]s (costs time; off when not
+    /// training).
+    fn wants_records(&self) -> bool {
+        false
+    }
+
+    /// Learn from the records of a batch of finished paths.
+    fn record(&self, _records: &[GuideRecord]) {}
+
+    /// Called before render pass `iteration` starts.
+    fn begin_iteration(&mut self, _iteration: usize) {}
+
+    /// Called after render pass `iteration` has finished (e.g. to refit or train).
+    fn end_iteration(&mut self, _iteration: usize) {}
+}
+
+/// No guiding: every direction comes from the BSDF.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct NoGuide;
+
+impl Guide for NoGuide {
+    fn selection_probability(&self, _: &GuideVertex, _: &Material) -> f32 {
+        0.0
+    }
+
+    fn sample(&self, _: &GuideVertex, _: Vec2) -> Option<(Vec3, f32)> {
+        None
+    }
+
+    fn pdf(&self, _: &GuideVertex, _: Vec3) -> f32 {
+        0.0
+    }
+}

@@ -1,0 +1,84 @@
+//! `nis-render`: a small, correct and fast CPU path tracer for the path-guiding experiments of
+//! *Neural Importance Sampling* (Müller et al. 2019, §3.3 of the arXiv report).
+//!
+//! The layout follows pbrt-v4, one concept per module: [`geometry`] and [`sampling`] (shared
+//! math), [`shape`] and [`bvh`] (geometry and its acceleration structure), [`camera`],
+//! [`bsdf`] (materials), [`light`], [`scene`], [`integrator`] (path tracing with NEE + MIS),
+//! [`render`] (the parallel, deterministic render loop), [`guiding`] (the interface that path
+//! guiding methods implement), [`film`] and [`compare`] (images and error metrics), [`xml`]
+//! (Mitsuba 3 scenes) and [`scenes`] (the built-in test scenes, themselves Mitsuba XML).
+//!
+//! ```
+//! use nis_render::{render::{render, Budget}, integrator::{Integrator, Strategy}};
+//! let mut scene = nis_render::scenes::load("cornell-box").unwrap();
+//! scene.camera.set_resolution(8, 8);
+//! let integrator = Integrator::from_scene(&scene, Strategy::Mis);
+//! let out = render(&scene, &integrator, Budget::Samples(2), 1, &mut nis_render::guiding::NoGuide, &|_| {});
+//! assert_eq!(out.image.pixels.len(), 64);
+//! ```
+
+#![warn(missing_docs)]
+
+pub mod bsdf;
+pub mod bvh;
+pub mod camera;
+pub mod compare;
+pub mod film;
+pub mod geometry;
+pub mod guiding;
+pub mod integrator;
+pub mod light;
+pub mod render;
+pub mod sampling;
+pub mod scene;
+pub mod scenes;
+pub mod shape;
+pub mod xml;
+
+/// Everything that can go wrong while loading, rendering or writing.
+#[derive(Debug, thiserror::Error)]
+pub enum Error {
+    /// A scene file is malformed or uses something unsupported.
+    #[error("{file}:{line}: {message}")]
+    Xml {
+        /// Scene file.
+        file: String,
+        /// 1-based line of the offending element.
+        line: usize,
+        /// What is wrong.
+        message: String,
+    },
+    /// A mesh file named by a scene does not exist.
+    #[error("mesh file not found: {path}")]
+    MissingMesh {
+        /// The path looked for.
+        path: String,
+    },
+    /// A mesh file could not be read.
+    #[error("could not load mesh {path}: {message}")]
+    Mesh {
+        /// The mesh file.
+        path: String,
+        /// Reason.
+        message: String,
+    },
+    /// Reading a file failed.
+    #[error("cannot read {path}: {source}")]
+    Io {
+        /// The file.
+        path: String,
+        /// Cause.
+        source: std::io::Error,
+    },
+    /// Reading or writing an image failed.
+    #[error("image {path}: {message}")]
+    Image {
+        /// The image file.
+        path: String,
+        /// Reason.
+        message: String,
+    },
+    /// Invalid input that is not tied to a file.
+    #[error("{0}")]
+    Invalid(String),
+}

@@ -1,0 +1,129 @@
+//! Warps from uniform random numbers to directions and points, discrete distributions, and the
+//! power heuristic for multiple importance sampling.
+//!
+//! The warps are the standard ones (Pharr, Jakob & Humphreys, *Physically Based Rendering*, 4th
+//! ed., ch. A.5); the power heuristic with β = 2 is Veach's (thesis, 1997, §9.2.4).
+
+use std::f32::consts::PI;
+
+use glam::{Vec2, Vec3};
+
+/// Concentric map from the unit square to the unit disk (Shirley & Chiu 1997).
+pub fn square_to_disk_concentric(u: Vec2) -> Vec2 {
+    let o = 2.0 * u - Vec2::ONE;
+    if o.x == 0.0 && o.y == 0.0 {
+        return Vec2::ZERO;
+    }
+    let (r, theta) = if o.x.abs() > o.y.abs() {
+        (o.x, std::f32::consts::FRAC_PI_4 * (o.y / o.x))
+    } else {
+        (
+            o.y,
+            std::f32::consts::FRAC_PI_2 - std::f32::consts::FRAC_PI_4 * (o.x / o.y),
+        )
+    };
+    r * Vec2::new(theta.cos(), theta.sin())
+}
+
+/// Cosine-weighted direction on the +z hemisphere (Malley's method); pdf is `cos θ / π`.
+pub fn square_to_cosine_hemisphere(u: Vec2) -> Vec3 {
+    let d = square_to_disk_concentric(u);
+    let z = (1.0 - d.length_squared()).max(0.0).sqrt();
+    Vec3::new(d.x, d.y, z)
+}
+
+/// Uniform direction on the unit sphere; pdf is `1 / 4π`.
+pub fn square_to_uniform_sphere(u: Vec2) -> Vec3 {
+    let z = 1.0 - 2.0 * u.x;
+    let r = (1.0 - z * z).max(0.0).sqrt();
+    let phi = 2.0 * PI * u.y;
+    Vec3::new(r * phi.cos(), r * phi.sin(), z)
+}
+
+/// Uniform barycentrics `(b1, b2)` on a triangle (the square-root parametrisation).
+pub fn square_to_triangle(u: Vec2) -> Vec2 {
+    let su = u.x.sqrt();
+    Vec2::new(1.0 - su, u.y * su)
+}
+
+/// Veach's power heuristic with β = 2 for two strategies with densities `pdf_a` and `pdf_b`.
+pub fn power_heuristic(pdf_a: f32, pdf_b: f32) -> f32 {
+    let a = pdf_a * pdf_a;
+    let b = pdf_b * pdf_b;
+    if a + b > 0.0 && (a + b).is_finite() {
+        a / (a + b)
+    } else if a.is_infinite() {
+        1.0
+    } else {
+        0.0
+    }
+}
+
+/// A discrete distribution over `0..n` with probabilities proportional to given weights.
+#[derive(Clone, Debug)]
+pub struct Distribution1D {
+    cdf: Vec<f32>,
+    total: f32,
+}
+
+impl Distribution1D {
+    /// Build from non-negative weights; `None` if they sum to zero.
+    pub fn new(weights: &[f32]) -> Option<Self> {
+        let mut cdf = Vec::with_capacity(weights.len());
+        let mut acc = 0.0f64;
+        for &w in weights {
+            acc += f64::from(w.max(0.0));
+            cdf.push(acc as f32);
+        }
+        let total = acc as f32;
+        if total <= 0.0 {
+            return None;
+        }
+        for c in &mut cdf {
+            *c /= total;
+        }
+        Some(Self { cdf, total })
+    }
+
+    /// Index drawn for the uniform number `u`.
+    pub fn sample(&self, u: f32) -> usize {
+        let i = self.cdf.partition_point(|&c| c <= u);
+        i.min(self.cdf.len() - 1)
+    }
+
+    /// Probability of index `i`.
+    pub fn pmf(&self, i: usize) -> f32 {
+        let lo = if i == 0 { 0.0 } else { self.cdf[i - 1] };
+        self.cdf[i] - lo
+    }
+
+    /// Sum of the weights it was built from.
+    pub fn total(&self) -> f32 {
+        self.total
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn distribution_pmf_matches_weights_and_sampling_inverts_cdf() {
+        let d = Distribution1D::new(&[1.0, 0.0, 3.0]).unwrap();
+        assert!((d.pmf(0) - 0.25).abs() < 1e-6 && d.pmf(1) == 0.0);
+        assert!((d.pmf(2) - 0.75).abs() < 1e-6);
+        assert_eq!(d.sample(0.1), 0);
+        assert_eq!(d.sample(0.25), 2);
+        assert_eq!(d.sample(0.999_999), 2);
+        assert!(Distribution1D::new(&[0.0, 0.0]).is_none());
+    }
+
+    #[test]
+    fn cosine_hemisphere_is_unit_and_upper() {
+        for i in 0..100 {
+            let u = Vec2::new((i as f32 + 0.5) / 100.0, ((i * 37) % 100) as f32 / 100.0);
+            let w = square_to_cosine_hemisphere(u);
+            assert!((w.length() - 1.0).abs() < 1e-4 && w.z >= 0.0);
+        }
+    }
+}

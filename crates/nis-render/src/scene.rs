@@ -1,0 +1,298 @@
+//! A scene ready to render: geometry in a BVH (plus analytic spheres), materials, lights, the
+//! camera, and the film, sampler and integrator settings it was described with.
+//!
+//! Scenes come from [`crate::xml`] (Mitsuba 3 XML) or from [`crate::scenes`] (built-in XML);
+//! [`Scene::new`] turns a list of [`Shape`]s into the structures the integrator queries:
+//! closest-hit and shadow-ray tests, and per-hit shading data.
+
+use glam::Vec3;
+
+use crate::bsdf::Material;
+use crate::bvh::{Bvh, Triangle};
+use crate::camera::Camera;
+use crate::geometry::{Ray, Rgb};
+use crate::light::{AreaLight, LightPrimitive, Lights};
+use crate::shape::{Geometry, Shape, Sphere};
+use crate::Error;
+
+/// Settings a scene file carries for the film, sampler and integrator; command-line flags
+/// override them.
+#[derive(Clone, Debug, PartialEq)]
+pub struct RenderSettings {
+    /// Samples per pixel (Mitsuba sampler `sample_count`).
+    pub spp: u32,
+    /// Longest path in segments, camera segment included; `-1` is unbounded (Mitsuba `max_depth`).
+    pub max_depth: i32,
+    /// Depth from which Russian roulette may end paths (Mitsuba `rr_depth`).
+    pub rr_depth: u32,
+    /// Hide directly visible emitters (Mitsuba `hide_emitters`).
+    pub hide_emitters: bool,
+}
+
+impl Default for RenderSettings {
+    fn default() -> Self {
+        RenderSettings {
+            spp: 4,
+            max_depth: -1,
+            rr_depth: 5,
+            hide_emitters: false,
+        }
+    }
+}
+
+/// Where a ray hit a surface, with what is needed to shade there.
+#[derive(Clone, Copy, Debug)]
+pub struct SurfaceHit {
+    /// Hit point.
+    pub p: Vec3,
+    /// Ray distance.
+    pub t: f32,
+    /// Unit geometric normal.
+    pub ng: Vec3,
+    /// Unit shading normal (the BSDF's +z).
+    pub ns: Vec3,
+    /// Index into [`Scene::materials`].
+    pub material: u32,
+    /// Index into the scene's area lights, or [`NO_LIGHT`].
+    pub light: u32,
+}
+
+/// [`SurfaceHit::light`] of a surface that does not emit.
+pub const NO_LIGHT: u32 = u32::MAX;
+
+#[derive(Clone, Copy, Debug)]
+struct TriangleInfo {
+    ng: Vec3,
+    /// Index of the vertex normals in `Scene::vertex_normals`, or `u32::MAX` (flat).
+    smooth: u32,
+    material: u32,
+    light: u32,
+}
+
+#[derive(Clone, Copy, Debug)]
+struct SphereInfo {
+    sphere: Sphere,
+    material: u32,
+    light: u32,
+}
+
+/// A renderable scene.
+#[derive(Clone, Debug)]
+pub struct Scene {
+    /// The camera (its resolution is the film's).
+    pub camera: Camera,
+    /// Film, sampler and integrator settings from the scene description.
+    pub settings: RenderSettings,
+    /// Materials referenced by shapes.
+    pub materials: Vec<Material>,
+    /// All lights.
+    pub lights: Lights,
+    bvh: Bvh,
+    triangles: Vec<TriangleInfo>,
+    vertex_normals: Vec<[Vec3; 3]>,
+    spheres: Vec<SphereInfo>,
+}
+
+impl Scene {
+    /// Assemble a scene; fails when a shape refers to a missing material.
+    pub fn new(
+        camera: Camera,
+        settings: RenderSettings,
+        materials: Vec<Material>,
+        shapes: Vec<Shape>,
+        environment: Option<Rgb>,
+    ) -> Result<Scene, Error> {
+        let mut tris = Vec::new();
+        let mut infos = Vec::new();
+        let mut vertex_normals = Vec::new();
+        let mut emission = Vec::new();
+        let mut spheres = Vec::new();
+        for shape in &shapes {
+            if shape.material >= materials.len() {
+                return Err(Error::Invalid(format!(
+                    "shape refers to material {} of {}",
+                    shape.material,
+                    materials.len()
+                )));
+            }
+            match &shape.geometry {
+                Geometry::Mesh(mesh) => {
+                    for f in &mesh.indices {
+                        let p = f.map(|i| mesh.positions[i as usize]);
+                        let cross = (p[1] - p[0]).cross(p[2] - p[0]);
+                        if cross.length_squared() == 0.0 || !cross.is_finite() {
+                            continue; // degenerate: invisible and cannot be sampled
+                        }
+                        tris.push(Triangle::new(p[0], p[1], p[2]));
+                        let smooth = match &mesh.normals {
+                            Some(n) => {
+                                vertex_normals.push(f.map(|i| n[i as usize]));
+                                (vertex_normals.len() - 1) as u32
+                            }
+                            None => u32::MAX,
+                        };
+                        infos.push(TriangleInfo {
+                            ng: cross.normalize(),
+                            smooth,
+                            material: shape.material as u32,
+                            light: NO_LIGHT,
+                        });
+                        emission.push(shape.emission);
+                    }
+                }
+                Geometry::Sphere(s) => spheres.push((*s, shape.material as u32, shape.emission)),
+            }
+        }
+        let (bvh, order) = Bvh::build(&tris);
+        let mut triangles: Vec<TriangleInfo> = order.iter().map(|&i| infos[i as usize]).collect();
+        let mut area_lights = Vec::new();
+        for (k, &i) in order.iter().enumerate() {
+            if let Some(radiance) = emission[i as usize] {
+                let t = &bvh.triangles()[k];
+                triangles[k].light = area_lights.len() as u32;
+                area_lights.push(AreaLight {
+                    primitive: LightPrimitive::Triangle {
+                        p0: t.p0,
+                        e1: t.e1,
+                        e2: t.e2,
+                        n: triangles[k].ng,
+                    },
+                    radiance,
+                    area: 0.5 * t.e1.cross(t.e2).length(),
+                });
+            }
+        }
+        let spheres = spheres
+            .into_iter()
+            .map(|(sphere, material, emission)| {
+                let light = match emission {
+                    Some(radiance) => {
+                        area_lights.push(AreaLight {
+                            primitive: LightPrimitive::Sphere {
+                                center: sphere.center,
+                                radius: sphere.radius,
+                                inward: sphere.inward,
+                            },
+                            radiance,
+                            area: 4.0 * std::f32::consts::PI * sphere.radius * sphere.radius,
+                        });
+                        (area_lights.len() - 1) as u32
+                    }
+                    None => NO_LIGHT,
+                };
+                SphereInfo {
+                    sphere,
+                    material,
+                    light,
+                }
+            })
+            .collect();
+        Ok(Scene {
+            camera,
+            settings,
+            materials,
+            lights: Lights::new(area_lights, environment),
+            bvh,
+            triangles,
+            vertex_normals,
+            spheres,
+        })
+    }
+
+    /// Number of triangles in the BVH.
+    pub fn triangle_count(&self) -> usize {
+        self.triangles.len()
+    }
+
+    /// Closest surface hit by `ray` before `t_max`.
+    pub fn intersect(&self, ray: &Ray, t_max: f32) -> Option<SurfaceHit> {
+        let mut best = None;
+        let mut t_max = t_max;
+        if let Some(h) = self.bvh.intersect(ray, t_max) {
+            t_max = h.t;
+            let info = &self.triangles[h.prim as usize];
+            let ns = if info.smooth == u32::MAX {
+                info.ng
+            } else {
+                let n = &self.vertex_normals[info.smooth as usize];
+                let s = (1.0 - h.u - h.v) * n[0] + h.u * n[1] + h.v * n[2];
+                s.try_normalize().unwrap_or(info.ng)
+            };
+            best = Some(SurfaceHit {
+                p: ray.at(h.t),
+                t: h.t,
+                ng: info.ng,
+                ns,
+                material: info.material,
+                light: info.light,
+            });
+        }
+        for s in &self.spheres {
+            if let Some(t) = intersect_sphere(&s.sphere, ray, t_max) {
+                t_max = t;
+                let p = ray.at(t);
+                let n = (p - s.sphere.center) / s.sphere.radius;
+                let n = if s.sphere.inward { -n } else { n };
+                best = Some(SurfaceHit {
+                    p,
+                    t,
+                    ng: n,
+                    ns: n,
+                    material: s.material,
+                    light: s.light,
+                });
+            }
+        }
+        best
+    }
+
+    /// Whether anything blocks `ray` before `t_max`.
+    pub fn occluded(&self, ray: &Ray, t_max: f32) -> bool {
+        self.spheres
+            .iter()
+            .any(|s| intersect_sphere(&s.sphere, ray, t_max).is_some())
+            || self.bvh.occluded(ray, t_max)
+    }
+}
+
+/// Nearest root of `|o + t d - c|² = r²` in `(0, t_max)`, computed in the cancellation-free
+/// form (Haines et al., *Ray Tracing Gems*, ch. 7).
+fn intersect_sphere(s: &Sphere, ray: &Ray, t_max: f32) -> Option<f32> {
+    let f = ray.origin - s.center;
+    let b = -f.dot(ray.dir);
+    let perp = f + b * ray.dir;
+    let disc = s.radius * s.radius - perp.length_squared();
+    if disc < 0.0 {
+        return None;
+    }
+    let c = f.length_squared() - s.radius * s.radius;
+    let q = b + b.signum() * disc.sqrt();
+    let (t0, t1) = if q == 0.0 { (0.0, 0.0) } else { (c / q, q) };
+    let (t0, t1) = (t0.min(t1), t0.max(t1));
+    if t0 > 0.0 && t0 < t_max {
+        Some(t0)
+    } else if t1 > 0.0 && t1 < t_max {
+        Some(t1)
+    } else {
+        None
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn sphere_roots_from_outside_and_inside() {
+        let s = Sphere {
+            center: Vec3::new(0.0, 0.0, 5.0),
+            radius: 1.0,
+            inward: false,
+        };
+        let ray = Ray::new(Vec3::ZERO, Vec3::Z);
+        assert!((intersect_sphere(&s, &ray, f32::INFINITY).unwrap() - 4.0).abs() < 1e-5);
+        let inside = Ray::new(Vec3::new(0.0, 0.0, 5.0), Vec3::Z);
+        assert!((intersect_sphere(&s, &inside, f32::INFINITY).unwrap() - 1.0).abs() < 1e-5);
+        assert!(intersect_sphere(&s, &ray, 3.0).is_none());
+    }
+}

@@ -1,0 +1,255 @@
+//! Shapes as they enter a scene: triangle meshes (built-in rectangle and cube, or OBJ files)
+//! and analytic spheres, each placed by a `to_world` transform.
+//!
+//! The built-in shapes reproduce Mitsuba 3's definitions exactly: `rectangle` is `[-1,1]²` in
+//! the z = 0 plane facing +z, `cube` is `[-1,1]³` with outward faces, `sphere` is a center and a
+//! radius. Normals follow Mitsuba too: a rectangle's normal is its transformed +z (even under a
+//! mirroring transform), `flip_normals` turns a shape inside out, and an OBJ mesh without
+//! normals gets angle-weighted vertex normals (Thürmer & Wüthrich 1998) unless `face_normals`.
+
+use std::path::Path;
+
+use glam::{Mat3, Mat4, Vec3};
+
+use crate::Error;
+
+/// An indexed triangle mesh in world space.
+#[derive(Clone, Debug, Default)]
+pub struct TriangleMesh {
+    /// Vertex positions.
+    pub positions: Vec<Vec3>,
+    /// Per-vertex shading normals (`None`: flat shading with the face normal).
+    pub normals: Option<Vec<Vec3>>,
+    /// Vertex indices of each triangle, counter-clockwise around the face normal.
+    pub indices: Vec<[u32; 3]>,
+}
+
+impl TriangleMesh {
+    /// Mitsuba's `rectangle`: `[-1,1]²` at z = 0, normal +z, placed by `to_world`.
+    pub fn rectangle(to_world: &Mat4) -> Self {
+        let mut mesh = TriangleMesh {
+            positions: vec![
+                Vec3::new(-1.0, -1.0, 0.0),
+                Vec3::new(1.0, -1.0, 0.0),
+                Vec3::new(1.0, 1.0, 0.0),
+                Vec3::new(-1.0, 1.0, 0.0),
+            ],
+            normals: None,
+            indices: vec![[0, 1, 2], [2, 3, 0]],
+        };
+        mesh.transform(to_world);
+        // Mitsuba transforms the rectangle's normal as a normal; keep the winding consistent.
+        if Mat3::from_mat4(*to_world).determinant() < 0.0 {
+            mesh.flip();
+        }
+        mesh
+    }
+
+    /// Mitsuba's `cube`: `[-1,1]³` with outward-facing sides, placed by `to_world`.
+    pub fn cube(to_world: &Mat4) -> Self {
+        let mut mesh = TriangleMesh::default();
+        for axis in 0..3 {
+            for sign in [-1.0f32, 1.0] {
+                let n = Vec3::AXES[axis] * sign;
+                let (a, b) = (Vec3::AXES[(axis + 1) % 3], Vec3::AXES[(axis + 2) % 3]);
+                let base = mesh.positions.len() as u32;
+                for (s, t) in [(-1.0, -1.0), (1.0, -1.0), (1.0, 1.0), (-1.0, 1.0)] {
+                    mesh.positions.push(n + s * a + t * b);
+                }
+                // a × b = n for the positive side; reverse the winding for the negative one.
+                if sign > 0.0 {
+                    mesh.indices.push([base, base + 1, base + 2]);
+                    mesh.indices.push([base + 2, base + 3, base]);
+                } else {
+                    mesh.indices.push([base, base + 2, base + 1]);
+                    mesh.indices.push([base + 2, base, base + 3]);
+                }
+            }
+        }
+        mesh.transform(to_world);
+        mesh
+    }
+
+    /// A Wavefront OBJ file (all objects merged), placed by `to_world`.
+    pub fn load_obj(path: &Path, to_world: &Mat4, face_normals: bool) -> Result<Self, Error> {
+        if !path.is_file() {
+            return Err(Error::MissingMesh {
+                path: path.display().to_string(),
+            });
+        }
+        let options = tobj::LoadOptions {
+            triangulate: true,
+            single_index: true,
+            ..Default::default()
+        };
+        let (models, _) = tobj::load_obj(path, &options).map_err(|e| Error::Mesh {
+            path: path.display().to_string(),
+            message: e.to_string(),
+        })?;
+        let mut mesh = TriangleMesh::default();
+        let mut normals = Vec::new();
+        let mut all_have_normals = true;
+        for model in &models {
+            let m = &model.mesh;
+            let base = mesh.positions.len() as u32;
+            let nv = m.positions.len() / 3;
+            mesh.positions
+                .extend((0..nv).map(|i| Vec3::from_slice(&m.positions[3 * i..3 * i + 3])));
+            if m.normals.len() == m.positions.len() {
+                normals.extend((0..nv).map(|i| Vec3::from_slice(&m.normals[3 * i..3 * i + 3])));
+            } else {
+                all_have_normals = false;
+            }
+            for f in m.indices.chunks_exact(3) {
+                mesh.indices.push([base + f[0], base + f[1], base + f[2]]);
+            }
+        }
+        if mesh.indices.is_empty() {
+            return Err(Error::Mesh {
+                path: path.display().to_string(),
+                message: "the file has no faces".into(),
+            });
+        }
+        if let Some(bad) = mesh
+            .indices
+            .iter()
+            .flatten()
+            .find(|&&i| i as usize >= mesh.positions.len())
+        {
+            return Err(Error::Mesh {
+                path: path.display().to_string(),
+                message: format!("face refers to missing vertex {bad}"),
+            });
+        }
+        if !face_normals && all_have_normals {
+            mesh.normals = Some(normals);
+        }
+        mesh.transform(to_world);
+        if !face_normals && mesh.normals.is_none() {
+            mesh.normals = Some(mesh.vertex_normals());
+        }
+        Ok(mesh)
+    }
+
+    /// Apply `m` to positions (as points) and normals (by the inverse transpose).
+    pub fn transform(&mut self, m: &Mat4) {
+        for p in &mut self.positions {
+            *p = m.transform_point3(*p);
+        }
+        if let Some(normals) = &mut self.normals {
+            let nm = Mat3::from_mat4(*m).inverse().transpose();
+            for n in normals {
+                *n = (nm * *n).normalize_or_zero();
+            }
+        }
+    }
+
+    /// Turn the mesh inside out (Mitsuba's `flip_normals`).
+    pub fn flip(&mut self) {
+        for f in &mut self.indices {
+            f.swap(1, 2);
+        }
+        if let Some(normals) = &mut self.normals {
+            for n in normals {
+                *n = -*n;
+            }
+        }
+    }
+
+    /// Angle-weighted vertex normals.
+    fn vertex_normals(&self) -> Vec<Vec3> {
+        let mut acc = vec![Vec3::ZERO; self.positions.len()];
+        for f in &self.indices {
+            let p = f.map(|i| self.positions[i as usize]);
+            let n = (p[1] - p[0]).cross(p[2] - p[0]).normalize_or_zero();
+            for k in 0..3 {
+                let e1 = (p[(k + 1) % 3] - p[k]).normalize_or_zero();
+                let e2 = (p[(k + 2) % 3] - p[k]).normalize_or_zero();
+                let angle = e1.dot(e2).clamp(-1.0, 1.0).acos();
+                acc[f[k] as usize] += angle * n;
+            }
+        }
+        acc.into_iter().map(Vec3::normalize_or_zero).collect()
+    }
+
+    /// Total surface area.
+    pub fn area(&self) -> f32 {
+        self.indices
+            .iter()
+            .map(|f| {
+                let p = f.map(|i| self.positions[i as usize]);
+                0.5 * (p[1] - p[0]).cross(p[2] - p[0]).length()
+            })
+            .sum()
+    }
+}
+
+/// An analytic sphere; with `inward` its normals point to the center (`flip_normals`).
+#[derive(Clone, Copy, Debug)]
+pub struct Sphere {
+    /// Center.
+    pub center: Vec3,
+    /// Radius.
+    pub radius: f32,
+    /// Normals point inwards.
+    pub inward: bool,
+}
+
+/// The geometry of one shape.
+#[derive(Clone, Debug)]
+pub enum Geometry {
+    /// Triangles.
+    Mesh(TriangleMesh),
+    /// Analytic sphere.
+    Sphere(Sphere),
+}
+
+/// A shape with its material and, if it is an area light, its emitted radiance.
+#[derive(Clone, Debug)]
+pub struct Shape {
+    /// Geometry in world space.
+    pub geometry: Geometry,
+    /// Index into the scene's materials.
+    pub material: usize,
+    /// Radiance emitted from the front side (Mitsuba `area` emitter), if any.
+    pub emission: Option<Vec3>,
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn face_normal(m: &TriangleMesh, f: usize) -> Vec3 {
+        let p = m.indices[f].map(|i| m.positions[i as usize]);
+        (p[1] - p[0]).cross(p[2] - p[0]).normalize()
+    }
+
+    #[test]
+    fn rectangle_faces_transformed_z_even_when_mirrored() {
+        let r = TriangleMesh::rectangle(&Mat4::IDENTITY);
+        assert!((face_normal(&r, 0) - Vec3::Z).length() < 1e-6);
+        assert!((r.area() - 4.0).abs() < 1e-6);
+        let mirror = Mat4::from_scale(Vec3::new(-1.0, 1.0, 1.0));
+        let r = TriangleMesh::rectangle(&mirror);
+        assert!((face_normal(&r, 1) - Vec3::Z).length() < 1e-6);
+    }
+
+    #[test]
+    fn cube_faces_point_outwards() {
+        let c = TriangleMesh::cube(&Mat4::from_translation(Vec3::new(1.0, 2.0, 3.0)));
+        assert_eq!(c.indices.len(), 12);
+        for f in 0..12 {
+            let p = c.indices[f].map(|i| c.positions[i as usize]);
+            let centroid = (p[0] + p[1] + p[2]) / 3.0 - Vec3::new(1.0, 2.0, 3.0);
+            assert!(face_normal(&c, f).dot(centroid) > 0.9);
+        }
+        assert!((c.area() - 24.0).abs() < 1e-5);
+    }
+
+    #[test]
+    fn missing_obj_is_named() {
+        let err = TriangleMesh::load_obj(Path::new("no/such/mesh.obj"), &Mat4::IDENTITY, false)
+            .unwrap_err();
+        assert!(err.to_string().contains("no/such/mesh.obj"), "{err}");
+    }
+}

@@ -1,0 +1,134 @@
+//! Loader tests: every built-in scene loads; Mitsuba conventions; errors name what and where.
+
+use super::*;
+
+#[test]
+fn every_built_in_scene_loads_with_its_defaults() {
+    for name in crate::scenes::names() {
+        let s = crate::scenes::load(name).unwrap_or_else(|e| panic!("{name}: {e}"));
+        assert_eq!((s.camera.width(), s.camera.height()), (256, 256));
+        assert_eq!(s.settings.spp, 64);
+        assert!(!s.lights.area.is_empty(), "{name} has no light");
+    }
+    let params = [
+        ("spp".to_string(), "3".to_string()),
+        ("res".into(), "10".into()),
+    ];
+    let s = crate::scenes::load_with("cornell-box", &params).unwrap();
+    assert_eq!((s.settings.spp, s.camera.width()), (3, 10));
+}
+
+fn load(xml: &str) -> Result<Scene, Error> {
+    load_scene_str(xml, Path::new("."), "test.xml", &[])
+}
+
+const SENSOR: &str = r#"<sensor type="perspective"><float name="fov" value="45"/></sensor>"#;
+
+#[test]
+fn errors_name_the_unsupported_element_and_its_line() {
+    let e = load(&format!(
+        "<scene version=\"3.0.0\">\n{SENSOR}\n<shape type=\"ply\"/>\n</scene>"
+    ))
+    .unwrap_err()
+    .to_string();
+    assert!(e.starts_with("test.xml:3:") && e.contains("ply"), "{e}");
+    let e = load(&format!(
+        "<scene>\n{SENSOR}\n<shape type=\"cube\">\n<float name=\"radius\" value=\"1\"/>\n</shape></scene>"
+    ))
+    .unwrap_err()
+    .to_string();
+    assert!(e.contains("test.xml:4") && e.contains("radius"), "{e}");
+    let e = load(&format!(
+        "<scene>{SENSOR}<bsdf type=\"roughconductor\" id=\"a\"/></scene>"
+    ))
+    .unwrap_err()
+    .to_string();
+    assert!(e.contains("ggx"), "{e}");
+    let e = load("<scene>\n<shape type=\"cube\">\n</scene>")
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("test.xml:3"), "{e}");
+    let e = load(&format!(
+        "<scene>{SENSOR}<shape type=\"cube\"><ref id=\"nope\"/></shape></scene>"
+    ))
+    .unwrap_err()
+    .to_string();
+    assert!(e.contains("nope"), "{e}");
+}
+
+#[test]
+fn missing_mesh_is_named_with_the_scene_line() {
+    let e = load(&format!(
+        "<scene>{SENSOR}\n<shape type=\"obj\">\n<string name=\"filename\" value=\"meshes/gone.obj\"/></shape></scene>"
+    ))
+    .unwrap_err()
+    .to_string();
+    assert!(
+        e.contains("test.xml:2") && e.contains("meshes/gone.obj"),
+        "{e}"
+    );
+}
+
+#[test]
+fn obj_meshes_load_relative_to_the_scene() {
+    let dir = std::env::temp_dir().join(format!("nis-render-xml-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    std::fs::write(
+        dir.join("tri.obj"),
+        "v 0 0 0\nv 1 0 0\nv 0 1 0\nv 1 1 0\nf 1 2 3\nf 2 4 3\n",
+    )
+    .unwrap();
+    let xml = format!(
+        "<scene>{SENSOR}<shape type=\"obj\"><string name=\"filename\" value=\"tri.obj\"/><boolean name=\"face_normals\" value=\"true\"/></shape></scene>"
+    );
+    std::fs::write(dir.join("s.xml"), xml).unwrap();
+    let s = load_scene(&dir.join("s.xml"), &[]).unwrap();
+    assert_eq!(s.triangle_count(), 2);
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+#[test]
+fn defaults_are_overridden_by_parameters_and_must_exist() {
+    let xml = "<scene><default name=\"w\" value=\"7\"/><sensor type=\"perspective\"><float name=\"fov\" value=\"45\"/><film type=\"hdrfilm\"><integer name=\"width\" value=\"$w\"/><integer name=\"height\" value=\"$h\"/></film></sensor></scene>";
+    let e = load(xml).unwrap_err().to_string();
+    assert!(e.contains("$h"), "{e}");
+    let params = [("h".to_string(), "5".to_string()), ("w".into(), "9".into())];
+    let s = load_scene_str(xml, Path::new("."), "t", &params).unwrap();
+    assert_eq!((s.camera.width(), s.camera.height()), (9, 5));
+}
+
+#[test]
+fn bsdfs_read_mitsuba_parameters() {
+    let xml = format!(
+        r#"<scene>{SENSOR}
+        <bsdf type="twosided" id="paper"><bsdf type="diffuse"><float name="reflectance" value="0.25"/></bsdf></bsdf>
+        <bsdf type="dielectric" id="water"><string name="int_ior" value="water"/><float name="ext_ior" value="1"/></bsdf>
+        <bsdf type="conductor" id="mirror"/>
+        <shape type="rectangle"><ref id="paper"/></shape>
+        <shape type="rectangle"><ref id="water"/></shape>
+        <shape type="rectangle"><ref id="mirror"/></shape>
+        <shape type="cube"/>
+        </scene>"#
+    );
+    let s = load(&xml).unwrap();
+    assert!(s.materials[0].two_sided);
+    assert_eq!(
+        s.materials[0].bsdf,
+        Bsdf::Diffuse {
+            reflectance: Rgb::splat(0.25)
+        }
+    );
+    assert!(
+        matches!(s.materials[1].bsdf, Bsdf::Dielectric { eta, .. } if (eta - 1.333).abs() < 1e-6)
+    );
+    assert!(
+        matches!(s.materials[2].bsdf, Bsdf::Conductor { eta, k, .. } if eta == Rgb::ZERO && k == Rgb::ONE)
+    );
+    // A shape without a bsdf gets Mitsuba's default: diffuse 0.5.
+    assert_eq!(
+        s.materials[3].bsdf,
+        Bsdf::Diffuse {
+            reflectance: Rgb::splat(0.5)
+        }
+    );
+}
