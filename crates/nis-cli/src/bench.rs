@@ -1,11 +1,14 @@
-//! `nis bench flow`: throughput of the flow's sampling and on-policy training step on the two
-//! reference configurations, against a bare `gemm` of the same dense-layer shapes, at 1 and 2
-//! threads. Results go to stdout and to a section of `docs/BENCHMARKS.md`.
+//! Benchmarks. `nis bench flow`: throughput of the flow's sampling and on-policy training step on
+//! the two reference configurations, against a bare `gemm` of the same dense-layer shapes, at 1
+//! and 2 threads. `nis bench integrate`: the built-in suite with every method at one budget.
+//! Results go to stdout and to sections of `docs/BENCHMARKS.md`.
 
 use std::path::Path;
 use std::time::Instant;
 
 use nis::flow::{Flow, FlowConfig};
+use nis::integrate::nis::NisConfig;
+use nis::integrate::{uniform, vegas, IntegrationResult};
 use nis::loss::Loss;
 use nis::nn::AdamConfig;
 use nis::train::Trainer;
@@ -197,5 +200,119 @@ pub fn run_flow(batch: usize, docs: &Path) -> Result<(), Box<dyn std::error::Err
     let md = flow(batch)?;
     report::write_section(docs, "flow", "Flow throughput (`nis bench flow`)", &md)?;
     println!("{md}");
+    Ok(())
+}
+
+/// One method of the integration benchmark.
+struct MethodSpec {
+    label: &'static str,
+    run: fn(&nis::integrands::Builtin, u64, u64) -> Result<IntegrationResult, nis::Error>,
+}
+
+fn nis_with(
+    f: &nis::integrands::Builtin,
+    evals: u64,
+    seed: u64,
+    transform: Transform,
+    loss: Loss,
+) -> Result<IntegrationResult, nis::Error> {
+    let mut c = NisConfig {
+        loss,
+        ..NisConfig::default()
+    };
+    c.flow.transform = transform;
+    Ok(nis::integrate::nis::integrate(f, f.dim, &c, evals, seed, &mut |_, _, _| {})?.0)
+}
+
+fn methods() -> Vec<MethodSpec> {
+    vec![
+        MethodSpec {
+            label: "uniform",
+            run: |f, n, s| uniform::integrate(f, f.dim, n, 10, s, &mut |_, _, _| {}),
+        },
+        MethodSpec {
+            label: "VEGAS+",
+            run: |f, n, s| {
+                vegas::Vegas::new(Default::default())?.integrate(f, f.dim, n, s, &mut |_, _, _| {})
+            },
+        },
+        MethodSpec {
+            label: "NIS-PQ/KL",
+            run: |f, n, s| nis_with(f, n, s, Transform::Quadratic { bins: 16 }, Loss::Kl),
+        },
+        MethodSpec {
+            label: "NIS-PQ/χ²",
+            run: |f, n, s| nis_with(f, n, s, Transform::Quadratic { bins: 16 }, Loss::ChiSquare),
+        },
+        MethodSpec {
+            label: "NIS-RQ/KL",
+            run: |f, n, s| nis_with(f, n, s, Transform::RationalQuadratic { bins: 16 }, Loss::Kl),
+        },
+    ]
+}
+
+/// `nis bench integrate`: the suite × methods at one budget; Markdown tables.
+pub fn run_integrate(
+    evals: u64,
+    only: Option<&str>,
+    docs: &Path,
+) -> Result<(), Box<dyn std::error::Error>> {
+    let methods = methods();
+    let mut rel = format!(
+        "Budget: {evals} evaluations per integrand and method (NIS training included), seed 0. \
+         Cells: relative variance per evaluation Var(f/q)/F² = n_final·σ²/F² (lower is better) and, \
+         in brackets, the pull (value − exact)/σ — |pull| ≫ 3 is a confident wrong answer.\n\n| integrand | d |"
+    );
+    let mut secs = String::from("| integrand | d |");
+    for m in &methods {
+        rel.push_str(&format!(" {} |", m.label));
+        secs.push_str(&format!(" {} |", m.label));
+    }
+    rel.push_str(" VEGAS / best NIS |\n|---|---:|");
+    secs.push_str("\n|---|---:|");
+    for _ in &methods {
+        rel.push_str("---:|");
+        secs.push_str("---:|");
+    }
+    rel.push_str("---:|\n");
+    secs.push('\n');
+    for e in nis::integrands::SUITE {
+        if only.is_some_and(|o| o != e.name) {
+            continue;
+        }
+        for &d in e.dims {
+            let f = nis::integrands::by_name(e.name, Some(d))?;
+            rel.push_str(&format!("| {} | {d} |", e.name));
+            secs.push_str(&format!("| {} | {d} |", e.name));
+            let (mut vegas_rv, mut best_nis) = (f64::NAN, f64::INFINITY);
+            for m in &methods {
+                let r = (m.run)(&f, evals, 0)?;
+                let pull = (r.value - f.exact) / r.std_err;
+                eprintln!(
+                    "{:<13} d={d:<2} {:<10} {:.6e} ± {:.2e} (exact {:.6e}) rel.var {:.3e} pull {pull:+.2} {:.1}s",
+                    e.name, m.label, r.value, r.std_err, f.exact, r.rel_var_per_eval, r.seconds
+                );
+                rel.push_str(&format!(" {:.3e} [{pull:+.1}] |", r.rel_var_per_eval));
+                secs.push_str(&format!(" {:.2} |", r.seconds));
+                // A confident wrong answer does not count as a variance.
+                let ok = pull.abs() < 5.0;
+                if m.label == "VEGAS+" {
+                    vegas_rv = if ok { r.rel_var_per_eval } else { f64::NAN };
+                } else if m.label.starts_with("NIS") && ok {
+                    best_nis = best_nis.min(r.rel_var_per_eval);
+                }
+            }
+            rel.push_str(&format!(" {:.1} |\n", vegas_rv / best_nis));
+            secs.push('\n');
+        }
+    }
+    let body = format!("{rel}\nSeconds (wall, 2 threads):\n\n{secs}");
+    report::write_section(
+        docs,
+        "integrate",
+        "Integration suite (`nis bench integrate`)",
+        &body,
+    )?;
+    println!("{body}");
     Ok(())
 }

@@ -246,3 +246,79 @@ pub fn list() {
         println!("{:<14} {:<14} {}", e.name, dims.join(","), e.description);
     }
 }
+
+#[derive(clap::Args)]
+pub struct SampleArgs {
+    /// Built-in integrand (see `nis list`).
+    pub name: String,
+    /// Dimension (default: the integrand's smallest).
+    #[arg(long)]
+    pub dim: Option<usize>,
+    /// Number of unweighted points.
+    #[arg(long, default_value_t = 100_000)]
+    pub n: usize,
+    /// Output: `.csv` (text) or anything else for the binary format (see the docs of
+    /// `nis::integrate::unweight::Unweighted::to_binary`).
+    #[arg(long)]
+    pub out: PathBuf,
+    /// Training evaluations (ignored with --load).
+    #[arg(long, default_value_t = 400_000)]
+    pub evals: u64,
+    /// Use a trained integrator saved by `nis integrate --save`.
+    #[arg(long)]
+    pub load: Option<PathBuf>,
+    /// Tolerated share of the weight mass above the robust maximum weight.
+    #[arg(long, default_value_t = 1e-3)]
+    pub overweight: f64,
+    /// Random seed.
+    #[arg(long, default_value_t = 0)]
+    pub seed: u64,
+}
+
+/// `nis sample`: trains (or loads) a NIS integrator and writes unweighted points.
+pub fn sample(args: &SampleArgs) -> Result<(), Error> {
+    let f = integrands::by_name(&args.name, args.dim)?;
+    let pb = bar("sample");
+    let mut progress = |done: u64, total: u64, msg: &str| {
+        pb.set_length(total.max(1));
+        pb.set_position(done);
+        pb.set_message(msg.to_string());
+    };
+    let nis = match &args.load {
+        Some(path) => NisIntegrator::load(path)?,
+        None => {
+            let mut nis = NisIntegrator::new(f.dim, NisConfig::default())?;
+            nis.train(&f, args.evals, args.seed, &mut progress)?;
+            nis
+        }
+    };
+    let u = nis::integrate::unweight::unweighted(
+        &nis,
+        &f,
+        args.n,
+        args.overweight,
+        args.seed,
+        &mut progress,
+    )?;
+    pb.finish_and_clear();
+    let bytes = if args.out.extension().is_some_and(|e| e == "csv") {
+        u.to_csv().into_bytes()
+    } else {
+        u.to_binary()
+    };
+    nis::io::write_atomic(&args.out, &bytes)?;
+    let over = u.weights.iter().filter(|w| w.abs() > 1.0).count();
+    println!(
+        "{} unweighted points of {} (d = {}) written to {}: efficiency {:.4}, robust maximum \
+         weight {:.4e}, {} points carry a residual weight > 1 ({:.2e} of the weight mass)",
+        args.n,
+        f.name,
+        f.dim,
+        args.out.display(),
+        u.efficiency,
+        u.w_max,
+        over,
+        u.overweight
+    );
+    Ok(())
+}

@@ -33,6 +33,10 @@ enum Command {
     Integrate(integrate::IntegrateArgs),
     /// List the built-in integrands.
     List,
+    /// Write unweighted samples of a built-in integrand (CSV or binary).
+    ///
+    /// Example: nis sample camel --dim 2 --n 10000 --out camel.csv
+    Sample(integrate::SampleArgs),
     /// Train a flow on a built-in 2-D target and print the variance reduction.
     ///
     /// Example: nis demo --steps 300
@@ -62,6 +66,19 @@ enum BenchCommand {
         #[arg(long, default_value = "docs/BENCHMARKS.md")]
         docs: PathBuf,
     },
+    /// The built-in suite with plain MC, VEGAS+, NIS-PQ/KL, NIS-PQ/χ² and NIS-RQ/KL at one
+    /// budget. Example: nis bench integrate --evals 1000000
+    Integrate {
+        /// Evaluations per integrand and method.
+        #[arg(long, default_value_t = 1_000_000)]
+        evals: u64,
+        /// Only this integrand.
+        #[arg(long)]
+        only: Option<String>,
+        /// Markdown file the results go to.
+        #[arg(long, default_value = "docs/BENCHMARKS.md")]
+        docs: PathBuf,
+    },
 }
 
 fn main() -> ExitCode {
@@ -69,6 +86,7 @@ fn main() -> ExitCode {
     let result = match cli.command {
         Command::Demo(args) => demo::run(&args),
         Command::Integrate(args) => integrate::run(&args),
+        Command::Sample(args) => integrate::sample(&args),
         Command::List => {
             integrate::list();
             Ok(())
@@ -76,6 +94,9 @@ fn main() -> ExitCode {
         Command::Render(args) => render::run_render(&args),
         Command::Compare(args) => render::run_compare(&args),
         Command::Bench(BenchCommand::Flow { batch, docs }) => bench::run_flow(batch, &docs),
+        Command::Bench(BenchCommand::Integrate { evals, only, docs }) => {
+            bench::run_integrate(evals, only.as_deref(), &docs)
+        }
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

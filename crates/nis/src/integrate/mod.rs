@@ -9,6 +9,7 @@
 
 pub mod nis;
 pub mod uniform;
+pub mod unweight;
 pub mod vegas;
 
 use std::time::Instant;

@@ -59,7 +59,7 @@ impl Default for NisConfig {
                 ..FlowConfig::default()
             },
             loss: Loss::Kl,
-            batch: 4096,
+            batch: 1024,
             steps_per_batch: 1,
             train_fraction: 0.4,
             adam: AdamConfig {
@@ -67,8 +67,8 @@ impl Default for NisConfig {
                 clip_norm: Some(10.0),
                 ..Default::default()
             },
-            uniform_fraction: 0.05,
-            anneal_from: 1.0,
+            uniform_fraction: 0.002,
+            anneal_from: 0.1,
             final_iterations: 10,
         }
     }
@@ -99,10 +99,9 @@ pub struct NisIntegrator {
     pub trained_evals: u64,
 }
 
-/// A batch from the defensive mixture: points (f32 for the flow, f64 for the integrand), the
+/// A batch from the defensive mixture: points (as f64 for the integrand), the
 /// mixture's log-density, and the flow samples' tape when training.
 struct MixtureBatch {
-    x32: Vec<f32>,
     x64: Vec<f64>,
     log_q_mix: Vec<f64>,
     flow_part: crate::flow::Samples,
@@ -152,7 +151,6 @@ impl NisIntegrator {
             .collect();
         let x64 = x32.iter().map(|&v| v as f64).collect();
         Ok(MixtureBatch {
-            x32,
             x64,
             log_q_mix,
             flow_part,
@@ -217,10 +215,7 @@ impl NisIntegrator {
             let mut w = Vec::with_capacity(n);
             while w.len() < n {
                 let m = (n - w.len()).min(1 << 16);
-                let b = self.draw(m, &mut rng, false)?;
-                let fx = evaluate(f, &b.x64, dim)?;
-                w.extend(fx.iter().zip(&b.log_q_mix).map(|(v, l)| v * (-l).exp()));
-                let _ = &b.x32;
+                w.extend(self.weighted_batch(f, m, &mut rng)?.1);
             }
             acc.add_weights(&w);
             done += n as u64;
@@ -231,6 +226,25 @@ impl NisIntegrator {
             );
         }
         Ok(acc)
+    }
+
+    /// `n` points of the frozen sampler and their weights f/q_mix.
+    pub fn weighted_batch(
+        &self,
+        f: &dyn Integrand,
+        n: usize,
+        rng: &mut Pcg64Mcg,
+    ) -> Result<(Vec<f64>, Vec<f64>)> {
+        let dim = self.flow().dim();
+        check_dim(f, dim)?;
+        let b = self.draw(n, rng, false)?;
+        let fx = evaluate(f, &b.x64, dim)?;
+        let w = fx
+            .iter()
+            .zip(&b.log_q_mix)
+            .map(|(v, l)| v * (-l).exp())
+            .collect();
+        Ok((b.x64, w))
     }
 
     /// Saves the trained flow with the integrator's settings beside it (atomically).

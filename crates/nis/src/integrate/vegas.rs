@@ -30,7 +30,8 @@ pub struct VegasConfig {
     pub alpha: f64,
     /// Damping of the stratification's adaptation (0: equal counts).
     pub beta: f64,
-    /// Iterations in all (0: by dimension — 10 for d ≤ 2, 40 for d ≤ 4, 80 above). Few large
+    /// Iterations in all (0: by dimension — 10 for d ≤ 2, 40 for d ≤ 4, 80 above — but with at
+    /// least 20 000 points each and at least 5 iterations). Few large
     /// iterations stratify finely, which low dimensions need; many small ones adapt the map more
     /// often, which high dimensions need (measured on the suite at 2·10⁶ evaluations).
     pub iterations: usize,
@@ -183,13 +184,21 @@ impl Vegas {
         check_dim(f, dim)?;
         let mut c = self.config.clone();
         if c.iterations == 0 {
-            c.iterations = match dim {
+            let by_dim: u64 = match dim {
                 0..=2 => 10,
                 3..=4 => 40,
                 _ => 80,
             };
+            // Small budgets: no fewer than 20 000 points per iteration (5 iterations at least);
+            // maps and strata adapted from a few hundred points are noise, and their weights
+            // heavy-tailed enough to under-cover.
+            c.iterations = by_dim.min((evals / 20_000).max(5)) as usize;
             c.warmup = c.iterations.div_ceil(4);
         }
+        // Increments each need several points per iteration to be adapted from.
+        c.increments = c
+            .increments
+            .min((evals as usize / c.iterations / 10).max(1));
         let c = &c;
         let started = Instant::now();
         let mut rng = Pcg64Mcg::seed_from_u64(seed);
