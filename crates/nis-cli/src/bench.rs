@@ -195,9 +195,61 @@ pub fn flow(batch: usize) -> Result<String, Box<dyn std::error::Error>> {
     Ok(md)
 }
 
-/// `nis bench flow`: runs and records.
-pub fn run_flow(batch: usize, docs: &Path) -> Result<(), Box<dyn std::error::Error>> {
-    let md = flow(batch)?;
+/// Runs the PyTorch eager baseline (`scripts/bench-torch.py`, which installs torch into its own
+/// venv) and returns its (threads, sample/s, train/s) rows.
+fn torch_baseline(batch: usize) -> Result<Vec<(usize, f64, f64)>, Box<dyn std::error::Error>> {
+    let out = std::process::Command::new("python3")
+        .args(["scripts/bench-torch.py", "--batch", &batch.to_string()])
+        .output()?;
+    if !out.status.success() {
+        return Err(format!(
+            "scripts/bench-torch.py failed: {}",
+            String::from_utf8_lossy(&out.stderr)
+        )
+        .into());
+    }
+    let text = String::from_utf8_lossy(&out.stdout);
+    let rows = text
+        .lines()
+        .filter_map(|l| {
+            let c: Vec<&str> = l.trim_matches('|').split('|').map(str::trim).collect();
+            match c.as_slice() {
+                [t, s, tr] => Some((t.parse().ok()?, s.parse().ok()?, tr.parse().ok()?)),
+                _ => None,
+            }
+        })
+        .collect();
+    Ok(rows)
+}
+
+/// `nis bench flow`: runs and records; with `torch`, also the PyTorch eager baseline of R1.
+pub fn run_flow(batch: usize, torch: bool, docs: &Path) -> Result<(), Box<dyn std::error::Error>> {
+    let mut md = flow(batch)?;
+    if torch {
+        let rows = torch_baseline(batch)?;
+        md.push_str(
+            "\nR1 in PyTorch eager (`scripts/bench-torch.py`: the same flow as a PyTorch user \
+             writes it — sample without grad, recompute log q with grad, backward, Adam), timed in \
+             the same run; ratio = nis / PyTorch:\n\n| threads | sample + log q (samples/s) | \
+             train step (samples/s) | nis / PyTorch (sample) | nis / PyTorch (train) |\n\
+             |---:|---:|---:|---:|---:|\n",
+        );
+        for (threads, s, t) in rows {
+            let ours = |col: usize| -> f64 {
+                md.lines()
+                    .filter(|l| l.starts_with("| R1"))
+                    .nth(threads - 1)
+                    .and_then(|l| l.split('|').nth(col))
+                    .and_then(|v| v.trim().parse().ok())
+                    .unwrap_or(f64::NAN)
+            };
+            md.push_str(&format!(
+                "| {threads} | {s:.0} | {t:.0} | {:.2} | {:.2} |\n",
+                ours(4) / s,
+                ours(5) / t
+            ));
+        }
+    }
     report::write_section(docs, "flow", "Flow throughput (`nis bench flow`)", &md)?;
     println!("{md}");
     Ok(())

@@ -62,6 +62,10 @@ enum BenchCommand {
         /// Batch size.
         #[arg(long, default_value_t = 16384)]
         batch: usize,
+        /// Also time the PyTorch eager baseline of R1 (scripts/bench-torch.py; installs torch
+        /// into target/torch-venv on first use).
+        #[arg(long)]
+        torch: bool,
         /// Markdown file the results go to.
         #[arg(long, default_value = "docs/BENCHMARKS.md")]
         docs: PathBuf,
@@ -93,7 +97,9 @@ fn main() -> ExitCode {
         }
         Command::Render(args) => render::run_render(&args),
         Command::Compare(args) => render::run_compare(&args),
-        Command::Bench(BenchCommand::Flow { batch, docs }) => bench::run_flow(batch, &docs),
+        Command::Bench(BenchCommand::Flow { batch, torch, docs }) => {
+            bench::run_flow(batch, torch, &docs)
+        }
         Command::Bench(BenchCommand::Integrate { evals, only, docs }) => {
             bench::run_integrate(evals, only.as_deref(), &docs)
         }

@@ -25,3 +25,8 @@ pub mod train;
 pub use error::{Error, Result};
 pub use flow::{Flow, FlowConfig};
 pub use spline::Transform;
+
+/// The README's example, compiled and run as a doctest.
+#[cfg(doctest)]
+#[doc = include_str!("../../../README.md")]
+struct ReadmeDoctests;
