@@ -195,9 +195,12 @@ pub fn flow(batch: usize) -> Result<String, Box<dyn std::error::Error>> {
     Ok(md)
 }
 
+/// (threads, samples/s of sampling, samples/s of a training step).
+type TorchRow = (usize, f64, f64);
+
 /// Runs the PyTorch eager baseline (`scripts/bench-torch.py`, which installs torch into its own
 /// venv) and returns its (threads, sample/s, train/s) rows.
-fn torch_baseline(batch: usize) -> Result<Vec<(usize, f64, f64)>, Box<dyn std::error::Error>> {
+fn torch_baseline(batch: usize) -> Result<Vec<TorchRow>, Box<dyn std::error::Error>> {
     let out = std::process::Command::new("python3")
         .args(["scripts/bench-torch.py", "--batch", &batch.to_string()])
         .output()?;
