@@ -193,6 +193,19 @@ fn with_scratch<R>(len: usize, f: impl FnOnce(&mut [f64]) -> R) -> R {
     })
 }
 
+/// Bin edges 0, w₀, w₀ + w₁, …, 1 from bin widths (the last edge exactly 1).
+fn edges_from_widths(widths: &[f64]) -> Vec<f64> {
+    let mut edges = Vec::with_capacity(widths.len() + 1);
+    let mut x = 0.0;
+    edges.push(x);
+    for w in widths {
+        x += w;
+        edges.push(x);
+    }
+    *edges.last_mut().expect("at least one edge") = 1.0;
+    edges
+}
+
 /// Bin index and relative position of `x` in `K` equal bins; x = 1 lies at the end of the last bin.
 fn equal_bin(x: f64, k: usize) -> (usize, f64) {
     let s = x * k as f64;

@@ -7,7 +7,9 @@
 //! V_b + α(V_{b+1} − V_b) and the CDF a quadratic in α. Unlike bin widths of the piecewise-linear
 //! transform, these widths get correct gradients because the density is continuous.
 
-use super::{exponentials, softmax_floor, softmax_floor_backward, with_scratch, Spline};
+use super::{
+    edges_from_widths, exponentials, softmax_floor, softmax_floor_backward, with_scratch, Spline,
+};
 
 /// Smallest bin width as a fraction of the mean width 1/K: no bin collapses to zero.
 pub const MIN_BIN_WIDTH: f64 = 1e-3;
@@ -120,14 +122,7 @@ impl Spline for Quadratic {
     fn bin_edges(&self, p: &[f32]) -> Vec<f64> {
         with_scratch(self.scratch(), |buf| {
             let (kn, _) = self.knots(p, buf);
-            let mut edges = vec![0.0];
-            let mut x = 0.0;
-            for w in kn.w.iter() {
-                x += w;
-                edges.push(x);
-            }
-            *edges.last_mut().unwrap() = 1.0;
-            edges
+            edges_from_widths(kn.w)
         })
     }
 

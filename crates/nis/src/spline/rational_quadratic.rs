@@ -7,7 +7,7 @@
 //! Unlike the unbounded-domain original (whose boundary derivatives are 1 to meet linear tails),
 //! the two boundary derivatives are learned too: on [0, 1] nothing forces the density at the ends.
 
-use super::{softmax_floor, softmax_floor_backward, with_scratch, Spline};
+use super::{edges_from_widths, softmax_floor, softmax_floor_backward, with_scratch, Spline};
 
 /// Smallest bin width as a fraction of the mean width.
 pub const MIN_BIN_WIDTH: f64 = 1e-3;
@@ -111,14 +111,7 @@ impl Spline for RationalQuadratic {
     fn bin_edges(&self, p: &[f32]) -> Vec<f64> {
         with_scratch(self.scratch(), |buf| {
             let (kn, _) = self.knots(p, buf);
-            let mut edges = vec![0.0];
-            let mut x = 0.0;
-            for w in kn.w.iter() {
-                x += w;
-                edges.push(x);
-            }
-            *edges.last_mut().unwrap() = 1.0;
-            edges
+            edges_from_widths(kn.w)
         })
     }
 
