@@ -74,6 +74,17 @@ impl Trainer {
         self.beta = beta.clamp(1e-3, 1.0);
     }
 
+    /// Sets Adam's per-step learning-rate decay factor (the rate after t steps is lr·decay^t).
+    pub fn set_learning_rate_decay(&mut self, decay: f32) -> Result<()> {
+        let config = crate::nn::AdamConfig {
+            decay,
+            ..self.adam.config
+        };
+        config.validate()?;
+        self.adam.config = config;
+        Ok(())
+    }
+
     /// The optimiser.
     pub fn adam(&self) -> &Adam {
         &self.adam

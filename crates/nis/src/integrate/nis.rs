@@ -39,6 +39,9 @@ pub struct NisConfig {
     /// Share of the evaluation budget spent in the adaptive phase.
     pub train_fraction: f64,
     pub adam: AdamConfig,
+    /// The learning rate decays exponentially over the adaptive phase to this fraction of its
+    /// initial value (1: constant; Adam's own `decay` is then set from the number of steps).
+    pub learning_rate_end: f32,
     /// Share λ of uniform points in every batch (the defensive mixture).
     pub uniform_fraction: f64,
     /// Initial exponent β of the tempered target |f|^β; rises linearly to 1 over the first half
@@ -63,10 +66,11 @@ impl Default for NisConfig {
             steps_per_batch: 1,
             train_fraction: 0.4,
             adam: AdamConfig {
-                learning_rate: 3e-3,
+                learning_rate: 5e-3,
                 clip_norm: Some(10.0),
                 ..Default::default()
             },
+            learning_rate_end: 0.1,
             uniform_fraction: 0.002,
             anneal_from: 0.1,
             final_iterations: 10,
@@ -82,7 +86,9 @@ impl NisConfig {
             && (0.0..1.0).contains(&self.uniform_fraction)
             && self.anneal_from > 0.0
             && self.anneal_from <= 1.0
-            && self.final_iterations >= 1;
+            && self.final_iterations >= 1
+            && self.learning_rate_end > 0.0
+            && self.learning_rate_end <= 1.0;
         if ok {
             Ok(())
         } else {
@@ -170,6 +176,12 @@ impl NisIntegrator {
         let mut rng = Pcg64Mcg::seed_from_u64(seed ^ 0x7261_696e);
         let batch = self.config.batch;
         let steps = (evals / batch as u64) as usize;
+        let decay = self
+            .config
+            .learning_rate_end
+            .powf(1.0 / steps.max(1) as f32);
+        self.trainer
+            .set_learning_rate_decay(decay * self.config.adam.decay)?;
         for step in 0..steps {
             let beta = if steps > 1 {
                 let t = (2.0 * step as f64 / steps as f64).min(1.0);
