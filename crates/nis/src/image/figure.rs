@@ -106,26 +106,34 @@ pub fn density_image(values: &[f64], nx: usize, ny: usize, scale: f64, side: u32
     })
 }
 
-/// Draws `text` at pixel (x, y) of `image`, in black or white (nothing without a font).
+/// Draws `text` at pixel (x, y) of `image`: black, or white on a black box when `boxed` (to
+/// stay legible over a density). Nothing without a font.
 fn label(
     image: &mut RgbImage,
     text: &str,
     (x, y): (i32, i32),
     size: f64,
-    white: bool,
+    boxed: bool,
 ) -> Result<()> {
     if !has_font() {
         return Ok(());
     }
     let (w, h) = image.dimensions();
     let root = BitMapBackend::with_buffer(image.as_mut(), (w, h)).into_drawing_area();
-    let colour = if white { &WHITE } else { &BLACK };
-    root.draw_text(
-        text,
-        &("sans-serif", size).into_font().color(colour),
-        (x, y),
-    )
-    .map_err(figure_error)?;
+    let font = ("sans-serif", size).into_font();
+    let colour = if boxed {
+        let (tw, th) = root
+            .estimate_text_size(text, &font.clone().into_text_style(&root))
+            .map_err(figure_error)?;
+        let corner = (x + tw as i32 + 3, y + th as i32 + 3);
+        root.draw(&Rectangle::new([(x - 3, y - 3), corner], BLACK.filled()))
+            .map_err(figure_error)?;
+        &WHITE
+    } else {
+        &BLACK
+    };
+    root.draw_text(text, &font.color(colour), (x, y))
+        .map_err(figure_error)?;
     root.present().map_err(figure_error)
 }
 
@@ -231,6 +239,7 @@ pub fn curves(title: &str, series: &[(String, Vec<CurvePoint>)]) -> Result<RgbIm
             if has_font() {
                 chart
                     .configure_series_labels()
+                    .position(SeriesLabelPosition::UpperRight)
                     .background_style(WHITE.mix(0.8))
                     .border_style(BLACK)
                     .label_font(("sans-serif", 14))
@@ -257,25 +266,25 @@ pub struct MontageRow {
 }
 
 /// The comparison montage: one row per target, the target in the first column and each model
-/// (named in `models`) in the next, every row on the colour scale of its target's maximum.
-pub fn montage(models: &[String], rows: &[MontageRow]) -> Result<RgbImage> {
-    const TILE: u32 = 192;
+/// (named in `models`) in the next, every row on the colour scale of its target's maximum;
+/// each tile is `tile`×`tile` pixels.
+pub fn montage(models: &[String], rows: &[MontageRow], tile: u32) -> Result<RgbImage> {
     const GAP: u32 = 6;
     const HEADER: u32 = 26;
     let columns = models.len() as u32 + 1;
-    let width = columns * (TILE + GAP) + GAP;
-    let height = HEADER + rows.len() as u32 * (TILE + GAP) + GAP;
+    let width = columns * (tile + GAP) + GAP;
+    let height = HEADER + rows.len() as u32 * (tile + GAP) + GAP;
     let mut image = RgbImage::from_pixel(width, height, Rgb([255; 3]));
     for (r, row) in rows.iter().enumerate() {
         let (nx, ny) = row.size;
         let scale = row.p.iter().cloned().fold(0.0, f64::max);
-        let y = HEADER + r as u32 * (TILE + GAP);
+        let y = HEADER + r as u32 * (tile + GAP);
         let tiles = std::iter::once(&row.p).chain(&row.q);
         for (c, values) in tiles.enumerate() {
-            let x = GAP + c as u32 * (TILE + GAP);
+            let x = GAP + c as u32 * (tile + GAP);
             paste(
                 &mut image,
-                &density_image(values, nx, ny, scale, TILE),
+                &density_image(values, nx, ny, scale, tile),
                 x,
                 y,
             );
@@ -284,14 +293,20 @@ pub fn montage(models: &[String], rows: &[MontageRow]) -> Result<RgbImage> {
             &mut image,
             &row.name,
             ((GAP + 4) as i32, (y + 4) as i32),
-            16.0,
+            (tile as f64 / 12.0).clamp(10.0, 16.0),
             true,
         )?;
     }
     let names = std::iter::once("target").chain(models.iter().map(String::as_str));
     for (c, name) in names.enumerate() {
-        let x = GAP + c as u32 * (TILE + GAP);
-        label(&mut image, name, (x as i32, 4), 18.0, false)?;
+        let x = GAP + c as u32 * (tile + GAP);
+        label(
+            &mut image,
+            name,
+            (x as i32, 4),
+            (tile as f64 / 10.0).clamp(10.0, 18.0),
+            false,
+        )?;
     }
     Ok(image)
 }
@@ -333,7 +348,7 @@ mod tests {
             p: p.clone(),
             q: vec![p.clone(), vec![1.0; 4]],
         };
-        let img = montage(&["a".into(), "b".into()], &[row]).unwrap();
-        assert_eq!(img.dimensions().0, 3 * (192 + 6) + 6);
+        let img = montage(&["a".into(), "b".into()], &[row], 100).unwrap();
+        assert_eq!(img.dimensions().0, 3 * (100 + 6) + 6);
     }
 }
