@@ -207,6 +207,9 @@ pub struct BenchFitImageArgs {
     /// Pixels per side of the built-in targets (and of the metric grids).
     #[arg(long, default_value_t = 128)]
     resolution: usize,
+    /// Adam learning rate of every model.
+    #[arg(long, default_value_t = 5e-3)]
+    learning_rate: f32,
     /// Random seed (weights and training points).
     #[arg(long, default_value_t = 0)]
     seed: u64,
@@ -259,6 +262,7 @@ pub fn run_bench(args: &BenchFitImageArgs) -> Result<(), Box<dyn std::error::Err
                 },
                 steps: args.steps,
                 batch: args.batch,
+                learning_rate: args.learning_rate,
                 seed: args.seed,
                 ..FitConfig::default()
             };
@@ -309,8 +313,9 @@ pub fn run_bench(args: &BenchFitImageArgs) -> Result<(), Box<dyn std::error::Err
 /// The table of the benchmark, one row per target and model.
 fn markdown(args: &BenchFitImageArgs, summaries: &[nis::image::FitSummary]) -> String {
     let mut t = format!(
-        "Reproduce: `nis bench fit-image --steps {} --batch {} --resolution {} --seed {}`.\n\n\
-         Every model: MLP 3×64 (ReLU), one-blob 32, Adam (learning rate 5e-3), KL gradient on \
+        "Reproduce: `nis bench fit-image --steps {} --batch {} --resolution {} --learning-rate {} \
+         --seed {}`.\n\n\
+         Every model: MLP 3×64 (ReLU), one-blob 32, Adam (learning rate {}), KL gradient on \
          the same {} uniform points per step, {} steps. KL and variance are exact on the \
          {}² pixel grid.\n\n\
          ![montage]({})\n\n\
@@ -319,7 +324,9 @@ fn markdown(args: &BenchFitImageArgs, summaries: &[nis::image::FitSummary]) -> S
         args.steps,
         args.batch,
         args.resolution,
+        args.learning_rate,
         args.seed,
+        args.learning_rate,
         args.batch,
         args.steps,
         args.resolution,

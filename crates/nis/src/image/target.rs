@@ -77,10 +77,7 @@ impl Target {
             path: path.to_path_buf(),
             reason,
         };
-        let bytes = std::fs::read(path).map_err(|source| Error::Io {
-            path: path.to_path_buf(),
-            source,
-        })?;
+        let bytes = std::fs::read(path).map_err(|e| image_error(format!("cannot read it: {e}")))?;
         let format = ::image::guess_format(&bytes)
             .map_err(|_| image_error("not a PNG or JPEG image".into()))?;
         let decoded = ::image::load_from_memory_with_format(&bytes, format)
@@ -149,7 +146,8 @@ impl Target {
 mod tests {
     use super::*;
 
-    fn write_png(path: &Path, w: u32, h: u32, rgb: &[u8]) {
+    /// Writes an 8-bit RGB image in the format its extension names.
+    fn write_image(path: &Path, w: u32, h: u32, rgb: &[u8]) {
         let img = ::image::RgbImage::from_raw(w, h, rgb.to_vec()).unwrap();
         img.save(path).unwrap();
     }
@@ -171,11 +169,27 @@ mod tests {
         std::fs::create_dir_all(&dir).unwrap();
         let path = dir.join("two.png");
         // Top pixel white, bottom pixel black.
-        write_png(&path, 1, 2, &[255, 255, 255, 0, 0, 0]);
+        write_image(&path, 1, 2, &[255, 255, 255, 0, 0, 0]);
         let t = Target::from_path(&path).unwrap();
         assert_eq!((t.width(), t.height()), (1, 2));
         assert!((t.value(0.5, 1.0) - 1.0).abs() < 1e-6);
         assert_eq!(t.value(0.5, 0.0), 0.0);
+        std::fs::remove_dir_all(&dir).ok();
+    }
+
+    #[test]
+    fn jpeg_colour_is_converted_to_luma() {
+        let dir = std::env::temp_dir().join(format!("nis-target-jpg-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let path = dir.join("green.jpg");
+        write_image(&path, 8, 8, &[0, 255, 0].repeat(64));
+        let t = Target::from_path(&path).unwrap();
+        // Pure green has luma 0.7152 (JPEG rounding aside).
+        assert!(
+            (t.value(0.5, 0.5) - 0.7152).abs() < 0.03,
+            "{}",
+            t.value(0.5, 0.5)
+        );
         std::fs::remove_dir_all(&dir).ok();
     }
 
@@ -186,14 +200,15 @@ mod tests {
         let text = dir.join("notes.png");
         std::fs::write(&text, "not an image").unwrap();
         let black = dir.join("black.png");
-        write_png(&black, 2, 2, &[0; 12]);
+        write_image(&black, 2, 2, &[0; 12]);
         let missing = dir.join("missing.png");
 
         let msg = Target::from_path(&text).unwrap_err().to_string();
         assert!(msg.contains("not a PNG or JPEG"), "{msg}");
         let msg = Target::from_path(&black).unwrap_err().to_string();
         assert!(msg.contains("black everywhere"), "{msg}");
-        assert!(matches!(Target::from_path(&missing), Err(Error::Io { .. })));
+        let msg = Target::from_path(&missing).unwrap_err().to_string();
+        assert!(msg.contains("cannot read it"), "{msg}");
         assert!(Target::from_luminance("empty", 0, 0, vec![]).is_err());
         std::fs::remove_dir_all(&dir).ok();
     }
