@@ -219,10 +219,15 @@ pub struct BenchFitImageArgs {
     /// Markdown file the table goes to (section "fit-image").
     #[arg(long, default_value = "docs/REPRODUCTION.md")]
     docs: PathBuf,
-    /// Where a copy of the montage for the Markdown file goes.
-    #[arg(long, default_value = "docs/img/fit-image-montage.png")]
-    docs_image: PathBuf,
+    /// Directory for the figures the Markdown file shows (a small montage and the first
+    /// target's curves).
+    #[arg(long, default_value = "docs/img")]
+    docs_images: PathBuf,
 }
+
+/// File names of the figures in `--docs-images`.
+const DOCS_MONTAGE: &str = "fit-image-montage.png";
+const DOCS_CURVES: &str = "fit-image-curves.png";
 
 /// The models of the paper's comparison: same MLP, same steps, same samples.
 fn bench_models() -> Vec<(Transform, usize)> {
@@ -277,19 +282,22 @@ pub fn run_bench(args: &BenchFitImageArgs) -> Result<(), Box<dyn std::error::Err
             series.push((s.model.clone(), fit.curve.clone()));
             summaries.push(fit.summary);
         }
-        let curves = figure::curves(target.name(), &series)?;
-        let name = format!("curves-{}.png", target.name());
-        write(&args.out.join(name), &figure::png_bytes(&curves)?)?;
+        let curves = figure::png_bytes(&figure::curves(target.name(), &series)?)?;
+        write(
+            &args.out.join(format!("curves-{}.png", target.name())),
+            &curves,
+        )?;
+        if rows.is_empty() {
+            std::fs::create_dir_all(&args.docs_images)?;
+            write(&args.docs_images.join(DOCS_CURVES), &curves)?;
+        }
         rows.push(row);
     }
     let montage = figure::png_bytes(&figure::montage(&models, &rows, 192)?)?;
     write(&args.out.join("montage.png"), &montage)?;
-    if let Some(dir) = args.docs_image.parent() {
-        std::fs::create_dir_all(dir)?;
-    }
     // A smaller copy for the repository (kept under ~300 KB).
-    let small = figure::png_bytes(&figure::montage(&models, &rows, 128)?)?;
-    write(&args.docs_image, &small)?;
+    let small = figure::png_bytes(&figure::montage(&models, &rows, 100)?)?;
+    write(&args.docs_images.join(DOCS_MONTAGE), &small)?;
     write(
         &args.out.join("results.json"),
         serde_json::to_string_pretty(&summaries)?.as_bytes(),
@@ -303,7 +311,7 @@ pub fn run_bench(args: &BenchFitImageArgs) -> Result<(), Box<dyn std::error::Err
     )?;
     println!(
         "wrote {}, {}/montage.png, curves-*.png, results.json and the table in {}",
-        args.docs_image.display(),
+        args.docs_images.join(DOCS_MONTAGE).display(),
         args.out.display(),
         args.docs.display()
     );
@@ -312,13 +320,19 @@ pub fn run_bench(args: &BenchFitImageArgs) -> Result<(), Box<dyn std::error::Err
 
 /// The table of the benchmark, one row per target and model.
 fn markdown(args: &BenchFitImageArgs, summaries: &[nis::image::FitSummary]) -> String {
+    let images = args
+        .docs_images
+        .strip_prefix(args.docs.parent().unwrap_or(Path::new("")))
+        .unwrap_or(&args.docs_images)
+        .display();
     let mut t = format!(
         "Reproduce: `nis bench fit-image --steps {} --batch {} --resolution {} --learning-rate {} \
          --seed {}`.\n\n\
          Every model: MLP 3×64 (ReLU), one-blob 32, Adam (learning rate {}), KL gradient on \
          the same {} uniform points per step, {} steps. KL and variance are exact on the \
          {}² pixel grid.\n\n\
-         ![montage]({})\n\n\
+         ![montage]({images}/{DOCS_MONTAGE})\n\n\
+         ![curves]({images}/{DOCS_CURVES})\n\n\
          | target | model | parameters | KL (nats) | Var(f/q)/F² | seconds |\n\
          |---|---|---:|---:|---:|---:|\n",
         args.steps,
@@ -330,10 +344,6 @@ fn markdown(args: &BenchFitImageArgs, summaries: &[nis::image::FitSummary]) -> S
         args.batch,
         args.steps,
         args.resolution,
-        args.docs_image
-            .strip_prefix(args.docs.parent().unwrap_or(Path::new("")))
-            .unwrap_or(&args.docs_image)
-            .display(),
     );
     for s in summaries {
         t.push_str(&format!(

@@ -10,7 +10,8 @@
 use std::io::Cursor;
 use std::sync::OnceLock;
 
-use ::image::{ImageFormat, Rgb, RgbImage};
+use ::image::codecs::png::{CompressionType, FilterType as PngFilter, PngEncoder};
+use ::image::{Rgb, RgbImage};
 use plotters::prelude::*;
 
 use crate::error::{Error, Result};
@@ -64,12 +65,15 @@ fn figure_error(e: impl std::fmt::Display) -> Error {
     Error::Figure(e.to_string())
 }
 
-/// Encodes an RGB image as PNG bytes.
+/// Encodes an RGB image as PNG bytes, compressed hard (figures go into the repository).
 pub fn png_bytes(image: &RgbImage) -> Result<Vec<u8>> {
     let mut bytes = Vec::new();
-    image
-        .write_to(&mut Cursor::new(&mut bytes), ImageFormat::Png)
-        .map_err(figure_error)?;
+    let encoder = PngEncoder::new_with_quality(
+        Cursor::new(&mut bytes),
+        CompressionType::Best,
+        PngFilter::Adaptive,
+    );
+    image.write_with_encoder(encoder).map_err(figure_error)?;
     Ok(bytes)
 }
 
