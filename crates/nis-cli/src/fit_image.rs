@@ -144,6 +144,9 @@ fn write(path: &Path, bytes: &[u8]) -> Result<(), Box<dyn std::error::Error>> {
 
 /// `nis fit-image`.
 pub fn run(args: &FitImageArgs) -> Result<(), Box<dyn std::error::Error>> {
+    if args.layers == 0 {
+        return Err("--layers must be at least 1".into());
+    }
     let target = load_target(args)?;
     let grid = Grid::for_target(&target)?;
     let config = FitConfig {
@@ -162,9 +165,6 @@ pub fn run(args: &FitImageArgs) -> Result<(), Box<dyn std::error::Error>> {
         eval_every: args.eval_every,
         seed: args.seed,
     };
-    if args.layers == 0 {
-        return Err("--layers must be at least 1".into());
-    }
     let fit = fit_with_bar(&target, &grid, &config)?;
     let (nx, ny) = grid.size();
     let q = grid.q(&fit.flow)?;

@@ -99,7 +99,7 @@ pub struct FitSummary {
     pub couplings: usize,
     /// Trainable parameters of the flow.
     pub param_count: usize,
-    /// Training steps and points per step.
+    /// Training steps.
     pub steps: usize,
     /// Training points per step.
     pub batch: usize,

@@ -5,7 +5,7 @@
 //! Coordinates: x runs left to right, y bottom to top, so a plot of the density with y up shows
 //! the image upright. Pixel (i, j) (column i, row j counted from the top) has its centre at
 //! ((i + ½)/w, 1 − (j + ½)/h); between centres f is bilinear, beyond the outermost centres it
-//! is constant (clamped to the edge).
+//! is constant (clamped to the edge). A non-square image is stretched to the unit square.
 
 use std::path::Path;
 
