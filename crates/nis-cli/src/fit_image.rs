@@ -43,8 +43,8 @@ impl Coupling {
 #[command(after_help = "Examples:\n  \
     nis fit-image --target rings --coupling pq --layers 2 --out out/rings-pq\n  \
     nis fit-image photo.png --coupling affine --layers 16 --steps 2000 --out out/photo\n\n\
-    Writes DIR/density.png (target | learned), DIR/curves.png (KL and variance against \
-    step) and DIR/summary.json.")]
+    Writes into the --out directory: density.png (target | learned), curves.png (KL and variance against \
+    step) and summary.json.")]
 pub struct FitImageArgs {
     /// A PNG or JPEG file: its luminance is the target density. Leave out to use --target.
     image: Option<PathBuf>,
