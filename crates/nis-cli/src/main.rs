@@ -3,6 +3,7 @@
 
 mod bench;
 mod demo;
+mod fit_image;
 mod integrate;
 mod render;
 mod report;
@@ -49,6 +50,10 @@ enum Command {
     ///
     /// Example: nis compare cornell.exr reference.exr
     Compare(render::CompareArgs),
+    /// Fit a 2-D flow to an image (or a built-in pattern) and plot how close it gets.
+    ///
+    /// Example: nis fit-image --target rings --coupling pq --layers 2 --out out/rings
+    FitImage(fit_image::FitImageArgs),
     /// Measure throughput and write it to docs/BENCHMARKS.md.
     #[command(subcommand)]
     Bench(BenchCommand),
@@ -83,6 +88,10 @@ enum BenchCommand {
         #[arg(long, default_value = "docs/BENCHMARKS.md")]
         docs: PathBuf,
     },
+    /// The paper's Figure 3: affine L=2 and L=16 against PL-32, PQ-32 and RQ-32 with L=2 on
+    /// every built-in 2-D target; writes a montage and a table to docs/REPRODUCTION.md.
+    /// Example: nis bench fit-image --steps 400
+    FitImage(fit_image::BenchFitImageArgs),
 }
 
 fn main() -> ExitCode {
@@ -103,6 +112,8 @@ fn main() -> ExitCode {
         Command::Bench(BenchCommand::Integrate { evals, only, docs }) => {
             bench::run_integrate(evals, only.as_deref(), &docs)
         }
+        Command::FitImage(args) => fit_image::run(&args),
+        Command::Bench(BenchCommand::FitImage(args)) => fit_image::run_bench(&args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

@@ -13,6 +13,7 @@
 
 pub mod error;
 pub mod flow;
+pub mod image;
 pub mod integrands;
 pub mod integrate;
 pub mod io;
