@@ -8,4 +8,4 @@ pub mod dense;
 pub mod elementwise;
 
 /// Rows per parallel work item. Fixed, so results do not depend on the number of threads.
-pub const CHUNK_ROWS: usize = 256;
+pub const CHUNK_ROWS: usize = 512;
