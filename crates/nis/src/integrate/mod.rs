@@ -155,13 +155,25 @@ impl Accumulator {
             .iter()
             .map(|i| i.1 * (i.2 as f64 / total).powi(2))
             .sum();
-        let chi2 = if self.iterations.len() > 1 {
+        // χ² of the iteration estimates around their mean, against the variance an iteration of
+        // its size has by the pooled estimate (iterations are of nearly equal size). Dividing by
+        // each iteration's own variance estimate instead pulls χ² far below 1 for heavy-tailed
+        // weights, whose large deviations come with large variance estimates.
+        let k = self.iterations.len();
+        // Per-evaluation variance of each iteration (variance of its mean × its size), averaged
+        // over the iterations weighted by their sizes.
+        let mean_var_per_eval = self
+            .iterations
+            .iter()
+            .map(|i| i.1 * (i.2 as f64).powi(2))
+            .sum::<f64>()
+            / total;
+        let chi2 = if k > 1 && mean_var_per_eval > 0.0 {
             self.iterations
                 .iter()
-                .filter(|i| i.1 > 0.0)
-                .map(|i| (i.0 - value).powi(2) / i.1)
+                .map(|i| (i.0 - value).powi(2) * i.2 as f64 / mean_var_per_eval)
                 .sum::<f64>()
-                / (self.iterations.len() - 1) as f64
+                / (k - 1) as f64
         } else {
             f64::NAN
         };
@@ -202,3 +214,32 @@ impl Accumulator {
 
 /// Reports progress: evaluations done so far, evaluations planned, and a short status.
 pub type Progress<'a> = &'a mut dyn FnMut(u64, u64, &str);
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use rand::{Rng, SeedableRng};
+
+    #[test]
+    fn chi2_per_dof_of_iid_iterations_averages_one() {
+        // 200 runs of 10 iterations × 1000 uniform weights: χ²/dof has 9 degrees of freedom,
+        // σ = √(2/9) = 0.47 per run, so the mean over 200 runs is 1 ± 0.033; 3.5σ allowed.
+        let mut rng = rand_pcg::Pcg64Mcg::seed_from_u64(3);
+        let started = Instant::now();
+        let mut sum = 0.0;
+        for _ in 0..200 {
+            let mut acc = Accumulator::default();
+            for _ in 0..10 {
+                let w: Vec<f64> = (0..1000).map(|_| rng.random::<f64>()).collect();
+                acc.add_weights(&w);
+            }
+            let r = acc.finish(10_000, started, Vec::new());
+            assert!((r.value - 0.5).abs() < 5.0 * r.std_err);
+            // Var(U)/E[U]² = (1/12)/(1/4) = 1/3 per evaluation.
+            assert!((r.rel_var_per_eval - 1.0 / 3.0).abs() < 0.03);
+            sum += r.chi2_per_dof;
+        }
+        let mean = sum / 200.0;
+        assert!((mean - 1.0).abs() < 0.12, "mean χ²/dof {mean}");
+    }
+}
