@@ -8,6 +8,7 @@
 //! the two boundary derivatives are learned too: on [0, 1] nothing forces the density at the ends.
 
 use super::{edges_from_widths, softmax_floor, softmax_floor_backward, with_scratch, Spline};
+use crate::kernels::elementwise;
 
 /// Smallest bin width as a fraction of the mean width.
 pub const MIN_BIN_WIDTH: f64 = 1e-3;
@@ -20,18 +21,6 @@ pub const MIN_DERIVATIVE: f64 = 1e-3;
 /// softplus⁻¹(1 − MIN_DERIVATIVE) = ln(e^{1−m} − 1).
 fn derivative_shift() -> f64 {
     ((1.0 - MIN_DERIVATIVE).exp() - 1.0).ln()
-}
-
-fn softplus(x: f64) -> f64 {
-    if x > 30.0 {
-        x
-    } else {
-        x.exp().ln_1p()
-    }
-}
-
-fn sigmoid(x: f64) -> f64 {
-    1.0 / (1.0 + (-x).exp())
 }
 
 /// Rational-quadratic spline with `bins` bins; `3·bins + 1` parameters per dimension.
@@ -74,9 +63,9 @@ impl RationalQuadratic {
         for i in 0..k {
             h[i] = MIN_SLOPE * w[i] + (1.0 - MIN_SLOPE) * h_soft[i];
         }
-        let shift = derivative_shift();
-        for j in 0..=k {
-            d[j] = MIN_DERIVATIVE + softplus(p[2 * k + j] as f64 + shift);
+        elementwise::softplus_shifted(&p[2 * k..3 * k + 1], derivative_shift() as f32, d);
+        for dj in d.iter_mut() {
+            *dj += MIN_DERIVATIVE;
         }
         (Knots { w, h, h_soft, d }, rest)
     }
@@ -241,17 +230,16 @@ impl RationalQuadratic {
         }
         softmax_floor_backward(kn.w, g_w, MIN_BIN_WIDTH, &mut g_p[..k]);
         softmax_floor_backward(kn.h_soft, g_soft, 0.0, &mut g_p[k..2 * k]);
-        let shift = derivative_shift();
-        for j in 0..=k {
-            let g_d = if j == b {
-                g_d0
-            } else if j == b + 1 {
-                g_d1
-            } else {
-                0.0
-            };
-            g_p[2 * k + j] = (g_d * sigmoid(p[2 * k + j] as f64 + shift)) as f32;
-        }
+        // Only the bin's two knot derivatives carry gradient; d = m + softplus(d̂ + shift).
+        g_p[2 * k..3 * k + 1].fill(0.0);
+        let mut sig = [0.0f64; 2];
+        elementwise::sigmoid_shifted(
+            &p[2 * k + b..2 * k + b + 2],
+            derivative_shift() as f32,
+            &mut sig,
+        );
+        g_p[2 * k + b] = (g_d0 * sig[0]) as f32;
+        g_p[2 * k + b + 1] = (g_d1 * sig[1]) as f32;
         g_x
     }
 }
