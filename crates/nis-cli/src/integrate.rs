@@ -146,7 +146,8 @@ pub fn run_method(
                     .into());
                 }
                 let acc = nis.estimate(f, args.evals, args.seed, &mut progress)?;
-                acc.finish(args.evals, started, Vec::new())
+                let n_eval = acc.iterations.iter().map(|i| i.2).sum();
+                acc.finish(n_eval, started, Vec::new())
             } else {
                 let (r, nis) = nis::integrate::nis::integrate(
                     f,

@@ -2,7 +2,6 @@
 //! it parses arguments, shows progress and prints; all logic lives in the library.
 
 mod bench;
-mod demo;
 mod fit_image;
 mod integrate;
 mod render;
@@ -38,10 +37,6 @@ enum Command {
     ///
     /// Example: nis sample camel --dim 2 --n 10000 --out camel.csv
     Sample(integrate::SampleArgs),
-    /// Train a flow on a built-in 2-D target and print the variance reduction.
-    ///
-    /// Example: nis demo --steps 300
-    Demo(demo::DemoArgs),
     /// Render a scene with the CPU path tracer.
     ///
     /// Example: nis render cornell-box --spp 64 --out cornell.exr
@@ -97,7 +92,6 @@ enum BenchCommand {
 fn main() -> ExitCode {
     let cli = Cli::parse();
     let result = match cli.command {
-        Command::Demo(args) => demo::run(&args),
         Command::Integrate(args) => integrate::run(&args),
         Command::Sample(args) => integrate::sample(&args),
         Command::List => {
