@@ -34,6 +34,8 @@ pub struct RenderOutput {
     pub image: Image,
     /// Samples per pixel taken.
     pub spp: u32,
+    /// Of those, samples per pixel spent on training a guide (not in the image).
+    pub training_spp: u32,
     /// Ray and path counts.
     pub stats: PathStats,
     /// Wall-clock seconds spent tracing.
@@ -101,10 +103,146 @@ pub fn render<G: Guide>(
             Budget::Seconds(_) => {}
         }
     }
+    let image = average(w, h, &sums, spp);
+    RenderOutput {
+        image,
+        spp,
+        training_spp: 0,
+        stats,
+        seconds: start.elapsed().as_secs_f64(),
+    }
+}
+
+/// The passes of a guided render of `spp` samples per pixel: training passes of 1, 2, 4, …
+/// spp, as many as fit into half of the budget, then one final pass with the rest (at least
+/// half). This is Practical Path Guiding's schedule (Müller et al. 2017, §5.3): every
+/// training pass doubles the data the next distribution is learned from.
+pub fn training_schedule(spp: u32) -> (Vec<u32>, u32) {
+    let mut passes = Vec::new();
+    let mut used = 0u32;
+    let mut next = 1u32;
+    while used + next <= spp / 2 {
+        passes.push(next);
+        used += next;
+        next *= 2;
+    }
+    (passes, spp - used)
+}
+
+/// A guided render: the guide learns during training passes (see [`training_schedule`]; with
+/// a time budget, doubling passes for the first half of the time), then renders the image
+/// alone, in a final phase that only samples it. The image is the final phase's, so it is
+/// unbiased whatever the guide learned; `spp` counts all passes, training included, so
+/// comparisons at equal samples per pixel charge the guide for its training.
+pub fn render_guided<G: Guide>(
+    scene: &Scene,
+    integrator: &Integrator,
+    budget: Budget,
+    seed: u64,
+    guide: &mut G,
+    progress: &(dyn Fn(f64) + Sync),
+) -> RenderOutput {
+    let (w, h) = (scene.camera.width(), scene.camera.height());
+    let start = Instant::now();
+    let mut stats = PathStats::default();
+    let mut spp = 0u32;
+    let mut scratch = vec![[0.0f64; 3]; w as usize * h as usize];
+    let (training, final_spp) = match budget {
+        Budget::Samples(n) => {
+            let (passes, rest) = training_schedule(n);
+            (Some(passes), rest)
+        }
+        Budget::Seconds(_) => (None, 0),
+    };
+    let total = f64::from(match budget {
+        Budget::Samples(n) => n.max(1),
+        Budget::Seconds(_) => 1,
+    });
+    let report = |done_spp: u32, f: f64, count: u32| match budget {
+        Budget::Samples(_) => progress((f64::from(done_spp) + f * f64::from(count)) / total),
+        Budget::Seconds(t) => progress((start.elapsed().as_secs_f64() / t).min(1.0)),
+    };
+    // Training.
+    let mut iteration = 0usize;
+    let mut pass = 1u32;
+    loop {
+        let count = match (&training, budget) {
+            (Some(passes), _) => match passes.get(iteration) {
+                Some(&c) => c,
+                None => break,
+            },
+            (None, Budget::Seconds(t)) => {
+                // Stop when the next (doubled) pass would end after half of the time.
+                let elapsed = start.elapsed().as_secs_f64();
+                let last = elapsed / f64::from(spp.max(1)) * f64::from(pass);
+                if iteration > 0 && elapsed + last > t / 2.0 {
+                    break;
+                }
+                pass
+            }
+            (None, Budget::Samples(_)) => unreachable!("sample budgets have a schedule"),
+        };
+        guide.begin_iteration(iteration);
+        let done = spp;
+        let s = render_pass(
+            scene,
+            integrator,
+            seed,
+            spp,
+            count,
+            &*guide,
+            &mut scratch,
+            &|f| report(done, f, count),
+        );
+        guide.end_iteration(iteration);
+        stats.merge(&s);
+        spp += count;
+        iteration += 1;
+        pass *= 2;
+    }
+    guide.end_training();
+    let training_spp = spp;
+    // Rendering.
+    let mut sums = vec![[0.0f64; 3]; w as usize * h as usize];
+    loop {
+        let count = match budget {
+            Budget::Samples(_) => final_spp,
+            Budget::Seconds(_) => 1,
+        };
+        let done = spp;
+        let s = render_pass(
+            scene,
+            integrator,
+            seed,
+            spp,
+            count,
+            &*guide,
+            &mut sums,
+            &|f| report(done, f, count),
+        );
+        stats.merge(&s);
+        spp += count;
+        match budget {
+            Budget::Samples(_) => break,
+            Budget::Seconds(t) if start.elapsed().as_secs_f64() >= t => break,
+            Budget::Seconds(_) => {}
+        }
+    }
+    RenderOutput {
+        image: average(w, h, &sums, spp - training_spp),
+        spp,
+        training_spp,
+        stats,
+        seconds: start.elapsed().as_secs_f64(),
+    }
+}
+
+/// The image of pixel sums over `spp` samples each.
+fn average(width: u32, height: u32, sums: &[[f64; 3]], spp: u32) -> Image {
     let inv = 1.0 / f64::from(spp.max(1));
-    let image = Image {
-        width: w,
-        height: h,
+    Image {
+        width,
+        height,
         pixels: sums
             .iter()
             .map(|s| {
@@ -115,16 +253,22 @@ pub fn render<G: Guide>(
                 )
             })
             .collect(),
-    };
-    RenderOutput {
-        image,
-        spp,
-        stats,
-        seconds: start.elapsed().as_secs_f64(),
     }
 }
 
+/// Paths a wave traces together, at least (whole tiles are never split).
+pub const WAVE_PATHS: usize = 4096;
+
+/// Waves rendered in parallel before their guide records are handed over, in wave order.
+const WAVES_PER_GROUP: usize = 16;
+
 /// Add samples `first_sample..first_sample + count` of every pixel to `sums`.
+///
+/// Tiles are grouped into waves of at least [`WAVE_PATHS`] paths that the integrator traces
+/// bounce by bounce (so a guide sees large batches); waves run in parallel, a group of them at
+/// a time, and their training records reach the guide in wave order, from this thread, so
+/// training does not depend on the thread count.
+#[allow(clippy::too_many_arguments)]
 fn render_pass<G: Guide>(
     scene: &Scene,
     integrator: &Integrator,
@@ -139,60 +283,110 @@ fn render_pass<G: Guide>(
     let tiles: Vec<(u32, u32)> = (0..h.div_ceil(TILE_SIZE))
         .flat_map(|ty| (0..w.div_ceil(TILE_SIZE)).map(move |tx| (tx * TILE_SIZE, ty * TILE_SIZE)))
         .collect();
+    let tile_paths = (TILE_SIZE * TILE_SIZE) as usize * count as usize;
+    let tiles_per_wave = WAVE_PATHS.div_ceil(tile_paths.max(1)).max(1);
+    let waves: Vec<&[(u32, u32)]> = tiles.chunks(tiles_per_wave).collect();
     let done = AtomicU64::new(0);
-    let n_tiles = tiles.len() as f64;
+    let n_waves = waves.len() as f64;
     let wants_records = guide.wants_records();
-    let results: Vec<_> = tiles
-        .par_iter()
-        .map(|&(x0, y0)| {
-            let mut stats = PathStats::default();
-            let mut records = Vec::new();
-            let mut out = Vec::new();
-            for y in y0..(y0 + TILE_SIZE).min(h) {
-                for x in x0..(x0 + TILE_SIZE).min(w) {
-                    let pixel = u64::from(y) * u64::from(w) + u64::from(x);
-                    let mut sum = [0.0f64; 3];
-                    for s in first_sample..first_sample + count {
-                        let mut rng = sample_rng(seed, pixel, u64::from(s));
-                        let ray = scene
-                            .camera
-                            .ray(x as f32 + uniform(&mut rng), y as f32 + uniform(&mut rng));
-                        let l = integrator.radiance(
-                            scene,
-                            ray,
-                            &mut rng,
-                            guide,
-                            &mut stats,
-                            wants_records.then_some(&mut records),
-                        );
-                        stats.paths += 1;
-                        if l.is_finite() {
-                            for c in 0..3 {
-                                sum[c] += f64::from(l[c]);
+    let mut stats = PathStats::default();
+    for group in waves.chunks(WAVES_PER_GROUP) {
+        let results: Vec<_> = group
+            .par_iter()
+            .map(|wave| {
+                let mut stats = PathStats::default();
+                let mut pixels = Vec::new();
+                let mut rays = Vec::new();
+                let mut rngs = Vec::new();
+                for &(x0, y0) in wave.iter() {
+                    for y in y0..(y0 + TILE_SIZE).min(h) {
+                        for x in x0..(x0 + TILE_SIZE).min(w) {
+                            let pixel = u64::from(y) * u64::from(w) + u64::from(x);
+                            pixels.push(pixel as usize);
+                            for s in first_sample..first_sample + count {
+                                let mut rng = sample_rng(seed, pixel, u64::from(s));
+                                rays.push(scene.camera.ray(
+                                    x as f32 + uniform(&mut rng),
+                                    y as f32 + uniform(&mut rng),
+                                ));
+                                rngs.push(rng);
                             }
-                        } else {
-                            stats.invalid += 1;
                         }
                     }
-                    out.push((pixel as usize, sum));
+                }
+                let mut radiance = vec![Rgb::ZERO; rays.len()];
+                let mut records = Vec::new();
+                let batch = guide.batch_paths().max(1);
+                for ((rays, rngs), radiance) in rays
+                    .chunks(batch)
+                    .zip(rngs.chunks_mut(batch))
+                    .zip(radiance.chunks_mut(batch))
+                {
+                    integrator.trace(
+                        scene,
+                        rays,
+                        rngs,
+                        guide,
+                        &mut stats,
+                        wants_records.then_some(&mut records),
+                        radiance,
+                    );
+                }
+                stats.paths += rays.len() as u64;
+                let per_pixel = count as usize;
+                let out: Vec<(usize, [f64; 3])> = pixels
+                    .iter()
+                    .zip(radiance.chunks(per_pixel.max(1)))
+                    .map(|(&pixel, ls)| {
+                        let mut sum = [0.0f64; 3];
+                        for l in ls {
+                            if l.is_finite() {
+                                for c in 0..3 {
+                                    sum[c] += f64::from(l[c]);
+                                }
+                            } else {
+                                stats.invalid += 1;
+                            }
+                        }
+                        (pixel, sum)
+                    })
+                    .collect();
+                let d = done.fetch_add(1, Ordering::Relaxed) + 1;
+                progress(d as f64 / n_waves);
+                (out, stats, records)
+            })
+            .collect();
+        for (out, s, records) in results {
+            stats.merge(&s);
+            for (i, v) in out {
+                for c in 0..3 {
+                    sums[i][c] += v[c];
                 }
             }
-            if wants_records && !records.is_empty() {
+            if !records.is_empty() {
                 guide.record(&records);
-            }
-            let d = done.fetch_add(1, Ordering::Relaxed) + 1;
-            progress(d as f64 / n_tiles);
-            (out, stats)
-        })
-        .collect();
-    let mut stats = PathStats::default();
-    for (out, s) in results {
-        stats.merge(&s);
-        for (i, v) in out {
-            for c in 0..3 {
-                sums[i][c] += v[c];
             }
         }
     }
     stats
+}
+
+#[cfg(test)]
+mod tests {
+    use super::training_schedule;
+
+    #[test]
+    fn training_takes_doubling_passes_within_half_of_the_budget() {
+        assert_eq!(training_schedule(64), (vec![1, 2, 4, 8, 16], 33));
+        assert_eq!(training_schedule(16), (vec![1, 2, 4], 9));
+        assert_eq!(training_schedule(1), (vec![], 1));
+        assert_eq!(training_schedule(2), (vec![1], 1));
+        for spp in 1..300 {
+            let (passes, rest) = training_schedule(spp);
+            let used: u32 = passes.iter().sum();
+            assert_eq!(used + rest, spp);
+            assert!(rest >= used && rest >= 1, "spp {spp}");
+            assert!(passes.iter().enumerate().all(|(i, &p)| p == 1 << i));
+        }
+    }
 }
