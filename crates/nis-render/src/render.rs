@@ -13,7 +13,7 @@ use rand_pcg::Pcg32;
 use rayon::prelude::*;
 
 use crate::film::Image;
-use crate::geometry::Rgb;
+use crate::geometry::{luminance, Rgb};
 use crate::guiding::Guide;
 use crate::integrator::{uniform, Integrator, PathStats};
 use crate::scene::Scene;
@@ -60,7 +60,7 @@ pub fn sample_rng(seed: u64, pixel: u64, sample: u64) -> Pcg32 {
 
 /// Render `scene` with `integrator`, guided by `guide`. `progress` is called with the fraction
 /// done after every tile.
-pub fn render<G: Guide>(
+pub fn render<G: Guide + ?Sized>(
     scene: &Scene,
     integrator: &Integrator,
     budget: Budget,
@@ -69,7 +69,7 @@ pub fn render<G: Guide>(
     progress: &(dyn Fn(f64) + Sync),
 ) -> RenderOutput {
     let (w, h) = (scene.camera.width(), scene.camera.height());
-    let mut sums = vec![[0.0f64; 3]; w as usize * h as usize];
+    let mut sums = vec![[0.0f64; 4]; w as usize * h as usize];
     let mut stats = PathStats::default();
     let start = Instant::now();
     let mut spp = 0u32;
@@ -130,11 +130,11 @@ pub fn training_schedule(spp: u32) -> (Vec<u32>, u32) {
 }
 
 /// A guided render: the guide learns during training passes (see [`training_schedule`]; with
-/// a time budget, doubling passes for the first half of the time), then renders the image
-/// alone, in a final phase that only samples it. The image is the final phase's, so it is
-/// unbiased whatever the guide learned; `spp` counts all passes, training included, so
-/// comparisons at equal samples per pixel charge the guide for its training.
-pub fn render_guided<G: Guide>(
+/// a time budget, doubling passes for the first half of the time), then stops learning for a
+/// final phase. Every pass is an unbiased image whatever the guide had learned by then; the
+/// result combines them by inverse variance ([`combine`]'s rule), so the training passes are
+/// not wasted. `spp` counts all passes.
+pub fn render_guided<G: Guide + ?Sized>(
     scene: &Scene,
     integrator: &Integrator,
     budget: Budget,
@@ -146,7 +146,8 @@ pub fn render_guided<G: Guide>(
     let start = Instant::now();
     let mut stats = PathStats::default();
     let mut spp = 0u32;
-    let mut scratch = vec![[0.0f64; 3]; w as usize * h as usize];
+    // Every pass's pixel sums, kept for the final combination.
+    let mut passes: Vec<Pass> = Vec::new();
     let (training, final_spp) = match budget {
         Budget::Samples(n) => {
             let (passes, rest) = training_schedule(n);
@@ -184,6 +185,7 @@ pub fn render_guided<G: Guide>(
         };
         guide.begin_iteration(iteration);
         let done = spp;
+        let mut sums = vec![[0.0f64; 4]; w as usize * h as usize];
         let s = render_pass(
             scene,
             integrator,
@@ -191,9 +193,10 @@ pub fn render_guided<G: Guide>(
             spp,
             count,
             &*guide,
-            &mut scratch,
+            &mut sums,
             &|f| report(done, f, count),
         );
+        passes.push((count, sums));
         guide.end_iteration(iteration);
         stats.merge(&s);
         spp += count;
@@ -203,7 +206,7 @@ pub fn render_guided<G: Guide>(
     guide.end_training();
     let training_spp = spp;
     // Rendering.
-    let mut sums = vec![[0.0f64; 3]; w as usize * h as usize];
+    let mut sums = vec![[0.0f64; 4]; w as usize * h as usize];
     loop {
         let count = match budget {
             Budget::Samples(_) => final_spp,
@@ -228,8 +231,9 @@ pub fn render_guided<G: Guide>(
             Budget::Seconds(_) => {}
         }
     }
+    passes.push((spp - training_spp, sums));
     RenderOutput {
-        image: average(w, h, &sums, spp - training_spp),
+        image: combine(w, h, &passes),
         spp,
         training_spp,
         stats,
@@ -237,8 +241,65 @@ pub fn render_guided<G: Guide>(
     }
 }
 
+/// A pass's samples per pixel and pixel sums.
+type Pass = (u32, Vec<[f64; 4]>);
+
+/// Variance of a pass's pixel means, averaged over the image (of the luminance; `None` for
+/// a pass of one sample, whose pixels give no variance estimate).
+fn pass_variance(spp: u32, sums: &[[f64; 4]]) -> Option<f64> {
+    if spp < 2 || sums.is_empty() {
+        return None;
+    }
+    let n = f64::from(spp);
+    let total: f64 = sums
+        .iter()
+        .map(|s| {
+            let mean = f64::from(luminance(Rgb::new(s[0] as f32, s[1] as f32, s[2] as f32))) / n;
+            ((s[3] / n - mean * mean) * n / (n - 1.0)).max(0.0) / n
+        })
+        .sum();
+    Some(total / sums.len() as f64)
+}
+
+/// The passes of a guided render combined with weights inversely proportional to their
+/// image-averaged variance (as production path guiding does, Müller 2019, "Practical Path
+/// Guiding in Production"): every pass is an unbiased image, so any fixed weights keep the
+/// result unbiased, and weights estimated from whole images are near-constant. One-sample
+/// passes (no variance estimate) are left out; when some pass has no noise at all (e.g. a
+/// black image), the passes are pooled by sample count instead.
+fn combine(width: u32, height: u32, passes: &[Pass]) -> Image {
+    let estimates: Vec<(f64, &Pass)> = passes
+        .iter()
+        .filter_map(|p| pass_variance(p.0, &p.1).map(|v| (v, p)))
+        .collect();
+    let pool = |weights: Vec<(f64, &Pass)>| {
+        let total: f64 = weights.iter().map(|w| w.0).sum();
+        let mut pixels = vec![Rgb::ZERO; width as usize * height as usize];
+        for (wt, (spp, sums)) in &weights {
+            let scale = wt / total / f64::from(*spp);
+            for (p, s) in pixels.iter_mut().zip(sums) {
+                *p += Rgb::new(
+                    (s[0] * scale) as f32,
+                    (s[1] * scale) as f32,
+                    (s[2] * scale) as f32,
+                );
+            }
+        }
+        Image {
+            width,
+            height,
+            pixels,
+        }
+    };
+    if !estimates.is_empty() && estimates.iter().all(|(v, _)| *v > 0.0 && v.is_finite()) {
+        pool(estimates.into_iter().map(|(v, p)| (1.0 / v, p)).collect())
+    } else {
+        pool(passes.iter().map(|p| (f64::from(p.0), p)).collect())
+    }
+}
+
 /// The image of pixel sums over `spp` samples each.
-fn average(width: u32, height: u32, sums: &[[f64; 3]], spp: u32) -> Image {
+fn average(width: u32, height: u32, sums: &[[f64; 4]], spp: u32) -> Image {
     let inv = 1.0 / f64::from(spp.max(1));
     Image {
         width,
@@ -262,21 +323,22 @@ pub const WAVE_PATHS: usize = 4096;
 /// Waves rendered in parallel before their guide records are handed over, in wave order.
 const WAVES_PER_GROUP: usize = 16;
 
-/// Add samples `first_sample..first_sample + count` of every pixel to `sums`.
+/// Add samples `first_sample..first_sample + count` of every pixel to `sums`: per pixel the
+/// sums of the three channels and of the squared luminance (for variance estimates).
 ///
 /// Tiles are grouped into waves of at least [`WAVE_PATHS`] paths that the integrator traces
 /// bounce by bounce (so a guide sees large batches); waves run in parallel, a group of them at
 /// a time, and their training records reach the guide in wave order, from this thread, so
 /// training does not depend on the thread count.
 #[allow(clippy::too_many_arguments)]
-fn render_pass<G: Guide>(
+fn render_pass<G: Guide + ?Sized>(
     scene: &Scene,
     integrator: &Integrator,
     seed: u64,
     first_sample: u32,
     count: u32,
     guide: &G,
-    sums: &mut [[f64; 3]],
+    sums: &mut [[f64; 4]],
     progress: &(dyn Fn(f64) + Sync),
 ) -> PathStats {
     let (w, h) = (scene.camera.width(), scene.camera.height());
@@ -334,16 +396,17 @@ fn render_pass<G: Guide>(
                 }
                 stats.paths += rays.len() as u64;
                 let per_pixel = count as usize;
-                let out: Vec<(usize, [f64; 3])> = pixels
+                let out: Vec<(usize, [f64; 4])> = pixels
                     .iter()
                     .zip(radiance.chunks(per_pixel.max(1)))
                     .map(|(&pixel, ls)| {
-                        let mut sum = [0.0f64; 3];
+                        let mut sum = [0.0f64; 4];
                         for l in ls {
                             if l.is_finite() {
                                 for c in 0..3 {
                                     sum[c] += f64::from(l[c]);
                                 }
+                                sum[3] += f64::from(luminance(*l)).powi(2);
                             } else {
                                 stats.invalid += 1;
                             }
@@ -359,7 +422,7 @@ fn render_pass<G: Guide>(
         for (out, s, records) in results {
             stats.merge(&s);
             for (i, v) in out {
-                for c in 0..3 {
+                for c in 0..4 {
                     sums[i][c] += v[c];
                 }
             }

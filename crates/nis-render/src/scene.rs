@@ -246,6 +246,30 @@ impl Scene {
         best
     }
 
+    /// The bounding box of all geometry (an empty scene gives the unit cube around the
+    /// origin, so guides that normalise positions by it still work).
+    pub fn bounds(&self) -> crate::bvh::Aabb {
+        let mut min = Vec3::splat(f32::INFINITY);
+        let mut max = Vec3::splat(f32::NEG_INFINITY);
+        for t in self.bvh.triangles() {
+            for p in [t.p0, t.p0 + t.e1, t.p0 + t.e2] {
+                min = min.min(p);
+                max = max.max(p);
+            }
+        }
+        for s in &self.spheres {
+            min = min.min(s.sphere.center - Vec3::splat(s.sphere.radius));
+            max = max.max(s.sphere.center + Vec3::splat(s.sphere.radius));
+        }
+        if min.cmpgt(max).any() {
+            return crate::bvh::Aabb {
+                min: Vec3::splat(-0.5),
+                max: Vec3::splat(0.5),
+            };
+        }
+        crate::bvh::Aabb { min, max }
+    }
+
     /// Whether anything blocks `ray` before `t_max`.
     pub fn occluded(&self, ray: &Ray, t_max: f32) -> bool {
         self.spheres

@@ -11,6 +11,8 @@
 //! weights by the mixture density `α p_guide + (1 − α) p_bsdf`. [`NoGuide`] (α = 0) is plain
 //! unidirectional path tracing.
 
+pub mod neural;
+
 use glam::{Vec2, Vec3};
 
 use crate::bsdf::Material;
