@@ -436,7 +436,40 @@ fn render_pass<G: Guide + ?Sized>(
 
 #[cfg(test)]
 mod tests {
-    use super::training_schedule;
+    use super::{combine, pass_variance, training_schedule, Pass};
+
+    /// A pass of `n` (even) grey samples per pixel, half `m − d` and half `m + d`, on 4 pixels.
+    fn pass(n: u32, m: f64, d: f64) -> Pass {
+        let (lo, hi) = (m - d, m + d);
+        let sum = f64::from(n / 2) * (lo + hi);
+        let sq = f64::from(n / 2) * (lo * lo + hi * hi);
+        (n, vec![[sum, sum, sum, sq]; 4])
+    }
+
+    #[test]
+    fn passes_are_combined_by_inverse_variance() {
+        // Sample variance d²·n/(n − 1); variance of the pixel mean d²/(n − 1).
+        let v = pass_variance(4, &pass(4, 1.0, 0.3).1).unwrap();
+        assert!((v - 0.09 / 3.0).abs() < 1e-6, "{v}");
+        assert_eq!(pass_variance(1, &pass(1, 1.0, 0.0).1), None);
+        // Variances 0.09/3 = 0.03 and 0.36/3 = 0.12: weights 0.8 and 0.2.
+        let img = combine(2, 2, &[pass(4, 1.0, 0.3), pass(4, 2.0, 0.6)]);
+        for p in &img.pixels {
+            assert!((p.x - 1.2).abs() < 1e-5, "{p:?}");
+        }
+        // A one-sample pass has no variance estimate and is left out.
+        let img = combine(
+            2,
+            2,
+            &[(1, vec![[9.0, 9.0, 9.0, 81.0]; 4]), pass(4, 1.0, 0.3)],
+        );
+        assert!((img.pixels[0].x - 1.0).abs() < 1e-6);
+        // Noise-free passes (a black image) are pooled by sample count.
+        let img = combine(2, 2, &[pass(2, 0.0, 0.0), pass(6, 0.0, 0.0)]);
+        assert!(img.pixels.iter().all(|p| p.x == 0.0));
+        let img = combine(2, 2, &[pass(2, 1.0, 0.0), pass(6, 3.0, 0.0)]);
+        assert!((img.pixels[0].x - 2.5).abs() < 1e-6, "{:?}", img.pixels[0]);
+    }
 
     #[test]
     fn training_takes_doubling_passes_within_half_of_the_budget() {
