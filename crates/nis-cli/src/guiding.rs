@@ -88,7 +88,7 @@ fn run_one(
     label: String,
 ) -> Result<RenderOutput, Box<dyn std::error::Error>> {
     let bar = bar(label)?;
-    let out = render_with(scene, integrator, budget, seed, method, &|f| {
+    let out = render_with(scene, integrator, budget, seed, method, None, &|f| {
         bar.set_position((f * 1000.0) as u64)
     })?;
     bar.finish_and_clear();
@@ -128,9 +128,20 @@ fn reference(
     Ok(out.image)
 }
 
-/// Renders in a row over error maps in a row below, with the reference at the left.
+/// Renders in a row over error maps in a row below, with the reference at the left. The
+/// renders share one exposure that brings the reference's mean to 0.25, so dark scenes show.
 fn montage(reference: &Image, runs: &[Run]) -> Result<Image, Box<dyn std::error::Error>> {
     let (w, h) = (reference.width, reference.height);
+    let exposure = if reference.mean() > 0.0 {
+        (0.25 / reference.mean()) as f32
+    } else {
+        1.0
+    };
+    let exposed = |img: &Image| Image {
+        width: img.width,
+        height: img.height,
+        pixels: img.pixels.iter().map(|&p| p * exposure).collect(),
+    };
     let cols = runs.len() as u32 + 1;
     let mut m = Image {
         width: w * cols,
@@ -144,9 +155,9 @@ fn montage(reference: &Image, runs: &[Run]) -> Result<Image, Box<dyn std::error:
             }
         }
     };
-    put(0, 0, reference);
+    put(0, 0, &exposed(reference));
     for (i, r) in runs.iter().enumerate() {
-        put(i as u32 + 1, 0, &r.output.image);
+        put(i as u32 + 1, 0, &exposed(&r.output.image));
         put(
             i as u32 + 1,
             1,
@@ -272,7 +283,7 @@ pub fn run_bench(args: &BenchGuidingArgs) -> Result<(), Box<dyn std::error::Erro
         let file = format!("guiding-{name}.png");
         montage(&reference, &equal_spp)?.write(&args.img.join(&file))?;
         figures.push_str(&format!(
-            "**{name}** (reference, then {}; error maps below, relative error 0 to 1):\n\n![{name}]({}/{file})\n\n",
+            "**{name}** (reference, then {} at equal spp, all at one exposure; their relative error maps below, 0 to 1 in false colour):\n\n![{name}]({}/{file})\n\n",
             methods.join(", "),
             relative_img(&args.docs, &args.img)
         ));

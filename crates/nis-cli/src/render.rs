@@ -66,6 +66,11 @@ pub struct RenderArgs {
     #[arg(long, default_value = "none", value_parser = GUIDES)]
     pub guide: String,
 
+    /// Settings of the neural guide as JSON, merged over the defaults, e.g.
+    /// '{"hidden_width": 128, "learning_rate": 0.002}' (fields: see `NisGuideConfig`).
+    #[arg(long, value_name = "JSON")]
+    pub guide_config: Option<String>,
+
     /// Random seed; the same seed and sample count give the same image on any thread count.
     #[arg(long, default_value_t = 0)]
     pub seed: u64,
@@ -113,13 +118,14 @@ pub fn make_guide(
     name: &str,
     scene: &Scene,
     seed: u64,
+    config: Option<&str>,
 ) -> Result<Box<dyn Guide>, Box<dyn std::error::Error>> {
     let nis = |loss| -> Result<Box<dyn Guide>, Box<dyn std::error::Error>> {
-        let config = NisGuideConfig {
-            loss,
-            seed,
-            ..NisGuideConfig::default()
+        let base: NisGuideConfig = match config {
+            Some(json) => serde_json::from_str(json).map_err(|e| format!("--guide-config: {e}"))?,
+            None => NisGuideConfig::default(),
         };
+        let config = NisGuideConfig { loss, seed, ..base };
         Ok(Box::new(NisGuide::new(scene.bounds(), config)?))
     };
     match name {
@@ -137,6 +143,7 @@ pub fn render_with(
     budget: Budget,
     seed: u64,
     guide: &str,
+    guide_config: Option<&str>,
     progress: &(dyn Fn(f64) + Sync),
 ) -> Result<RenderOutput, Box<dyn std::error::Error>> {
     if guide == "none" {
@@ -149,7 +156,7 @@ pub fn render_with(
             progress,
         ));
     }
-    let mut g = make_guide(guide, scene, seed)?;
+    let mut g = make_guide(guide, scene, seed, guide_config)?;
     Ok(render_guided(
         scene,
         integrator,
@@ -231,6 +238,7 @@ pub fn run_render(args: &RenderArgs) -> Result<(), Box<dyn std::error::Error>> {
             budget,
             args.seed,
             &args.guide,
+            args.guide_config.as_deref(),
             &progress,
         )
         .map_err(|e| e.to_string())

@@ -41,6 +41,7 @@ use nis::Transform;
 use rand::{Rng, SeedableRng};
 use rand_pcg::Pcg64Mcg;
 use rayon::prelude::*;
+use serde::{Deserialize, Serialize};
 
 use super::{Guide, GuideRecord, GuideVertex};
 use crate::bsdf::Material;
@@ -54,7 +55,8 @@ const CONTEXT_SCALARS: usize = 7;
 const INV_FOUR_PI: f32 = 1.0 / (4.0 * std::f32::consts::PI);
 
 /// Which divergence the guide minimises.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
 pub enum GuideLoss {
     /// Kullback–Leibler divergence (the paper's default).
     Kl,
@@ -62,8 +64,10 @@ pub enum GuideLoss {
     ChiSquare,
 }
 
-/// Settings of [`NisGuide`].
-#[derive(Clone, Debug, PartialEq)]
+/// Settings of [`NisGuide`] (JSON with any subset of the fields, e.g.
+/// `{"hidden_width": 128, "loss": "chisquare"}`).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
 pub struct NisGuideConfig {
     /// The divergence to minimise.
     pub loss: GuideLoss,
