@@ -256,3 +256,66 @@ fn guided_render_is_unbiased_and_deterministic() {
         "guided {mg} ± {eg} vs plain {mp} ± {ep}"
     );
 }
+
+/// A scene of one diffuse cube and a camera at `origin`, with an area light above it or none.
+fn cube_scene(origin: &str, light: bool) -> nis_render::scene::Scene {
+    let emitter = if light {
+        r#"<shape type="rectangle">
+               <transform name="to_world"><rotate x="1" angle="90"/><translate y="3"/></transform>
+               <emitter type="area"><rgb name="radiance" value="5, 5, 5"/></emitter>
+           </shape>"#
+    } else {
+        ""
+    };
+    let xml = format!(
+        r#"<scene version="3.0.0">
+            <sensor type="perspective">
+                <float name="fov" value="60"/>
+                <transform name="to_world"><lookat origin="{origin}" target="0, 0, 0" up="0, 1, 0"/></transform>
+                <sampler type="independent"><integer name="sample_count" value="4"/></sampler>
+                <film type="hdrfilm"><integer name="width" value="8"/><integer name="height" value="8"/>
+                    <rfilter type="box"/></film>
+            </sensor>
+            <bsdf type="diffuse" id="white"><rgb name="reflectance" value="0.5, 0.5, 0.5"/></bsdf>
+            <shape type="cube"><ref id="white"/></shape>
+            {emitter}
+        </scene>"#
+    );
+    nis_render::xml::load_scene_str(&xml, std::path::Path::new("."), "cube.xml", &[]).unwrap()
+}
+
+#[test]
+fn scenes_without_light_or_with_the_camera_inside_a_mesh_render_black() {
+    for (origin, light) in [("0, 1, 4", false), ("0, 0, 0.2", true)] {
+        let scene = cube_scene(origin, light);
+        let integrator = Integrator::from_scene(&scene, Strategy::Mis);
+        let mut guide = NisGuide::new(scene.bounds(), NisGuideConfig::default()).unwrap();
+        let out = render_guided(
+            &scene,
+            &integrator,
+            Budget::Samples(8),
+            1,
+            &mut guide,
+            &|_| {},
+        );
+        assert_eq!(out.stats.invalid, 0);
+        assert!(
+            out.image.pixels.iter().all(|p| *p == Rgb::ZERO),
+            "camera at {origin}, light {light}: {}",
+            out.image.mean()
+        );
+    }
+    // The lit cube seen from outside is not black (the scene itself is fine).
+    let scene = cube_scene("0, 2.5, 4", true);
+    let integrator = Integrator::from_scene(&scene, Strategy::Mis);
+    let mut guide = NisGuide::new(scene.bounds(), NisGuideConfig::default()).unwrap();
+    let out = render_guided(
+        &scene,
+        &integrator,
+        Budget::Samples(8),
+        1,
+        &mut guide,
+        &|_| {},
+    );
+    assert!(out.image.mean() > 0.0);
+}
