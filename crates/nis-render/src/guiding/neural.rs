@@ -108,7 +108,9 @@ impl Default for NisGuideConfig {
             transform: Transform::Quadratic { bins: 32 },
             couplings: 2,
             hidden_layers: 2,
-            hidden_width: 64,
+            // 64 was slower and no better (MAPE 0.249 vs 0.219 on cornell-indirect, 0.313 vs
+            // 0.308 on two-rooms-door, 128², 64 spp).
+            hidden_width: 32,
             blob_bins: 16,
             context_bins: 16,
             selection_width: 32,
