@@ -1,0 +1,103 @@
+//! `nis render --guide` and `nis bench guiding` end to end at a tiny size: the benchmark
+//! writes its table and montage, caches its reference, and bad settings fail clearly.
+
+use std::path::PathBuf;
+use std::process::Command;
+
+fn scratch(name: &str) -> PathBuf {
+    let dir = std::env::temp_dir().join(format!("nis-cli-guiding-{name}-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    dir
+}
+
+fn nis(args: &[&str]) -> std::process::Output {
+    Command::new(env!("CARGO_BIN_EXE_nis"))
+        .args(args)
+        .output()
+        .unwrap()
+}
+
+#[test]
+fn bench_guiding_writes_a_table_a_montage_and_a_cached_reference() {
+    let dir = scratch("bench");
+    let docs = dir.join("docs/REPRODUCTION.md");
+    let img = dir.join("docs/img");
+    let out = dir.join("out");
+    let args = [
+        "bench",
+        "guiding",
+        "--scene",
+        "cornell-box",
+        "--spp",
+        "4",
+        "--res",
+        "8",
+        "--reference-spp",
+        "16",
+        "--seconds",
+        "0.2",
+        "--docs",
+        docs.to_str().unwrap(),
+        "--img",
+        img.to_str().unwrap(),
+        "--out",
+        out.to_str().unwrap(),
+    ];
+    let o = nis(&args);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let md = std::fs::read_to_string(&docs).unwrap();
+    for method in ["none", "nis-kl", "nis-chi2"] {
+        assert!(
+            md.contains(&format!("| cornell-box | {method} |")),
+            "{method} missing from\n{md}"
+        );
+    }
+    assert!(md.contains("](img/guiding-cornell-box.png)"), "{md}");
+    let png = std::fs::read(img.join("guiding-cornell-box.png")).unwrap();
+    assert!(png.starts_with(b"\x89PNG"));
+    let reference = out.join("reference/cornell-box-8-16spp.exr");
+    assert!(reference.is_file());
+    // A second run reuses the reference.
+    let o = nis(&args);
+    assert!(o.status.success());
+    assert!(String::from_utf8_lossy(&o.stderr).contains("cornell-box: reference"));
+    std::fs::remove_dir_all(&dir).ok();
+}
+
+#[test]
+fn guided_render_rejects_bad_settings() {
+    let dir = scratch("bad");
+    let exr = dir.join("x.exr");
+    let o = nis(&[
+        "render",
+        "cornell-box",
+        "--spp",
+        "2",
+        "--res",
+        "4",
+        "--guide",
+        "nis-kl",
+        "--guide-config",
+        "{\"batch\": 0}",
+        "--out",
+        exr.to_str().unwrap(),
+    ]);
+    assert!(!o.status.success());
+    assert!(
+        String::from_utf8_lossy(&o.stderr).contains("batch"),
+        "{}",
+        String::from_utf8_lossy(&o.stderr)
+    );
+    let o = nis(&[
+        "render",
+        "cornell-box",
+        "--guide",
+        "nis-kl",
+        "--guide-config",
+        "{\"hidden_widht\": 3}",
+    ]);
+    assert!(!o.status.success());
+    assert!(String::from_utf8_lossy(&o.stderr).contains("unknown field"));
+    assert!(!exr.exists());
+    std::fs::remove_dir_all(&dir).ok();
+}
