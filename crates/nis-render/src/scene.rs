@@ -8,7 +8,7 @@
 use glam::Vec3;
 
 use crate::bsdf::Material;
-use crate::bvh::{Bvh, Triangle};
+use crate::bvh::{Aabb, Bvh, Triangle};
 use crate::camera::Camera;
 use crate::geometry::{Ray, Rgb};
 use crate::light::{AreaLight, LightPrimitive, Lights};
@@ -202,6 +202,25 @@ impl Scene {
     /// Number of triangles in the BVH.
     pub fn triangle_count(&self) -> usize {
         self.triangles.len()
+    }
+
+    /// Bounding box of all geometry (triangles and spheres), e.g. for the spatial trees of
+    /// path guiding; an empty scene gives an inverted box (`min > max`).
+    pub fn bounds(&self) -> Aabb {
+        let mut min = Vec3::splat(f32::INFINITY);
+        let mut max = Vec3::splat(f32::NEG_INFINITY);
+        for t in self.bvh.triangles() {
+            for v in [t.p0, t.p0 + t.e1, t.p0 + t.e2] {
+                min = min.min(v);
+                max = max.max(v);
+            }
+        }
+        for s in &self.spheres {
+            let r = Vec3::splat(s.sphere.radius);
+            min = min.min(s.sphere.center - r);
+            max = max.max(s.sphere.center + r);
+        }
+        Aabb { min, max }
     }
 
     /// Closest surface hit by `ray` before `t_max`.
