@@ -10,6 +10,11 @@
 //! guide's selection probability `α` it samples the guide, otherwise the BSDF, and always
 //! weights by the mixture density `α p_guide + (1 − α) p_bsdf`. [`NoGuide`] (α = 0) is plain
 //! unidirectional path tracing.
+//!
+//! Implementations: [`ppg`] (the SD-tree of practical path guiding) and [`gmm`] (Gaussian
+//! mixtures on the hemisphere in a spatial kd-tree). Both learn from the records of one
+//! training iteration at its end, in a sorted order, so a trained guide depends only on the
+//! records, never on the threads that delivered them.
 
 use glam::{Vec2, Vec3};
 
