@@ -42,7 +42,10 @@ use crate::bvh::Aabb;
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct PpgConfig {
     /// `c`: a spatial leaf splits after receiving more than `c · √(2^k)` samples in
-    /// iteration `k` (§5.3, c = 12 000).
+    /// iteration `k` (§5.3, c = 12 000). The paper's value suits megapixel images; small
+    /// renders want it scaled down with the pixel count (on `cornell-indirect` at 64 × 64,
+    /// after training passes of 1, 2, …, 64 spp, the relative per-pixel variance at 16 spp
+    /// was 1.68 unguided, 1.51 with c = 12 000 (8 leaves) and 0.97 with c = 2 000 (62 leaves)).
     pub spatial_threshold: f64,
     /// `ρ`: a quadtree node is subdivided when it carries more than this fraction of its
     /// tree's flux (§5.2, 1 %).
