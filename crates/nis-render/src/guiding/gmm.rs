@@ -34,7 +34,7 @@
 //! order in which render threads delivered them.
 
 use std::f64::consts::PI;
-use std::sync::Mutex;
+use std::sync::{Mutex, OnceLock};
 
 use glam::{DVec2, Vec2, Vec3};
 
@@ -143,6 +143,19 @@ fn rehash(u: Vec2) -> Vec2 {
     Vec2::new(to_unit(h), to_unit(h >> 32))
 }
 
+/// The `DISK_MASS_STEPS` unit vectors of the trapezoid rule over the circle.
+fn circle() -> &'static [DVec2] {
+    static CIRCLE: OnceLock<Vec<DVec2>> = OnceLock::new();
+    CIRCLE.get_or_init(|| {
+        (0..DISK_MASS_STEPS)
+            .map(|j| {
+                let psi = 2.0 * PI * (j as f64 + 0.5) / DISK_MASS_STEPS as f64;
+                DVec2::new(psi.cos(), psi.sin())
+            })
+            .collect()
+    })
+}
+
 /// One Gaussian with the quantities evaluation and sampling need.
 #[derive(Clone, Copy, Debug)]
 struct Component {
@@ -160,20 +173,26 @@ struct Component {
 
 impl Component {
     fn new(weight: f64, mean: DVec2, cov: [f64; 3]) -> Self {
+        let mut c = Self::without_mass(weight, mean, cov);
+        c.inside = c.disk_mass();
+        c
+    }
+
+    /// The Gaussian with its in-disk mass still unknown (0), for EM steps that only need
+    /// densities.
+    fn without_mass(weight: f64, mean: DVec2, cov: [f64; 3]) -> Self {
         let det = (cov[0] * cov[2] - cov[1] * cov[1]).max(MIN_DETERMINANT);
         let l11 = cov[0].sqrt();
         let l21 = cov[1] / l11;
         let l22 = (cov[2] - l21 * l21).max(MIN_DETERMINANT / cov[0]).sqrt();
-        let mut c = Self {
+        Self {
             weight,
             mean,
             inv: [cov[2] / det, -cov[1] / det, cov[0] / det],
             chol: [l11, l21, l22],
             log_norm: -(2.0 * PI * det.sqrt()).ln(),
             inside: 0.0,
-        };
-        c.inside = c.disk_mass();
-        c
+        }
     }
 
     fn log_density(&self, x: DVec2) -> f64 {
@@ -193,9 +212,8 @@ impl Component {
         let c = self.mean;
         let cc = c.length_squared() - 1.0;
         let mut sum = 0.0;
-        for j in 0..DISK_MASS_STEPS {
-            let psi = 2.0 * PI * (j as f64 + 0.5) / DISK_MASS_STEPS as f64;
-            let v = self.whitened_to_plane(DVec2::new(psi.cos(), psi.sin())) - c;
+        for &dir in circle() {
+            let v = self.whitened_to_plane(dir) - c;
             // |c + r v|² = 1: a r² + b r + cc = 0, roots in the cancellation-free form.
             let (a, b) = (v.length_squared(), 2.0 * c.dot(v));
             let disc = b * b - 4.0 * a * cc;
@@ -369,11 +387,15 @@ impl Mixture {
             self.maximise(&blended, config);
         }
         self.stats = blended;
+        for c in &mut self.components {
+            c.inside = c.disk_mass();
+        }
+        self.finish();
     }
 
     /// MAP M-step: Dirichlet prior on the weights, conjugate (inverse-Wishart-like) prior
     /// `σ₀² I` on the covariances, none on the means (which stay in the disk, being weighted
-    /// means of disk points).
+    /// means of disk points). In-disk masses are left for the end of [`Mixture::fit`].
     fn maximise(&mut self, s: &Statistics, config: &GmmConfig) {
         let k = self.components.len();
         let a = config.prior_strength;
@@ -398,7 +420,7 @@ impl Mixture {
                 scatter[1] / (s0 + a),
                 (scatter[2] + prior) / (s0 + a),
             ];
-            self.components[j] = Component::new(weight, mean, cov);
+            self.components[j] = Component::without_mass(weight, mean, cov);
         }
         self.finish();
     }
