@@ -10,7 +10,9 @@
 //! (Lambert azimuthal, the Shirley–Chiu uniform-hemisphere) map: a disk point `d` with
 //! `r = |d|` is the direction `(d·√(2 − r²), 1 − r²)`, inverse `d = (x, y)/√(1 + z)`. Since
 //! `z = 1 − r²` gives `dω = dz dφ = 2r dr dφ = 2 dA`, a density `p_disk` on the disk is the
-//! solid-angle density `p_disk / 2`. Directions below the surface get density 0.
+//! solid-angle density `p_disk / 2`. The hemisphere is the one on the side of `wo` (the
+//! shading normal flipped if the surface is seen from the back); directions below it
+//! (transmission) get density 0.
 //!
 //! **Exact density on the disk.** Gaussians live on the plane; the disk density is
 //! `p(d) = Σ_k w_k N_k(d) + (Σ_k w_k (1 − P_k)) / π` for `|d| < 1`, with `P_k` the mass
@@ -122,6 +124,17 @@ fn class_frame(n: Vec3) -> (usize, [Vec3; 3]) {
     let e = Vec3::AXES[(axis + 1) % 3];
     let s = (e - e.dot(n) * n).normalize();
     (class, [s, n.cross(s), n])
+}
+
+/// The shading normal turned to the side of `wo`: the mixtures model the light that a
+/// surface reflects, arriving on the side it is seen from (two-sided surfaces seen from the
+/// back included).
+fn reflection_normal(v: &GuideVertex) -> Vec3 {
+    if v.n.dot(v.wo) < 0.0 {
+        -v.n
+    } else {
+        v.n
+    }
 }
 
 fn to_local(frame: &[Vec3; 3], w: Vec3) -> Vec3 {
@@ -512,7 +525,7 @@ impl Gmm {
 
     /// The trained mixture for `vertex` (if any) and the local frame of its normal class.
     fn mixture(&self, vertex: &GuideVertex) -> (Option<&Mixture>, [Vec3; 3]) {
-        let (class, frame) = class_frame(vertex.n);
+        let (class, frame) = class_frame(reflection_normal(vertex));
         let mut x = unit_position(&self.bounds, vertex.p);
         let mut i = 0;
         loop {
@@ -594,7 +607,7 @@ impl Guide for Gmm {
             let weight = r.radiance.max(Vec3::ZERO).element_sum() / (3.0 * r.pdf);
             (r.pdf > 0.0 && weight.is_finite()).then_some(Sample {
                 p: r.vertex.p,
-                n: r.vertex.n,
+                n: reflection_normal(&r.vertex),
                 wi: r.wi,
                 weight,
             })
