@@ -18,10 +18,10 @@
 //! refinement may go several levels at once), others become leaves (§5.2). `k` counts the
 //! `end_iteration` calls of this guide, not the render loop's pass index.
 //!
-//! Departures from the paper: samples are deposited at their own position only (no box-filter
-//! splatting over neighbouring leaves, an extension from the paper's later implementation),
-//! flux is not multiplied by the BSDF (radiance-driven, as in the paper), and records are
-//! buffered and deposited in a sorted order at the end of an iteration, so learning is
+//! As in the paper, guiding is radiance-driven (the flux is not multiplied by the BSDF) and
+//! records are deposited at their own position, unless [`PpgConfig::spatial_filter`] asks
+//! for the box filter of the authors' later implementation (no directional filter). Records
+//! are buffered and deposited in a sorted order at the end of an iteration, so learning is
 //! independent of how threads delivered them. Before the first iteration, and wherever a
 //! leaf has learned nothing, the guide is uniform over the sphere with selection probability
 //! 0.
@@ -56,6 +56,12 @@ pub struct PpgConfig {
     pub max_spatial_depth: u32,
     /// Probability of sampling the BSDF rather than the guide at trained vertices (0.5).
     pub bsdf_fraction: f32,
+    /// Spread each record over a box the size of its spatial leaf centred on its position,
+    /// shared among the leaves the box overlaps in proportion to the overlap (flux and sample
+    /// count alike; the box is clipped to the scene cube). This is the box filter of the
+    /// authors' implementation and of Müller 2019 ("Practical Path Guiding" in Production,
+    /// §4); the 2017 paper deposits at the position only (`false`, the default).
+    pub spatial_filter: bool,
 }
 
 impl Default for PpgConfig {
@@ -66,6 +72,7 @@ impl Default for PpgConfig {
             max_quadtree_depth: 20,
             max_spatial_depth: 60,
             bsdf_fraction: 0.5,
+            spatial_filter: false,
         }
     }
 }
@@ -236,7 +243,8 @@ struct Leaf {
     sampling: QuadTree,
     sampling_total: f64,
     building: QuadTree,
-    samples: u64,
+    /// Samples (fractions of samples with the spatial filter) the building tree received.
+    samples: f64,
 }
 
 #[derive(Clone, Copy, Debug)]
@@ -318,18 +326,81 @@ impl Ppg {
     }
 
     fn leaf_index(&self, p: Vec3) -> usize {
-        let mut x = unit_position(&self.bounds, p);
+        self.locate(unit_position(&self.bounds, p)).0
+    }
+
+    /// The leaf containing `x` (in the unit cube) and the size of its cell.
+    fn locate(&self, mut x: Vec3) -> (usize, Vec3) {
+        let mut size = Vec3::ONE;
         let mut i = 0;
         loop {
             match self.nodes[i] {
-                SpatialNode::Leaf(l) => return l,
+                SpatialNode::Leaf(l) => return (l, size),
                 SpatialNode::Inner { axis, children } => {
                     let upper = x[axis] >= 0.5;
                     x[axis] = 2.0 * x[axis] - f32::from(u8::from(upper));
+                    size[axis] *= 0.5;
                     i = children[usize::from(upper)];
                 }
             }
         }
+    }
+
+    /// Leaves overlapping the box `[lo, hi]` of the unit cube, with the overlap volumes.
+    fn overlaps(&self, lo: Vec3, hi: Vec3, out: &mut Vec<(usize, f64)>) {
+        out.clear();
+        let mut stack = vec![(0usize, Vec3::ZERO, Vec3::ONE)];
+        while let Some((i, cell_lo, cell_hi)) = stack.pop() {
+            match self.nodes[i] {
+                SpatialNode::Leaf(l) => {
+                    let d = (cell_hi.min(hi) - cell_lo.max(lo))
+                        .max(Vec3::ZERO)
+                        .as_dvec3();
+                    let volume = d.x * d.y * d.z;
+                    if volume > 0.0 {
+                        out.push((l, volume));
+                    }
+                }
+                SpatialNode::Inner { axis, children } => {
+                    let mid = 0.5 * (cell_lo[axis] + cell_hi[axis]);
+                    if lo[axis] < mid {
+                        let mut h = cell_hi;
+                        h[axis] = mid;
+                        stack.push((children[0], cell_lo, h));
+                    }
+                    if hi[axis] > mid {
+                        let mut l = cell_lo;
+                        l[axis] = mid;
+                        stack.push((children[1], l, cell_hi));
+                    }
+                }
+            }
+        }
+    }
+
+    /// Deposit one record into the building trees, at its leaf or spread by the box filter.
+    fn deposit(&mut self, d: &Deposit, overlaps: &mut Vec<(usize, f64)>) {
+        let x = unit_position(&self.bounds, d.p);
+        let c = dir_to_cylindrical(d.wi);
+        let (l, size) = self.locate(x);
+        if self.config.spatial_filter {
+            let (lo, hi) = (
+                (x - 0.5 * size).max(Vec3::ZERO),
+                (x + 0.5 * size).min(Vec3::ONE),
+            );
+            self.overlaps(lo, hi, overlaps);
+            let total: f64 = overlaps.iter().map(|o| o.1).sum();
+            if total > 0.0 {
+                for &(l, v) in overlaps.iter() {
+                    let w = v / total;
+                    self.leaves[l].samples += w;
+                    self.leaves[l].building.deposit(c, w * f64::from(d.flux));
+                }
+                return;
+            }
+        }
+        self.leaves[l].samples += 1.0;
+        self.leaves[l].building.deposit(c, f64::from(d.flux));
     }
 
     /// Split leaves that received more than `threshold` samples, recursively (children get
@@ -344,12 +415,11 @@ impl Ppg {
                     }
                 }
                 SpatialNode::Leaf(l) => {
-                    if self.leaves[l].samples as f64 <= threshold
-                        || depth >= self.config.max_spatial_depth
+                    if self.leaves[l].samples <= threshold || depth >= self.config.max_spatial_depth
                     {
                         continue;
                     }
-                    self.leaves[l].samples /= 2;
+                    self.leaves[l].samples *= 0.5;
                     let copy = self.leaves[l].clone();
                     self.leaves.push(copy);
                     let children = [self.nodes.len(), self.nodes.len() + 1];
@@ -409,12 +479,9 @@ impl Guide for Ppg {
         let mut deposits =
             std::mem::take(self.pending.get_mut().unwrap_or_else(|e| e.into_inner()));
         deposits.sort_unstable_by_key(Deposit::key);
+        let mut overlaps = Vec::new();
         for d in &deposits {
-            let l = self.leaf_index(d.p);
-            let leaf = &mut self.leaves[l];
-            leaf.samples += 1;
-            leaf.building
-                .deposit(dir_to_cylindrical(d.wi), f64::from(d.flux));
+            self.deposit(d, &mut overlaps);
         }
         for leaf in &mut self.leaves {
             leaf.sampling = std::mem::take(&mut leaf.building);
@@ -426,7 +493,7 @@ impl Guide for Ppg {
         let (depth, rho) = (self.config.max_quadtree_depth, self.config.flux_threshold);
         for leaf in &mut self.leaves {
             leaf.building = leaf.sampling.refined(depth, rho);
-            leaf.samples = 0;
+            leaf.samples = 0.0;
         }
         self.iteration += 1;
     }
@@ -480,8 +547,10 @@ mod tests {
         // Iteration 0: threshold c = 100. 100 samples stay, 101 split once (50 each).
         assert_eq!(leaves_after(&mut ppg(100.0), 100), 1);
         assert_eq!(leaves_after(&mut ppg(100.0), 101), 2);
-        // 401 samples: 200 per child > 100 splits again (100 each), four leaves.
-        assert_eq!(leaves_after(&mut ppg(100.0), 401), 4);
+        // 400 samples: 200 per child > 100 splits again (100 each), four leaves; 401 samples
+        // leave 100.25 per grandchild, which splits once more.
+        assert_eq!(leaves_after(&mut ppg(100.0), 400), 4);
+        assert_eq!(leaves_after(&mut ppg(100.0), 401), 8);
         // Iteration 1: threshold 100·√2 ≈ 141.4; iteration 2: 200.
         let mut g = ppg(100.0);
         assert_eq!(leaves_after(&mut g, 10), 1);
@@ -495,13 +564,44 @@ mod tests {
         // [0, ½) × [0, ½) × [0, 1), so a point at z = 0.9 shares it and x = 0.6 does not.
         let g = {
             let mut g = ppg(100.0);
-            leaves_after(&mut g, 401);
+            leaves_after(&mut g, 400);
             g
         };
         let at = |p: Vec3| g.leaf_index(p);
         assert_eq!(at(Vec3::new(0.3, 0.3, 0.3)), at(Vec3::new(0.1, 0.4, 0.9)));
         assert_ne!(at(Vec3::new(0.3, 0.3, 0.3)), at(Vec3::new(0.6, 0.3, 0.3)));
         assert_ne!(at(Vec3::new(0.3, 0.3, 0.3)), at(Vec3::new(0.3, 0.6, 0.3)));
+    }
+
+    #[test]
+    fn box_filter_shares_a_record_among_leaves_by_overlap() {
+        let mut g = Ppg::new(
+            unit_box(),
+            PpgConfig {
+                spatial_threshold: 100.0,
+                spatial_filter: true,
+                ..PpgConfig::default()
+            },
+        );
+        assert_eq!(leaves_after(&mut g, 101), 2); // split at x = ½: cells ½ × 1 × 1
+        let mut overlaps = Vec::new();
+        let mut shares = |x: f32| {
+            let d = Deposit {
+                p: Vec3::new(x, 0.5, 0.5),
+                wi: Vec3::Z,
+                flux: 1.0,
+            };
+            g.leaves.iter_mut().for_each(|l| l.samples = 0.0);
+            g.deposit(&d, &mut overlaps);
+            [g.leaves[0].samples, g.leaves[1].samples]
+        };
+        let close = |a: [f64; 2], b: [f64; 2]| (a[0] - b[0]).abs() + (a[1] - b[1]).abs() < 1e-6;
+        // The box is as wide as the cell (½ along x) and clipped to the cube.
+        assert!(close(shares(0.25), [1.0, 0.0]));
+        assert!(close(shares(0.1), [1.0, 0.0]));
+        assert!(close(shares(0.5), [0.5, 0.5]));
+        assert!(close(shares(0.4), [0.7, 0.3]), "{:?}", shares(0.4));
+        assert!(close(shares(0.9), [0.0, 1.0]));
     }
 
     #[test]

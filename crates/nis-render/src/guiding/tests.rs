@@ -323,17 +323,20 @@ fn learn_in_two_orders<G: Guide>(mut make: impl FnMut() -> G, hemisphere: bool) 
 
 #[test]
 fn learning_does_not_depend_on_record_order_or_batching() {
-    let [a, b] = learn_in_two_orders(
-        || {
-            let config = PpgConfig {
-                spatial_threshold: 2000.0,
-                ..PpgConfig::default()
-            };
-            Ppg::new(unit_box(), config)
-        },
-        false,
-    );
-    assert_eq!(a, b, "PPG");
+    for spatial_filter in [false, true] {
+        let [a, b] = learn_in_two_orders(
+            || {
+                let config = PpgConfig {
+                    spatial_threshold: 2000.0,
+                    spatial_filter,
+                    ..PpgConfig::default()
+                };
+                Ppg::new(unit_box(), config)
+            },
+            false,
+        );
+        assert_eq!(a, b, "PPG, spatial filter {spatial_filter}");
+    }
     let [a, b] = learn_in_two_orders(
         || {
             let config = GmmConfig {
