@@ -39,6 +39,7 @@ use std::f64::consts::PI;
 use std::sync::{Mutex, OnceLock};
 
 use glam::{DVec2, Vec2, Vec3};
+use rayon::prelude::*;
 
 use super::{bits_key, unit_position, Guide, GuideRecord, GuideVertex};
 use crate::bsdf::Material;
@@ -539,27 +540,23 @@ impl Gmm {
             }
         }
     }
+}
 
-    /// Fit the mixtures of leaf `node` to its samples.
-    fn fit_leaf(&mut self, node: usize, samples: &[Sample]) {
-        let config = self.config;
-        let SpatialNode::Leaf(mixtures) = &mut self.nodes[node] else {
-            return;
-        };
-        let mut points: [Vec<(DVec2, f64)>; 6] = Default::default();
-        for s in samples.iter().filter(|s| s.weight > 0.0) {
-            let (class, frame) = class_frame(s.n);
-            let w = to_local(&frame, s.wi);
-            if w.z > 0.0 {
-                points[class].push((hemisphere_to_disk(w), f64::from(s.weight)));
-            }
+/// Fit the six mixtures of a leaf to its samples (those of classes with enough of them).
+fn fit_mixtures(mixtures: &mut [Option<Mixture>; 6], samples: &[Sample], config: &GmmConfig) {
+    let mut points: [Vec<(DVec2, f64)>; 6] = Default::default();
+    for s in samples.iter().filter(|s| s.weight > 0.0) {
+        let (class, frame) = class_frame(s.n);
+        let w = to_local(&frame, s.wi);
+        if w.z > 0.0 {
+            points[class].push((hemisphere_to_disk(w), f64::from(s.weight)));
         }
-        for (mixture, points) in mixtures.iter_mut().zip(&points) {
-            if points.len() >= config.min_samples.max(1) {
-                mixture
-                    .get_or_insert_with(|| Mixture::initial(config.components))
-                    .fit(points, &config);
-            }
+    }
+    for (mixture, points) in mixtures.iter_mut().zip(&points) {
+        if points.len() >= config.min_samples.max(1) {
+            mixture
+                .get_or_insert_with(|| Mixture::initial(config.components))
+                .fit(points, config);
         }
     }
 }
@@ -628,11 +625,11 @@ impl Guide for Gmm {
             .collect();
         // (node, its split axis if it splits, depth, its samples in the node's unit cube)
         let mut stack = vec![(0usize, 0usize, 0u32, all)];
+        let mut work: Vec<(usize, Vec<Sample>)> = Vec::new();
         while let Some((i, axis, depth, mut here)) = stack.pop() {
             if let SpatialNode::Leaf(mixtures) = &self.nodes[i] {
                 if here.len() <= self.config.split_threshold || depth >= self.config.max_depth {
-                    let samples: Vec<Sample> = here.iter().map(|h| h.1).collect();
-                    self.fit_leaf(i, &samples);
+                    work.push((i, here.into_iter().map(|h| h.1).collect()));
                     continue;
                 }
                 let children = [self.nodes.len(), self.nodes.len() + 1];
@@ -654,6 +651,21 @@ impl Guide for Gmm {
                 stack.push((c, (axis + 1) % 3, depth + 1, h));
             }
         }
+        // Leaves are fitted independently, each from its samples in sorted order: in
+        // parallel, and still deterministic.
+        let mut per_node: Vec<Vec<Sample>> = vec![Vec::new(); self.nodes.len()];
+        for (i, samples) in work {
+            per_node[i] = samples;
+        }
+        let config = self.config;
+        self.nodes
+            .par_iter_mut()
+            .zip(per_node.par_iter())
+            .for_each(|(node, samples)| {
+                if let SpatialNode::Leaf(mixtures) = node {
+                    fit_mixtures(mixtures, samples, &config);
+                }
+            });
     }
 }
 
