@@ -102,6 +102,7 @@ fn trained_ppg_leaves_the_image_unbiased() {
     let mut guide = Ppg::new(scene.bounds(), config);
     check_unbiased(&scene, &mut guide, |g| g.set_learning(false), "PPG");
     assert!(guide.spatial_leaves() > 1);
+    assert_eq!(guide.iterations(), 3, "frozen after three training passes");
 }
 
 #[test]
@@ -114,4 +115,5 @@ fn trained_gmm_leaves_the_image_unbiased() {
     let mut guide = Gmm::new(scene.bounds(), config);
     check_unbiased(&scene, &mut guide, |g| g.set_learning(false), "GMM");
     assert!(guide.spatial_leaves() > 1);
+    assert_eq!(guide.iterations(), 3, "frozen after three training passes");
 }

@@ -492,6 +492,7 @@ pub struct Gmm {
     bounds: Aabb,
     nodes: Vec<SpatialNode>,
     pending: Mutex<Vec<Sample>>,
+    iteration: u32,
     learning: bool,
 }
 
@@ -507,6 +508,7 @@ impl Gmm {
             bounds,
             nodes: vec![SpatialNode::Leaf(Box::default())],
             pending: Mutex::new(Vec::new()),
+            iteration: 0,
             learning: true,
         }
     }
@@ -514,6 +516,11 @@ impl Gmm {
     /// Keep learning from records (the default) or freeze the current mixtures.
     pub fn set_learning(&mut self, learning: bool) {
         self.learning = learning;
+    }
+
+    /// Training iterations completed.
+    pub fn iterations(&self) -> u32 {
+        self.iteration
     }
 
     /// Number of spatial leaves.
@@ -666,6 +673,7 @@ impl Guide for Gmm {
                     fit_mixtures(mixtures, samples, &config);
                 }
             });
+        self.iteration += 1;
     }
 }
 
