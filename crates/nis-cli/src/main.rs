@@ -3,6 +3,7 @@
 
 mod bench;
 mod fit_image;
+mod guiding;
 mod integrate;
 mod render;
 mod report;
@@ -87,6 +88,10 @@ enum BenchCommand {
     /// every built-in 2-D target; writes a montage and a table to docs/REPRODUCTION.md.
     /// Example: nis bench fit-image --steps 400
     FitImage(fit_image::BenchFitImageArgs),
+    /// Path guiding: unidirectional path tracing and every guide against a path-traced
+    /// reference at equal samples and equal time; writes montages and a table to
+    /// docs/REPRODUCTION.md. Example: nis bench guiding --scene two-rooms-door
+    Guiding(guiding::BenchGuidingArgs),
 }
 
 fn main() -> ExitCode {
@@ -108,6 +113,7 @@ fn main() -> ExitCode {
         }
         Command::FitImage(args) => fit_image::run(&args),
         Command::Bench(BenchCommand::FitImage(args)) => fit_image::run_bench(&args),
+        Command::Bench(BenchCommand::Guiding(args)) => guiding::run_bench(&args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

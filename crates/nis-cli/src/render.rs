@@ -8,9 +8,12 @@ use std::time::Duration;
 use indicatif::{ProgressBar, ProgressStyle};
 use nis_render::compare::{compare, error_map};
 use nis_render::film::Image;
-use nis_render::guiding::NoGuide;
+use nis_render::guiding::gmm::{Gmm, GmmConfig};
+use nis_render::guiding::neural::{GuideLoss, NisGuide, NisGuideConfig};
+use nis_render::guiding::ppg::{Ppg, PpgConfig};
+use nis_render::guiding::{Guide, NoGuide};
 use nis_render::integrator::{Integrator, Strategy};
-use nis_render::render::{render, Budget};
+use nis_render::render::{render, render_guided, Budget, RenderOutput};
 use nis_render::scene::Scene;
 
 /// Render a scene with the CPU path tracer.
@@ -58,6 +61,14 @@ pub struct RenderArgs {
     #[arg(long, default_value = "mis", value_parser = ["mis", "nee", "bsdf"])]
     pub strategy: String,
 
+    /// Path guiding: `none` (unidirectional path tracing), `ppg` (practical path guiding's
+    /// SD-tree), `gmm` (Gaussian mixtures after Vorba et al.) or `nis-kl` / `nis-chi2` (a
+    /// normalizing flow trained while rendering, with the KL or χ² gradient). Guided renders
+    /// spend up to half of the samples on training passes of 1, 2, 4, … spp; the image is
+    /// the final pass's.
+    #[arg(long, default_value = "none", value_parser = GUIDES)]
+    pub guide: String,
+
     /// Random seed; the same seed and sample count give the same image on any thread count.
     #[arg(long, default_value_t = 0)]
     pub seed: u64,
@@ -95,6 +106,63 @@ pub struct CompareArgs {
     /// Relative error shown at the top of the colour scale.
     #[arg(long, default_value_t = 1.0)]
     pub max_error: f32,
+}
+
+/// The `--guide` choices.
+pub const GUIDES: [&str; 5] = ["none", "ppg", "gmm", "nis-kl", "nis-chi2"];
+
+/// A guide by its `--guide` name, for `scene`.
+pub fn make_guide(
+    name: &str,
+    scene: &Scene,
+    seed: u64,
+) -> Result<Box<dyn Guide>, Box<dyn std::error::Error>> {
+    let nis = |loss| -> Result<Box<dyn Guide>, Box<dyn std::error::Error>> {
+        let config = NisGuideConfig {
+            loss,
+            seed,
+            ..NisGuideConfig::default()
+        };
+        Ok(Box::new(NisGuide::new(scene.bounds(), config)?))
+    };
+    match name {
+        "none" => Ok(Box::new(NoGuide)),
+        "ppg" => Ok(Box::new(Ppg::new(scene.bounds(), PpgConfig::default()))),
+        "gmm" => Ok(Box::new(Gmm::new(scene.bounds(), GmmConfig::default()))),
+        "nis-kl" => nis(GuideLoss::Kl),
+        "nis-chi2" => nis(GuideLoss::ChiSquare),
+        _ => Err(format!("unknown guide '{name}' (choose from {})", GUIDES.join(", ")).into()),
+    }
+}
+
+/// Render with `guide` (`none`: plain path tracing in one pass).
+pub fn render_with(
+    scene: &Scene,
+    integrator: &Integrator,
+    budget: Budget,
+    seed: u64,
+    guide: &str,
+    progress: &(dyn Fn(f64) + Sync),
+) -> Result<RenderOutput, Box<dyn std::error::Error>> {
+    if guide == "none" {
+        return Ok(render(
+            scene,
+            integrator,
+            budget,
+            seed,
+            &mut NoGuide,
+            progress,
+        ));
+    }
+    let mut g = make_guide(guide, scene, seed)?;
+    Ok(render_guided(
+        scene,
+        integrator,
+        budget,
+        seed,
+        g.as_mut(),
+        progress,
+    ))
 }
 
 fn load(
@@ -162,21 +230,22 @@ pub fn run_render(args: &RenderArgs) -> Result<(), Box<dyn std::error::Error>> {
     bar.enable_steady_tick(Duration::from_millis(250));
     let progress = |f: f64| bar.set_position((f * 1000.0) as u64);
     let run = || {
-        render(
+        render_with(
             &scene,
             &integrator,
             budget,
             args.seed,
-            &mut NoGuide,
+            &args.guide,
             &progress,
         )
+        .map_err(|e| e.to_string())
     };
     let out = match args.threads {
         Some(n) => rayon::ThreadPoolBuilder::new()
             .num_threads(n)
             .build()?
-            .install(run),
-        None => run(),
+            .install(run)?,
+        None => run()?,
     };
     bar.finish_and_clear();
     let rays = out.stats.rays + out.stats.shadow_rays;

@@ -99,6 +99,92 @@ fn credit(pending: &mut [PendingRecord], contribution: Rgb) {
     }
 }
 
+/// A path being traced.
+struct PathState {
+    ray: Ray,
+    l: Rgb,
+    beta: Rgb,
+    eta: f32,
+    prev_pdf: f32,
+    prev_delta: bool,
+    /// The previous vertex itself (not the offset ray origin), for light densities that must
+    /// match the ones next-event estimation computed there.
+    prev_p: Vec3,
+    depth: u32,
+    alive: bool,
+    pending: Vec<PendingRecord>,
+}
+
+impl PathState {
+    fn new(ray: Ray) -> Self {
+        PathState {
+            ray,
+            l: Rgb::ZERO,
+            beta: Rgb::ONE,
+            eta: 1.0,
+            prev_pdf: 0.0,
+            prev_delta: true,
+            prev_p: ray.origin,
+            depth: 0,
+            alive: true,
+            pending: Vec::new(),
+        }
+    }
+
+    /// Add a contribution (already multiplied by the throughput) to the estimate and credit it
+    /// to the vertices waiting for training data.
+    fn add(&mut self, c: Rgb) {
+        self.l += c;
+        credit(&mut self.pending, c);
+    }
+}
+
+/// One scattering vertex of one path during a wavefront step.
+struct Bounce {
+    path: usize,
+    hit: crate::scene::SurfaceHit,
+    frame: Frame,
+    wo: Vec3,
+    vertex: GuideVertex,
+    /// Selection probability of the guide here.
+    alpha: f32,
+    /// An unoccluded light sample: (direction, light pdf, radiance, BSDF value, BSDF pdf).
+    nee: Option<(Vec3, f32, Rgb, Rgb, f32)>,
+    /// Index of the guide-density query for the light sample (`usize::MAX`: none).
+    nee_query: usize,
+    u_select: f32,
+    u_lobe: f32,
+    u_dir: Vec2,
+    /// The BSDF sample, when the BSDF was selected.
+    bsdf: Option<Option<crate::bsdf::BsdfSample>>,
+    /// Index of the guide query (a sample when the guide was selected, else the density of
+    /// the BSDF sample).
+    query: usize,
+}
+
+/// Guide densities for `(vertex, direction)` queries, in one batch call.
+fn guide_pdf_batch<G: Guide + ?Sized>(guide: &G, queries: &[(GuideVertex, Vec3)]) -> Vec<f32> {
+    let mut out = vec![0.0; queries.len()];
+    if !queries.is_empty() {
+        let (v, w): (Vec<GuideVertex>, Vec<Vec3>) = queries.iter().copied().unzip();
+        guide.pdf_batch(&v, &w, &mut out);
+    }
+    out
+}
+
+/// Guide samples for `(vertex, random numbers)` queries, in one batch call.
+fn guide_sample_batch<G: Guide + ?Sized>(
+    guide: &G,
+    queries: &[(GuideVertex, Vec2)],
+) -> Vec<Option<(Vec3, f32)>> {
+    let mut out = vec![None; queries.len()];
+    if !queries.is_empty() {
+        let (v, u): (Vec<GuideVertex>, Vec<Vec2>) = queries.iter().copied().unzip();
+        guide.sample_batch(&v, &u, &mut out);
+    }
+    out
+}
+
 impl Integrator {
     /// The settings a scene was described with, estimated by `strategy`.
     pub fn from_scene(scene: &Scene, strategy: Strategy) -> Self {
@@ -115,177 +201,290 @@ impl Integrator {
     pub fn radiance<G: Guide + ?Sized>(
         &self,
         scene: &Scene,
-        mut ray: Ray,
+        ray: Ray,
         rng: &mut Pcg32,
         guide: &G,
         stats: &mut PathStats,
         records: Option<&mut Vec<GuideRecord>>,
     ) -> Rgb {
-        let mut pending: Vec<PendingRecord> = Vec::new();
-        let mut l = Rgb::ZERO;
-        let mut beta = Rgb::ONE;
-        let mut eta = 1.0f32;
-        let mut prev_pdf = 0.0f32;
-        let mut prev_delta = true;
-        // The previous vertex itself (not the offset ray origin), for light densities that
-        // must match the ones next-event estimation computed there.
-        let mut prev_p = ray.origin;
+        let mut out = [Rgb::ZERO];
+        self.trace(
+            scene,
+            &[ray],
+            std::slice::from_mut(rng),
+            guide,
+            stats,
+            records,
+            &mut out,
+        );
+        out[0]
+    }
+
+    /// One-sample radiance estimates of a batch of camera rays, traced as a wavefront: all
+    /// live paths advance one bounce at a time, so the guide is queried in batches (one call
+    /// per bounce for selection probabilities, one for directions and one for densities).
+    /// Path `i` draws its random numbers from `rngs[i]` in the same order as a path traced
+    /// alone, so the result of a path does not depend on the batch it is traced in. Records
+    /// of finished paths are appended path by path, in batch order.
+    #[allow(clippy::too_many_arguments)]
+    pub fn trace<G: Guide + ?Sized>(
+        &self,
+        scene: &Scene,
+        rays: &[Ray],
+        rngs: &mut [Pcg32],
+        guide: &G,
+        stats: &mut PathStats,
+        mut records: Option<&mut Vec<GuideRecord>>,
+        out: &mut [Rgb],
+    ) {
+        assert!(rays.len() == rngs.len() && rays.len() == out.len());
+        let want_records = records.is_some();
+        let mut paths: Vec<PathState> = rays.iter().map(|&r| PathState::new(r)).collect();
+        let mut live: Vec<usize> = (0..paths.len()).collect();
         let lights = &scene.lights;
-        let mut depth = 0u32;
-        loop {
-            stats.rays += 1;
-            let Some(hit) = scene.intersect(&ray, f32::INFINITY) else {
-                if let Some(env) = lights.environment {
-                    if !(depth == 0 && self.hide_emitters) {
-                        let w = self.emitter_weight(prev_delta, prev_pdf, lights.pdf_environment());
-                        let c = beta * env * w;
-                        l += c;
-                        credit(&mut pending, c);
+        let mut vertices: Vec<Bounce> = Vec::new();
+        let mut guide_vertices: Vec<GuideVertex> = Vec::new();
+        let mut materials: Vec<&crate::bsdf::Material> = Vec::new();
+        let mut alphas: Vec<f32> = Vec::new();
+        let mut pdf_queries: Vec<(GuideVertex, Vec3)> = Vec::new();
+        let mut sample_queries: Vec<(GuideVertex, Vec2)> = Vec::new();
+        while !live.is_empty() {
+            // 1. Intersect, collect emission, and set up the vertices that scatter.
+            vertices.clear();
+            for &i in &live {
+                let path = &mut paths[i];
+                stats.rays += 1;
+                let ray = path.ray;
+                let Some(hit) = scene.intersect(&ray, f32::INFINITY) else {
+                    if let Some(env) = lights.environment {
+                        if !(path.depth == 0 && self.hide_emitters) {
+                            let w = self.emitter_weight(
+                                path.prev_delta,
+                                path.prev_pdf,
+                                lights.pdf_environment(),
+                            );
+                            path.add(path.beta * env * w);
+                        }
+                    }
+                    path.alive = false;
+                    continue;
+                };
+                let wo_world = -ray.dir;
+                if hit.light != NO_LIGHT && !(path.depth == 0 && self.hide_emitters) {
+                    let cos_light = hit.ns.dot(wo_world);
+                    if cos_light > 0.0 {
+                        let light = &lights.area[hit.light as usize];
+                        let w = if self.strategy == Strategy::Mis && !path.prev_delta {
+                            power_heuristic(
+                                path.prev_pdf,
+                                lights.pdf_area(
+                                    hit.light as usize,
+                                    (hit.p - path.prev_p).length(),
+                                    cos_light,
+                                ),
+                            )
+                        } else {
+                            self.emitter_weight(path.prev_delta, path.prev_pdf, 0.0)
+                        };
+                        path.add(path.beta * light.radiance * w);
                     }
                 }
-                break;
-            };
-            let wo_world = -ray.dir;
-            if hit.light != NO_LIGHT && !(depth == 0 && self.hide_emitters) {
-                let cos_light = hit.ns.dot(wo_world);
-                if cos_light > 0.0 {
-                    let light = &lights.area[hit.light as usize];
-                    let w = if self.strategy == Strategy::Mis && !prev_delta {
-                        power_heuristic(
-                            prev_pdf,
-                            lights.pdf_area(
-                                hit.light as usize,
-                                (hit.p - prev_p).length(),
-                                cos_light,
-                            ),
-                        )
-                    } else {
-                        self.emitter_weight(prev_delta, prev_pdf, 0.0)
-                    };
-                    let c = beta * light.radiance * w;
-                    l += c;
-                    credit(&mut pending, c);
+                if self.max_depth >= 0 && path.depth as i64 + 1 >= i64::from(self.max_depth) {
+                    path.alive = false;
+                    continue;
                 }
+                let frame = Frame::from_normal(hit.ns);
+                vertices.push(Bounce {
+                    path: i,
+                    wo: frame.to_local(wo_world),
+                    frame,
+                    hit,
+                    vertex: GuideVertex {
+                        p: hit.p,
+                        n: hit.ns,
+                        wo: wo_world,
+                    },
+                    alpha: 0.0,
+                    nee: None,
+                    nee_query: usize::MAX,
+                    u_select: 0.0,
+                    u_lobe: 0.0,
+                    u_dir: Vec2::ZERO,
+                    bsdf: None,
+                    query: usize::MAX,
+                });
             }
-            if self.max_depth >= 0 && depth as i64 + 1 >= i64::from(self.max_depth) {
-                break;
-            }
-            let material = &scene.materials[hit.material as usize];
-            let frame = Frame::from_normal(hit.ns);
-            let wo = frame.to_local(wo_world);
-            let delta = material.is_delta();
-            let vertex = GuideVertex {
-                p: hit.p,
-                n: hit.ns,
-                wo: wo_world,
-            };
-            let alpha = if delta {
-                0.0
-            } else {
-                guide.selection_probability(&vertex, material)
-            };
-            let mixture_pdf = |wi_world: Vec3, bsdf_pdf: f32| {
-                if alpha > 0.0 {
-                    alpha * guide.pdf(&vertex, wi_world) + (1.0 - alpha) * bsdf_pdf
-                } else {
-                    bsdf_pdf
-                }
-            };
 
-            // Next-event estimation.
-            if !delta && self.strategy != Strategy::Bsdf && !lights.is_empty() {
-                let u_light = uniform(rng);
-                if let Some(ls) = lights.sample(hit.p, u_light, uniform2(rng)) {
-                    let wi = frame.to_local(ls.wi);
-                    let f = material.f(wo, wi);
-                    if f != Rgb::ZERO {
-                        stats.shadow_rays += 1;
-                        // Aim from the offset origin at the light point, and stop short of
-                        // it by the same kind of offset, so neither surface occludes.
-                        let origin = offset_origin(hit.p, hit.ng, ls.wi);
-                        let (shadow, t_max) = if ls.dist.is_finite() {
-                            let to = ls.point - origin;
-                            let d = to.length();
-                            let margin = RAY_EPSILON * (1.0 + ls.point.abs().max_element());
-                            (Ray::new(origin, to / d), d - margin)
-                        } else {
-                            (Ray::new(origin, ls.wi), f32::INFINITY)
-                        };
-                        if !scene.occluded(&shadow, t_max) {
-                            let w = if self.strategy == Strategy::Mis {
-                                power_heuristic(ls.pdf, mixture_pdf(ls.wi, material.pdf(wo, wi)))
+            // 2. Selection probabilities of the guide, for all non-delta vertices at once.
+            guide_vertices.clear();
+            materials.clear();
+            for b in &vertices {
+                let material = &scene.materials[b.hit.material as usize];
+                if !material.is_delta() {
+                    guide_vertices.push(b.vertex);
+                    materials.push(material);
+                }
+            }
+            alphas.clear();
+            alphas.resize(guide_vertices.len(), 0.0);
+            if !guide_vertices.is_empty() {
+                guide.selection_probabilities(&guide_vertices, &materials, &mut alphas);
+            }
+
+            // 3. Next-event estimation up to the shadow ray, technique selection and BSDF
+            //    sampling; queue the guide densities and samples these need.
+            pdf_queries.clear();
+            sample_queries.clear();
+            let mut next_alpha = alphas.iter();
+            for b in &mut vertices {
+                let material = &scene.materials[b.hit.material as usize];
+                let delta = material.is_delta();
+                if !delta {
+                    b.alpha = *next_alpha.next().expect("one alpha per non-delta vertex");
+                }
+                let rng = &mut rngs[b.path];
+                if !delta && self.strategy != Strategy::Bsdf && !lights.is_empty() {
+                    let u_light = uniform(rng);
+                    if let Some(ls) = lights.sample(b.hit.p, u_light, uniform2(rng)) {
+                        let wi = b.frame.to_local(ls.wi);
+                        let f = material.f(b.wo, wi);
+                        if f != Rgb::ZERO {
+                            stats.shadow_rays += 1;
+                            // Aim from the offset origin at the light point, and stop short
+                            // of it by the same kind of offset, so neither surface occludes.
+                            let origin = offset_origin(b.hit.p, b.hit.ng, ls.wi);
+                            let (shadow, t_max) = if ls.dist.is_finite() {
+                                let to = ls.point - origin;
+                                let d = to.length();
+                                let margin = RAY_EPSILON * (1.0 + ls.point.abs().max_element());
+                                (Ray::new(origin, to / d), d - margin)
                             } else {
-                                1.0
+                                (Ray::new(origin, ls.wi), f32::INFINITY)
                             };
-                            let c = beta * f * wi.z.abs() * ls.radiance * (w / ls.pdf);
-                            l += c;
-                            credit(&mut pending, c);
+                            if !scene.occluded(&shadow, t_max) {
+                                if self.strategy == Strategy::Mis && b.alpha > 0.0 {
+                                    b.nee_query = pdf_queries.len();
+                                    pdf_queries.push((b.vertex, ls.wi));
+                                }
+                                b.nee =
+                                    Some((ls.wi, ls.pdf, ls.radiance, f, material.pdf(b.wo, wi)));
+                            }
+                        }
+                    }
+                }
+                b.u_select = uniform(rng);
+                b.u_lobe = uniform(rng);
+                b.u_dir = uniform2(rng);
+                if b.alpha > 0.0 && b.u_select < b.alpha {
+                    b.query = sample_queries.len();
+                    sample_queries.push((b.vertex, b.u_dir));
+                } else {
+                    b.bsdf = Some(material.sample(b.wo, b.u_lobe, b.u_dir));
+                    if let Some(Some(s)) = b.bsdf {
+                        if !s.delta && b.alpha > 0.0 {
+                            b.query = pdf_queries.len();
+                            pdf_queries.push((b.vertex, b.frame.to_world(s.wi)));
                         }
                     }
                 }
             }
+            let guide_pdfs = guide_pdf_batch(guide, &pdf_queries);
+            let guide_samples = guide_sample_batch(guide, &sample_queries);
 
-            // Continue the path: guide with probability α, BSDF otherwise.
-            let u_select = uniform(rng);
-            let u_lobe = uniform(rng);
-            let u_dir = uniform2(rng);
-            let (wi_world, f, pdf, sampled_delta, sample_eta) = if alpha > 0.0 && u_select < alpha {
-                let Some((wi_world, _)) = guide.sample(&vertex, u_dir) else {
-                    break;
+            // 4. Finish next-event estimation and continue (or end) every path.
+            for b in &vertices {
+                let material = &scene.materials[b.hit.material as usize];
+                let path = &mut paths[b.path];
+                let mixture = |guide_pdf: f32, bsdf_pdf: f32| {
+                    if b.alpha > 0.0 {
+                        b.alpha * guide_pdf + (1.0 - b.alpha) * bsdf_pdf
+                    } else {
+                        bsdf_pdf
+                    }
                 };
-                let wi = frame.to_local(wi_world);
-                let pdf = mixture_pdf(wi_world, material.pdf(wo, wi));
-                (wi_world, material.f(wo, wi), pdf, false, 1.0)
-            } else {
-                let Some(s) = material.sample(wo, u_lobe, u_dir) else {
-                    break;
-                };
-                let wi_world = frame.to_world(s.wi);
-                let pdf = if s.delta {
-                    s.pdf
-                } else {
-                    mixture_pdf(wi_world, s.pdf)
-                };
-                (wi_world, s.f, pdf, s.delta, s.eta)
-            };
-            if pdf <= 0.0 || f == Rgb::ZERO {
-                break;
-            }
-            let cos = frame.n.dot(wi_world).abs();
-            let weight = f * (cos / pdf);
-            beta *= weight;
-            eta *= sample_eta;
-            if records.is_some() && !sampled_delta {
-                pending.push(PendingRecord {
-                    record: GuideRecord {
-                        vertex,
-                        wi: wi_world,
-                        pdf,
-                        bsdf_cos: f * cos,
-                        radiance: Rgb::ZERO,
-                    },
-                    throughput: beta,
-                });
-            }
-            prev_pdf = pdf;
-            prev_p = hit.p;
-            prev_delta = sampled_delta;
-            depth += 1;
-            if depth >= self.rr_depth {
-                let q = (beta.max_element() * eta * eta).min(0.95);
-                if uniform(rng) >= q {
-                    break;
+                if let Some((wi_world, light_pdf, radiance, f, bsdf_pdf)) = b.nee {
+                    let w = if self.strategy == Strategy::Mis {
+                        let guide_pdf = if b.nee_query == usize::MAX {
+                            0.0
+                        } else {
+                            guide_pdfs[b.nee_query]
+                        };
+                        power_heuristic(light_pdf, mixture(guide_pdf, bsdf_pdf))
+                    } else {
+                        1.0
+                    };
+                    let wi = b.frame.to_local(wi_world);
+                    path.add(path.beta * f * wi.z.abs() * radiance * (w / light_pdf));
                 }
-                // Pending records keep the throughput from before this division: the 1/q
-                // belongs to the radiance estimate of the path after them.
-                beta /= q;
+                let continued = if let Some(sample) = b.bsdf {
+                    sample.map(|s| {
+                        let wi_world = b.frame.to_world(s.wi);
+                        let pdf = if s.delta {
+                            s.pdf
+                        } else if b.query == usize::MAX {
+                            mixture(0.0, s.pdf)
+                        } else {
+                            mixture(guide_pdfs[b.query], s.pdf)
+                        };
+                        (wi_world, s.f, pdf, s.pdf, s.delta, s.eta)
+                    })
+                } else {
+                    guide_samples[b.query].map(|(wi_world, guide_pdf)| {
+                        let wi = b.frame.to_local(wi_world);
+                        let bsdf_pdf = material.pdf(b.wo, wi);
+                        let pdf = mixture(guide_pdf, bsdf_pdf);
+                        (wi_world, material.f(b.wo, wi), pdf, bsdf_pdf, false, 1.0)
+                    })
+                };
+                let Some((wi_world, f, pdf, bsdf_pdf, sampled_delta, sample_eta)) = continued
+                else {
+                    path.alive = false;
+                    continue;
+                };
+                if pdf <= 0.0 || f == Rgb::ZERO {
+                    path.alive = false;
+                    continue;
+                }
+                let cos = b.frame.n.dot(wi_world).abs();
+                path.beta *= f * (cos / pdf);
+                path.eta *= sample_eta;
+                if want_records && !sampled_delta {
+                    path.pending.push(PendingRecord {
+                        record: GuideRecord {
+                            vertex: b.vertex,
+                            wi: wi_world,
+                            pdf,
+                            bsdf_pdf,
+                            bsdf_cos: f * cos,
+                            radiance: Rgb::ZERO,
+                        },
+                        throughput: path.beta,
+                    });
+                }
+                path.prev_pdf = pdf;
+                path.prev_p = b.hit.p;
+                path.prev_delta = sampled_delta;
+                path.depth += 1;
+                if path.depth >= self.rr_depth {
+                    let q = (path.beta.max_element() * path.eta * path.eta).min(0.95);
+                    if uniform(&mut rngs[b.path]) >= q {
+                        path.alive = false;
+                        continue;
+                    }
+                    // Pending records keep the throughput from before this division: the 1/q
+                    // belongs to the radiance estimate of the path after them.
+                    path.beta /= q;
+                }
+                path.ray = Ray::new(offset_origin(b.hit.p, b.hit.ng, wi_world), wi_world);
             }
-            ray = Ray::new(offset_origin(hit.p, hit.ng, wi_world), wi_world);
+            live.retain(|&i| paths[i].alive);
         }
-        if let Some(out) = records {
-            out.extend(pending.into_iter().map(|p| p.record));
+        for (o, path) in out.iter_mut().zip(&mut paths) {
+            *o = path.l;
+            if let Some(records) = records.as_deref_mut() {
+                records.extend(path.pending.drain(..).map(|p| p.record));
+            }
         }
-        l
     }
 
     /// MIS weight of an emitter reached by a BSDF sample whose light-sampling density is

@@ -8,7 +8,7 @@
 use glam::Vec3;
 
 use crate::bsdf::Material;
-use crate::bvh::{Aabb, Bvh, Triangle};
+use crate::bvh::{Bvh, Triangle};
 use crate::camera::Camera;
 use crate::geometry::{Ray, Rgb};
 use crate::light::{AreaLight, LightPrimitive, Lights};
@@ -204,25 +204,6 @@ impl Scene {
         self.triangles.len()
     }
 
-    /// Bounding box of all geometry (triangles and spheres), e.g. for the spatial trees of
-    /// path guiding; an empty scene gives an inverted box (`min > max`).
-    pub fn bounds(&self) -> Aabb {
-        let mut min = Vec3::splat(f32::INFINITY);
-        let mut max = Vec3::splat(f32::NEG_INFINITY);
-        for t in self.bvh.triangles() {
-            for v in [t.p0, t.p0 + t.e1, t.p0 + t.e2] {
-                min = min.min(v);
-                max = max.max(v);
-            }
-        }
-        for s in &self.spheres {
-            let r = Vec3::splat(s.sphere.radius);
-            min = min.min(s.sphere.center - r);
-            max = max.max(s.sphere.center + r);
-        }
-        Aabb { min, max }
-    }
-
     /// Closest surface hit by `ray` before `t_max`.
     pub fn intersect(&self, ray: &Ray, t_max: f32) -> Option<SurfaceHit> {
         let mut best = None;
@@ -263,6 +244,30 @@ impl Scene {
             }
         }
         best
+    }
+
+    /// The bounding box of all geometry (an empty scene gives the unit cube around the
+    /// origin, so guides that normalise positions by it still work).
+    pub fn bounds(&self) -> crate::bvh::Aabb {
+        let mut min = Vec3::splat(f32::INFINITY);
+        let mut max = Vec3::splat(f32::NEG_INFINITY);
+        for t in self.bvh.triangles() {
+            for p in [t.p0, t.p0 + t.e1, t.p0 + t.e2] {
+                min = min.min(p);
+                max = max.max(p);
+            }
+        }
+        for s in &self.spheres {
+            min = min.min(s.sphere.center - Vec3::splat(s.sphere.radius));
+            max = max.max(s.sphere.center + Vec3::splat(s.sphere.radius));
+        }
+        if min.cmpgt(max).any() {
+            return crate::bvh::Aabb {
+                min: Vec3::splat(-0.5),
+                max: Vec3::splat(0.5),
+            };
+        }
+        crate::bvh::Aabb { min, max }
     }
 
     /// Whether anything blocks `ray` before `t_max`.

@@ -146,3 +146,52 @@ fn diffuse_sphere_under_a_uniform_sky_reflects_albedo_times_sky() {
         }
     }
 }
+
+/// The uniform guide traced one path at a time or in large wavefronts.
+struct BatchedUniform(usize);
+
+impl Guide for BatchedUniform {
+    fn selection_probability(&self, _: &GuideVertex, _: &Material) -> f32 {
+        0.3
+    }
+
+    fn sample(&self, _: &GuideVertex, u: Vec2) -> Option<(Vec3, f32)> {
+        Some((
+            square_to_uniform_sphere(u),
+            1.0 / (4.0 * std::f32::consts::PI),
+        ))
+    }
+
+    fn pdf(&self, _: &GuideVertex, _: Vec3) -> f32 {
+        1.0 / (4.0 * std::f32::consts::PI)
+    }
+
+    fn batch_paths(&self) -> usize {
+        self.0
+    }
+}
+
+#[test]
+fn wavefront_batches_do_not_change_the_image() {
+    let params = [("res".to_string(), "20".to_string())];
+    let scene = nis_render::scenes::load_with("cornell-glossy", &params).unwrap();
+    let integrator = Integrator::from_scene(&scene, Strategy::Mis);
+    let images: Vec<_> = [1, 7, 4096]
+        .into_iter()
+        .map(|b| {
+            render(
+                &scene,
+                &integrator,
+                Budget::Samples(4),
+                3,
+                &mut BatchedUniform(b),
+                &|_| {},
+            )
+            .image
+            .pixels
+        })
+        .collect();
+    assert!(images[0].iter().any(|p| p.max_element() > 0.0));
+    assert_eq!(images[0], images[1]);
+    assert_eq!(images[0], images[2]);
+}

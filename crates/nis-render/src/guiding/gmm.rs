@@ -606,6 +606,10 @@ impl Guide for Gmm {
         self.learning
     }
 
+    fn end_training(&mut self) {
+        self.learning = false;
+    }
+
     fn record(&self, records: &[GuideRecord]) {
         let samples = records.iter().filter_map(|r| {
             let weight = r.radiance.max(Vec3::ZERO).element_sum() / (3.0 * r.pdf);

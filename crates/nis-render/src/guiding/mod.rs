@@ -23,6 +23,7 @@ use crate::bvh::Aabb;
 use crate::geometry::Rgb;
 
 pub mod gmm;
+pub mod neural;
 pub mod ppg;
 #[cfg(test)]
 mod tests;
@@ -92,6 +93,8 @@ pub struct GuideRecord {
     pub wi: Vec3,
     /// Mixture density the direction was drawn with.
     pub pdf: f32,
+    /// The BSDF's own sampling density of `wi` (the other component of the mixture).
+    pub bsdf_pdf: f32,
     /// BSDF value times `|cos θi|` for `(wo, wi)`, to learn the product if wanted.
     pub bsdf_cos: Rgb,
     /// Incident radiance estimate along `wi`.
@@ -114,6 +117,40 @@ pub trait Guide: Send + Sync {
     /// Solid-angle density of [`Guide::sample`] producing `wi`.
     fn pdf(&self, vertex: &GuideVertex, wi: Vec3) -> f32;
 
+    /// [`Guide::selection_probability`] for many vertices at once (`out[i]` for
+    /// `vertices[i]` with `materials[i]`); override to batch the work.
+    fn selection_probabilities(
+        &self,
+        vertices: &[GuideVertex],
+        materials: &[&Material],
+        out: &mut [f32],
+    ) {
+        for ((v, m), o) in vertices.iter().zip(materials).zip(out) {
+            *o = self.selection_probability(v, m);
+        }
+    }
+
+    /// [`Guide::sample`] for many vertices at once; override to batch the work.
+    fn sample_batch(&self, vertices: &[GuideVertex], u: &[Vec2], out: &mut [Option<(Vec3, f32)>]) {
+        for ((v, &u), o) in vertices.iter().zip(u).zip(out) {
+            *o = self.sample(v, u);
+        }
+    }
+
+    /// [`Guide::pdf`] for many vertices at once; override to batch the work.
+    fn pdf_batch(&self, vertices: &[GuideVertex], wi: &[Vec3], out: &mut [f32]) {
+        for ((v, &w), o) in vertices.iter().zip(wi).zip(out) {
+            *o = self.pdf(v, w);
+        }
+    }
+
+    /// How many paths the integrator should trace together as one wavefront. Guides whose
+    /// queries are cheap one at a time keep the default (small batches stay in cache); a
+    /// neural guide asks for thousands so that its network runs on large matrices.
+    fn batch_paths(&self) -> usize {
+        64
+    }
+
     /// Whether the integrator should collect [`GuideRecord`]s (costs time; off when not
     /// training).
     fn wants_records(&self) -> bool {
@@ -128,6 +165,10 @@ pub trait Guide: Send + Sync {
 
     /// Called after render pass `iteration` has finished (e.g. to refit or train).
     fn end_iteration(&mut self, _iteration: usize) {}
+
+    /// Called once training is over: the remaining passes only render (a guide should stop
+    /// asking for records).
+    fn end_training(&mut self) {}
 }
 
 /// No guiding: every direction comes from the BSDF.

@@ -460,6 +460,10 @@ impl Guide for Ppg {
         self.learning
     }
 
+    fn end_training(&mut self) {
+        self.learning = false;
+    }
+
     fn record(&self, records: &[GuideRecord]) {
         let deposits = records.iter().filter_map(|r| {
             let flux = r.radiance.max(Vec3::ZERO).element_sum() / (3.0 * r.pdf);
@@ -520,6 +524,7 @@ mod tests {
             },
             wi,
             pdf: 1.0,
+            bsdf_pdf: 0.0,
             bsdf_cos: Vec3::ONE,
             radiance: Vec3::splat(radiance),
         }

@@ -94,6 +94,7 @@ fn records(positions: &[Vec3], n: usize, hemisphere: bool, seed: u64) -> Vec<Gui
                 vertex: vertex(p),
                 wi,
                 pdf: (uniform_pdf + vmf_pdf(wi, 0) + vmf_pdf(wi, 1)) / 3.0,
+                bsdf_pdf: 0.0,
                 bsdf_cos: Vec3::ONE,
                 radiance: Vec3::splat(radiance(wi)),
             });

@@ -1,0 +1,506 @@
+//! Neural path guiding (Müller et al. 2019, "Neural Importance Sampling", §5).
+//!
+//! At every path vertex a normalizing flow gives the density of incident directions:
+//! a 2-D flow on [0, 1]² over world-space cylindrical coordinates
+//! `((cos θ + 1)/2, φ/2π)` of the direction (an area-preserving map, so
+//! `p(ω) = q(u, v)/4π`), conditioned on the one-blob-encoded vertex position (normalised
+//! to the scene box), outgoing direction and shading normal (both in cylindrical
+//! coordinates). A second, small network predicts the selection probability `c(x, ω_o)` of
+//! the one-sample mixture `c·p_flow + (1 − c)·p_bsdf`, kept in `[c_min, 1 − c_min]` so both
+//! techniques always have a share.
+//!
+//! Training is on-line: the flow starts as the uniform density, the first pass renders with
+//! BSDF sampling only, and after every training pass (PPG's schedule of doubling sample
+//! counts, see [`crate::render::training_schedule`]) both networks take Adam steps on the
+//! records gathered so far. A record is a direction `ω` drawn at a vertex with mixture
+//! density `p_s(ω)`, and the product `F = L_i(ω)·f_s(ω_o, ω)·|cos θ|` the path found along it
+//! (luminance), the quantity the paper learns. With the current mixture density
+//! `q = c·p_flow + (1 − c)·p_bsdf`, the gradients are the paper's off-policy ones:
+//!
+//! * KL: `−E_{p_s}[(F/p_s)·∇ ln q]`,
+//! * χ²: `−E_{p_s}[(F²/(p_s·q))·∇ ln q]`,
+//!
+//! with `∇_θ ln q = (c·p_flow/q)·∇_θ ln p_flow` for the flow's weights and
+//! `∂ ln q/∂c = (p_flow − p_bsdf)/q` for the selection network. The per-sample weights are
+//! normalised by their batch mean, which only rescales the step. Records of all training
+//! passes stay in a bounded replay buffer (each is an unbiased sample of the same gradient,
+//! whatever mixture drew it), so early passes with few paths still get enough steps.
+//!
+//! The integrator traces thousands of paths as one wavefront ([`Guide::batch_paths`]), so
+//! every query below runs the networks on large batches.
+
+use std::sync::Mutex;
+
+use glam::{Vec2, Vec3};
+use nis::flow::{Flow, FlowConfig};
+use nis::kernels::elementwise::one_blob;
+use nis::kernels::CHUNK_ROWS;
+use nis::nn::mlp::MlpTape;
+use nis::nn::{Adam, AdamConfig, Mlp};
+use nis::Transform;
+use rand::{Rng, SeedableRng};
+use rand_pcg::Pcg64Mcg;
+use rayon::prelude::*;
+
+use super::{Guide, GuideRecord, GuideVertex};
+use crate::bsdf::Material;
+use crate::bvh::Aabb;
+use crate::geometry::luminance;
+
+/// Scalars a vertex is described by: position (3), outgoing direction (2), normal (2).
+const CONTEXT_SCALARS: usize = 7;
+
+/// 1/(4π): the Jacobian of the cylindrical map from [0, 1]² to the sphere.
+const INV_FOUR_PI: f32 = 1.0 / (4.0 * std::f32::consts::PI);
+
+/// Which divergence the guide minimises.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum GuideLoss {
+    /// Kullback–Leibler divergence (the paper's default).
+    Kl,
+    /// Pearson χ² divergence, i.e. the variance of the estimator.
+    ChiSquare,
+}
+
+/// Settings of [`NisGuide`].
+#[derive(Clone, Debug, PartialEq)]
+pub struct NisGuideConfig {
+    /// The divergence to minimise.
+    pub loss: GuideLoss,
+    /// The coupling transform of the flow.
+    pub transform: Transform,
+    /// Coupling layers of the flow.
+    pub couplings: usize,
+    /// Hidden layers of each coupling's conditioner.
+    pub hidden_layers: usize,
+    /// Width of the conditioners' hidden layers.
+    pub hidden_width: usize,
+    /// One-blob bins of the flow's own inputs.
+    pub blob_bins: usize,
+    /// One-blob bins of each context scalar (position, outgoing direction, normal).
+    pub context_bins: usize,
+    /// Hidden width of the selection-probability network (two hidden layers).
+    pub selection_width: usize,
+    /// Smallest selection probability of either technique.
+    pub min_selection: f32,
+    /// Records per training step.
+    pub batch: usize,
+    /// Adam steps after a training pass, at least (and about one per `batch` new records).
+    pub min_steps: usize,
+    /// Adam steps after a training pass, at most.
+    pub max_steps: usize,
+    /// Records kept for training (the oldest go first).
+    pub buffer: usize,
+    /// Adam's learning rate (both networks).
+    pub learning_rate: f32,
+    /// Seed of the weights and of the training batches.
+    pub seed: u64,
+}
+
+impl Default for NisGuideConfig {
+    fn default() -> Self {
+        NisGuideConfig {
+            loss: GuideLoss::Kl,
+            transform: Transform::Quadratic { bins: 32 },
+            couplings: 2,
+            hidden_layers: 2,
+            hidden_width: 64,
+            blob_bins: 16,
+            context_bins: 16,
+            selection_width: 32,
+            min_selection: 0.05,
+            batch: 4096,
+            min_steps: 40,
+            max_steps: 400,
+            buffer: 1 << 21,
+            learning_rate: 5e-3,
+            seed: 0,
+        }
+    }
+}
+
+/// What a training record keeps.
+#[derive(Clone, Copy, Debug)]
+struct Sample {
+    context: [f32; CONTEXT_SCALARS],
+    /// The direction in cylindrical coordinates.
+    x: [f32; 2],
+    /// `F`: luminance of incident radiance × BSDF × cosine.
+    f: f32,
+    /// Mixture density the direction was drawn with.
+    pdf: f32,
+    /// The BSDF's density of the direction.
+    bsdf_pdf: f32,
+}
+
+/// What one training phase did.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct TrainingStats {
+    /// Records with non-zero `F` that arrived in the pass.
+    pub new_records: usize,
+    /// Adam steps taken.
+    pub steps: usize,
+    /// Mean selection probability of the guide over the last batch.
+    pub mean_selection: f64,
+    /// Mean over the last batch of the normalised loss, `−(w/w̄)·ln q` for KL and `(w/w̄)` for
+    /// χ² (`w` the sample weight of the chosen loss), before the step.
+    pub loss: f64,
+    /// Wall-clock seconds the training phase took.
+    pub seconds: f64,
+}
+
+/// The neural guide: a conditional flow plus a selection network, trained while rendering.
+pub struct NisGuide {
+    config: NisGuideConfig,
+    origin: Vec3,
+    inv_extent: Vec3,
+    flow: Flow,
+    flow_adam: Adam,
+    selection: Mlp,
+    selection_params: Vec<f32>,
+    selection_adam: Adam,
+    incoming: Mutex<Vec<Sample>>,
+    buffer: Vec<Sample>,
+    training: bool,
+    trained: bool,
+    history: Vec<TrainingStats>,
+}
+
+/// World direction → `((cos θ + 1)/2, φ/2π)` in [0, 1]².
+pub fn to_cylindrical(w: Vec3) -> [f32; 2] {
+    let u = ((w.z + 1.0) * 0.5).clamp(0.0, 1.0);
+    let mut v = w.y.atan2(w.x) * (0.5 * std::f32::consts::FRAC_1_PI);
+    if v < 0.0 {
+        v += 1.0;
+    }
+    [u, v.clamp(0.0, 1.0)]
+}
+
+/// `((cos θ + 1)/2, φ/2π)` → world direction.
+pub fn from_cylindrical(x: [f32; 2]) -> Vec3 {
+    let z = 2.0 * x[0] - 1.0;
+    let r = (1.0 - z * z).max(0.0).sqrt();
+    let (s, c) = (2.0 * std::f32::consts::PI * x[1]).sin_cos();
+    Vec3::new(r * c, r * s, z)
+}
+
+fn sigmoid(z: f32) -> f32 {
+    1.0 / (1.0 + (-z).exp())
+}
+
+impl NisGuide {
+    /// A new (uniform, untrained) guide for a scene inside `bounds`.
+    pub fn new(bounds: Aabb, config: NisGuideConfig) -> nis::Result<NisGuide> {
+        if !(config.batch > 0 && config.buffer >= config.batch) {
+            return Err(nis::Error::Config(format!(
+                "the guide needs a batch of at least 1 and a buffer at least as large, got {} and {}",
+                config.batch, config.buffer
+            )));
+        }
+        if !(0.0..0.5).contains(&config.min_selection) || config.context_bins == 0 {
+            return Err(nis::Error::Config(format!(
+                "minimum selection probability must be in [0, 0.5) and context bins positive, got {} and {}",
+                config.min_selection, config.context_bins
+            )));
+        }
+        let context_dim = CONTEXT_SCALARS * config.context_bins;
+        let flow = Flow::new(FlowConfig {
+            dim: 2,
+            transform: config.transform,
+            couplings: config.couplings,
+            hidden_layers: config.hidden_layers,
+            hidden_width: config.hidden_width,
+            blob_bins: config.blob_bins,
+            context_dim,
+            seed: config.seed,
+        })?;
+        let adam = AdamConfig {
+            learning_rate: config.learning_rate,
+            clip_norm: Some(10.0),
+            ..AdamConfig::default()
+        };
+        let selection = Mlp {
+            dims: vec![
+                context_dim,
+                config.selection_width,
+                config.selection_width,
+                1,
+            ],
+        };
+        let mut selection_params = vec![0.0; selection.param_count()];
+        let mut rng = Pcg64Mcg::seed_from_u64(config.seed ^ 0x005e_1ec7);
+        selection.init(&mut selection_params, &mut rng);
+        let extent = (bounds.max - bounds.min).max(Vec3::splat(1e-6));
+        // A small margin keeps positions on the bounding box's faces inside the encoding.
+        let margin = 0.01 * extent;
+        Ok(NisGuide {
+            flow_adam: Adam::new(adam, flow.param_count())?,
+            selection_adam: Adam::new(adam, selection.param_count())?,
+            flow,
+            selection,
+            selection_params,
+            origin: bounds.min - margin,
+            inv_extent: (extent + 2.0 * margin).recip(),
+            config,
+            incoming: Mutex::new(Vec::new()),
+            buffer: Vec::new(),
+            training: true,
+            trained: false,
+            history: Vec::new(),
+        })
+    }
+
+    /// The flow (for inspection).
+    pub fn flow(&self) -> &Flow {
+        &self.flow
+    }
+
+    /// What every training phase did, in order.
+    pub fn history(&self) -> &[TrainingStats] {
+        &self.history
+    }
+
+    fn context_scalars(&self, v: &GuideVertex) -> [f32; CONTEXT_SCALARS] {
+        let p = ((v.p - self.origin) * self.inv_extent).clamp(Vec3::ZERO, Vec3::ONE);
+        let wo = to_cylindrical(v.wo);
+        let n = to_cylindrical(v.n);
+        [p.x, p.y, p.z, wo[0], wo[1], n[0], n[1]]
+    }
+
+    /// One-blob features of context scalars, `rows × 7·bins`.
+    fn encode(&self, scalars: &[[f32; CONTEXT_SCALARS]]) -> Vec<f32> {
+        let k = self.config.context_bins;
+        let mut out = vec![0.0; scalars.len() * CONTEXT_SCALARS * k];
+        out.par_chunks_mut(CHUNK_ROWS * CONTEXT_SCALARS * k)
+            .zip(scalars.par_chunks(CHUNK_ROWS))
+            .for_each(|(out, s)| one_blob(s.as_flattened(), k, out));
+        out
+    }
+
+    fn vertex_context(&self, vertices: &[GuideVertex]) -> Vec<f32> {
+        let s: Vec<_> = vertices.iter().map(|v| self.context_scalars(v)).collect();
+        self.encode(&s)
+    }
+
+    /// Selection-network forward pass over encoded contexts, chunk by chunk: the tapes (for
+    /// training) and the selection probabilities.
+    fn select(&self, context: &[f32]) -> (Vec<MlpTape>, Vec<f32>) {
+        let cdim = self.selection.dims[0];
+        let tapes: Vec<MlpTape> = context
+            .par_chunks(CHUNK_ROWS * cdim)
+            .map(|c| {
+                let mut tape = self.selection.tape(c.len() / cdim);
+                tape.acts[0].copy_from_slice(c);
+                self.selection.forward(&self.selection_params, &mut tape);
+                tape
+            })
+            .collect();
+        let m = self.config.min_selection;
+        let c = tapes
+            .iter()
+            .flat_map(|t| t.acts.last().expect("output layer").iter())
+            .map(|&z| m + (1.0 - 2.0 * m) * sigmoid(z))
+            .collect();
+        (tapes, c)
+    }
+
+    /// One Adam step of both networks on `batch`.
+    fn step(&mut self, batch: &[Sample]) -> nis::Result<TrainingStats> {
+        let n = batch.len();
+        let scalars: Vec<_> = batch.iter().map(|s| s.context).collect();
+        let context = self.encode(&scalars);
+        let x: Vec<f32> = batch.iter().flat_map(|s| s.x).collect();
+        let evaluated = self.flow.log_density_for_training(&x, Some(&context))?;
+        let (tapes, c) = self.select(&context);
+        let m = self.config.min_selection;
+        let mut base = Vec::with_capacity(n);
+        let mut mix = Vec::with_capacity(n);
+        for (i, s) in batch.iter().enumerate() {
+            let q = (evaluated.log_q[i].exp() as f32) * INV_FOUR_PI;
+            let q_mix = c[i] * q + (1.0 - c[i]) * s.bsdf_pdf;
+            let w = match self.config.loss {
+                GuideLoss::Kl => f64::from(s.f) / f64::from(s.pdf),
+                GuideLoss::ChiSquare => {
+                    f64::from(s.f) * f64::from(s.f) / (f64::from(s.pdf) * f64::from(q_mix))
+                }
+            };
+            base.push(if w.is_finite() { w } else { 0.0 });
+            mix.push((q, q_mix));
+        }
+        let mean = base.iter().sum::<f64>() / n as f64;
+        let mut stats = TrainingStats {
+            mean_selection: c.iter().map(|&c| f64::from(c)).sum::<f64>() / n as f64,
+            ..TrainingStats::default()
+        };
+        if mean <= 0.0 || !mean.is_finite() {
+            return Ok(stats);
+        }
+        let mut w_flow = vec![0.0f32; n];
+        let mut g_logit = vec![0.0f32; n];
+        let mut loss = 0.0f64;
+        for i in 0..n {
+            let (q, q_mix) = mix[i];
+            let w = base[i] / mean;
+            loss += match self.config.loss {
+                GuideLoss::Kl => -w * f64::from(q_mix).ln(),
+                GuideLoss::ChiSquare => w,
+            };
+            if q_mix > 0.0 {
+                w_flow[i] = (w * f64::from(c[i] * q / q_mix) / n as f64) as f32;
+                let s = (c[i] - m) / (1.0 - 2.0 * m);
+                let d_c = (f64::from(q - batch[i].bsdf_pdf) / f64::from(q_mix)) as f32;
+                g_logit[i] =
+                    (-w * f64::from(d_c * (1.0 - 2.0 * m) * s * (1.0 - s)) / n as f64) as f32;
+            }
+        }
+        stats.loss = loss / n as f64;
+        let g_flow = self.flow.backward(&evaluated.tape, &w_flow)?;
+        self.flow_adam.step(self.flow.params_mut(), &g_flow)?;
+        let g_out: Vec<Vec<f32>> = g_logit.chunks(CHUNK_ROWS).map(<[f32]>::to_vec).collect();
+        let refs: Vec<&MlpTape> = tapes.iter().collect();
+        let mut g_sel = vec![0.0; self.selection_params.len()];
+        self.selection
+            .backward(&self.selection_params, &refs, g_out, &mut g_sel, false);
+        self.selection_adam
+            .step(&mut self.selection_params, &g_sel)?;
+        Ok(stats)
+    }
+
+    /// Train on the records of the pass that just ended.
+    fn train(&mut self, iteration: usize) {
+        let start = std::time::Instant::now();
+        let new = std::mem::take(&mut *self.incoming.lock().expect("guide records"));
+        let new_records = new.len();
+        self.buffer.extend(new);
+        if self.buffer.len() > self.config.buffer {
+            let excess = self.buffer.len() - self.config.buffer;
+            self.buffer.drain(..excess);
+        }
+        let mut stats = TrainingStats {
+            new_records,
+            ..TrainingStats::default()
+        };
+        if !self.buffer.is_empty() {
+            let steps = (new_records / self.config.batch)
+                .clamp(self.config.min_steps, self.config.max_steps);
+            let mut rng = Pcg64Mcg::seed_from_u64(self.config.seed ^ (iteration as u64 + 1) << 32);
+            let size = self.config.batch.min(self.buffer.len());
+            let mut batch = Vec::with_capacity(size);
+            for _ in 0..steps {
+                batch.clear();
+                batch
+                    .extend((0..size).map(|_| self.buffer[rng.random_range(0..self.buffer.len())]));
+                match self.step(&batch) {
+                    Ok(s) => {
+                        stats.mean_selection = s.mean_selection;
+                        stats.loss = s.loss;
+                        stats.steps += 1;
+                    }
+                    // A non-finite gradient (a rare huge weight) skips the step.
+                    Err(_) => continue,
+                }
+            }
+            self.trained = true;
+        }
+        stats.seconds = start.elapsed().as_secs_f64();
+        self.history.push(stats);
+    }
+}
+
+impl Guide for NisGuide {
+    fn selection_probability(&self, vertex: &GuideVertex, material: &Material) -> f32 {
+        let mut out = [0.0];
+        self.selection_probabilities(std::slice::from_ref(vertex), &[material], &mut out);
+        out[0]
+    }
+
+    fn sample(&self, vertex: &GuideVertex, u: Vec2) -> Option<(Vec3, f32)> {
+        let mut out = [None];
+        self.sample_batch(std::slice::from_ref(vertex), &[u], &mut out);
+        out[0]
+    }
+
+    fn pdf(&self, vertex: &GuideVertex, wi: Vec3) -> f32 {
+        let mut out = [0.0];
+        self.pdf_batch(std::slice::from_ref(vertex), &[wi], &mut out);
+        out[0]
+    }
+
+    fn selection_probabilities(&self, vertices: &[GuideVertex], _: &[&Material], out: &mut [f32]) {
+        if !self.trained {
+            out.fill(0.0);
+            return;
+        }
+        let (_, c) = self.select(&self.vertex_context(vertices));
+        out.copy_from_slice(&c);
+    }
+
+    fn sample_batch(&self, vertices: &[GuideVertex], u: &[Vec2], out: &mut [Option<(Vec3, f32)>]) {
+        let context = self.vertex_context(vertices);
+        let z: Vec<f32> = u
+            .iter()
+            .flat_map(|u| [u.x.clamp(0.0, 1.0), u.y.clamp(0.0, 1.0)])
+            .collect();
+        let Ok((x, log_det)) = self.flow.inverse(&z, Some(&context)) else {
+            out.fill(None);
+            return;
+        };
+        for (i, o) in out.iter_mut().enumerate() {
+            // ln|∂x/∂z| = −ln q(x).
+            let pdf = ((-log_det[i]).exp() as f32) * INV_FOUR_PI;
+            *o = (pdf.is_finite() && pdf > 0.0)
+                .then(|| (from_cylindrical([x[2 * i], x[2 * i + 1]]), pdf));
+        }
+    }
+
+    fn pdf_batch(&self, vertices: &[GuideVertex], wi: &[Vec3], out: &mut [f32]) {
+        let context = self.vertex_context(vertices);
+        let x: Vec<f32> = wi.iter().flat_map(|&w| to_cylindrical(w)).collect();
+        match self.flow.log_density(&x, Some(&context)) {
+            Ok(log_q) => {
+                for (o, l) in out.iter_mut().zip(log_q) {
+                    *o = (l.exp() as f32) * INV_FOUR_PI;
+                }
+            }
+            Err(_) => out.fill(0.0),
+        }
+    }
+
+    fn batch_paths(&self) -> usize {
+        8192
+    }
+
+    fn wants_records(&self) -> bool {
+        self.training
+    }
+
+    fn record(&self, records: &[GuideRecord]) {
+        let samples = records.iter().filter_map(|r| {
+            let f = luminance(r.radiance * r.bsdf_cos);
+            (f > 0.0 && f.is_finite() && r.pdf > 0.0).then(|| Sample {
+                context: self.context_scalars(&r.vertex),
+                x: to_cylindrical(r.wi),
+                f,
+                pdf: r.pdf,
+                bsdf_pdf: r.bsdf_pdf,
+            })
+        });
+        self.incoming.lock().expect("guide records").extend(samples);
+    }
+
+    fn end_iteration(&mut self, iteration: usize) {
+        if self.training {
+            self.train(iteration);
+        }
+    }
+
+    fn end_training(&mut self) {
+        self.training = false;
+        self.buffer = Vec::new();
+        if std::env::var_os("NIS_GUIDE_DEBUG").is_some() {
+            for (i, h) in self.history.iter().enumerate() {
+                eprintln!("guide iteration {i}: {h:?}");
+            }
+        }
+    }
+}
