@@ -549,6 +549,19 @@ impl Gmm {
     }
 }
 
+/// Solid-angle density of `wi` under `mixture` (uniform when untrained) on the hemisphere of
+/// `frame`.
+fn density(mixture: Option<&Mixture>, frame: &[Vec3; 3], wi: Vec3) -> f32 {
+    let w = to_local(frame, wi);
+    if w.z <= 0.0 {
+        return 0.0;
+    }
+    match mixture {
+        Some(m) => (0.5 * m.pdf_disk(hemisphere_to_disk(w))) as f32,
+        None => 0.5 / std::f32::consts::PI,
+    }
+}
+
 /// Fit the six mixtures of a leaf to its samples (those of classes with enough of them).
 fn fit_mixtures(mixtures: &mut [Option<Mixture>; 6], samples: &[Sample], config: &GmmConfig) {
     let mut points: [Vec<(DVec2, f64)>; 6] = Default::default();
@@ -585,21 +598,15 @@ impl Guide for Gmm {
         };
         let w = disk_to_hemisphere(d);
         let wi = (w.x * f[0] + w.y * f[1] + w.z * f[2]).normalize();
-        // The density of the direction returned, so that it equals `pdf(wi)` exactly.
-        let pdf = self.pdf(vertex, wi);
+        // The density of the direction returned (what `pdf(wi)` computes, without a second
+        // lookup), not of `d`: the two differ by round-off.
+        let pdf = density(mixture, &f, wi);
         (pdf > 0.0).then_some((wi, pdf))
     }
 
     fn pdf(&self, vertex: &GuideVertex, wi: Vec3) -> f32 {
         let (mixture, frame) = self.mixture(vertex);
-        let w = to_local(&frame, wi);
-        if w.z <= 0.0 {
-            return 0.0;
-        }
-        match mixture {
-            Some(m) => (0.5 * m.pdf_disk(hemisphere_to_disk(w))) as f32,
-            None => 0.5 / std::f32::consts::PI,
-        }
+        density(mixture, &frame, wi)
     }
 
     fn wants_records(&self) -> bool {
