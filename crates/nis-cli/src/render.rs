@@ -8,7 +8,9 @@ use std::time::Duration;
 use indicatif::{ProgressBar, ProgressStyle};
 use nis_render::compare::{compare, error_map};
 use nis_render::film::Image;
+use nis_render::guiding::gmm::{Gmm, GmmConfig};
 use nis_render::guiding::neural::{GuideLoss, NisGuide, NisGuideConfig};
+use nis_render::guiding::ppg::{Ppg, PpgConfig};
 use nis_render::guiding::{Guide, NoGuide};
 use nis_render::integrator::{Integrator, Strategy};
 use nis_render::render::{render, render_guided, Budget, RenderOutput};
@@ -59,7 +61,8 @@ pub struct RenderArgs {
     #[arg(long, default_value = "mis", value_parser = ["mis", "nee", "bsdf"])]
     pub strategy: String,
 
-    /// Path guiding: `none` (unidirectional path tracing) or `nis-kl` / `nis-chi2` (a
+    /// Path guiding: `none` (unidirectional path tracing), `ppg` (practical path guiding's
+    /// SD-tree), `gmm` (Gaussian mixtures after Vorba et al.) or `nis-kl` / `nis-chi2` (a
     /// normalizing flow trained while rendering, with the KL or χ² gradient). Guided renders
     /// spend up to half of the samples on training passes of 1, 2, 4, … spp; the image is
     /// the final pass's.
@@ -111,7 +114,7 @@ pub struct CompareArgs {
 }
 
 /// The `--guide` choices.
-pub const GUIDES: [&str; 3] = ["none", "nis-kl", "nis-chi2"];
+pub const GUIDES: [&str; 5] = ["none", "ppg", "gmm", "nis-kl", "nis-chi2"];
 
 /// A guide by its `--guide` name, for `scene`.
 pub fn make_guide(
@@ -130,6 +133,8 @@ pub fn make_guide(
     };
     match name {
         "none" => Ok(Box::new(NoGuide)),
+        "ppg" => Ok(Box::new(Ppg::new(scene.bounds(), PpgConfig::default()))),
+        "gmm" => Ok(Box::new(Gmm::new(scene.bounds(), GmmConfig::default()))),
         "nis-kl" => nis(GuideLoss::Kl),
         "nis-chi2" => nis(GuideLoss::ChiSquare),
         _ => Err(format!("unknown guide '{name}' (choose from {})", GUIDES.join(", ")).into()),

@@ -307,6 +307,15 @@ mod tests {
     use super::*;
 
     #[test]
+    fn bounds_enclose_the_cornell_room() {
+        // The room spans x ∈ [−1, 1], y ∈ [0, 2], z ∈ [−1, 1] (see the scene file).
+        let b = crate::scenes::load("cornell-box").unwrap().bounds();
+        let (lo, hi) = (Vec3::new(-1.0, 0.0, -1.0), Vec3::new(1.0, 2.0, 1.0));
+        assert!((b.min - lo).abs().max_element() < 1e-4, "{:?}", b.min);
+        assert!((b.max - hi).abs().max_element() < 1e-4, "{:?}", b.max);
+    }
+
+    #[test]
     fn sphere_roots_from_outside_and_inside() {
         let s = Sphere {
             center: Vec3::new(0.0, 0.0, 5.0),

@@ -10,13 +10,65 @@
 //! guide's selection probability `α` it samples the guide, otherwise the BSDF, and always
 //! weights by the mixture density `α p_guide + (1 − α) p_bsdf`. [`NoGuide`] (α = 0) is plain
 //! unidirectional path tracing.
-
-pub mod neural;
+//!
+//! Implementations: [`ppg`] (the SD-tree of practical path guiding) and [`gmm`] (Gaussian
+//! mixtures on the hemisphere in a spatial kd-tree). Both learn from the records of one
+//! training iteration at its end, in a sorted order, so a trained guide depends only on the
+//! records, never on the threads that delivered them.
 
 use glam::{Vec2, Vec3};
 
 use crate::bsdf::Material;
+use crate::bvh::Aabb;
 use crate::geometry::Rgb;
+
+pub mod gmm;
+pub mod neural;
+pub mod ppg;
+#[cfg(test)]
+mod tests;
+
+/// Largest `f32` below 1, where coordinates in `[0, 1)` are clamped.
+const ONE_MINUS_EPSILON: f32 = 1.0 - f32::EPSILON / 2.0;
+
+/// World direction to world-space cylindrical coordinates `((cos θ + 1)/2, φ/2π)` in
+/// `[0, 1)²`, θ measured from +z. The map is area preserving (Archimedes' hat-box theorem),
+/// so a density `p` on the square is the solid-angle density `p / 4π` (Müller et al. 2017,
+/// §5.2).
+pub fn dir_to_cylindrical(w: Vec3) -> Vec2 {
+    let cos_theta = w.z.clamp(-1.0, 1.0);
+    let mut phi = w.y.atan2(w.x);
+    if phi < 0.0 {
+        phi += 2.0 * std::f32::consts::PI;
+    }
+    Vec2::new(
+        (0.5 * (cos_theta + 1.0)).min(ONE_MINUS_EPSILON),
+        (phi * (0.5 * std::f32::consts::FRAC_1_PI)).min(ONE_MINUS_EPSILON),
+    )
+}
+
+/// Inverse of [`dir_to_cylindrical`].
+pub fn cylindrical_to_dir(c: Vec2) -> Vec3 {
+    let cos_theta = 2.0 * c.x - 1.0;
+    let sin_theta = (1.0 - cos_theta * cos_theta).max(0.0).sqrt();
+    let (sin_phi, cos_phi) = (2.0 * std::f32::consts::PI * c.y).sin_cos();
+    Vec3::new(sin_theta * cos_phi, sin_theta * sin_phi, cos_theta)
+}
+
+/// `p` in coordinates of the cube `bounds` (`min` and the largest extent), clamped to
+/// `[0, 1)³`: where the spatial trees of the guides descend.
+fn unit_position(bounds: &Aabb, p: Vec3) -> Vec3 {
+    let extent = (bounds.max - bounds.min)
+        .max_element()
+        .max(f32::MIN_POSITIVE);
+    ((p - bounds.min) / extent).clamp(Vec3::ZERO, Vec3::splat(ONE_MINUS_EPSILON))
+}
+
+/// Bit patterns of `values`, a total order key for sorting records so that learning does not
+/// depend on the order in which render threads delivered them.
+fn bits_key<const N: usize>(values: [f32; N]) -> [u32; N] {
+    values.map(f32::to_bits)
+}
 
 /// What a guide may condition on at a path vertex (world space).
 #[derive(Clone, Copy, Debug)]

@@ -1,0 +1,119 @@
+//! The classical guides end to end: practical path guiding and the Gaussian-mixture guide,
+//! trained on the Cornell box by a few render passes (learning from the paths of earlier
+//! passes), leave the image unbiased.
+
+use glam::Vec3;
+use nis_render::bsdf::{Bsdf, Material};
+use nis_render::guiding::gmm::{Gmm, GmmConfig};
+use nis_render::guiding::ppg::{Ppg, PpgConfig};
+use nis_render::guiding::{Guide, GuideVertex, NoGuide};
+use nis_render::integrator::{Integrator, Strategy};
+use nis_render::render::{render, Budget};
+use nis_render::scene::Scene;
+
+/// Image means per channel over `repeats` seeds, and their standard errors.
+fn mean_over_seeds<G: Guide>(scene: &Scene, guide: &mut G, repeats: u64) -> ([f64; 3], [f64; 3]) {
+    let integrator = Integrator::from_scene(scene, Strategy::Mis);
+    let mut samples = vec![[0.0f64; 3]; repeats as usize];
+    for (seed, s) in samples.iter_mut().enumerate() {
+        let img = render(
+            scene,
+            &integrator,
+            Budget::Samples(8),
+            7 + seed as u64,
+            guide,
+            &|_| {},
+        )
+        .image;
+        for p in &img.pixels {
+            for c in 0..3 {
+                s[c] += f64::from(p[c]) / img.pixels.len() as f64;
+            }
+        }
+    }
+    let n = repeats as f64;
+    let mut mean = [0.0; 3];
+    let mut err = [0.0; 3];
+    for c in 0..3 {
+        mean[c] = samples.iter().map(|s| s[c]).sum::<f64>() / n;
+        let var = samples
+            .iter()
+            .map(|s| (s[c] - mean[c]).powi(2))
+            .sum::<f64>()
+            / (n - 1.0);
+        err[c] = (var / n).sqrt();
+    }
+    (mean, err)
+}
+
+/// Train `guide` by `passes` render passes, freeze it, check it is used on the back wall,
+/// and compare its mean image with the unguided one.
+fn check_unbiased<G: Guide>(scene: &Scene, guide: &mut G, freeze: impl FnOnce(&mut G), name: &str) {
+    let integrator = Integrator::from_scene(scene, Strategy::Mis);
+    for pass in 0..3 {
+        render(
+            scene,
+            &integrator,
+            Budget::Samples(16),
+            1000 + pass,
+            guide,
+            &|_| {},
+        );
+    }
+    freeze(guide);
+    let wall = GuideVertex {
+        p: Vec3::new(0.0, 1.0, -1.0),
+        n: Vec3::Z,
+        wo: Vec3::Z,
+    };
+    let white = Material::new(Bsdf::Diffuse {
+        reflectance: Vec3::splat(0.73),
+    });
+    assert_eq!(
+        guide.selection_probability(&wall, &white),
+        0.5,
+        "{name} untrained"
+    );
+    let (plain, plain_err) = mean_over_seeds(scene, &mut NoGuide, 24);
+    let (guided, guided_err) = mean_over_seeds(scene, guide, 24);
+    for c in 0..3 {
+        let sigma = (plain_err[c].powi(2) + guided_err[c].powi(2)).sqrt();
+        assert!(
+            (plain[c] - guided[c]).abs() < 4.0 * sigma,
+            "{name} channel {c}: unguided {} vs guided {} (σ = {sigma})",
+            plain[c],
+            guided[c]
+        );
+    }
+}
+
+fn cornell() -> Scene {
+    let params = [("res".to_string(), "12".to_string())];
+    nis_render::scenes::load_with("cornell-box", &params).unwrap()
+}
+
+#[test]
+fn trained_ppg_leaves_the_image_unbiased() {
+    let scene = cornell();
+    let config = PpgConfig {
+        spatial_threshold: 500.0,
+        ..PpgConfig::default()
+    };
+    let mut guide = Ppg::new(scene.bounds(), config);
+    check_unbiased(&scene, &mut guide, |g| g.set_learning(false), "PPG");
+    assert!(guide.spatial_leaves() > 1);
+    assert_eq!(guide.iterations(), 3, "frozen after three training passes");
+}
+
+#[test]
+fn trained_gmm_leaves_the_image_unbiased() {
+    let scene = cornell();
+    let config = GmmConfig {
+        split_threshold: 1000,
+        ..GmmConfig::default()
+    };
+    let mut guide = Gmm::new(scene.bounds(), config);
+    check_unbiased(&scene, &mut guide, |g| g.set_learning(false), "GMM");
+    assert!(guide.spatial_leaves() > 1);
+    assert_eq!(guide.iterations(), 3, "frozen after three training passes");
+}
