@@ -13,11 +13,16 @@ use nis_render::render::{render, Budget};
 use nis_render::sampling::square_to_uniform_sphere;
 use nis_render::xml::load_scene_str;
 
+mod common;
+use common::mean_over_seeds;
+
 /// A deliberately poor guide: uniform directions, chosen half of the time.
 #[derive(Default)]
 struct UniformGuide {
     records: Mutex<Vec<GuideRecord>>,
     iterations: usize,
+    /// Paths per wavefront (0: the trait's default).
+    batch: usize,
 }
 
 impl Guide for UniformGuide {
@@ -40,6 +45,14 @@ impl Guide for UniformGuide {
         true
     }
 
+    fn batch_paths(&self) -> usize {
+        if self.batch == 0 {
+            64
+        } else {
+            self.batch
+        }
+    }
+
     fn record(&self, records: &[GuideRecord]) {
         self.records.lock().unwrap().extend_from_slice(records);
     }
@@ -47,46 +60,6 @@ impl Guide for UniformGuide {
     fn end_iteration(&mut self, _: usize) {
         self.iterations += 1;
     }
-}
-
-/// Image means per channel over `repeats` seeds, and their standard errors.
-fn mean_over_seeds<G: Guide>(
-    scene: &nis_render::scene::Scene,
-    strategy: Strategy,
-    guide: &mut G,
-    repeats: u64,
-) -> ([f64; 3], [f64; 3]) {
-    let integrator = Integrator::from_scene(scene, strategy);
-    let mut samples = vec![[0.0f64; 3]; repeats as usize];
-    for (seed, s) in samples.iter_mut().enumerate() {
-        let img = render(
-            scene,
-            &integrator,
-            Budget::Samples(8),
-            7 + seed as u64,
-            guide,
-            &|_| {},
-        )
-        .image;
-        for p in &img.pixels {
-            for c in 0..3 {
-                s[c] += f64::from(p[c]) / img.pixels.len() as f64;
-            }
-        }
-    }
-    let n = repeats as f64;
-    let mut mean = [0.0; 3];
-    let mut err = [0.0; 3];
-    for c in 0..3 {
-        mean[c] = samples.iter().map(|s| s[c]).sum::<f64>() / n;
-        let var = samples
-            .iter()
-            .map(|s| (s[c] - mean[c]).powi(2))
-            .sum::<f64>()
-            / (n - 1.0);
-        err[c] = (var / n).sqrt();
-    }
-    (mean, err)
 }
 
 #[test]
@@ -147,30 +120,6 @@ fn diffuse_sphere_under_a_uniform_sky_reflects_albedo_times_sky() {
     }
 }
 
-/// The uniform guide traced one path at a time or in large wavefronts.
-struct BatchedUniform(usize);
-
-impl Guide for BatchedUniform {
-    fn selection_probability(&self, _: &GuideVertex, _: &Material) -> f32 {
-        0.3
-    }
-
-    fn sample(&self, _: &GuideVertex, u: Vec2) -> Option<(Vec3, f32)> {
-        Some((
-            square_to_uniform_sphere(u),
-            1.0 / (4.0 * std::f32::consts::PI),
-        ))
-    }
-
-    fn pdf(&self, _: &GuideVertex, _: Vec3) -> f32 {
-        1.0 / (4.0 * std::f32::consts::PI)
-    }
-
-    fn batch_paths(&self) -> usize {
-        self.0
-    }
-}
-
 #[test]
 fn wavefront_batches_do_not_change_the_image() {
     let params = [("res".to_string(), "20".to_string())];
@@ -184,7 +133,10 @@ fn wavefront_batches_do_not_change_the_image() {
                 &integrator,
                 Budget::Samples(4),
                 3,
-                &mut BatchedUniform(b),
+                &mut UniformGuide {
+                    batch: b,
+                    ..UniformGuide::default()
+                },
                 &|_| {},
             )
             .image

@@ -11,40 +11,8 @@ use nis_render::integrator::{Integrator, Strategy};
 use nis_render::render::{render, Budget};
 use nis_render::scene::Scene;
 
-/// Image means per channel over `repeats` seeds, and their standard errors.
-fn mean_over_seeds<G: Guide>(scene: &Scene, guide: &mut G, repeats: u64) -> ([f64; 3], [f64; 3]) {
-    let integrator = Integrator::from_scene(scene, Strategy::Mis);
-    let mut samples = vec![[0.0f64; 3]; repeats as usize];
-    for (seed, s) in samples.iter_mut().enumerate() {
-        let img = render(
-            scene,
-            &integrator,
-            Budget::Samples(8),
-            7 + seed as u64,
-            guide,
-            &|_| {},
-        )
-        .image;
-        for p in &img.pixels {
-            for c in 0..3 {
-                s[c] += f64::from(p[c]) / img.pixels.len() as f64;
-            }
-        }
-    }
-    let n = repeats as f64;
-    let mut mean = [0.0; 3];
-    let mut err = [0.0; 3];
-    for c in 0..3 {
-        mean[c] = samples.iter().map(|s| s[c]).sum::<f64>() / n;
-        let var = samples
-            .iter()
-            .map(|s| (s[c] - mean[c]).powi(2))
-            .sum::<f64>()
-            / (n - 1.0);
-        err[c] = (var / n).sqrt();
-    }
-    (mean, err)
-}
+mod common;
+use common::mean_over_seeds;
 
 /// Train `guide` by `passes` render passes, freeze it, check it is used on the back wall,
 /// and compare its mean image with the unguided one.
@@ -74,8 +42,8 @@ fn check_unbiased<G: Guide>(scene: &Scene, guide: &mut G, freeze: impl FnOnce(&m
         0.5,
         "{name} untrained"
     );
-    let (plain, plain_err) = mean_over_seeds(scene, &mut NoGuide, 24);
-    let (guided, guided_err) = mean_over_seeds(scene, guide, 24);
+    let (plain, plain_err) = mean_over_seeds(scene, Strategy::Mis, &mut NoGuide, 24);
+    let (guided, guided_err) = mean_over_seeds(scene, Strategy::Mis, guide, 24);
     for c in 0..3 {
         let sigma = (plain_err[c].powi(2) + guided_err[c].powi(2)).sqrt();
         assert!(
