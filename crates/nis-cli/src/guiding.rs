@@ -128,40 +128,40 @@ fn reference(
     Ok(out.image)
 }
 
-/// Renders in a row over error maps in a row below, with the reference at the left. The
-/// renders share one exposure that brings the reference's mean to 0.25, so dark scenes show.
+/// Crops of the renders in a row over crops of their error maps in a row below, with the
+/// reference at the left: the central quarter of the image (half its width and height), as
+/// the paper's Figure 5 shows crops. The renders share one exposure that brings the
+/// reference's mean to 0.25, so dark scenes show.
 fn montage(reference: &Image, runs: &[Run]) -> Result<Image, Box<dyn std::error::Error>> {
-    let (w, h) = (reference.width, reference.height);
+    let (cw, ch) = (reference.width.div_ceil(2), reference.height.div_ceil(2));
+    let (x0, y0) = ((reference.width - cw) / 2, (reference.height - ch) / 2);
     let exposure = if reference.mean() > 0.0 {
         (0.25 / reference.mean()) as f32
     } else {
         1.0
     };
-    let exposed = |img: &Image| Image {
-        width: img.width,
-        height: img.height,
-        pixels: img.pixels.iter().map(|&p| p * exposure).collect(),
-    };
     let cols = runs.len() as u32 + 1;
     let mut m = Image {
-        width: w * cols,
-        height: 2 * h,
-        pixels: vec![Rgb::ZERO; (w * cols * 2 * h) as usize],
+        width: cw * cols,
+        height: 2 * ch,
+        pixels: vec![Rgb::ZERO; (cw * cols * 2 * ch) as usize],
     };
-    let mut put = |col: u32, row: u32, img: &Image| {
-        for y in 0..h {
-            for x in 0..w {
-                m.pixels[((row * h + y) * w * cols + col * w + x) as usize] = img.get(x, y);
+    let mut put = |col: u32, row: u32, img: &Image, scale: f32| {
+        for y in 0..ch {
+            for x in 0..cw {
+                m.pixels[((row * ch + y) * cw * cols + col * cw + x) as usize] =
+                    img.get(x0 + x, y0 + y) * scale;
             }
         }
     };
-    put(0, 0, &exposed(reference));
+    put(0, 0, reference, exposure);
     for (i, r) in runs.iter().enumerate() {
-        put(i as u32 + 1, 0, &exposed(&r.output.image));
+        put(i as u32 + 1, 0, &r.output.image, exposure);
         put(
             i as u32 + 1,
             1,
             &error_map(&r.output.image, reference, 1.0)?,
+            1.0,
         );
     }
     Ok(m)
@@ -283,7 +283,7 @@ pub fn run_bench(args: &BenchGuidingArgs) -> Result<(), Box<dyn std::error::Erro
         let file = format!("guiding-{name}.png");
         montage(&reference, &equal_spp)?.write(&args.img.join(&file))?;
         figures.push_str(&format!(
-            "**{name}** (reference, then {} at equal spp, all at one exposure; their relative error maps below, 0 to 1 in false colour):\n\n![{name}]({}/{file})\n\n",
+            "**{name}** (central crops: reference, then {} at equal spp, all at one exposure; their relative error maps below, 0 to 1 in false colour):\n\n![{name}]({}/{file})\n\n",
             methods.join(", "),
             relative_img(&args.docs, &args.img)
         ));
