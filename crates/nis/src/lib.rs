@@ -11,6 +11,7 @@
 //! - [`io`]: saving and loading flows (config JSON + safetensors, atomic writes).
 //! - [`kernels`] and [`nn`]: the fused CPU kernels, the MLP and Adam.
 
+pub mod data;
 pub mod error;
 pub mod flow;
 pub mod image;
