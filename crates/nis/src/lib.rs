@@ -12,6 +12,7 @@
 //! - [`kernels`] and [`nn`]: the fused CPU kernels, the MLP and Adam.
 
 pub mod data;
+pub mod density;
 pub mod error;
 pub mod flow;
 pub mod image;
