@@ -381,3 +381,35 @@ fn from_bytes(bytes: &[u8]) -> std::result::Result<Session, String> {
     session.history = state.history;
     Ok(session)
 }
+
+impl DensityConfig {
+    /// The settings `nis density train` and `nis bench density` start from: the same conditioner
+    /// for every coupling transform, sized to train in minutes on two cores.
+    ///
+    /// - digits (D = 64): 12 couplings (all binary masks), conditioners one-blob 8 → 2×64, batch 64.
+    /// - MNIST (D = 784): 8 couplings, conditioners one-blob 4 → 2×64, batch 128.
+    pub fn defaults(dataset: Dataset, transform: crate::spline::Transform) -> DensityConfig {
+        let (side, couplings, blob_bins, batch) = match dataset {
+            Dataset::Digits => (8, 0, 8, 64),
+            Dataset::Mnist => (28, 8, 4, 128),
+        };
+        DensityConfig {
+            dataset,
+            model: ModelConfig {
+                arch: super::Arch::Mlp,
+                width: side,
+                height: side,
+                transform,
+                couplings,
+                hidden_layers: 2,
+                hidden_width: 64,
+                blob_bins,
+                seed: 0,
+            },
+            batch,
+            learning_rate: 1e-3,
+            clip_norm: Some(100.0),
+            seed: 0,
+        }
+    }
+}
