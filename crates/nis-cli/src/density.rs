@@ -7,7 +7,7 @@ use std::path::{Path, PathBuf};
 use indicatif::{ProgressBar, ProgressStyle};
 use nis::data::{Dataset, Images};
 use nis::density::train::Progress;
-use nis::density::{cell_centres, figure, DensityConfig, Session};
+use nis::density::{cell_centres, figure, Arch, DensityConfig, Session};
 use nis::Transform;
 
 use crate::fit_image::Coupling;
@@ -43,9 +43,19 @@ pub struct TrainArgs {
     /// The image set: digits (8×8, 17 levels) or mnist (28×28, 256 levels).
     #[arg(long, default_value = "digits")]
     dataset: String,
-    /// Conditioner architecture (mlp: coupling flow with MLP conditioners on the flat image).
+    /// Architecture: mlp (coupling flow with MLP conditioners on the flat image) or multiscale
+    /// (RealNVP: checkerboard and channel masks, squeezes, convolutional residual conditioners).
     #[arg(long, default_value = "mlp")]
     arch: String,
+    /// Multi-scale: number of squeezes.
+    #[arg(long)]
+    scales: Option<usize>,
+    /// Multi-scale: channels of the convolutional conditioners.
+    #[arg(long)]
+    features: Option<usize>,
+    /// Multi-scale: residual blocks per conditioner.
+    #[arg(long)]
+    blocks: Option<usize>,
     /// Coupling transform.
     #[arg(long, value_enum, default_value = "pq")]
     coupling: Coupling,
@@ -233,9 +243,11 @@ fn train(a: &TrainArgs) -> Res {
         );
         s
     } else {
-        let mut c = DensityConfig::defaults(dataset, a.coupling.transform(a.bins));
-        c.model.arch = a.arch.parse()?;
+        let mut c = DensityConfig::defaults(dataset, a.arch.parse()?, a.coupling.transform(a.bins));
         let m = &mut c.model;
+        m.scales = a.scales.unwrap_or(m.scales);
+        m.features = a.features.unwrap_or(m.features);
+        m.blocks = a.blocks.unwrap_or(m.blocks);
         m.couplings = a.couplings.unwrap_or(m.couplings);
         m.hidden_layers = a.hidden_layers.unwrap_or(m.hidden_layers);
         m.hidden_width = a.hidden_width.unwrap_or(m.hidden_width);
@@ -343,6 +355,9 @@ pub struct BenchDensityArgs {
     /// Only this data set (digits or mnist).
     #[arg(long)]
     only: Option<String>,
+    /// Architectures, comma-separated (mlp, multiscale).
+    #[arg(long, default_value = "mlp,multiscale")]
+    archs: String,
     /// Bins K of the piecewise-quadratic coupling.
     #[arg(long, default_value_t = 4)]
     bins: usize,
@@ -385,9 +400,20 @@ pub fn run_bench(a: &BenchDensityArgs) -> Res {
             continue;
         }
         let (train, valid) = dataset.load_split(&a.data)?;
-        for transform in [Transform::Quadratic { bins: a.bins }, Transform::Affine] {
-            let config = DensityConfig::defaults(dataset, transform);
-            let name = format!("{}-{}", dataset.name(), transform.label());
+        let archs: Vec<Arch> = a
+            .archs
+            .split(',')
+            .map(str::parse)
+            .collect::<Result<_, _>>()?;
+        for (arch, transform) in archs.iter().flat_map(|&arch| {
+            [Transform::Quadratic { bins: a.bins }, Transform::Affine].map(|t| (arch, t))
+        }) {
+            let config = DensityConfig::defaults(dataset, arch, transform);
+            let name = format!(
+                "{}-{}",
+                dataset.name(),
+                config.model.label().replace(' ', "-")
+            );
             let out = a.out.join(&name);
             let mut session = Session::new(config.clone())?;
             // Epochs far beyond what the time allows: the budget ends the run.
@@ -423,7 +449,7 @@ pub fn run_bench(a: &BenchDensityArgs) -> Res {
                 stats.valid_bpd
             );
             if transform == Transform::Affine {
-                settings.push((dataset, config.clone(), minutes, train.len(), valid.len()));
+                settings.push((config.clone(), minutes, train.len(), valid.len()));
             }
             let best = session
                 .history()
@@ -456,7 +482,7 @@ pub fn run_bench(a: &BenchDensityArgs) -> Res {
 fn markdown(
     a: &BenchDensityArgs,
     rows: &[Row],
-    settings: &[(Dataset, DensityConfig, f64, usize, usize)],
+    settings: &[(DensityConfig, f64, usize, usize)],
 ) -> String {
     let images = a
         .docs_images
@@ -481,26 +507,37 @@ fn markdown(
          Settings:\n\n",
         a.minutes_digits, a.minutes_mnist, a.bins
     );
-    for (d, c, minutes, ntrain, nvalid) in settings {
+    for (c, minutes, ntrain, nvalid) in settings {
         let m = &c.model;
+        let model = match m.arch {
+            Arch::Mlp => format!(
+                "MLP coupling flow: {} couplings (binary masks on the pixel index and their \
+                 complements), conditioners one-blob {} → {}×{} ReLU MLP",
+                if m.couplings == 0 {
+                    2 * (usize::BITS - (m.dim() - 1).leading_zeros()) as usize
+                } else {
+                    m.couplings
+                },
+                m.blob_bins,
+                m.hidden_layers,
+                m.hidden_width
+            ),
+            Arch::MultiScale => format!(
+                "multi-scale flow: {} scales (3 checkerboard couplings, squeeze, 3 channel \
+                 couplings, factor out half; 4 checkerboard couplings at the end), conditioners \
+                 3×3 conv {} channels with {} residual blocks",
+                m.scales, m.features, m.blocks
+            ),
+        };
         t.push_str(&format!(
-            "* {}: {ntrain} training / {nvalid} validation images ({}×{}, fixed split), \
-             {} coupling layers ({}), conditioners one-blob {} → {}×{} ReLU MLP, Adam \
-             (learning rate {}, gradient norm clipped at {:?}), batch {}, {minutes} minutes \
-             of training per model (evaluation not counted); training bits/dim on the first \
-             {} training images.\n",
-            d.name(),
+            "* {} {}: {ntrain} training / {nvalid} validation images ({}×{}, fixed split), \
+             {model}; Adam (learning rate {}, gradient norm clipped at {:?}), batch {}, \
+             {minutes} minutes of training per model (evaluation not counted); training \
+             bits/dim on the first {} training images.\n",
+            c.dataset.name(),
+            m.label().split(' ').next().unwrap_or(""),
             m.width,
             m.height,
-            if m.couplings == 0 {
-                2 * (usize::BITS - (m.dim() - 1).leading_zeros()) as usize
-            } else {
-                m.couplings
-            },
-            "binary masks on the pixel index and their complements",
-            m.blob_bins,
-            m.hidden_layers,
-            m.hidden_width,
             c.learning_rate,
             c.clip_norm,
             c.batch,
@@ -530,19 +567,24 @@ fn markdown(
     }
     t.push_str("\nPaper check (piecewise-quadratic below affine in validation bits/dim):\n\n");
     for d in [Dataset::Digits, Dataset::Mnist] {
-        let v: Vec<&Row> = rows.iter().filter(|r| r.dataset == d).collect();
-        if let [pq, affine] = v.as_slice() {
-            let verdict = |a: f64, b: f64| if a < b { "yes" } else { "**no**" };
-            t.push_str(&format!(
-                "* {}: final {} ({:.4} vs {:.4}), best {} ({:.4} vs {:.4})\n",
-                d.name(),
-                verdict(pq.stats.valid_bpd, affine.stats.valid_bpd),
-                pq.stats.valid_bpd,
-                affine.stats.valid_bpd,
-                verdict(pq.best.valid_bpd, affine.best.valid_bpd),
-                pq.best.valid_bpd,
-                affine.best.valid_bpd
-            ));
+        for arch in ["mlp", "multiscale"] {
+            let v: Vec<&Row> = rows
+                .iter()
+                .filter(|r| r.dataset == d && r.label.starts_with(arch))
+                .collect();
+            if let [pq, affine] = v.as_slice() {
+                let verdict = |a: f64, b: f64| if a < b { "yes" } else { "**no**" };
+                t.push_str(&format!(
+                    "* {} {arch}: final {} ({:.4} vs {:.4}), best {} ({:.4} vs {:.4})\n",
+                    d.name(),
+                    verdict(pq.stats.valid_bpd, affine.stats.valid_bpd),
+                    pq.stats.valid_bpd,
+                    affine.stats.valid_bpd,
+                    verdict(pq.best.valid_bpd, affine.best.valid_bpd),
+                    pq.best.valid_bpd,
+                    affine.best.valid_bpd
+                ));
+            }
         }
     }
     t.push_str("\nSamples (left) and the latent manifold of four validation images (right):\n\n");

@@ -12,12 +12,14 @@
 //! exact change of variables inside q; the untrained flow (q ≡ 1) scores exactly log₂ L
 //! (4.087 for the 17-level digits, 8 for MNIST). Estimates use one u per image.
 //!
-//! - [`model`]: the models (a coupling flow with MLP conditioners on the flattened image).
+//! - [`model`]: the models: a coupling flow with MLP conditioners on the flattened image, and
+//!   RealNVP's multi-scale flow with convolutional conditioners ([`multiscale`]).
 //! - [`train`]: the training session with validation, checkpoints and resume.
 //! - [`figure`]: sample grids and the latent-space interpolation of the paper's Figure 4.
 
 pub mod figure;
 pub mod model;
+pub mod multiscale;
 pub mod train;
 
 pub use model::{Arch, Model, ModelConfig};

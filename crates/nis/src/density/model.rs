@@ -3,9 +3,12 @@
 //!
 //! - [`Arch::Mlp`]: the coupling flow of [`crate::flow`] on the flattened image — binary masks on
 //!   the pixel index, one-blob encoded MLP conditioners (Müller et al. 2019, Sec. 4).
+//! - [`Arch::MultiScale`]: RealNVP's multi-scale architecture with convolutional residual
+//!   conditioners ([`super::multiscale`]).
 
 use serde::{Deserialize, Serialize};
 
+use super::multiscale::{MsTape, MultiScale};
 use crate::error::{Error, Result};
 use crate::flow::{self, Flow, FlowConfig};
 use crate::spline::Transform;
@@ -16,6 +19,9 @@ use crate::spline::Transform;
 pub enum Arch {
     /// Coupling flow with MLP conditioners on the flattened image.
     Mlp,
+    /// RealNVP's multi-scale flow: checkerboard and channel masks, squeezes, factoring out,
+    /// convolutional residual conditioners.
+    MultiScale,
 }
 
 impl std::str::FromStr for Arch {
@@ -23,7 +29,10 @@ impl std::str::FromStr for Arch {
     fn from_str(s: &str) -> Result<Arch> {
         match s {
             "mlp" => Ok(Arch::Mlp),
-            _ => Err(Error::Config(format!("unknown architecture {s:?} (mlp)"))),
+            "multiscale" | "multi_scale" => Ok(Arch::MultiScale),
+            _ => Err(Error::Config(format!(
+                "unknown architecture {s:?} (mlp, multiscale)"
+            ))),
         }
     }
 }
@@ -38,13 +47,21 @@ pub struct ModelConfig {
     pub height: usize,
     /// The coupling transform (the paper: piecewise-quadratic with K = 4; the baseline: affine).
     pub transform: Transform,
-    /// Coupling layers (0: one pass of all binary masks, 2⌈log₂ D⌉).
+    /// MLP: coupling layers (0: one pass of all binary masks, 2⌈log₂ D⌉).
     pub couplings: usize,
-    /// Hidden layers and width of every conditioner.
+    /// MLP: hidden layers and width of every conditioner.
     pub hidden_layers: usize,
     pub hidden_width: usize,
-    /// One-blob bins per conditioner input.
+    /// MLP: one-blob bins per conditioner input.
     pub blob_bins: usize,
+    /// Multi-scale: number of squeezes (each followed by factoring out half of the channels).
+    #[serde(default)]
+    pub scales: usize,
+    /// Multi-scale: channels and residual blocks of every convolutional conditioner.
+    #[serde(default)]
+    pub features: usize,
+    #[serde(default)]
+    pub blocks: usize,
     /// Seed of the weight initialisation.
     pub seed: u64,
 }
@@ -59,6 +76,7 @@ impl ModelConfig {
     pub fn label(&self) -> String {
         let arch = match self.arch {
             Arch::Mlp => "mlp",
+            Arch::MultiScale => "multiscale",
         };
         format!("{arch} {}", self.transform.label())
     }
@@ -81,12 +99,14 @@ impl ModelConfig {
 #[derive(Clone, Debug)]
 pub enum Model {
     Mlp(Flow),
+    MultiScale(MultiScale),
 }
 
 /// What [`Model::log_density_for_training`] recorded for [`Model::backward`].
 #[derive(Clone, Debug)]
 pub enum ModelTape {
     Mlp(flow::Tape),
+    MultiScale(MsTape),
 }
 
 impl Model {
@@ -94,6 +114,15 @@ impl Model {
     pub fn new(config: &ModelConfig) -> Result<Model> {
         match config.arch {
             Arch::Mlp => Ok(Model::Mlp(Flow::new(config.flow_config())?)),
+            Arch::MultiScale => Ok(Model::MultiScale(MultiScale::new(
+                config.width,
+                config.height,
+                config.transform,
+                config.scales,
+                config.features,
+                config.blocks,
+                config.seed,
+            )?)),
         }
     }
 
@@ -106,6 +135,7 @@ impl Model {
     pub fn params(&self) -> &[f32] {
         match self {
             Model::Mlp(f) => f.params(),
+            Model::MultiScale(f) => f.params(),
         }
     }
 
@@ -113,6 +143,7 @@ impl Model {
     pub fn params_mut(&mut self) -> &mut [f32] {
         match self {
             Model::Mlp(f) => f.params_mut(),
+            Model::MultiScale(f) => f.params_mut(),
         }
     }
 
@@ -120,6 +151,7 @@ impl Model {
     pub fn log_density(&self, x: &[f32]) -> Result<Vec<f64>> {
         match self {
             Model::Mlp(f) => f.log_density(x, None),
+            Model::MultiScale(f) => f.log_density(x),
         }
     }
 
@@ -130,6 +162,10 @@ impl Model {
                 let e = f.log_density_for_training(x, None)?;
                 Ok((e.log_q, ModelTape::Mlp(e.tape)))
             }
+            Model::MultiScale(f) => {
+                let (log_q, tape) = f.log_density_for_training(x)?;
+                Ok((log_q, ModelTape::MultiScale(tape)))
+            }
         }
     }
 
@@ -137,6 +173,8 @@ impl Model {
     pub fn backward(&self, tape: &ModelTape, weights: &[f32]) -> Result<Vec<f32>> {
         match (self, tape) {
             (Model::Mlp(f), ModelTape::Mlp(t)) => f.backward(t, weights),
+            (Model::MultiScale(f), ModelTape::MultiScale(t)) => f.backward(t, weights),
+            _ => Err(Error::Config("the tape belongs to another model".into())),
         }
     }
 
@@ -144,6 +182,7 @@ impl Model {
     pub fn forward(&self, x: &[f32]) -> Result<(Vec<f32>, Vec<f64>)> {
         match self {
             Model::Mlp(f) => f.forward(x, None),
+            Model::MultiScale(f) => f.forward(x),
         }
     }
 
@@ -151,6 +190,7 @@ impl Model {
     pub fn inverse(&self, z: &[f32]) -> Result<Vec<f32>> {
         match self {
             Model::Mlp(f) => Ok(f.inverse(z, None)?.0),
+            Model::MultiScale(f) => f.inverse(z),
         }
     }
 }

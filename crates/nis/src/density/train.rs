@@ -386,17 +386,30 @@ impl DensityConfig {
     /// The settings `nis density train` and `nis bench density` start from: the same conditioner
     /// for every coupling transform, sized to train in minutes on two cores.
     ///
-    /// - digits (D = 64): 12 couplings (all binary masks), conditioners one-blob 8 → 2×64, batch 64.
-    /// - MNIST (D = 784): 8 couplings, conditioners one-blob 4 → 2×64, batch 128.
-    pub fn defaults(dataset: Dataset, transform: crate::spline::Transform) -> DensityConfig {
-        let (side, couplings, blob_bins, batch) = match dataset {
+    /// - MLP, digits (D = 64): 12 couplings (all binary masks), conditioners one-blob 8 → 2×64,
+    ///   batch 64. MNIST (D = 784): 8 couplings, one-blob 4 → 2×64, batch 128.
+    /// - Multi-scale: 2 scales (16 couplings), conditioners of 32 (digits) or 16 (MNIST) channels
+    ///   with 2 or 1 residual blocks, batch 64.
+    pub fn defaults(
+        dataset: Dataset,
+        arch: super::Arch,
+        transform: crate::spline::Transform,
+    ) -> DensityConfig {
+        let (side, couplings, blob_bins, mut batch) = match dataset {
             Dataset::Digits => (8, 0, 8, 64),
             Dataset::Mnist => (28, 8, 4, 128),
         };
+        let (features, blocks) = match dataset {
+            Dataset::Digits => (32, 2),
+            Dataset::Mnist => (16, 1),
+        };
+        if arch == super::Arch::MultiScale {
+            batch = 64;
+        }
         DensityConfig {
             dataset,
             model: ModelConfig {
-                arch: super::Arch::Mlp,
+                arch,
                 width: side,
                 height: side,
                 transform,
@@ -404,6 +417,9 @@ impl DensityConfig {
                 hidden_layers: 2,
                 hidden_width: 64,
                 blob_bins,
+                scales: 2,
+                features,
+                blocks,
                 seed: 0,
             },
             batch,
