@@ -347,7 +347,7 @@ fn interpolate(a: &InterpolateArgs) -> Res {
 #[derive(clap::Args)]
 pub struct BenchDensityArgs {
     /// Training minutes per model on the digits.
-    #[arg(long, default_value_t = 1.0)]
+    #[arg(long, default_value_t = 2.0)]
     minutes_digits: f64,
     /// Training minutes per model on MNIST.
     #[arg(long, default_value_t = 4.0)]

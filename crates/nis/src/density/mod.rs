@@ -17,6 +17,7 @@
 //! - [`train`]: the training session with validation, checkpoints and resume.
 //! - [`figure`]: sample grids and the latent-space interpolation of the paper's Figure 4.
 
+pub mod conv_net;
 pub mod figure;
 pub mod model;
 pub mod multiscale;
