@@ -525,13 +525,16 @@ fn markdown(
             Arch::MultiScale => format!(
                 "multi-scale flow: {} scales (3 checkerboard couplings, squeeze, 3 channel \
                  couplings, factor out half; 4 checkerboard couplings at the end), conditioners \
-                 3×3 conv {} channels with {} residual blocks",
-                m.scales, m.features, m.blocks
+                 3×3 conv {} channels with {} residual block{}",
+                m.scales,
+                m.features,
+                m.blocks,
+                if m.blocks == 1 { "" } else { "s" }
             ),
         };
         t.push_str(&format!(
             "* {} {}: {ntrain} training / {nvalid} validation images ({}×{}, fixed split), \
-             {model}; Adam (learning rate {}, gradient norm clipped at {:?}), batch {}, \
+             {model}; Adam (learning rate {}, gradient norm clipped at {}), batch {}, \
              {minutes} minutes of training per model (evaluation not counted); training \
              bits/dim on the first {} training images.\n",
             c.dataset.name(),
@@ -539,7 +542,7 @@ fn markdown(
             m.width,
             m.height,
             c.learning_rate,
-            c.clip_norm,
+            c.clip_norm.map_or("never".to_string(), |v| v.to_string()),
             c.batch,
             nis::density::train::TRAIN_EVAL_IMAGES.min(*ntrain),
         ));

@@ -163,16 +163,3 @@ fn split_is_fixed_disjoint_and_complete() {
     all.sort();
     assert_eq!(all, im.pixels);
 }
-
-/// The real digits, when `scripts/fetch-data.sh` has run (CI runs it before the tests).
-#[test]
-fn real_digits_load_when_fetched() {
-    let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../../data");
-    if !dir.join("digits.csv.gz").exists() {
-        eprintln!("data/digits.csv.gz absent: run scripts/fetch-data.sh");
-        return;
-    }
-    let (train, valid) = Dataset::Digits.load_split(&dir).unwrap();
-    assert_eq!((train.len(), valid.len()), (1497, 300));
-    assert_eq!(train.pixels.iter().max(), Some(&16));
-}
