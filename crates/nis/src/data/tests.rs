@@ -163,3 +163,19 @@ fn split_is_fixed_disjoint_and_complete() {
     all.sort();
     assert_eq!(all, im.pixels);
 }
+
+#[test]
+fn mnist_prefers_the_full_idx_file_and_names_missing_files() {
+    let dir = scratch("mnist-idx");
+    let err = Dataset::Mnist.load(&dir).unwrap_err();
+    assert!(matches!(err, Error::MissingData { .. }), "{err}");
+    std::fs::write(
+        dir.join("train-images-idx3-ubyte.gz"),
+        gzip(&idx_bytes(3, 28, 28)),
+    )
+    .unwrap();
+    let im = Dataset::Mnist.load(&dir).unwrap();
+    assert_eq!((im.len(), im.width, im.height, im.levels), (3, 28, 28, 256));
+    assert!("mnist".parse::<Dataset>().is_ok() && "cifar".parse::<Dataset>().is_err());
+    std::fs::remove_dir_all(&dir).ok();
+}
