@@ -29,7 +29,7 @@ pub enum Coupling {
 }
 
 impl Coupling {
-    fn transform(self, bins: usize) -> Transform {
+    pub fn transform(self, bins: usize) -> Transform {
         match self {
             Coupling::Pq => Transform::Quadratic { bins },
             Coupling::Pl => Transform::Linear { bins },

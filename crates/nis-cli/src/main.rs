@@ -2,6 +2,7 @@
 //! it parses arguments, shows progress and prints; all logic lives in the library.
 
 mod bench;
+mod density;
 mod fit_image;
 mod guiding;
 mod integrate;
@@ -50,6 +51,11 @@ enum Command {
     ///
     /// Example: nis fit-image --target rings --coupling pq --layers 2 --out out/rings
     FitImage(fit_image::FitImageArgs),
+    /// Density estimation of real images (train, sample, interpolate), as in the paper's Figure 4.
+    ///
+    /// Example: nis density train --dataset digits --coupling pq --epochs 50 --out out/digits-pq
+    #[command(subcommand)]
+    Density(density::DensityCommand),
     /// Measure throughput and write it to docs/BENCHMARKS.md.
     #[command(subcommand)]
     Bench(BenchCommand),
@@ -92,6 +98,10 @@ enum BenchCommand {
     /// reference at equal samples and equal time; writes montages and a table to
     /// docs/REPRODUCTION.md. Example: nis bench guiding --scene two-rooms-door
     Guiding(guiding::BenchGuidingArgs),
+    /// Piecewise-quadratic against affine couplings at the same architecture and training time
+    /// on the real digits and MNIST; writes a table and PNGs to docs/REPRODUCTION.md.
+    /// Example: nis bench density --minutes-digits 2 --minutes-mnist 4
+    Density(density::BenchDensityArgs),
 }
 
 fn main() -> ExitCode {
@@ -114,6 +124,8 @@ fn main() -> ExitCode {
         Command::FitImage(args) => fit_image::run(&args),
         Command::Bench(BenchCommand::FitImage(args)) => fit_image::run_bench(&args),
         Command::Bench(BenchCommand::Guiding(args)) => guiding::run_bench(&args),
+        Command::Density(cmd) => density::run(&cmd),
+        Command::Bench(BenchCommand::Density(args)) => density::run_bench(&args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

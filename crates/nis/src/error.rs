@@ -48,6 +48,12 @@ pub enum Error {
     /// A target that is no usable density: empty, all black, negative or non-finite.
     #[error("target {name}: {reason}")]
     Target { name: String, reason: String },
+    /// A data file that exists but cannot be read as the images it should hold.
+    #[error("data file {path}: {reason}")]
+    Data { path: PathBuf, reason: String },
+    /// A data file that is not there.
+    #[error("data file {path} not found: run scripts/fetch-data.sh (it fetches the image sets into data/)")]
+    MissingData { path: PathBuf },
     /// A figure (PNG plot or false-colour image) that could not be drawn or encoded.
     #[error("figure: {0}")]
     Figure(String),

@@ -46,12 +46,12 @@ pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<()> {
 }
 
 /// FNV-1a, 64 bit: detects corrupted weights (not an adversary).
-fn fnv1a(h: u64, bytes: &[u8]) -> u64 {
+pub(crate) fn fnv1a(h: u64, bytes: &[u8]) -> u64 {
     bytes
         .iter()
         .fold(h, |h, &b| (h ^ b as u64).wrapping_mul(0x100_0000_01b3))
 }
-const FNV_OFFSET: u64 = 0xcbf2_9ce4_8422_2325;
+pub(crate) const FNV_OFFSET: u64 = 0xcbf2_9ce4_8422_2325;
 
 /// The tensors of a flow: (name, shape, parameter range), in a fixed order.
 fn layout(flow: &Flow) -> Vec<(String, Vec<usize>, std::ops::Range<usize>)> {

@@ -9,8 +9,13 @@
 //! - [`flow`]: coupling layers, masks, the flow and its config.
 //! - [`loss`] and [`train`]: sample weights of the KL, χ² and NLL gradients; Adam steps.
 //! - [`io`]: saving and loading flows (config JSON + safetensors, atomic writes).
-//! - [`kernels`] and [`nn`]: the fused CPU kernels, the MLP and Adam.
+//! - [`kernels`] and [`nn`]: the fused CPU kernels (dense layers, 3×3 convolutions), the MLP and
+//!   Adam.
+//! - [`data`] and [`density`]: real image sets (sklearn digits, MNIST) and density estimation in
+//!   bits/dim with coupling and multi-scale flows (the paper's Sec. 5.1).
 
+pub mod data;
+pub mod density;
 pub mod error;
 pub mod flow;
 pub mod image;

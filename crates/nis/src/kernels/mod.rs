@@ -4,6 +4,7 @@
 //! callers split the batch into fixed chunks and run those in parallel, which keeps results
 //! independent of the thread count.
 
+pub mod conv;
 pub mod dense;
 pub mod elementwise;
 

@@ -73,6 +73,24 @@ impl Adam {
         })
     }
 
+    /// The moments (m, v), for checkpoints.
+    pub fn moments(&self) -> (&[f32], &[f32]) {
+        (&self.m, &self.v)
+    }
+
+    /// An optimiser restored from a checkpoint: its moments and step count.
+    pub fn from_state(config: AdamConfig, m: Vec<f32>, v: Vec<f32>, step: u64) -> Result<Adam> {
+        config.validate()?;
+        if m.len() != v.len() {
+            return Err(Error::Dimension {
+                what: "Adam moments",
+                expected: m.len(),
+                got: v.len(),
+            });
+        }
+        Ok(Adam { config, m, v, step })
+    }
+
     /// Steps taken so far.
     pub fn steps(&self) -> u64 {
         self.step

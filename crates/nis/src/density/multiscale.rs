@@ -1,0 +1,503 @@
+//! The multi-scale architecture of RealNVP (Dinh, Sohl-Dickstein, Bengio 2016, Sec. 3.6), on
+//! [0, 1]^D with spline couplings and no batch normalisation, as the paper uses it for CelebA
+//! (Müller et al. 2019, Sec. 5.1).
+//!
+//! At each scale: three couplings with checkerboard masks (alternating parity), a squeeze (every
+//! 2×2×c block becomes a 1×1×4c pixel), three couplings with channel masks (alternating halves),
+//! and half of the channels are factored out: they leave the flow — their latent is the current
+//! value, uniform under the model, so they add nothing to ln q beyond the layers they passed. The
+//! last scale (or the first whose sides are odd) has four checkerboard couplings. 8×8 digits:
+//! 8×8×1 → 4×4×2 → 2×2×4; MNIST: 28×28×1 → 14×14×2 → 7×7×4.
+//!
+//! No data move: every coupling knows, for each entry (y, x, channel) of the tensor it acts on,
+//! the entry's position in the flat image (`idx`), so squeezing and factoring out are index maps.
+//! A coupling's conditioner is a small residual network of 3×3 convolutions
+//! ([`crate::kernels::conv`]) on the unchanged half (checkerboard: the image with the changed half
+//! zeroed plus the mask as a channel; channel masks: the unchanged channels), whose output gives
+//! every changed scalar its spline parameters (zero-initialised last layer: a new flow is the
+//! identity). Chunks of [`IMAGES_PER_CHUNK`] images run in parallel; gradients are summed in chunk
+//! order, so results do not depend on the thread count.
+
+use rand::SeedableRng;
+use rand_pcg::Pcg64Mcg;
+use rayon::prelude::*;
+
+use crate::error::{Error, Result};
+use crate::flow::coupling::Direction;
+use crate::spline::{with_spline, Spline, Transform};
+
+pub use super::conv_net::{ConvNet, NetTape};
+
+/// Images per parallel work item. Fixed, so results do not depend on the number of threads.
+pub const IMAGES_PER_CHUNK: usize = 8;
+
+/// Which half of a tensor a coupling leaves alone (A) and which it transforms (B).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Mask {
+    /// A: pixels with (y + x) mod 2 = parity, all channels.
+    Checkerboard { parity: usize },
+    /// A: the first half of the channels (or the second), at every pixel.
+    Channel { a_first: bool },
+}
+
+/// One coupling of the multi-scale flow: the tensor it sees (h × w × c entries at flat positions
+/// `idx`, in (y, x, channel) order), its mask and its conditioner.
+#[derive(Clone, Debug)]
+pub struct MsCoupling {
+    pub h: usize,
+    pub w: usize,
+    pub c: usize,
+    pub idx: Vec<usize>,
+    pub mask: Mask,
+    pub net: ConvNet,
+}
+
+impl MsCoupling {
+    /// Whether entry (pixel p = y·w + x, channel ch) is in the unchanged half A.
+    fn in_a(&self, p: usize, ch: usize) -> bool {
+        match self.mask {
+            Mask::Checkerboard { parity } => (p / self.w + p % self.w) % 2 == parity,
+            Mask::Channel { a_first } => (ch < self.c / 2) == a_first,
+        }
+    }
+
+    /// Position of B entry (p, ch)'s parameters in its pixel's conditioner output.
+    fn param_slot(&self, ch: usize) -> usize {
+        match self.mask {
+            Mask::Checkerboard { .. } => ch,
+            Mask::Channel { .. } => ch % (self.c / 2),
+        }
+    }
+
+    /// Conditioner input channel of A entry (p, ch).
+    fn input_slot(&self, ch: usize) -> usize {
+        self.param_slot(ch)
+    }
+
+    /// The conditioner input of `n` rows of `u`: A entries as 2u − 1, B entries 0 (and, for
+    /// checkerboards, the mask as a last channel).
+    fn input(&self, u: &[f32], n: usize, dim: usize) -> Vec<f32> {
+        let (hw, ci) = (self.h * self.w, self.net.c_in);
+        let mut x = vec![0.0; n * hw * ci];
+        for r in 0..n {
+            for p in 0..hw {
+                let row = &mut x[(r * hw + p) * ci..(r * hw + p + 1) * ci];
+                for ch in 0..self.c {
+                    if self.in_a(p, ch) {
+                        row[self.input_slot(ch)] =
+                            2.0 * u[r * dim + self.idx[p * self.c + ch]] - 1.0;
+                    }
+                }
+                if let Mask::Checkerboard { .. } = self.mask {
+                    row[self.c] = if self.in_a(p, 0) { 1.0 } else { 0.0 };
+                }
+            }
+        }
+        x
+    }
+
+    /// Runs the conditioner and transforms the B entries of `n` rows of `u` in place, adding
+    /// each row's ln|det| to `log_det`.
+    fn apply(
+        &self,
+        params: &[f32],
+        transform: Transform,
+        u: &mut [f32],
+        dim: usize,
+        log_det: &mut [f64],
+        direction: Direction,
+    ) -> NetTape {
+        let n = log_det.len();
+        let net_params = &params[self.net.offset..self.net.offset + self.net.param_count()];
+        let tape = self
+            .net
+            .forward(net_params, self.input(u, n, dim), n, self.h, self.w);
+        let (hw, co) = (self.h * self.w, self.net.c_out);
+        let np = transform.param_count();
+        with_spline!(transform, s => {
+            for r in 0..n {
+                for p in 0..hw {
+                    let out = &tape.out[(r * hw + p) * co..(r * hw + p + 1) * co];
+                    for ch in 0..self.c {
+                        if self.in_a(p, ch) {
+                            continue;
+                        }
+                        let at = self.param_slot(ch) * np;
+                        let k = r * dim + self.idx[p * self.c + ch];
+                        let v = u[k] as f64;
+                        let (v, ld) = match direction {
+                            Direction::Forward => s.forward(&out[at..at + np], v),
+                            Direction::Inverse => s.inverse(&out[at..at + np], v),
+                        };
+                        u[k] = v as f32;
+                        log_det[r] += ld;
+                    }
+                }
+            }
+        });
+        tape
+    }
+
+    /// Reverse mode through this coupling for one chunk: `input` is the coupling's input (x side),
+    /// `g_u` holds ∂L/∂output on entry and ∂L/∂input on exit (the A part only when
+    /// `want_input`), `g_log_det[r]` is ∂L/∂ln|det| of row r; writes the conditioner's parameter
+    /// gradient into `grads` (its slice).
+    fn backward(
+        &self,
+        params: &[f32],
+        transform: Transform,
+        tape: &NetTape,
+        input: &[f32],
+        dim: usize,
+        g_u: &mut [f32],
+        g_log_det: &[f32],
+        grads: &mut [f32],
+        want_input: bool,
+    ) {
+        let n = g_log_det.len();
+        let (hw, co) = (self.h * self.w, self.net.c_out);
+        let np = transform.param_count();
+        let mut g_out = vec![0.0f32; n * hw * co];
+        with_spline!(transform, s => {
+            for r in 0..n {
+                for p in 0..hw {
+                    let row = (r * hw + p) * co;
+                    for ch in 0..self.c {
+                        if self.in_a(p, ch) {
+                            continue;
+                        }
+                        let at = row + self.param_slot(ch) * np;
+                        let k = r * dim + self.idx[p * self.c + ch];
+                        let g_x = s.backward(
+                            &tape.out[at..at + np],
+                            input[k] as f64,
+                            g_u[k] as f64,
+                            g_log_det[r] as f64,
+                            &mut g_out[at..at + np],
+                        );
+                        g_u[k] = g_x as f32;
+                    }
+                }
+            }
+        });
+        let net_params = &params[self.net.offset..self.net.offset + self.net.param_count()];
+        let g_in = self.net.backward(
+            net_params,
+            tape,
+            &g_out,
+            grads,
+            (n, self.h, self.w),
+            want_input,
+        );
+        if let Some(g_in) = g_in {
+            let ci = self.net.c_in;
+            for r in 0..n {
+                for p in 0..hw {
+                    for ch in 0..self.c {
+                        if self.in_a(p, ch) {
+                            let k = r * dim + self.idx[p * self.c + ch];
+                            g_u[k] += 2.0 * g_in[(r * hw + p) * ci + self.input_slot(ch)];
+                        }
+                    }
+                }
+            }
+        }
+    }
+}
+
+/// The tensors the couplings act on: (h, w, c, idx, mask) per coupling, data-to-latent order.
+fn architecture(
+    width: usize,
+    height: usize,
+    scales: usize,
+) -> Vec<(usize, usize, usize, Vec<usize>, Mask)> {
+    let (mut h, mut w, mut c) = (height, width, 1);
+    let mut idx: Vec<usize> = (0..h * w).collect();
+    let mut layers = Vec::new();
+    let mut s = 0;
+    loop {
+        let last = s == scales || h % 2 == 1 || w % 2 == 1;
+        for i in 0..if last { 4 } else { 3 } {
+            layers.push((h, w, c, idx.clone(), Mask::Checkerboard { parity: i % 2 }));
+        }
+        if last {
+            return layers;
+        }
+        let (h2, w2, c2) = (h / 2, w / 2, 4 * c);
+        let mut sq = vec![0; h2 * w2 * c2];
+        for y in 0..h2 {
+            for x in 0..w2 {
+                for ch in 0..c {
+                    for dy in 0..2 {
+                        for dx in 0..2 {
+                            sq[(y * w2 + x) * c2 + ch * 4 + dy * 2 + dx] =
+                                idx[((2 * y + dy) * w + 2 * x + dx) * c + ch];
+                        }
+                    }
+                }
+            }
+        }
+        for i in 0..3 {
+            layers.push((
+                h2,
+                w2,
+                c2,
+                sq.clone(),
+                Mask::Channel {
+                    a_first: i % 2 == 0,
+                },
+            ));
+        }
+        let keep = c2 / 2;
+        idx = (0..h2 * w2)
+            .flat_map(|p| sq[p * c2..p * c2 + keep].to_vec())
+            .collect();
+        (h, w, c, s) = (h2, w2, keep, s + 1);
+    }
+}
+
+/// The multi-scale flow.
+#[derive(Clone, Debug)]
+pub struct MultiScale {
+    dim: usize,
+    transform: Transform,
+    couplings: Vec<MsCoupling>,
+    params: Vec<f32>,
+    version: u64,
+}
+
+/// What a forward pass recorded: per chunk, per coupling, its input and its conditioner's tape.
+#[derive(Clone, Debug)]
+pub struct MsTape {
+    version: u64,
+    rows: usize,
+    chunks: Vec<Vec<(Vec<f32>, NetTape)>>,
+}
+
+impl MultiScale {
+    /// A new flow (the identity) for `width × height` images with `scales` squeezes, conditioners
+    /// of `features` channels and `blocks` residual blocks, weights from `seed`.
+    pub fn new(
+        width: usize,
+        height: usize,
+        transform: Transform,
+        scales: usize,
+        features: usize,
+        blocks: usize,
+        seed: u64,
+    ) -> Result<MultiScale> {
+        transform.validate()?;
+        if width < 2
+            || height < 2
+            || width * height > 1 << 16
+            || features == 0
+            || features > 1024
+            || blocks > 32
+        {
+            return Err(Error::Config(format!(
+                "multi-scale flow: {width}×{height} images, {features} features, {blocks} blocks is no valid shape"
+            )));
+        }
+        let np = transform.param_count();
+        let mut offset = 0;
+        let mut couplings = Vec::new();
+        for (h, w, c, idx, mask) in architecture(width, height, scales) {
+            let (c_in, c_out) = match mask {
+                Mask::Checkerboard { .. } => (c + 1, c * np),
+                Mask::Channel { .. } => (c / 2, c / 2 * np),
+            };
+            let net = ConvNet {
+                c_in,
+                features,
+                blocks,
+                c_out,
+                offset,
+            };
+            offset += net.param_count();
+            couplings.push(MsCoupling {
+                h,
+                w,
+                c,
+                idx,
+                mask,
+                net,
+            });
+        }
+        let mut params = vec![0.0; offset];
+        let mut rng = Pcg64Mcg::seed_from_u64(seed);
+        for c in &couplings {
+            c.net.init(
+                &mut params[c.net.offset..c.net.offset + c.net.param_count()],
+                &mut rng,
+            );
+        }
+        Ok(MultiScale {
+            dim: width * height,
+            transform,
+            couplings,
+            params,
+            version: 0,
+        })
+    }
+
+    pub fn couplings(&self) -> &[MsCoupling] {
+        &self.couplings
+    }
+
+    pub fn params(&self) -> &[f32] {
+        &self.params
+    }
+
+    /// Mutable parameters; invalidates tapes recorded before.
+    pub fn params_mut(&mut self) -> &mut [f32] {
+        self.version += 1;
+        &mut self.params
+    }
+
+    fn check_points(&self, x: &[f32]) -> Result<usize> {
+        let dim = self.dim;
+        if x.len() % dim != 0 {
+            return Err(Error::Dimension {
+                what: "images (length must be a multiple of the pixel count)",
+                expected: dim * (x.len() / dim + 1),
+                got: x.len(),
+            });
+        }
+        if let Some(i) = x.iter().position(|v| !(0.0..=1.0).contains(v)) {
+            return Err(Error::OutOfDomain {
+                index: i / dim,
+                coord: i % dim,
+                value: x[i] as f64,
+            });
+        }
+        Ok(x.len() / dim)
+    }
+
+    fn run(&self, u: &mut [f32], direction: Direction, record: bool) -> (Vec<f64>, Option<MsTape>) {
+        let dim = self.dim;
+        let rows = u.len() / dim;
+        let mut log_q = vec![0.0f64; rows];
+        let chunks: Vec<Vec<(Vec<f32>, NetTape)>> = u
+            .par_chunks_mut(IMAGES_PER_CHUNK * dim)
+            .zip(log_q.par_chunks_mut(IMAGES_PER_CHUNK))
+            .map(|(u, log_q)| {
+                let mut layers = Vec::new();
+                let order: Vec<usize> = match direction {
+                    Direction::Forward => (0..self.couplings.len()).collect(),
+                    Direction::Inverse => (0..self.couplings.len()).rev().collect(),
+                };
+                for l in order {
+                    let input = (record && direction == Direction::Forward).then(|| u.to_vec());
+                    let tape = self.couplings[l].apply(
+                        &self.params,
+                        self.transform,
+                        u,
+                        dim,
+                        log_q,
+                        direction,
+                    );
+                    if record {
+                        layers.push((input.unwrap_or_else(|| u.to_vec()), tape));
+                    }
+                }
+                if direction == Direction::Inverse {
+                    layers.reverse();
+                }
+                layers
+            })
+            .collect();
+        let tape = record.then_some(MsTape {
+            version: self.version,
+            rows,
+            chunks,
+        });
+        (log_q, tape)
+    }
+
+    /// ln q of each image (row of `x`).
+    pub fn log_density(&self, x: &[f32]) -> Result<Vec<f64>> {
+        Ok(self.forward(x)?.1)
+    }
+
+    /// ln q with the tape for [`MultiScale::backward`].
+    pub fn log_density_for_training(&self, x: &[f32]) -> Result<(Vec<f64>, MsTape)> {
+        self.check_points(x)?;
+        let mut z = x.to_vec();
+        let (log_q, tape) = self.run(&mut z, Direction::Forward, true);
+        Ok((log_q, tape.expect("recorded")))
+    }
+
+    /// Data to latent: z and ln q(x).
+    pub fn forward(&self, x: &[f32]) -> Result<(Vec<f32>, Vec<f64>)> {
+        self.check_points(x)?;
+        let mut z = x.to_vec();
+        let (log_q, _) = self.run(&mut z, Direction::Forward, false);
+        Ok((z, log_q))
+    }
+
+    /// Latent to data.
+    pub fn inverse(&self, z: &[f32]) -> Result<Vec<f32>> {
+        self.check_points(z)?;
+        let mut x = z.to_vec();
+        self.run(&mut x, Direction::Inverse, false);
+        Ok(x)
+    }
+
+    /// Gradient of −Σ_i w_i ln q(x_i; θ) for the images whose pass recorded `tape`. Every chunk
+    /// runs its whole reverse pass into its own gradient; the chunks' gradients are summed in
+    /// chunk order.
+    pub fn backward(&self, tape: &MsTape, weights: &[f32]) -> Result<Vec<f32>> {
+        if tape.version != self.version {
+            return Err(Error::Config(
+                "the tape was recorded before the parameters changed".into(),
+            ));
+        }
+        if weights.len() != tape.rows {
+            return Err(Error::Dimension {
+                what: "sample weights",
+                expected: tape.rows,
+                got: weights.len(),
+            });
+        }
+        let dim = self.dim;
+        let per_chunk: Vec<Vec<f32>> = tape
+            .chunks
+            .par_iter()
+            .enumerate()
+            .map(|(c, layers)| {
+                let r0 = c * IMAGES_PER_CHUNK;
+                let n = layers[0].0.len() / dim;
+                let g_ld: Vec<f32> = weights[r0..r0 + n].iter().map(|w| -w).collect();
+                let mut g_u = vec![0.0f32; n * dim];
+                let mut grads = vec![0.0f32; self.params.len()];
+                for (l, coupling) in self.couplings.iter().enumerate().rev() {
+                    let (input, net_tape) = &layers[l];
+                    let range =
+                        coupling.net.offset..coupling.net.offset + coupling.net.param_count();
+                    coupling.backward(
+                        &self.params,
+                        self.transform,
+                        net_tape,
+                        input,
+                        dim,
+                        &mut g_u,
+                        &g_ld,
+                        &mut grads[range],
+                        l > 0,
+                    );
+                }
+                grads
+            })
+            .collect();
+        let mut grads = vec![0.0f32; self.params.len()];
+        for g in per_chunk {
+            for (a, b) in grads.iter_mut().zip(&g) {
+                *a += b;
+            }
+        }
+        Ok(grads)
+    }
+}
+
+#[cfg(test)]
+mod tests;
