@@ -5,7 +5,9 @@
 use glam::{Vec2, Vec3};
 use nis_render::bvh::Aabb;
 use nis_render::geometry::Rgb;
+use nis_render::guiding::gmm::{Gmm, GmmConfig};
 use nis_render::guiding::neural::{from_cylindrical, to_cylindrical, NisGuide, NisGuideConfig};
+use nis_render::guiding::ppg::{Ppg, PpgConfig};
 use nis_render::guiding::{Guide, GuideRecord, GuideVertex, NoGuide};
 use nis_render::integrator::{Integrator, Strategy};
 use nis_render::render::{render, render_guided, Budget};
@@ -286,24 +288,31 @@ fn cube_scene(origin: &str, light: bool) -> nis_render::scene::Scene {
 
 #[test]
 fn scenes_without_light_or_with_the_camera_inside_a_mesh_render_black() {
+    // Every guide, not only the neural one.
     for (origin, light) in [("0, 1, 4", false), ("0, 0, 0.2", true)] {
         let scene = cube_scene(origin, light);
         let integrator = Integrator::from_scene(&scene, Strategy::Mis);
-        let mut guide = NisGuide::new(scene.bounds(), NisGuideConfig::default()).unwrap();
-        let out = render_guided(
-            &scene,
-            &integrator,
-            Budget::Samples(8),
-            1,
-            &mut guide,
-            &|_| {},
-        );
-        assert_eq!(out.stats.invalid, 0);
-        assert!(
-            out.image.pixels.iter().all(|p| *p == Rgb::ZERO),
-            "camera at {origin}, light {light}: {}",
-            out.image.mean()
-        );
+        let guides: Vec<Box<dyn Guide>> = vec![
+            Box::new(NisGuide::new(scene.bounds(), NisGuideConfig::default()).unwrap()),
+            Box::new(Ppg::new(scene.bounds(), PpgConfig::default())),
+            Box::new(Gmm::new(scene.bounds(), GmmConfig::default())),
+        ];
+        for mut guide in guides {
+            let out = render_guided(
+                &scene,
+                &integrator,
+                Budget::Samples(8),
+                1,
+                guide.as_mut(),
+                &|_| {},
+            );
+            assert_eq!(out.stats.invalid, 0);
+            assert!(
+                out.image.pixels.iter().all(|p| *p == Rgb::ZERO),
+                "camera at {origin}, light {light}: {}",
+                out.image.mean()
+            );
+        }
     }
     // The lit cube seen from outside is not black (the scene itself is fine).
     let scene = cube_scene("0, 2.5, 4", true);
