@@ -120,6 +120,20 @@ fn untrained_guide_is_uniform_and_unselected() {
 }
 
 #[test]
+fn selection_network_waits_for_one_training_phase() {
+    let material = nis_render::bsdf::Material::new(nis_render::bsdf::Bsdf::Diffuse {
+        reflectance: Rgb::splat(0.5),
+    });
+    // After the first phase only the flow has learned: the guide is used half of the time.
+    let once = trained_guide(1, 4096);
+    assert_eq!(once.selection_probability(&vertex(), &material), 0.5);
+    // Then the selection network learns too (here the guide is far better than the BSDF's
+    // uniform density, so it is chosen more often).
+    let twice = trained_guide(2, 4096);
+    assert!(twice.selection_probability(&vertex(), &material) > 0.5);
+}
+
+#[test]
 fn trained_density_is_normalised_concentrated_and_matches_its_samples() {
     let guide = trained_guide(4, 16_384);
     assert_eq!(guide.history().len(), 4);

@@ -87,6 +87,9 @@ pub struct NisGuideConfig {
     pub selection_width: usize,
     /// Smallest selection probability of either technique.
     pub min_selection: f32,
+    /// Training phases during which only the flow learns and the selection network keeps
+    /// its initial ½ (an untrained flow would teach it to avoid the guide).
+    pub selection_warmup: usize,
     /// Records per training step.
     pub batch: usize,
     /// Adam steps after a training pass, at least (and about one per `batch` new records).
@@ -115,6 +118,7 @@ impl Default for NisGuideConfig {
             context_bins: 16,
             selection_width: 32,
             min_selection: 0.05,
+            selection_warmup: 1,
             batch: 4096,
             min_steps: 40,
             max_steps: 400,
@@ -310,8 +314,8 @@ impl NisGuide {
         (tapes, c)
     }
 
-    /// One Adam step of both networks on `batch`.
-    fn step(&mut self, batch: &[Sample]) -> nis::Result<TrainingStats> {
+    /// One Adam step on `batch`: of the flow, and of the selection network when `selection`.
+    fn step(&mut self, batch: &[Sample], selection: bool) -> nis::Result<TrainingStats> {
         let n = batch.len();
         let scalars: Vec<_> = batch.iter().map(|s| s.context).collect();
         let context = self.encode(&scalars);
@@ -362,6 +366,9 @@ impl NisGuide {
         stats.loss = loss / n as f64;
         let g_flow = self.flow.backward(&evaluated.tape, &w_flow)?;
         self.flow_adam.step(self.flow.params_mut(), &g_flow)?;
+        if !selection {
+            return Ok(stats);
+        }
         let g_out: Vec<Vec<f32>> = g_logit.chunks(CHUNK_ROWS).map(<[f32]>::to_vec).collect();
         let refs: Vec<&MlpTape> = tapes.iter().collect();
         let mut g_sel = vec![0.0; self.selection_params.len()];
@@ -396,7 +403,7 @@ impl NisGuide {
                 batch.clear();
                 batch
                     .extend((0..size).map(|_| self.buffer[rng.random_range(0..self.buffer.len())]));
-                match self.step(&batch) {
+                match self.step(&batch, self.history.len() >= self.config.selection_warmup) {
                     Ok(s) => {
                         stats.mean_selection = s.mean_selection;
                         stats.loss = s.loss;
