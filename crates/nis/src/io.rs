@@ -123,20 +123,30 @@ pub fn load_with(path: &Path) -> Result<(Flow, HashMap<String, String>)> {
     })
 }
 
-/// Parses a model file's bytes; the error says what is wrong with them.
-pub fn from_bytes(bytes: &[u8]) -> std::result::Result<(Flow, HashMap<String, String>), String> {
+/// The metadata of a safetensors file that nis wrote as `what`, checked for the format tag.
+pub(crate) fn read_metadata(
+    bytes: &[u8],
+    format: &str,
+    what: &str,
+) -> std::result::Result<HashMap<String, String>, String> {
     let (_, header) = SafeTensors::read_metadata(bytes)
         .map_err(|e| format!("not a readable safetensors file ({e})"))?;
     let meta = header
         .metadata()
         .clone()
-        .ok_or("no metadata: not a nis model")?;
-    if meta.get("format").map(String::as_str) != Some(FORMAT) {
+        .ok_or_else(|| format!("no metadata: not {what}"))?;
+    if meta.get("format").map(String::as_str) != Some(format) {
         return Err(format!(
-            "format is {:?}, expected {FORMAT:?}",
+            "format is {:?}, expected {format:?}",
             meta.get("format")
         ));
     }
+    Ok(meta)
+}
+
+/// Parses a model file's bytes; the error says what is wrong with them.
+pub fn from_bytes(bytes: &[u8]) -> std::result::Result<(Flow, HashMap<String, String>), String> {
+    let meta = read_metadata(bytes, FORMAT, "a nis model")?;
     let config: FlowConfig = serde_json::from_str(meta.get("config").ok_or("no config")?)
         .map_err(|e| format!("config is not valid: {e}"))?;
     let mut flow = Flow::new(config).map_err(|e| e.to_string())?;

@@ -355,22 +355,11 @@ impl MultiScale {
     }
 
     fn check_points(&self, x: &[f32]) -> Result<usize> {
-        let dim = self.dim;
-        if x.len() % dim != 0 {
-            return Err(Error::Dimension {
-                what: "images (length must be a multiple of the pixel count)",
-                expected: dim * (x.len() / dim + 1),
-                got: x.len(),
-            });
-        }
-        if let Some(i) = x.iter().position(|v| !(0.0..=1.0).contains(v)) {
-            return Err(Error::OutOfDomain {
-                index: i / dim,
-                coord: i % dim,
-                value: x[i] as f64,
-            });
-        }
-        Ok(x.len() / dim)
+        crate::flow::check_points(
+            x,
+            self.dim,
+            "images (length must be a multiple of the pixel count)",
+        )
     }
 
     fn run(&self, u: &mut [f32], direction: Direction, record: bool) -> (Vec<f64>, Option<MsTape>) {

@@ -328,18 +328,7 @@ pub fn evaluate(model: &Model, images: &Images) -> Result<f64> {
 }
 
 fn from_bytes(bytes: &[u8]) -> std::result::Result<Session, String> {
-    let (_, header) = SafeTensors::read_metadata(bytes)
-        .map_err(|e| format!("not a readable safetensors file ({e})"))?;
-    let meta = header
-        .metadata()
-        .clone()
-        .ok_or("no metadata: not a nis checkpoint")?;
-    if meta.get("format").map(String::as_str) != Some(FORMAT) {
-        return Err(format!(
-            "format is {:?}, expected {FORMAT:?}",
-            meta.get("format")
-        ));
-    }
+    let meta = crate::io::read_metadata(bytes, FORMAT, "a nis checkpoint")?;
     let config: DensityConfig = serde_json::from_str(meta.get("config").ok_or("no config")?)
         .map_err(|e| format!("config is not valid: {e}"))?;
     let state: State = serde_json::from_str(meta.get("state").ok_or("no state")?)

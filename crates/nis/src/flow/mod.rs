@@ -341,22 +341,11 @@ impl Flow {
 
     /// Checks that `x` holds whole points inside [0, 1]; returns their number.
     pub fn check_points(&self, x: &[f32]) -> Result<usize> {
-        let dim = self.dim();
-        if x.len() % dim != 0 {
-            return Err(Error::Dimension {
-                what: "points (length must be a multiple of the dimension)",
-                expected: dim * (x.len() / dim + 1),
-                got: x.len(),
-            });
-        }
-        if let Some(i) = x.iter().position(|v| !(0.0..=1.0).contains(v)) {
-            return Err(Error::OutOfDomain {
-                index: i / dim,
-                coord: i % dim,
-                value: x[i] as f64,
-            });
-        }
-        Ok(x.len() / dim)
+        check_points(
+            x,
+            self.dim(),
+            "points (length must be a multiple of the dimension)",
+        )
     }
 
     fn check_context(&self, n: usize, ctx: Option<&[f32]>) -> Result<()> {
@@ -382,3 +371,23 @@ impl Flow {
 
 #[cfg(test)]
 mod tests;
+
+/// Checks that `x` holds whole rows of `dim` values inside [0, 1] (`what` names the rows in the
+/// error); returns the number of rows.
+pub(crate) fn check_points(x: &[f32], dim: usize, what: &'static str) -> Result<usize> {
+    if x.len() % dim != 0 {
+        return Err(Error::Dimension {
+            what,
+            expected: dim * (x.len() / dim + 1),
+            got: x.len(),
+        });
+    }
+    if let Some(i) = x.iter().position(|v| !(0.0..=1.0).contains(v)) {
+        return Err(Error::OutOfDomain {
+            index: i / dim,
+            coord: i % dim,
+            value: x[i] as f64,
+        });
+    }
+    Ok(x.len() / dim)
+}
