@@ -150,39 +150,68 @@ struct Bounce {
     alpha: f32,
     /// An unoccluded light sample: (direction, light pdf, radiance, BSDF value, BSDF pdf).
     nee: Option<(Vec3, f32, Rgb, Rgb, f32)>,
-    /// Index of the guide-density query for the light sample (`usize::MAX`: none).
-    nee_query: usize,
-    u_select: f32,
-    u_lobe: f32,
-    u_dir: Vec2,
-    /// The BSDF sample, when the BSDF was selected.
-    bsdf: Option<Option<crate::bsdf::BsdfSample>>,
-    /// Index of the guide query (a sample when the guide was selected, else the density of
-    /// the BSDF sample).
-    query: usize,
+    /// Index of the guide-density query for the light sample's direction.
+    nee_query: Option<usize>,
+    technique: Technique,
 }
 
-/// Guide densities for `(vertex, direction)` queries, in one batch call.
-fn guide_pdf_batch<G: Guide + ?Sized>(guide: &G, queries: &[(GuideVertex, Vec3)]) -> Vec<f32> {
-    let mut out = vec![0.0; queries.len()];
-    if !queries.is_empty() {
-        let (v, w): (Vec<GuideVertex>, Vec<Vec3>) = queries.iter().copied().unzip();
-        guide.pdf_batch(&v, &w, &mut out);
-    }
-    out
+/// How a vertex continues its path.
+enum Technique {
+    /// Not decided yet.
+    Pending,
+    /// A direction from the guide: the index of its sample query.
+    Guide(usize),
+    /// The BSDF's sample (`None`: it drew nothing), and the index of the guide-density query of
+    /// its direction (`None` when the guide is off here or the sample is a delta).
+    Bsdf(Option<crate::bsdf::BsdfSample>, Option<usize>),
 }
 
-/// Guide samples for `(vertex, random numbers)` queries, in one batch call.
-fn guide_sample_batch<G: Guide + ?Sized>(
-    guide: &G,
-    queries: &[(GuideVertex, Vec2)],
-) -> Vec<Option<(Vec3, f32)>> {
-    let mut out = vec![None; queries.len()];
-    if !queries.is_empty() {
-        let (v, u): (Vec<GuideVertex>, Vec<Vec2>) = queries.iter().copied().unzip();
-        guide.sample_batch(&v, &u, &mut out);
+/// The guide queries of one wavefront step, answered in one batch call each.
+#[derive(Default)]
+struct Queries {
+    pdf_vertices: Vec<GuideVertex>,
+    pdf_directions: Vec<Vec3>,
+    pdfs: Vec<f32>,
+    sample_vertices: Vec<GuideVertex>,
+    sample_u: Vec<Vec2>,
+    samples: Vec<Option<(Vec3, f32)>>,
+}
+
+impl Queries {
+    fn clear(&mut self) {
+        self.pdf_vertices.clear();
+        self.pdf_directions.clear();
+        self.sample_vertices.clear();
+        self.sample_u.clear();
     }
-    out
+
+    /// Queue the guide's density of `wi` at `vertex`; returns the query's index.
+    fn pdf(&mut self, vertex: GuideVertex, wi: Vec3) -> usize {
+        self.pdf_vertices.push(vertex);
+        self.pdf_directions.push(wi);
+        self.pdf_vertices.len() - 1
+    }
+
+    /// Queue a guide sample at `vertex` from `u`; returns the query's index.
+    fn sample(&mut self, vertex: GuideVertex, u: Vec2) -> usize {
+        self.sample_vertices.push(vertex);
+        self.sample_u.push(u);
+        self.sample_vertices.len() - 1
+    }
+
+    /// Answer all queued queries.
+    fn run<G: Guide + ?Sized>(&mut self, guide: &G) {
+        self.pdfs.clear();
+        self.pdfs.resize(self.pdf_vertices.len(), 0.0);
+        if !self.pdfs.is_empty() {
+            guide.pdf_batch(&self.pdf_vertices, &self.pdf_directions, &mut self.pdfs);
+        }
+        self.samples.clear();
+        self.samples.resize(self.sample_vertices.len(), None);
+        if !self.samples.is_empty() {
+            guide.sample_batch(&self.sample_vertices, &self.sample_u, &mut self.samples);
+        }
+    }
 }
 
 impl Integrator {
@@ -246,8 +275,7 @@ impl Integrator {
         let mut guide_vertices: Vec<GuideVertex> = Vec::new();
         let mut materials: Vec<&crate::bsdf::Material> = Vec::new();
         let mut alphas: Vec<f32> = Vec::new();
-        let mut pdf_queries: Vec<(GuideVertex, Vec3)> = Vec::new();
-        let mut sample_queries: Vec<(GuideVertex, Vec2)> = Vec::new();
+        let mut queries = Queries::default();
         while !live.is_empty() {
             // 1. Intersect, collect emission, and set up the vertices that scatter.
             vertices.clear();
@@ -306,12 +334,8 @@ impl Integrator {
                     },
                     alpha: 0.0,
                     nee: None,
-                    nee_query: usize::MAX,
-                    u_select: 0.0,
-                    u_lobe: 0.0,
-                    u_dir: Vec2::ZERO,
-                    bsdf: None,
-                    query: usize::MAX,
+                    nee_query: None,
+                    technique: Technique::Pending,
                 });
             }
 
@@ -333,8 +357,7 @@ impl Integrator {
 
             // 3. Next-event estimation up to the shadow ray, technique selection and BSDF
             //    sampling; queue the guide densities and samples these need.
-            pdf_queries.clear();
-            sample_queries.clear();
+            queries.clear();
             let mut next_alpha = alphas.iter();
             for b in &mut vertices {
                 let material = &scene.materials[b.hit.material as usize];
@@ -363,8 +386,7 @@ impl Integrator {
                             };
                             if !scene.occluded(&shadow, t_max) {
                                 if self.strategy == Strategy::Mis && b.alpha > 0.0 {
-                                    b.nee_query = pdf_queries.len();
-                                    pdf_queries.push((b.vertex, ls.wi));
+                                    b.nee_query = Some(queries.pdf(b.vertex, ls.wi));
                                 }
                                 b.nee =
                                     Some((ls.wi, ls.pdf, ls.radiance, f, material.pdf(b.wo, wi)));
@@ -372,24 +394,20 @@ impl Integrator {
                         }
                     }
                 }
-                b.u_select = uniform(rng);
-                b.u_lobe = uniform(rng);
-                b.u_dir = uniform2(rng);
-                if b.alpha > 0.0 && b.u_select < b.alpha {
-                    b.query = sample_queries.len();
-                    sample_queries.push((b.vertex, b.u_dir));
+                let u_select = uniform(rng);
+                let u_lobe = uniform(rng);
+                let u_dir = uniform2(rng);
+                b.technique = if b.alpha > 0.0 && u_select < b.alpha {
+                    Technique::Guide(queries.sample(b.vertex, u_dir))
                 } else {
-                    b.bsdf = Some(material.sample(b.wo, b.u_lobe, b.u_dir));
-                    if let Some(Some(s)) = b.bsdf {
-                        if !s.delta && b.alpha > 0.0 {
-                            b.query = pdf_queries.len();
-                            pdf_queries.push((b.vertex, b.frame.to_world(s.wi)));
-                        }
-                    }
-                }
+                    let sample = material.sample(b.wo, u_lobe, u_dir);
+                    let query = sample
+                        .filter(|s| !s.delta && b.alpha > 0.0)
+                        .map(|s| queries.pdf(b.vertex, b.frame.to_world(s.wi)));
+                    Technique::Bsdf(sample, query)
+                };
             }
-            let guide_pdfs = guide_pdf_batch(guide, &pdf_queries);
-            let guide_samples = guide_sample_batch(guide, &sample_queries);
+            queries.run(guide);
 
             // 4. Finish next-event estimation and continue (or end) every path.
             for b in &vertices {
@@ -404,11 +422,7 @@ impl Integrator {
                 };
                 if let Some((wi_world, light_pdf, radiance, f, bsdf_pdf)) = b.nee {
                     let w = if self.strategy == Strategy::Mis {
-                        let guide_pdf = if b.nee_query == usize::MAX {
-                            0.0
-                        } else {
-                            guide_pdfs[b.nee_query]
-                        };
+                        let guide_pdf = b.nee_query.map_or(0.0, |q| queries.pdfs[q]);
                         power_heuristic(light_pdf, mixture(guide_pdf, bsdf_pdf))
                     } else {
                         1.0
@@ -416,25 +430,23 @@ impl Integrator {
                     let wi = b.frame.to_local(wi_world);
                     path.add(path.beta * f * wi.z.abs() * radiance * (w / light_pdf));
                 }
-                let continued = if let Some(sample) = b.bsdf {
-                    sample.map(|s| {
+                let continued = match b.technique {
+                    Technique::Bsdf(sample, query) => sample.map(|s| {
                         let wi_world = b.frame.to_world(s.wi);
                         let pdf = if s.delta {
                             s.pdf
-                        } else if b.query == usize::MAX {
-                            mixture(0.0, s.pdf)
                         } else {
-                            mixture(guide_pdfs[b.query], s.pdf)
+                            mixture(query.map_or(0.0, |q| queries.pdfs[q]), s.pdf)
                         };
                         (wi_world, s.f, pdf, s.pdf, s.delta, s.eta)
-                    })
-                } else {
-                    guide_samples[b.query].map(|(wi_world, guide_pdf)| {
+                    }),
+                    Technique::Guide(q) => queries.samples[q].map(|(wi_world, guide_pdf)| {
                         let wi = b.frame.to_local(wi_world);
                         let bsdf_pdf = material.pdf(b.wo, wi);
                         let pdf = mixture(guide_pdf, bsdf_pdf);
                         (wi_world, material.f(b.wo, wi), pdf, bsdf_pdf, false, 1.0)
-                    })
+                    }),
+                    Technique::Pending => unreachable!("every vertex chose a technique"),
                 };
                 let Some((wi_world, f, pdf, bsdf_pdf, sampled_delta, sample_eta)) = continued
                 else {

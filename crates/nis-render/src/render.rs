@@ -72,30 +72,64 @@ pub fn render<G: Guide + ?Sized>(
     let mut sums = vec![[0.0f64; 4]; w as usize * h as usize];
     let mut stats = PathStats::default();
     let start = Instant::now();
+    let spp = render_passes(
+        scene, integrator, budget, seed, 0, guide, true, &mut sums, &mut stats, start, progress,
+    );
+    RenderOutput {
+        image: average(w, h, &sums, spp),
+        spp,
+        training_spp: 0,
+        stats,
+        seconds: start.elapsed().as_secs_f64(),
+    }
+}
+
+/// Adds the passes of `budget` to `sums`, from sample index `first` on: one pass of `n` spp,
+/// or one-spp passes until `t` seconds after `start`. With `hooks`, the guide's iteration
+/// hooks run around every pass. `progress` gets the fraction of the passes done (of the time,
+/// for a time budget). Returns the samples per pixel added.
+#[allow(clippy::too_many_arguments)]
+fn render_passes<G: Guide + ?Sized>(
+    scene: &Scene,
+    integrator: &Integrator,
+    budget: Budget,
+    seed: u64,
+    first: u32,
+    guide: &mut G,
+    hooks: bool,
+    sums: &mut [[f64; 4]],
+    stats: &mut PathStats,
+    start: Instant,
+    progress: &(dyn Fn(f64) + Sync),
+) -> u32 {
     let mut spp = 0u32;
     let mut iteration = 0usize;
     loop {
-        let pass_spp = match budget {
+        let count = match budget {
             Budget::Samples(n) => n,
             Budget::Seconds(_) => 1,
         };
-        guide.begin_iteration(iteration);
+        if hooks {
+            guide.begin_iteration(iteration);
+        }
         let pass_stats = render_pass(
             scene,
             integrator,
             seed,
-            spp,
-            pass_spp,
+            first + spp,
+            count,
             &*guide,
-            &mut sums,
+            sums,
             &|f| match budget {
                 Budget::Samples(_) => progress(f),
                 Budget::Seconds(t) => progress((start.elapsed().as_secs_f64() / t).min(1.0)),
             },
         );
-        guide.end_iteration(iteration);
+        if hooks {
+            guide.end_iteration(iteration);
+        }
         stats.merge(&pass_stats);
-        spp += pass_spp;
+        spp += count;
         iteration += 1;
         match budget {
             Budget::Samples(_) => break,
@@ -103,14 +137,7 @@ pub fn render<G: Guide + ?Sized>(
             Budget::Seconds(_) => {}
         }
     }
-    let image = average(w, h, &sums, spp);
-    RenderOutput {
-        image,
-        spp,
-        training_spp: 0,
-        stats,
-        seconds: start.elapsed().as_secs_f64(),
-    }
+    spp
 }
 
 /// The passes of a guided render of `spp` samples per pixel: training passes of 1, 2, 4, …
@@ -148,43 +175,28 @@ pub fn render_guided<G: Guide + ?Sized>(
     let mut spp = 0u32;
     // Every pass's pixel sums, kept for the final combination.
     let mut passes: Vec<Pass> = Vec::new();
-    let (training, final_spp) = match budget {
-        Budget::Samples(n) => {
-            let (passes, rest) = training_schedule(n);
-            (Some(passes), rest)
-        }
-        Budget::Seconds(_) => (None, 0),
+    let schedule = match budget {
+        Budget::Samples(n) => training_schedule(n).0,
+        Budget::Seconds(_) => Vec::new(),
     };
-    let total = f64::from(match budget {
-        Budget::Samples(n) => n.max(1),
-        Budget::Seconds(_) => 1,
-    });
-    let report = |done_spp: u32, f: f64, count: u32| match budget {
-        Budget::Samples(_) => progress((f64::from(done_spp) + f * f64::from(count)) / total),
+    // The next training pass's samples per pixel, or `None` when training is over.
+    let next_pass = |iteration: usize, spp: u32| match budget {
+        Budget::Samples(_) => schedule.get(iteration).copied(),
+        Budget::Seconds(t) => {
+            // Doubling passes while the next one ends within half of the time.
+            let count = 1u32 << iteration.min(31);
+            let elapsed = start.elapsed().as_secs_f64();
+            let estimate = elapsed / f64::from(spp.max(1)) * f64::from(count);
+            (iteration == 0 || elapsed + estimate <= t / 2.0).then_some(count)
+        }
+    };
+    let overall = |done: u32, f: f64, count: u32| match budget {
+        Budget::Samples(n) => progress((f64::from(done) + f * f64::from(count)) / f64::from(n)),
         Budget::Seconds(t) => progress((start.elapsed().as_secs_f64() / t).min(1.0)),
     };
-    // Training.
     let mut iteration = 0usize;
-    let mut pass = 1u32;
-    loop {
-        let count = match (&training, budget) {
-            (Some(passes), _) => match passes.get(iteration) {
-                Some(&c) => c,
-                None => break,
-            },
-            (None, Budget::Seconds(t)) => {
-                // Stop when the next (doubled) pass would end after half of the time.
-                let elapsed = start.elapsed().as_secs_f64();
-                let last = elapsed / f64::from(spp.max(1)) * f64::from(pass);
-                if iteration > 0 && elapsed + last > t / 2.0 {
-                    break;
-                }
-                pass
-            }
-            (None, Budget::Samples(_)) => unreachable!("sample budgets have a schedule"),
-        };
+    while let Some(count) = next_pass(iteration, spp) {
         guide.begin_iteration(iteration);
-        let done = spp;
         let mut sums = vec![[0.0f64; 4]; w as usize * h as usize];
         let s = render_pass(
             scene,
@@ -194,47 +206,41 @@ pub fn render_guided<G: Guide + ?Sized>(
             count,
             &*guide,
             &mut sums,
-            &|f| report(done, f, count),
+            &|f| overall(spp, f, count),
         );
         passes.push((count, sums));
         guide.end_iteration(iteration);
         stats.merge(&s);
         spp += count;
         iteration += 1;
-        pass *= 2;
     }
     guide.end_training();
     let training_spp = spp;
-    // Rendering.
+    let rest = match budget {
+        Budget::Samples(n) => Budget::Samples(n - training_spp),
+        seconds => seconds,
+    };
     let mut sums = vec![[0.0f64; 4]; w as usize * h as usize];
-    loop {
-        let count = match budget {
-            Budget::Samples(_) => final_spp,
-            Budget::Seconds(_) => 1,
-        };
-        let done = spp;
-        let s = render_pass(
-            scene,
-            integrator,
-            seed,
-            spp,
-            count,
-            &*guide,
-            &mut sums,
-            &|f| report(done, f, count),
-        );
-        stats.merge(&s);
-        spp += count;
-        match budget {
-            Budget::Samples(_) => break,
-            Budget::Seconds(t) if start.elapsed().as_secs_f64() >= t => break,
-            Budget::Seconds(_) => {}
-        }
-    }
-    passes.push((spp - training_spp, sums));
+    let final_spp = render_passes(
+        scene,
+        integrator,
+        rest,
+        seed,
+        training_spp,
+        guide,
+        false,
+        &mut sums,
+        &mut stats,
+        start,
+        &|f| match rest {
+            Budget::Samples(n) => overall(training_spp, f, n),
+            Budget::Seconds(_) => progress(f),
+        },
+    );
+    passes.push((final_spp, sums));
     RenderOutput {
         image: combine(w, h, &passes),
-        spp,
+        spp: training_spp + final_spp,
         training_spp,
         stats,
         seconds: start.elapsed().as_secs_f64(),

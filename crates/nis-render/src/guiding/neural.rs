@@ -510,10 +510,5 @@ impl Guide for NisGuide {
     fn end_training(&mut self) {
         self.training = false;
         self.buffer = Vec::new();
-        if std::env::var_os("NIS_GUIDE_DEBUG").is_some() {
-            for (i, h) in self.history.iter().enumerate() {
-                eprintln!("guide iteration {i}: {h:?}");
-            }
-        }
     }
 }

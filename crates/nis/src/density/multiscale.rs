@@ -436,18 +436,7 @@ impl MultiScale {
     /// runs its whole reverse pass into its own gradient; the chunks' gradients are summed in
     /// chunk order.
     pub fn backward(&self, tape: &MsTape, weights: &[f32]) -> Result<Vec<f32>> {
-        if tape.version != self.version {
-            return Err(Error::Config(
-                "the tape was recorded before the parameters changed".into(),
-            ));
-        }
-        if weights.len() != tape.rows {
-            return Err(Error::Dimension {
-                what: "sample weights",
-                expected: tape.rows,
-                got: weights.len(),
-            });
-        }
+        crate::flow::check_tape(self.version, tape.version, tape.rows, weights.len())?;
         let dim = self.dim;
         let per_chunk: Vec<Vec<f32>> = tape
             .chunks

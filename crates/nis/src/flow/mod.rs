@@ -279,18 +279,7 @@ impl Flow {
     /// Gradient of L = −Σ_i w_i ln q(x_i; θ) with respect to all parameters, for the points
     /// whose pass recorded `tape`, with x held fixed (the score-function gradients of DESIGN.md).
     pub fn backward(&self, tape: &Tape, weights: &[f32]) -> Result<Vec<f32>> {
-        if tape.version != self.version {
-            return Err(Error::Config(
-                "the tape was recorded before the parameters changed".into(),
-            ));
-        }
-        if weights.len() != tape.rows {
-            return Err(Error::Dimension {
-                what: "sample weights",
-                expected: tape.rows,
-                got: weights.len(),
-            });
-        }
+        check_tape(self.version, tape.version, tape.rows, weights.len())?;
         let dim = self.dim();
         let blob = self.config.blob_bins;
         let transform = self.config.transform;
@@ -370,7 +359,7 @@ impl Flow {
 }
 
 #[cfg(test)]
-mod tests;
+pub(crate) mod tests;
 
 /// Checks that `x` holds whole rows of `dim` values inside [0, 1] (`what` names the rows in the
 /// error); returns the number of rows.
@@ -390,4 +379,27 @@ pub(crate) fn check_points(x: &[f32], dim: usize, what: &'static str) -> Result<
         });
     }
     Ok(x.len() / dim)
+}
+
+/// A backward pass needs a tape recorded with the current parameters (`version`) and one
+/// weight per recorded row.
+pub(crate) fn check_tape(
+    version: u64,
+    tape_version: u64,
+    rows: usize,
+    weights: usize,
+) -> Result<()> {
+    if tape_version != version {
+        return Err(Error::Config(
+            "the tape was recorded before the parameters changed".into(),
+        ));
+    }
+    if weights != rows {
+        return Err(Error::Dimension {
+            what: "sample weights",
+            expected: rows,
+            got: weights,
+        });
+    }
+    Ok(())
 }

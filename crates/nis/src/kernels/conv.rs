@@ -144,6 +144,7 @@ pub fn backward_weights(
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::kernels::dense::tests::filled;
 
     /// The textbook convolution, in f64: the reference the fused kernels are checked against.
     fn naive(x: &[f32], wt: &[f32], b: &[f32], s: Shape) -> Vec<f64> {
@@ -173,15 +174,6 @@ mod tests {
             }
         }
         out
-    }
-
-    fn filled(len: usize, seed: u32) -> Vec<f32> {
-        (0..len)
-            .map(|t| {
-                (((t as u32).wrapping_mul(2654435761).wrapping_add(seed)) % 1000) as f32 / 500.0
-                    - 1.0
-            })
-            .collect()
     }
 
     const SHAPES: [Shape; 4] = [

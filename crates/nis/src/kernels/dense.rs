@@ -125,7 +125,7 @@ pub fn backward_weights_block(
 }
 
 #[cfg(test)]
-mod tests {
+pub(crate) mod tests {
     use super::*;
 
     fn naive(a: &[f32], b: &[f32], n: usize, k: usize, m: usize) -> Vec<f32> {
@@ -150,7 +150,8 @@ mod tests {
         t
     }
 
-    fn filled(len: usize, seed: u32) -> Vec<f32> {
+    /// Deterministic test values in [−1, 1).
+    pub(crate) fn filled(len: usize, seed: u32) -> Vec<f32> {
         (0..len)
             .map(|t| {
                 (((t as u32).wrapping_mul(2654435761).wrapping_add(seed)) % 1000) as f32 / 500.0
