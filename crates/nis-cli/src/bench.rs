@@ -6,13 +6,13 @@
 use std::path::Path;
 use std::time::Instant;
 
-use nis::flow::{Flow, FlowConfig};
+use nis::flow::{Density, Flow, FlowConfig};
 use nis::integrate::nis::NisConfig;
 use nis::integrate::{uniform, vegas, IntegrationResult};
 use nis::loss::Loss;
 use nis::nn::AdamConfig;
 use nis::train::Trainer;
-use nis::Transform;
+use nis::TransformKind;
 use rand::SeedableRng;
 use rand_pcg::Pcg64Mcg;
 
@@ -29,7 +29,7 @@ fn references() -> Vec<Reference> {
             name: "R1: D=2, PQ-32, 2 couplings, MLP 3×256",
             config: FlowConfig {
                 dim: 2,
-                transform: Transform::Quadratic { bins: 32 },
+                transform: TransformKind::Quadratic { bins: 32 },
                 couplings: 2,
                 hidden_layers: 3,
                 hidden_width: 256,
@@ -40,7 +40,7 @@ fn references() -> Vec<Reference> {
             name: "R2: D=8, PQ-16, 6 couplings, MLP 3×64",
             config: FlowConfig {
                 dim: 8,
-                transform: Transform::Quadratic { bins: 16 },
+                transform: TransformKind::Quadratic { bins: 16 },
                 couplings: 6,
                 hidden_layers: 3,
                 hidden_width: 64,
@@ -67,7 +67,7 @@ fn time(reps: usize, mut f: impl FnMut()) -> f64 {
 /// The dense-layer shapes of a training step: (inputs, outputs, whether the backward pass needs
 /// the input gradient — everywhere but below the first layer's fixed input).
 fn dense_shapes(flow: &Flow) -> Vec<(usize, usize, bool)> {
-    flow.couplings()
+    flow.layers()
         .iter()
         .enumerate()
         .flat_map(|(l, c)| {
@@ -256,7 +256,7 @@ fn nis_with(
     f: &nis::integrands::Builtin,
     evals: u64,
     seed: u64,
-    transform: Transform,
+    transform: TransformKind,
     loss: Loss,
 ) -> Result<IntegrationResult, nis::Error> {
     let mut c = NisConfig {
@@ -281,15 +281,31 @@ fn methods() -> Vec<MethodSpec> {
         },
         MethodSpec {
             label: "NIS-PQ/KL",
-            run: |f, n, s| nis_with(f, n, s, Transform::Quadratic { bins: 16 }, Loss::Kl),
+            run: |f, n, s| nis_with(f, n, s, TransformKind::Quadratic { bins: 16 }, Loss::Kl),
         },
         MethodSpec {
             label: "NIS-PQ/χ²",
-            run: |f, n, s| nis_with(f, n, s, Transform::Quadratic { bins: 16 }, Loss::ChiSquare),
+            run: |f, n, s| {
+                nis_with(
+                    f,
+                    n,
+                    s,
+                    TransformKind::Quadratic { bins: 16 },
+                    Loss::ChiSquare,
+                )
+            },
         },
         MethodSpec {
             label: "NIS-RQ/KL",
-            run: |f, n, s| nis_with(f, n, s, Transform::RationalQuadratic { bins: 16 }, Loss::Kl),
+            run: |f, n, s| {
+                nis_with(
+                    f,
+                    n,
+                    s,
+                    TransformKind::RationalQuadratic { bins: 16 },
+                    Loss::Kl,
+                )
+            },
         },
     ]
 }

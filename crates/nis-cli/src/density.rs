@@ -8,7 +8,7 @@ use indicatif::{ProgressBar, ProgressStyle};
 use nis::data::{Dataset, Images};
 use nis::density::train::Progress;
 use nis::density::{cell_centres, figure, Arch, DensityConfig, Session};
-use nis::Transform;
+use nis::TransformKind;
 
 use crate::fit_image::Coupling;
 use crate::report;
@@ -288,7 +288,7 @@ fn train(a: &TrainArgs) -> Res {
 fn sample(a: &SampleArgs) -> Res {
     let s = Session::load(&checkpoint_path(&a.model))?;
     let m = &s.config().model;
-    let x = figure::samples(s.model(), m.dim(), a.n, a.seed)?;
+    let x = figure::samples(s.model(), a.n, a.seed)?;
     let levels = levels_of(s.config().dataset);
     let png = figure::grid_png(
         &x,
@@ -406,7 +406,11 @@ pub fn run_bench(a: &BenchDensityArgs) -> Res {
             .map(str::parse)
             .collect::<Result<_, _>>()?;
         for (arch, transform) in archs.iter().flat_map(|&arch| {
-            [Transform::Quadratic { bins: a.bins }, Transform::Affine].map(|t| (arch, t))
+            [
+                TransformKind::Quadratic { bins: a.bins },
+                TransformKind::Affine,
+            ]
+            .map(|t| (arch, t))
         }) {
             let config = DensityConfig::defaults(dataset, arch, transform);
             let name = format!(
@@ -433,7 +437,7 @@ pub fn run_bench(a: &BenchDensityArgs) -> Res {
             std::fs::create_dir_all(&a.docs_images)?;
             let m = &config.model;
             let scale = default_scale(m.width).min(3);
-            let x = figure::samples(session.model(), m.dim(), 64, 0)?;
+            let x = figure::samples(session.model(), 64, 0)?;
             let samples = format!("density-{name}-samples.png");
             let png = figure::grid_png(&x, m.width, m.height, train.levels, 8, scale)?;
             nis::io::write_atomic(&a.docs_images.join(&samples), &png)?;
@@ -448,7 +452,7 @@ pub fn run_bench(a: &BenchDensityArgs) -> Res {
                 stats.train_bpd,
                 stats.valid_bpd
             );
-            if transform == Transform::Affine {
+            if transform == TransformKind::Affine {
                 settings.push((config.clone(), minutes, train.len(), valid.len()));
             }
             let best = session

@@ -10,7 +10,7 @@ use indicatif::{ProgressBar, ProgressStyle};
 use nis::flow::FlowConfig;
 use nis::image::figure::{self, MontageRow};
 use nis::image::{Builtin, CurvePoint, Fit, FitConfig, Grid, Sampling, Target};
-use nis::Transform;
+use nis::TransformKind;
 use serde::Serialize;
 
 use crate::report;
@@ -29,12 +29,12 @@ pub enum Coupling {
 }
 
 impl Coupling {
-    pub fn transform(self, bins: usize) -> Transform {
+    pub fn transform(self, bins: usize) -> TransformKind {
         match self {
-            Coupling::Pq => Transform::Quadratic { bins },
-            Coupling::Pl => Transform::Linear { bins },
-            Coupling::Rq => Transform::RationalQuadratic { bins },
-            Coupling::Affine => Transform::Affine,
+            Coupling::Pq => TransformKind::Quadratic { bins },
+            Coupling::Pl => TransformKind::Linear { bins },
+            Coupling::Rq => TransformKind::RationalQuadratic { bins },
+            Coupling::Affine => TransformKind::Affine,
         }
     }
 }
@@ -230,13 +230,13 @@ const DOCS_MONTAGE: &str = "fit-image-montage.png";
 const DOCS_CURVES: &str = "fit-image-curves.png";
 
 /// The models of the paper's comparison: same MLP, same steps, same samples.
-fn bench_models() -> Vec<(Transform, usize)> {
+fn bench_models() -> Vec<(TransformKind, usize)> {
     vec![
-        (Transform::Affine, 2),
-        (Transform::Affine, 16),
-        (Transform::Linear { bins: 32 }, 2),
-        (Transform::Quadratic { bins: 32 }, 2),
-        (Transform::RationalQuadratic { bins: 32 }, 2),
+        (TransformKind::Affine, 2),
+        (TransformKind::Affine, 16),
+        (TransformKind::Linear { bins: 32 }, 2),
+        (TransformKind::Quadratic { bins: 32 }, 2),
+        (TransformKind::RationalQuadratic { bins: 32 }, 2),
     ]
 }
 

@@ -3,10 +3,11 @@
 use std::path::PathBuf;
 
 use indicatif::{ProgressBar, ProgressStyle};
+use nis::flow::Density;
 use nis::integrands::{self, Builtin, SUITE};
 use nis::integrate::{nis::NisConfig, nis::NisIntegrator, uniform, vegas, IntegrationResult};
 use nis::loss::Loss;
-use nis::Transform;
+use nis::TransformKind;
 
 #[derive(Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
 pub enum Method {
@@ -72,10 +73,10 @@ impl IntegrateArgs {
             ..NisConfig::default()
         };
         c.flow.transform = match self.coupling {
-            Coupling::Pq => Transform::Quadratic { bins: self.bins },
-            Coupling::Pl => Transform::Linear { bins: self.bins },
-            Coupling::Rq => Transform::RationalQuadratic { bins: self.bins },
-            Coupling::Affine => Transform::Affine,
+            Coupling::Pq => TransformKind::Quadratic { bins: self.bins },
+            Coupling::Pl => TransformKind::Linear { bins: self.bins },
+            Coupling::Rq => TransformKind::RationalQuadratic { bins: self.bins },
+            Coupling::Affine => TransformKind::Affine,
         };
         c.flow.seed = self.seed;
         if let Some(patch) = &self.nis_config {

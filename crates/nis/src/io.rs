@@ -14,7 +14,7 @@ use std::path::{Path, PathBuf};
 use safetensors::tensor::{Dtype, SafeTensors, TensorView};
 
 use crate::error::{Error, Result};
-use crate::flow::{Flow, FlowConfig};
+use crate::flow::{Density, Flow, FlowConfig};
 
 const FORMAT: &str = "nis-flow/1";
 
@@ -56,7 +56,7 @@ pub(crate) const FNV_OFFSET: u64 = 0xcbf2_9ce4_8422_2325;
 /// The tensors of a flow: (name, shape, parameter range), in a fixed order.
 fn layout(flow: &Flow) -> Vec<(String, Vec<usize>, std::ops::Range<usize>)> {
     let mut out = Vec::new();
-    for (l, c) in flow.couplings().iter().enumerate() {
+    for (l, c) in flow.layers().iter().enumerate() {
         let mut off = c.offset;
         for j in 0..c.mlp.layers() {
             let (i, o) = (c.mlp.dims[j], c.mlp.dims[j + 1]);
@@ -190,12 +190,12 @@ pub fn from_bytes(bytes: &[u8]) -> std::result::Result<(Flow, HashMap<String, St
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::spline::Transform;
+    use crate::transform::TransformKind;
 
     fn trained_like_flow() -> Flow {
         let mut flow = Flow::new(FlowConfig {
             dim: 3,
-            transform: Transform::RationalQuadratic { bins: 5 },
+            transform: TransformKind::RationalQuadratic { bins: 5 },
             hidden_width: 8,
             context_dim: 1,
             ..FlowConfig::new(3)

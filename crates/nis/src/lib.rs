@@ -25,12 +25,12 @@ pub mod io;
 pub mod kernels;
 pub mod loss;
 pub mod nn;
-pub mod spline;
 pub mod train;
+pub mod transform;
 
 pub use error::{Error, Result};
 pub use flow::{Flow, FlowConfig};
-pub use spline::Transform;
+pub use transform::{Transform, TransformKind};
 
 /// The README's example, compiled and run as a doctest.
 #[cfg(doctest)]

@@ -1,8 +1,9 @@
-//! Training a flow from Monte Carlo samples: weights from [`crate::loss`], the gradient from
-//! [`Flow::backward`], the update from [`Adam`].
+//! Training a density from Monte Carlo samples: weights from [`crate::loss`], the gradient from
+//! [`Density::backward`], the update from [`Adam`] — one step, [`descend`], shared by every
+//! trainer (the integrator's [`Trainer`], density estimation on images, the neural path guide).
 //!
 //! ```
-//! use nis::{flow::{Flow, FlowConfig}, loss::Loss, nn::AdamConfig, train::Trainer};
+//! use nis::{flow::{Density, Flow, FlowConfig}, loss::Loss, nn::AdamConfig, train::Trainer};
 //! use rand::SeedableRng;
 //! let flow = Flow::new(FlowConfig::new(2)).unwrap();
 //! let mut trainer = Trainer::new(flow, Loss::Kl, AdamConfig::default()).unwrap();
@@ -15,14 +16,27 @@
 //! ```
 
 use crate::error::{Error, Result};
-use crate::flow::{Flow, Samples};
+use crate::flow::{Density, Flow, Samples, Tape};
 use crate::loss::{self, Loss};
 use crate::nn::{Adam, AdamConfig};
 
-/// A flow with its optimiser and loss.
+/// One training step: the gradient of L = −Σ_i w_i ln q(x_i; θ) for the points whose pass
+/// recorded `tape`, then an Adam update of the density's parameters. Returns the gradient's norm
+/// before clipping.
+pub fn descend(
+    density: &mut (impl Density + ?Sized),
+    adam: &mut Adam,
+    tape: &Tape,
+    weights: &[f32],
+) -> Result<f64> {
+    let grad = density.backward(tape, weights)?;
+    adam.step(density.params_mut(), &grad)
+}
+
+/// A density (by default the coupling flow) with its optimiser and loss.
 #[derive(Clone, Debug)]
-pub struct Trainer {
-    flow: Flow,
+pub struct Trainer<D = Flow> {
+    flow: D,
     adam: Adam,
     loss: Loss,
     /// Exponent of the tempered target |f|^β (1: the integrand itself).
@@ -42,9 +56,9 @@ pub struct StepStats {
     pub grad_norm: f64,
 }
 
-impl Trainer {
+impl<D: Density> Trainer<D> {
     /// A trainer for `flow`.
-    pub fn new(flow: Flow, loss: Loss, adam: AdamConfig) -> Result<Trainer> {
+    pub fn new(flow: D, loss: Loss, adam: AdamConfig) -> Result<Trainer<D>> {
         let adam = Adam::new(adam, flow.param_count())?;
         Ok(Trainer {
             flow,
@@ -54,13 +68,13 @@ impl Trainer {
         })
     }
 
-    /// The flow being trained.
-    pub fn flow(&self) -> &Flow {
+    /// The density being trained.
+    pub fn flow(&self) -> &D {
         &self.flow
     }
 
-    /// Gives the trained flow back.
-    pub fn into_flow(self) -> Flow {
+    /// Gives the trained density back.
+    pub fn into_flow(self) -> D {
         self.flow
     }
 
@@ -91,15 +105,14 @@ impl Trainer {
     }
 
     /// On-policy step: `samples` were drawn from the current flow with
-    /// [`Flow::sample_for_training`], `f` holds the integrand at them. Reuses the sampling pass's
+    /// [`Density::sample_for_training`], `f` holds the integrand at them. Reuses the sampling pass's
     /// conditioner outputs (they depend only on x_A) instead of recomputing them.
     pub fn step_on_policy(&mut self, samples: &Samples, f: &[f64]) -> Result<StepStats> {
         let tape = samples.tape.as_ref().ok_or_else(|| {
             Error::Config("on-policy step needs samples drawn with sample_for_training".into())
         })?;
         let w = loss::weights_annealed(self.loss, f, &samples.log_q, &samples.log_q, self.beta)?;
-        let grad = self.flow.backward(tape, &w.w)?;
-        self.apply(grad, &w, &samples.log_q)
+        self.apply(tape, &w, &samples.log_q)
     }
 
     /// Off-policy step on points `x` (`n × D`) drawn from a proposal with log-density
@@ -114,12 +127,11 @@ impl Trainer {
     ) -> Result<StepStats> {
         let eval = self.flow.log_density_for_training(x, ctx)?;
         let w = loss::weights_annealed(self.loss, f, &eval.log_q, log_q_sample, self.beta)?;
-        let grad = self.flow.backward(&eval.tape, &w.w)?;
-        self.apply(grad, &w, &eval.log_q)
+        self.apply(&eval.tape, &w, &eval.log_q)
     }
 
-    fn apply(&mut self, grad: Vec<f32>, w: &loss::Weights, log_q: &[f64]) -> Result<StepStats> {
-        let grad_norm = self.adam.step(self.flow.params_mut(), &grad)?;
+    fn apply(&mut self, tape: &Tape, w: &loss::Weights, log_q: &[f64]) -> Result<StepStats> {
+        let grad_norm = descend(&mut self.flow, &mut self.adam, tape, &w.w)?;
         let mean_nll = -log_q.iter().sum::<f64>() / log_q.len().max(1) as f64;
         Ok(StepStats {
             integral: w.integral,

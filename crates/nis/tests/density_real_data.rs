@@ -6,7 +6,7 @@ use std::path::{Path, PathBuf};
 
 use nis::data::Dataset;
 use nis::density::{Arch, DensityConfig, Session};
-use nis::Transform;
+use nis::TransformKind;
 
 fn data_dir(file: &str) -> Option<PathBuf> {
     let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../data");
@@ -29,7 +29,7 @@ fn real_digits_train_below_the_uniform_bits_per_dim_with_both_architectures() {
     assert_eq!(train.pixels.iter().max(), Some(&16));
     for arch in [Arch::Mlp, Arch::MultiScale] {
         let mut c =
-            DensityConfig::defaults(Dataset::Digits, arch, Transform::Quadratic { bins: 4 });
+            DensityConfig::defaults(Dataset::Digits, arch, TransformKind::Quadratic { bins: 4 });
         c.model.hidden_width = 16;
         c.model.features = 8;
         c.model.blocks = 1;

@@ -4,13 +4,13 @@
 use nis::integrands;
 use nis::integrate::nis::{integrate as nis_integrate, NisConfig, NisIntegrator};
 use nis::integrate::{uniform, vegas, Integrand, IntegrationResult};
-use nis::{Error, FlowConfig, Transform};
+use nis::{Error, FlowConfig, TransformKind};
 
 /// A small, fast NIS setup for many repetitions at small budgets.
 fn small_nis() -> NisConfig {
     NisConfig {
         flow: FlowConfig {
-            transform: Transform::Quadratic { bins: 8 },
+            transform: TransformKind::Quadratic { bins: 8 },
             hidden_layers: 2,
             hidden_width: 16,
             blob_bins: 8,

@@ -1,11 +1,11 @@
 //! Whole workflow: training a 2-D flow from Monte Carlo samples of an unnormalised integrand cuts
 //! the variance of the importance-sampling estimator f/q far below uniform sampling.
 
-use nis::flow::{Flow, FlowConfig};
+use nis::flow::{Density, Flow, FlowConfig};
 use nis::loss::Loss;
 use nis::nn::AdamConfig;
 use nis::train::Trainer;
-use nis::Transform;
+use nis::TransformKind;
 use rand::SeedableRng;
 use rand_pcg::Pcg64Mcg;
 
@@ -35,7 +35,7 @@ fn relative_variance(flow: &Flow, n: usize, seed: u64) -> f64 {
 fn train(loss: Loss) -> (f64, f64) {
     let flow = Flow::new(FlowConfig {
         dim: 2,
-        transform: Transform::Quadratic { bins: 16 },
+        transform: TransformKind::Quadratic { bins: 16 },
         hidden_width: 32,
         ..FlowConfig::new(2)
     })

@@ -32,12 +32,12 @@
 use std::sync::Mutex;
 
 use glam::{Vec2, Vec3};
-use nis::flow::{Flow, FlowConfig};
+use nis::flow::{Bijection, Density, Flow, FlowConfig};
 use nis::kernels::elementwise::one_blob;
 use nis::kernels::CHUNK_ROWS;
 use nis::nn::mlp::MlpTape;
 use nis::nn::{Adam, AdamConfig, Mlp};
-use nis::Transform;
+use nis::TransformKind;
 use rand::{Rng, SeedableRng};
 use rand_pcg::Pcg64Mcg;
 use rayon::prelude::*;
@@ -72,7 +72,7 @@ pub struct NisGuideConfig {
     /// The divergence to minimise.
     pub loss: GuideLoss,
     /// The coupling transform of the flow.
-    pub transform: Transform,
+    pub transform: TransformKind,
     /// Coupling layers of the flow.
     pub couplings: usize,
     /// Hidden layers of each coupling's conditioner.
@@ -108,7 +108,7 @@ impl Default for NisGuideConfig {
     fn default() -> Self {
         NisGuideConfig {
             loss: GuideLoss::Kl,
-            transform: Transform::Quadratic { bins: 32 },
+            transform: TransformKind::Quadratic { bins: 32 },
             couplings: 2,
             hidden_layers: 2,
             // 64 was slower and no better (MAPE 0.249 vs 0.219 on cornell-indirect, 0.313 vs
@@ -364,8 +364,12 @@ impl NisGuide {
             }
         }
         stats.loss = loss / n as f64;
-        let g_flow = self.flow.backward(&evaluated.tape, &w_flow)?;
-        self.flow_adam.step(self.flow.params_mut(), &g_flow)?;
+        nis::train::descend(
+            &mut self.flow,
+            &mut self.flow_adam,
+            &evaluated.tape,
+            &w_flow,
+        )?;
         if !selection {
             return Ok(stats);
         }

@@ -5,24 +5,23 @@ use std::io::Cursor;
 
 use ::image::codecs::png::{CompressionType, FilterType, PngEncoder};
 use ::image::GrayImage;
-use rand::{Rng, SeedableRng};
+use rand::SeedableRng;
 use rand_pcg::Pcg64Mcg;
 
-use super::model::Model;
 use crate::error::{Error, Result};
+use crate::flow::Bijection;
 
 /// `n` samples x = h⁻¹(z), z ~ U[0,1]^D from `seed` (row-major, n × D).
-pub fn samples(model: &Model, dim: usize, n: usize, seed: u64) -> Result<Vec<f32>> {
+pub fn samples(model: &dyn Bijection, n: usize, seed: u64) -> Result<Vec<f32>> {
     let mut rng = Pcg64Mcg::seed_from_u64(seed);
-    let z: Vec<f32> = (0..n * dim).map(|_| rng.random::<f32>()).collect();
-    model.inverse(&z)
+    Ok(model.sample(n, None, &mut rng)?.x)
 }
 
 /// The manifold spanned by four points `corners` (4 × D: top-left, top-right, bottom-left,
 /// bottom-right): each is mapped to its latent z = h(x), the latents are interpolated
 /// bilinearly on a `side × side` grid, and the grid is mapped back. Row-major, side² × D; the
 /// corners come back as (numerically) themselves.
-pub fn interpolate(model: &Model, corners: &[f32], side: usize) -> Result<Vec<f32>> {
+pub fn interpolate(model: &dyn Bijection, corners: &[f32], side: usize) -> Result<Vec<f32>> {
     if side < 2 || corners.len() % 4 != 0 || corners.is_empty() {
         return Err(Error::Config(format!(
             "interpolation needs 4 corner images and a grid of at least 2×2, got {} values and side {side}",
@@ -30,7 +29,7 @@ pub fn interpolate(model: &Model, corners: &[f32], side: usize) -> Result<Vec<f3
         )));
     }
     let dim = corners.len() / 4;
-    let (z, _) = model.forward(corners)?;
+    let (z, _) = model.forward(corners, None)?;
     let c = |k: usize, i: usize| z[k * dim + i] as f64;
     let mut grid = Vec::with_capacity(side * side * dim);
     for r in 0..side {
@@ -44,7 +43,7 @@ pub fn interpolate(model: &Model, corners: &[f32], side: usize) -> Result<Vec<f3
             }
         }
     }
-    model.inverse(&grid)
+    Ok(model.inverse(&grid, None)?.0)
 }
 
 /// A PNG of images (`n × width·height` values in [0, 1], shown quantised to their `levels`

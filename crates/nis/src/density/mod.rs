@@ -13,17 +13,16 @@
 //! (4.087 for the 17-level digits, 8 for MNIST). Estimates use one u per image.
 //!
 //! - [`model`]: the models: a coupling flow with MLP conditioners on the flattened image, and
-//!   RealNVP's multi-scale flow with convolutional conditioners ([`multiscale`]).
+//!   RealNVP's multi-scale flow with convolutional conditioners
+//!   ([`crate::flow::multiscale`]).
 //! - [`train`]: the training session with validation, checkpoints and resume.
 //! - [`figure`]: sample grids and the latent-space interpolation of the paper's Figure 4.
 
-pub mod conv_net;
 pub mod figure;
 pub mod model;
-pub mod multiscale;
 pub mod train;
 
-pub use model::{Arch, Model, ModelConfig};
+pub use model::{Arch, ModelConfig};
 pub use train::{DensityConfig, EpochStats, Session};
 
 use rand::Rng;

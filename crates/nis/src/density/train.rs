@@ -3,8 +3,8 @@
 //!
 //! Every epoch visits the training images in an order drawn from (seed, epoch), dequantising them
 //! with fresh noise from the same stream, so a resumed run takes exactly the steps the
-//! uninterrupted one would have taken. The gradient of the mean negative log-likelihood comes from
-//! [`Model::backward`] (weights 1/n), the update from [`Adam`]. Evaluation uses fixed noise, so
+//! uninterrupted one would have taken. A step is the shared [`descend`] with weights 1/n: the
+//! gradient of the mean negative log-likelihood, then [`Adam`]. Evaluation uses fixed noise, so
 //! successive numbers differ only through the model.
 
 use std::collections::HashMap;
@@ -17,12 +17,14 @@ use rand_pcg::Pcg64Mcg;
 use safetensors::tensor::{Dtype, SafeTensors, TensorView};
 use serde::{Deserialize, Serialize};
 
-use super::model::{Model, ModelConfig};
+use super::model::ModelConfig;
 use super::{bits_per_dim, dequantize};
 use crate::data::{Dataset, Images};
 use crate::error::{Error, Result};
+use crate::flow::Bijection;
 use crate::io::{fnv1a, write_atomic, FNV_OFFSET};
 use crate::nn::{Adam, AdamConfig};
+use crate::train::descend;
 
 const FORMAT: &str = "nis-density/1";
 /// Rows per evaluation pass (the model cuts them into parallel chunks itself).
@@ -73,10 +75,9 @@ pub enum Progress<'a> {
 }
 
 /// A model with its optimiser and the state of its training run.
-#[derive(Clone, Debug)]
 pub struct Session {
     config: DensityConfig,
-    model: Model,
+    model: Box<dyn Bijection>,
     adam: Adam,
     /// Completed epochs.
     epoch: usize,
@@ -102,7 +103,7 @@ impl Session {
                 "the batch must hold at least one image".into(),
             ));
         }
-        let model = Model::new(&config.model)?;
+        let model = config.model.build()?;
         let adam = Adam::new(adam_config(&config), model.param_count())?;
         Ok(Session {
             config,
@@ -118,8 +119,9 @@ impl Session {
         &self.config
     }
 
-    pub fn model(&self) -> &Model {
-        &self.model
+    /// The model being trained.
+    pub fn model(&self) -> &dyn Bijection {
+        &*self.model
     }
 
     /// Completed epochs.
@@ -144,7 +146,7 @@ impl Session {
 
     /// Bits/dim of the model on `images`, with fixed dequantisation noise.
     pub fn evaluate(&self, images: &Images) -> Result<f64> {
-        evaluate(&self.model, images)
+        evaluate(&*self.model, images)
     }
 
     /// One epoch over `train`; stops early once the training time reaches `max_seconds`.
@@ -173,11 +175,10 @@ impl Session {
             }
             let start = Instant::now();
             let x = dequantize(train, idx, &mut rng);
-            let (log_q, tape) = self.model.log_density_for_training(&x)?;
-            let mean_nll = mean_nll(&log_q)?;
+            let e = self.model.log_density_for_training(&x, None)?;
+            let mean_nll = mean_nll(&e.log_q)?;
             let w = vec![1.0 / idx.len() as f32; idx.len()];
-            let grad = self.model.backward(&tape, &w)?;
-            self.adam.step(self.model.params_mut(), &grad)?;
+            descend(&mut *self.model, &mut self.adam, &e.tape, &w)?;
             self.seconds += start.elapsed().as_secs_f64();
             on_step(b + 1, batches.len(), bits_per_dim(mean_nll, dim, levels));
         }
@@ -312,13 +313,13 @@ fn mean_nll(log_q: &[f64]) -> Result<f64> {
 }
 
 /// Bits/dim of `model` on `images` with dequantisation noise from a fixed seed.
-pub fn evaluate(model: &Model, images: &Images) -> Result<f64> {
+pub fn evaluate(model: &dyn Bijection, images: &Images) -> Result<f64> {
     let mut rng = Pcg64Mcg::seed_from_u64(0x5eed_e7a1);
     let idx: Vec<usize> = (0..images.len()).collect();
     let mut sum = 0.0;
     for chunk in idx.chunks(EVAL_ROWS) {
         let x = dequantize(images, chunk, &mut rng);
-        sum += mean_nll(&model.log_density(&x)?)? * chunk.len() as f64;
+        sum += mean_nll(&model.log_density(&x, None)?)? * chunk.len() as f64;
     }
     Ok(bits_per_dim(
         sum / images.len().max(1) as f64,
@@ -382,7 +383,7 @@ impl DensityConfig {
     pub fn defaults(
         dataset: Dataset,
         arch: super::Arch,
-        transform: crate::spline::Transform,
+        transform: crate::transform::TransformKind,
     ) -> DensityConfig {
         let (side, couplings, blob_bins, mut batch) = match dataset {
             Dataset::Digits => (8, 0, 8, 64),

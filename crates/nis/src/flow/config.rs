@@ -5,7 +5,7 @@ use serde::{Deserialize, Serialize};
 
 use crate::error::{Error, Result};
 use crate::flow::mask;
-use crate::spline::Transform;
+use crate::transform::TransformKind;
 
 /// Largest dimension a flow accepts (a sanity bound against corrupt configs).
 pub const MAX_DIM: usize = 4096;
@@ -24,7 +24,7 @@ pub struct FlowConfig {
     /// Dimension D of the unit hypercube.
     pub dim: usize,
     /// The coupling transform and its bins.
-    pub transform: Transform,
+    pub transform: TransformKind,
     /// Number of coupling layers (0: the default, one pass of all masks).
     pub couplings: usize,
     /// Hidden layers of each conditioner MLP.
@@ -43,7 +43,7 @@ impl Default for FlowConfig {
     fn default() -> Self {
         FlowConfig {
             dim: 2,
-            transform: Transform::Quadratic { bins: 32 },
+            transform: TransformKind::Quadratic { bins: 32 },
             couplings: 0,
             hidden_layers: 3,
             hidden_width: 64,

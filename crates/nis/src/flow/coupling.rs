@@ -1,29 +1,34 @@
 //! One coupling layer (Dinh et al. 2014, Müller et al. 2019 Def. 1): y_A = x_A and
-//! y_B = C(x_B; m(x_A, context)). The conditioner m is the one-blob encoding of x_A (plus raw
-//! context features) fed to an MLP whose outputs are the transforms' unnormalised parameters.
-//! Everything here works on one chunk of rows; the flow runs chunks in parallel.
+//! y_B = C(x_B; m(x_A, context)). The layer is built from three independent parts, as zuko's
+//! `GeneralCouplingTransform`: its mask (the partition A, B), its conditioner m (the one-blob
+//! encoding of x_A, plus raw context features, fed to an MLP whose outputs are the transforms'
+//! unnormalised parameters) and its kind of 1-D transform C. Everything here works on one chunk
+//! of rows; [`super::composed::Composed`] runs chunks in parallel.
 
-use crate::kernels::elementwise;
+use rayon::prelude::*;
+
+use super::composed::{ChunkTape, Composed, Direction, Layer, Rows};
+use super::config::FlowConfig;
+use crate::kernels::CHUNK_ROWS;
+use crate::nn::encoding::OneBlob;
 use crate::nn::mlp::{Mlp, MlpTape};
-use crate::spline::{with_spline, Spline, Transform};
+use crate::transform::{with_transform, Transform, TransformKind};
 
-/// A coupling layer's partition and conditioner; its weights live in the flow's parameter vector
-/// at `offset..offset + mlp.param_count()`.
+/// A coupling layer: its partition, conditioner and transform; its weights live in the flow's
+/// parameter vector at `offset..offset + mlp.param_count()`.
 #[derive(Clone, Debug)]
 pub struct Coupling {
+    /// The dimensions left alone and fed to the conditioner (the mask's A).
     pub a: Vec<usize>,
+    /// The dimensions transformed (B).
     pub b: Vec<usize>,
+    /// How x_A enters the conditioner.
+    pub encoding: OneBlob,
+    /// The conditioner: encoded x_A and the context in, |B| × the transform's parameters out.
     pub mlp: Mlp,
+    /// The 1-D transform of each B dimension.
+    pub transform: TransformKind,
     pub offset: usize,
-}
-
-/// Which way a chunk goes through the layer.
-#[derive(Clone, Copy, PartialEq, Eq)]
-pub enum Direction {
-    /// Data to latent: y_B = C(x_B).
-    Forward,
-    /// Latent to data: x_B = C⁻¹(y_B).
-    Inverse,
 }
 
 impl Coupling {
@@ -32,71 +37,37 @@ impl Coupling {
         &all[self.offset..self.offset + self.mlp.param_count()]
     }
 
+    /// The conditioner's input width: the encoded A dimensions, then the context features.
+    fn encoded_width(&self) -> usize {
+        self.encoding.width(self.a.len())
+    }
+
     /// Fills the conditioner input (`tape.acts[0]`) from x_A and the context.
-    fn encode(&self, u: &[f32], dim: usize, ctx: Option<&[f32]>, blob: usize, tape: &mut MlpTape) {
+    fn encode(&self, u: &[f32], dim: usize, ctx: Option<&[f32]>, tape: &mut MlpTape) {
         let width = self.mlp.dims[0];
-        let na = self.a.len();
         if width == 0 {
             return;
         }
-        let cdim = width - na * blob;
-        let mut s = vec![0.0f32; na];
+        let enc = self.encoded_width();
+        let cdim = width - enc;
+        let mut s = vec![0.0f32; self.a.len()];
         for (r, row) in tape.acts[0].chunks_exact_mut(width).enumerate() {
             for (k, &a) in self.a.iter().enumerate() {
                 s[k] = u[r * dim + a];
             }
-            elementwise::one_blob(&s, blob, &mut row[..na * blob]);
+            self.encoding.encode(&s, &mut row[..enc]);
             if let Some(ctx) = ctx {
-                row[na * blob..].copy_from_slice(&ctx[r * cdim..(r + 1) * cdim]);
+                row[enc..].copy_from_slice(&ctx[r * cdim..(r + 1) * cdim]);
             }
         }
-    }
-
-    /// Runs the conditioner and transforms x_B in place (rows of `u`, `dim` wide), adding each
-    /// row's log C' to `log_det`. Returns the conditioner's tape.
-    pub fn apply(
-        &self,
-        params: &[f32],
-        transform: Transform,
-        blob: usize,
-        u: &mut [f32],
-        dim: usize,
-        ctx: Option<&[f32]>,
-        log_det: &mut [f64],
-        direction: Direction,
-    ) -> MlpTape {
-        let rows = log_det.len();
-        let mut tape = self.mlp.tape(rows);
-        self.encode(u, dim, ctx, blob, &mut tape);
-        self.mlp.forward(self.params(params), &mut tape);
-        let out = tape.acts.last().expect("an MLP has an output layer");
-        let np = transform.param_count();
-        let width = self.b.len() * np;
-        with_spline!(transform, s => {
-            for r in 0..rows {
-                let row = &out[r * width..(r + 1) * width];
-                for (k, &d) in self.b.iter().enumerate() {
-                    let p = &row[k * np..(k + 1) * np];
-                    let v = u[r * dim + d] as f64;
-                    let (v, ld) = match direction {
-                        Direction::Forward => s.forward(p, v),
-                        Direction::Inverse => s.inverse(p, v),
-                    };
-                    u[r * dim + d] = v as f32;
-                    log_det[r] += ld;
-                }
-            }
-        });
-        tape
     }
 
     /// Reverse mode through the transforms of one chunk. `input` is the layer's input (x side),
     /// `g_u` holds ∂L/∂output on entry and ∂L/∂input for the B dimensions on exit (the A part is
     /// completed by [`Coupling::encoding_backward`]); `g_log_det[r]` is ∂L/∂log C' of row r.
     /// Returns ∂L/∂(conditioner output).
-    pub fn spline_backward(
+    pub fn transform_backward(
         &self,
-        transform: Transform,
         tape: &MlpTape,
         input: &[f32],
         dim: usize,
@@ -105,10 +76,10 @@ impl Coupling {
     ) -> Vec<f32> {
         let rows = tape.rows;
         let out = tape.acts.last().expect("an MLP has an output layer");
-        let np = transform.param_count();
+        let np = self.transform.param_count();
         let width = self.b.len() * np;
         let mut g_out = vec![0.0f32; rows * width];
-        with_spline!(transform, s => {
+        with_transform!(self.transform, s => {
             for r in 0..rows {
                 for (k, &d) in self.b.iter().enumerate() {
                     let at = r * width + k * np;
@@ -129,7 +100,6 @@ impl Coupling {
     /// Adds the conditioner's dependence on x_A to `g_u`, from ∂L/∂(encoded input).
     pub fn encoding_backward(
         &self,
-        blob: usize,
         tape: &MlpTape,
         input: &[f32],
         dim: usize,
@@ -137,6 +107,7 @@ impl Coupling {
         g_u: &mut [f32],
     ) {
         let width = self.mlp.dims[0];
+        let enc = self.encoded_width();
         let na = self.a.len();
         let mut s = vec![0.0f32; na];
         let mut g_s = vec![0.0f32; na];
@@ -144,11 +115,97 @@ impl Coupling {
             for (k, &a) in self.a.iter().enumerate() {
                 s[k] = input[r * dim + a];
             }
-            let e = &tape.acts[0][r * width..r * width + na * blob];
-            let g_e = &g_enc[r * width..r * width + na * blob];
-            elementwise::one_blob_backward(&s, blob, e, g_e, &mut g_s);
+            let e = &tape.acts[0][r * width..r * width + enc];
+            let g_e = &g_enc[r * width..r * width + enc];
+            self.encoding.backward(&s, e, g_e, &mut g_s);
             for (k, &a) in self.a.iter().enumerate() {
                 g_u[r * dim + a] += g_s[k];
+            }
+        }
+    }
+}
+
+impl Layer for Coupling {
+    type Record = MlpTape;
+    type Config = FlowConfig;
+    const CHUNK_ROWS: usize = CHUNK_ROWS;
+
+    /// Runs the conditioner and transforms x_B in place, adding each row's log C' to `log_det`.
+    fn apply(&self, params: &[f32], rows: Rows<'_>, direction: Direction) -> MlpTape {
+        let Rows {
+            u,
+            dim,
+            ctx,
+            log_det,
+        } = rows;
+        let n = log_det.len();
+        let mut tape = self.mlp.tape(n);
+        self.encode(u, dim, ctx, &mut tape);
+        self.mlp.forward(self.params(params), &mut tape);
+        let out = tape.acts.last().expect("an MLP has an output layer");
+        let np = self.transform.param_count();
+        let width = self.b.len() * np;
+        with_transform!(self.transform, s => {
+            for r in 0..n {
+                let row = &out[r * width..(r + 1) * width];
+                for (k, &d) in self.b.iter().enumerate() {
+                    let p = &row[k * np..(k + 1) * np];
+                    let v = u[r * dim + d] as f64;
+                    let (v, ld) = match direction {
+                        Direction::Forward => s.forward(p, v),
+                        Direction::Inverse => s.inverse(p, v),
+                    };
+                    u[r * dim + d] = v as f32;
+                    log_det[r] += ld;
+                }
+            }
+        });
+        tape
+    }
+
+    /// Layer by layer from the last, over all chunks at once: the transforms' reverse mode per
+    /// chunk, then the conditioner's over every chunk's tape (its weight gradients reduced in a
+    /// fixed order on large matrices), then the encoding's per chunk.
+    fn backward_stack(
+        stack: &Composed<Coupling>,
+        chunks: &[ChunkTape<MlpTape>],
+        weights: &[f32],
+        grads: &mut [f32],
+    ) {
+        let dim = stack.dim;
+        let g_log_det: Vec<f32> = weights.iter().map(|w| -w).collect();
+        // ∂L/∂u per chunk; the latent's density is constant, so it starts at zero.
+        let mut g_u: Vec<Vec<f32>> = chunks.iter().map(|c| vec![0.0; c[0].input.len()]).collect();
+        for (l, coupling) in stack.layers.iter().enumerate().rev() {
+            let g_out: Vec<Vec<f32>> = chunks
+                .par_iter()
+                .zip(g_u.par_iter_mut())
+                .enumerate()
+                .map(|(c, (chunk, g_u))| {
+                    let t = &chunk[l];
+                    let g_ld = &g_log_det[c * CHUNK_ROWS..c * CHUNK_ROWS + t.record.rows];
+                    coupling.transform_backward(&t.record, &t.input, dim, g_u, g_ld)
+                })
+                .collect();
+            let tapes: Vec<&MlpTape> = chunks.iter().map(|c| &c[l].record).collect();
+            let range = coupling.offset..coupling.offset + coupling.mlp.param_count();
+            // The first layer's input is the fixed x: no gradient needed below it.
+            let g_enc = coupling.mlp.backward(
+                coupling.params(&stack.params),
+                &tapes,
+                g_out,
+                &mut grads[range],
+                l > 0 && !coupling.a.is_empty(),
+            );
+            if let Some(g_enc) = g_enc {
+                chunks
+                    .par_iter()
+                    .zip(g_u.par_iter_mut())
+                    .zip(g_enc.par_iter())
+                    .for_each(|((chunk, g_u), g_enc)| {
+                        let t = &chunk[l];
+                        coupling.encoding_backward(&t.record, &t.input, dim, g_enc, g_u);
+                    });
             }
         }
     }

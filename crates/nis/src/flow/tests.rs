@@ -5,17 +5,19 @@ use rand::{Rng, SeedableRng};
 use rand_pcg::Pcg64Mcg;
 
 use super::*;
-use crate::spline::Transform;
+use crate::error::Error;
+use crate::transform::TransformKind;
+use composed::Rows;
 
-const TRANSFORMS: [Transform; 4] = [
-    Transform::Affine,
-    Transform::Linear { bins: 8 },
-    Transform::Quadratic { bins: 8 },
-    Transform::RationalQuadratic { bins: 8 },
+const TRANSFORMS: [TransformKind; 4] = [
+    TransformKind::Affine,
+    TransformKind::Linear { bins: 8 },
+    TransformKind::Quadratic { bins: 8 },
+    TransformKind::RationalQuadratic { bins: 8 },
 ];
 
 /// A flow whose every parameter got uniform noise of half-width `scale`: not the identity.
-fn random_flow(dim: usize, transform: Transform, context_dim: usize, scale: f32) -> Flow {
+fn random_flow(dim: usize, transform: TransformKind, context_dim: usize, scale: f32) -> Flow {
     let config = FlowConfig {
         dim,
         transform,
@@ -103,21 +105,17 @@ fn log_det_matches_finite_difference_jacobian() {
                 );
                 // Layer by layer, the Jacobian is triangular with C' on the B diagonal.
                 let mut u = x.clone();
-                for c in flow.couplings() {
+                for c in flow.layers() {
                     let mut ld = [0.0f64];
                     let u0 = u.clone();
                     let apply = |u: &mut Vec<f32>, ld: &mut [f64; 1]| {
-                        let t = flow.config.transform;
-                        c.apply(
-                            &flow.params,
-                            t,
-                            flow.config.blob_bins,
+                        let rows = Rows {
                             u,
                             dim,
-                            None,
-                            ld,
-                            Direction::Forward,
-                        );
+                            ctx: None,
+                            log_det: ld,
+                        };
+                        c.apply(&flow.params, rows, Direction::Forward);
                     };
                     apply(&mut u, &mut ld);
                     // Per B dimension, differences at steps h and h/2; where they disagree the
@@ -174,7 +172,7 @@ fn density_integrates_to_one_on_a_grid() {
     let n = 1000;
     let ts: Vec<f64> = (0..n).map(|i| (i as f64 + 0.5) / n as f64).collect();
     for t in TRANSFORMS {
-        let graded = t == Transform::Affine;
+        let graded = t == TransformKind::Affine;
         let g = |t: f64| {
             if graded {
                 t * t * t * (10.0 - 15.0 * t + 6.0 * t * t)
@@ -261,7 +259,7 @@ fn parameter_gradients_match_finite_differences() {
             let grad = flow.backward(&eval.tape, &w).unwrap();
             // One directional derivative per weight and bias block of every conditioner layer
             // (the first layers' blocks reach the loss through later layers' one-blob encodings).
-            for c in flow.couplings() {
+            for c in flow.layers() {
                 let mut off = c.offset;
                 for j in 0..c.mlp.layers() {
                     let (i, o) = (c.mlp.dims[j], c.mlp.dims[j + 1]);
@@ -350,7 +348,7 @@ fn on_policy_tape_gives_the_recomputed_gradient() {
 
 #[test]
 fn stale_tapes_and_bad_weights_are_errors() {
-    let mut flow = random_flow(2, Transform::Quadratic { bins: 4 }, 0, 0.1);
+    let mut flow = random_flow(2, TransformKind::Quadratic { bins: 4 }, 0, 0.1);
     let mut rng = Pcg64Mcg::seed_from_u64(1);
     let s = flow.sample_for_training(10, None, &mut rng).unwrap();
     assert!(flow.backward(s.tape.as_ref().unwrap(), &[0.1; 9]).is_err());
@@ -369,7 +367,7 @@ fn run_threads<T: Send>(threads: usize, f: impl FnOnce() -> T + Send) -> T {
 #[test]
 fn same_seed_gives_identical_results_on_one_and_two_threads() {
     let job = || {
-        let flow = random_flow(4, Transform::Quadratic { bins: 8 }, 0, 0.3);
+        let flow = random_flow(4, TransformKind::Quadratic { bins: 8 }, 0, 0.3);
         let mut trainer =
             crate::train::Trainer::new(flow, crate::loss::Loss::Kl, Default::default()).unwrap();
         let mut rng = Pcg64Mcg::seed_from_u64(5);
@@ -414,7 +412,7 @@ fn same_seed_gives_identical_results_on_one_and_two_threads() {
 
 #[test]
 fn bad_input_is_an_error() {
-    let flow = random_flow(2, Transform::Quadratic { bins: 4 }, 0, 0.1);
+    let flow = random_flow(2, TransformKind::Quadratic { bins: 4 }, 0, 0.1);
     assert!(matches!(
         flow.log_density(&[0.5, 1.5], None),
         Err(Error::OutOfDomain { .. })
@@ -437,7 +435,7 @@ fn bad_input_is_an_error() {
     ));
     // Ends of the cube are valid.
     assert!(flow.log_density(&[0.0, 1.0], None).unwrap()[0].is_finite());
-    let ctx_flow = random_flow(2, Transform::Affine, 3, 0.1);
+    let ctx_flow = random_flow(2, TransformKind::Affine, 3, 0.1);
     let mut rng = Pcg64Mcg::seed_from_u64(0);
     assert!(ctx_flow.sample(2, None, &mut rng).is_err());
     assert!(ctx_flow.sample(2, Some(&[0.0; 5]), &mut rng).is_err());
@@ -450,11 +448,11 @@ fn bad_input_is_an_error() {
             ..FlowConfig::new(2)
         },
         FlowConfig {
-            transform: Transform::Quadratic { bins: 0 },
+            transform: TransformKind::Quadratic { bins: 0 },
             ..FlowConfig::new(2)
         },
         FlowConfig {
-            transform: Transform::Linear { bins: 100_000 },
+            transform: TransformKind::Linear { bins: 100_000 },
             ..FlowConfig::new(2)
         },
         FlowConfig {

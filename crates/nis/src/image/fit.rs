@@ -10,12 +10,12 @@ use rand_pcg::Pcg64Mcg;
 use serde::{Deserialize, Serialize};
 
 use crate::error::{Error, Result};
-use crate::flow::{Flow, FlowConfig};
+use crate::flow::{Density, Flow, FlowConfig};
 use crate::image::{Grid, GridMetrics, Target};
 use crate::loss::Loss;
 use crate::nn::AdamConfig;
-use crate::spline::Transform;
 use crate::train::Trainer;
+use crate::transform::TransformKind;
 
 /// Where the training points come from.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
@@ -94,7 +94,7 @@ pub struct FitSummary {
     /// The model, e.g. `pq32 L=2`.
     pub model: String,
     /// The coupling transform.
-    pub transform: Transform,
+    pub transform: TransformKind,
     /// Number of coupling layers L.
     pub couplings: usize,
     /// Trainable parameters of the flow.
@@ -217,7 +217,7 @@ mod tests {
     use super::*;
     use crate::image::Builtin;
 
-    fn run(target: &Target, grid: &Grid, transform: Transform, couplings: usize) -> FitSummary {
+    fn run(target: &Target, grid: &Grid, transform: TransformKind, couplings: usize) -> FitSummary {
         let config = FitConfig {
             flow: FlowConfig {
                 transform,
@@ -239,8 +239,8 @@ mod tests {
         let target = Target::builtin(Builtin::Rings, 64).unwrap();
         let grid = Grid::for_target(&target).unwrap();
         let uniform = grid.metrics_of_log_q(&vec![0.0; 64 * 64]).kl;
-        let pq = run(&target, &grid, Transform::Quadratic { bins: 32 }, 2);
-        let affine = run(&target, &grid, Transform::Affine, 2);
+        let pq = run(&target, &grid, TransformKind::Quadratic { bins: 32 }, 2);
+        let affine = run(&target, &grid, TransformKind::Affine, 2);
         assert!(pq.final_kl < uniform, "{pq:?} vs uniform KL {uniform}");
         assert!(
             pq.final_kl < affine.final_kl,

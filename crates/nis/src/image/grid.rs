@@ -14,7 +14,7 @@
 use serde::{Deserialize, Serialize};
 
 use crate::error::{Error, Result};
-use crate::flow::Flow;
+use crate::flow::{Density, Flow};
 use crate::image::Target;
 
 /// Largest number of grid cells per side (a larger image is resampled bilinearly).

@@ -12,17 +12,18 @@ use std::collections::HashMap;
 use std::path::Path;
 use std::time::Instant;
 
-use rand::{Rng, SeedableRng};
+use rand::SeedableRng;
 use rand_pcg::Pcg64Mcg;
 use serde::{Deserialize, Serialize};
 
 use super::{check_dim, evaluate, Accumulator, Integrand, IntegrationResult, Progress};
 use crate::error::{Error, Result};
-use crate::flow::{Flow, FlowConfig};
+use crate::flow::mixture::{self, MixtureBatch};
+use crate::flow::{Density, Flow, FlowConfig};
 use crate::loss::Loss;
 use crate::nn::AdamConfig;
-use crate::spline::Transform;
 use crate::train::Trainer;
+use crate::transform::TransformKind;
 
 /// Settings of the NIS integrator. The defaults work across the built-in suite untuned.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -55,7 +56,7 @@ impl Default for NisConfig {
     fn default() -> Self {
         NisConfig {
             flow: FlowConfig {
-                transform: Transform::Quadratic { bins: 16 },
+                transform: TransformKind::Quadratic { bins: 16 },
                 hidden_layers: 2,
                 hidden_width: 32,
                 blob_bins: 16,
@@ -105,14 +106,6 @@ pub struct NisIntegrator {
     pub trained_evals: u64,
 }
 
-/// A batch from the defensive mixture: points (as f64 for the integrand), the
-/// mixture's log-density, and the flow samples' tape when training.
-struct MixtureBatch {
-    x64: Vec<f64>,
-    log_q_mix: Vec<f64>,
-    flow_part: crate::flow::Samples,
-}
-
 impl NisIntegrator {
     /// A new (untrained: uniform) integrator in `dim` dimensions.
     pub fn new(dim: usize, config: NisConfig) -> Result<NisIntegrator> {
@@ -135,32 +128,8 @@ impl NisIntegrator {
     }
 
     fn draw(&self, n: usize, rng: &mut Pcg64Mcg, for_training: bool) -> Result<MixtureBatch> {
-        let flow = self.trainer.flow();
-        let dim = flow.dim();
         let lambda = self.config.uniform_fraction;
-        let n_u = ((lambda * n as f64).round() as usize).min(n.saturating_sub(1));
-        let n_f = n - n_u;
-        let flow_part = if for_training {
-            flow.sample_for_training(n_f, None, rng)?
-        } else {
-            flow.sample(n_f, None, rng)?
-        };
-        let mut x32 = flow_part.x.clone();
-        x32.extend((0..n_u * dim).map(|_| rng.random::<f32>()));
-        let lq_u = flow.log_density(&x32[n_f * dim..], None)?;
-        let mix = |lq: f64| (lambda + (1.0 - lambda) * lq.exp()).ln();
-        let log_q_mix = flow_part
-            .log_q
-            .iter()
-            .chain(&lq_u)
-            .map(|&l| mix(l))
-            .collect();
-        let x64 = x32.iter().map(|&v| v as f64).collect();
-        Ok(MixtureBatch {
-            x64,
-            log_q_mix,
-            flow_part,
-        })
+        mixture::draw(self.trainer.flow(), lambda, n, rng, for_training)
     }
 
     /// The adaptive phase: `evals` evaluations in batches, one training step per batch.
@@ -191,15 +160,20 @@ impl NisIntegrator {
             };
             self.trainer.set_temperature(beta);
             let b = self.draw(batch, &mut rng, true)?;
-            let fx = evaluate(f, &b.x64, dim)?;
+            let x64: Vec<f64> = b.x.iter().map(|&v| v as f64).collect();
+            let fx = evaluate(f, &x64, dim)?;
             self.trained_evals += batch as u64;
-            let n_f = b.flow_part.len();
+            let n_f = b.density_part.len();
             // Skip the step when the flow's share saw nothing: there is no direction to learn.
             if fx[..n_f].iter().any(|v| *v != 0.0) {
-                self.trainer.step_on_policy(&b.flow_part, &fx[..n_f])?;
+                self.trainer.step_on_policy(&b.density_part, &fx[..n_f])?;
                 for _ in 1..self.config.steps_per_batch {
-                    self.trainer
-                        .step(&b.flow_part.x, None, &fx[..n_f], &b.flow_part.log_q)?;
+                    self.trainer.step(
+                        &b.density_part.x,
+                        None,
+                        &fx[..n_f],
+                        &b.density_part.log_q,
+                    )?;
                 }
             }
             progress(self.trained_evals, evals, "nis: training");
@@ -250,13 +224,14 @@ impl NisIntegrator {
         let dim = self.flow().dim();
         check_dim(f, dim)?;
         let b = self.draw(n, rng, false)?;
-        let fx = evaluate(f, &b.x64, dim)?;
+        let x64: Vec<f64> = b.x.iter().map(|&v| v as f64).collect();
+        let fx = evaluate(f, &x64, dim)?;
         let w = fx
             .iter()
             .zip(&b.log_q_mix)
             .map(|(v, l)| v * (-l).exp())
             .collect();
-        Ok((b.x64, w))
+        Ok((x64, w))
     }
 
     /// Saves the trained flow with the integrator's settings beside it (atomically).

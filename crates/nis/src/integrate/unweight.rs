@@ -13,6 +13,7 @@ use rand_pcg::Pcg64Mcg;
 use super::nis::NisIntegrator;
 use super::{Integrand, Progress};
 use crate::error::{Error, Result};
+use crate::flow::Density;
 
 /// Unweighted points with their (rare) residual weights.
 #[derive(Clone, Debug)]

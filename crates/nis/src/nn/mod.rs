@@ -1,7 +1,9 @@
-//! Neural-network pieces of the conditioner: the MLP (weights in one flat parameter vector) and
-//! Adam. The one-blob encoding's kernel lives in [`crate::kernels::elementwise`].
+//! Neural-network pieces of the conditioners: the MLP (weights in one flat parameter vector), the
+//! residual convolutional network of the multi-scale flow, the one-blob input encoding, and Adam.
 
 pub mod adam;
+pub mod conv_net;
+pub mod encoding;
 pub mod mlp;
 
 pub use adam::{Adam, AdamConfig};

@@ -7,7 +7,7 @@
 //! pushes y so close to 0 or 1 that f32 can no longer tell points apart, and the density at the
 //! ends of the interval behaves like x^(e^s − 1), which must stay integrable and finite in f32.
 
-use super::Spline;
+use super::Transform;
 
 /// Bound on the log-scale s.
 pub const MAX_LOG_SCALE: f64 = 2.0;
@@ -55,7 +55,7 @@ fn logit_parts(x: f64) -> (f64, f64, f64) {
     (x, lx - l1x, lx + l1x)
 }
 
-impl Spline for Affine {
+impl Transform for Affine {
     fn param_count(&self) -> usize {
         2
     }
@@ -111,7 +111,7 @@ impl Spline for Affine {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::spline::testing;
+    use crate::transform::testing;
 
     #[test]
     fn affine_round_trips_and_gradients() {

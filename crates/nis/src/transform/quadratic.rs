@@ -8,7 +8,7 @@
 //! transform, these widths get correct gradients because the density is continuous.
 
 use super::{
-    edges_from_widths, exponentials, softmax_floor, softmax_floor_backward, with_scratch, Spline,
+    edges_from_widths, exponentials, softmax_floor, softmax_floor_backward, with_scratch, Transform,
 };
 
 /// Smallest bin width as a fraction of the mean width 1/K: no bin collapses to zero.
@@ -96,7 +96,7 @@ impl Quadratic {
     }
 }
 
-impl Spline for Quadratic {
+impl Transform for Quadratic {
     fn param_count(&self) -> usize {
         2 * self.bins + 1
     }
@@ -193,7 +193,7 @@ impl Quadratic {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::spline::testing;
+    use crate::transform::testing;
 
     #[test]
     fn quadratic_round_trips_and_gradients() {

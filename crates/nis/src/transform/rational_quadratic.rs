@@ -7,7 +7,7 @@
 //! Unlike the unbounded-domain original (whose boundary derivatives are 1 to meet linear tails),
 //! the two boundary derivatives are learned too: on [0, 1] nothing forces the density at the ends.
 
-use super::{edges_from_widths, softmax_floor, softmax_floor_backward, with_scratch, Spline};
+use super::{edges_from_widths, softmax_floor, softmax_floor_backward, with_scratch, Transform};
 use crate::kernels::elementwise;
 
 /// Smallest bin width as a fraction of the mean width.
@@ -82,7 +82,7 @@ impl RationalQuadratic {
     }
 }
 
-impl Spline for RationalQuadratic {
+impl Transform for RationalQuadratic {
     fn param_count(&self) -> usize {
         3 * self.bins + 1
     }
@@ -247,7 +247,7 @@ impl RationalQuadratic {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::spline::testing;
+    use crate::transform::testing;
 
     #[test]
     fn rational_quadratic_round_trips_and_gradients() {

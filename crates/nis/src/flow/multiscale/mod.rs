@@ -21,12 +21,13 @@
 use rand::SeedableRng;
 use rand_pcg::Pcg64Mcg;
 use rayon::prelude::*;
+use serde::{Deserialize, Serialize};
 
+use super::composed::{ChunkTape, Composed, Direction, Layer, LayerTape, Rows};
 use crate::error::{Error, Result};
-use crate::flow::coupling::Direction;
-use crate::spline::{with_spline, Spline, Transform};
+use crate::transform::{with_transform, Transform, TransformKind};
 
-pub use super::conv_net::{ConvNet, NetTape};
+pub use crate::nn::conv_net::{ConvNet, NetTape};
 
 /// Images per parallel work item. Fixed, so results do not depend on the number of threads.
 pub const IMAGES_PER_CHUNK: usize = 8;
@@ -50,6 +51,18 @@ pub struct MsCoupling {
     pub idx: Vec<usize>,
     pub mask: Mask,
     pub net: ConvNet,
+    /// The 1-D transform of each changed entry.
+    pub transform: TransformKind,
+}
+
+/// The gradients one chunk's reverse pass through a coupling reads and writes.
+struct ChunkGrad<'a> {
+    /// ∂L/∂output on entry, ∂L/∂input on exit.
+    g_u: &'a mut [f32],
+    /// ∂L/∂ln|det| of each row.
+    g_log_det: &'a [f32],
+    /// The coupling's slice of the parameter gradient.
+    params: &'a mut [f32],
 }
 
 impl MsCoupling {
@@ -96,48 +109,6 @@ impl MsCoupling {
         x
     }
 
-    /// Runs the conditioner and transforms the B entries of `n` rows of `u` in place, adding
-    /// each row's ln|det| to `log_det`.
-    fn apply(
-        &self,
-        params: &[f32],
-        transform: Transform,
-        u: &mut [f32],
-        dim: usize,
-        log_det: &mut [f64],
-        direction: Direction,
-    ) -> NetTape {
-        let n = log_det.len();
-        let net_params = &params[self.net.offset..self.net.offset + self.net.param_count()];
-        let tape = self
-            .net
-            .forward(net_params, self.input(u, n, dim), n, self.h, self.w);
-        let (hw, co) = (self.h * self.w, self.net.c_out);
-        let np = transform.param_count();
-        with_spline!(transform, s => {
-            for r in 0..n {
-                for p in 0..hw {
-                    let out = &tape.out[(r * hw + p) * co..(r * hw + p + 1) * co];
-                    for ch in 0..self.c {
-                        if self.in_a(p, ch) {
-                            continue;
-                        }
-                        let at = self.param_slot(ch) * np;
-                        let k = r * dim + self.idx[p * self.c + ch];
-                        let v = u[k] as f64;
-                        let (v, ld) = match direction {
-                            Direction::Forward => s.forward(&out[at..at + np], v),
-                            Direction::Inverse => s.inverse(&out[at..at + np], v),
-                        };
-                        u[k] = v as f32;
-                        log_det[r] += ld;
-                    }
-                }
-            }
-        });
-        tape
-    }
-
     /// Reverse mode through this coupling for one chunk: `input` is the coupling's input (x side),
     /// `g_u` holds ∂L/∂output on entry and ∂L/∂input on exit (the A part only when
     /// `want_input`), `g_log_det[r]` is ∂L/∂ln|det| of row r; writes the conditioner's parameter
@@ -145,20 +116,22 @@ impl MsCoupling {
     fn backward(
         &self,
         params: &[f32],
-        transform: Transform,
-        tape: &NetTape,
-        input: &[f32],
+        layer: &LayerTape<NetTape>,
         dim: usize,
-        g_u: &mut [f32],
-        g_log_det: &[f32],
-        grads: &mut [f32],
+        grad: ChunkGrad<'_>,
         want_input: bool,
     ) {
+        let (tape, input) = (&layer.record, &layer.input);
+        let ChunkGrad {
+            g_u,
+            g_log_det,
+            params: grads,
+        } = grad;
         let n = g_log_det.len();
         let (hw, co) = (self.h * self.w, self.net.c_out);
-        let np = transform.param_count();
+        let np = self.transform.param_count();
         let mut g_out = vec![0.0f32; n * hw * co];
-        with_spline!(transform, s => {
+        with_transform!(self.transform, s => {
             for r in 0..n {
                 for p in 0..hw {
                     let row = (r * hw + p) * co;
@@ -256,36 +229,40 @@ fn architecture(
     }
 }
 
-/// The multi-scale flow.
-#[derive(Clone, Debug)]
-pub struct MultiScale {
-    dim: usize,
-    transform: Transform,
-    couplings: Vec<MsCoupling>,
-    params: Vec<f32>,
-    version: u64,
+/// The shape of a multi-scale flow, weights aside (serde: stored beside the weights).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct MultiScaleConfig {
+    /// Image width and height in pixels (D = width·height).
+    pub width: usize,
+    pub height: usize,
+    /// The coupling transform.
+    pub transform: TransformKind,
+    /// Number of squeezes (each followed by factoring out half of the channels).
+    pub scales: usize,
+    /// Channels and residual blocks of every convolutional conditioner.
+    pub features: usize,
+    pub blocks: usize,
+    /// Seed of the weight initialisation.
+    pub seed: u64,
 }
 
-/// What a forward pass recorded: per chunk, per coupling, its input and its conditioner's tape.
-#[derive(Clone, Debug)]
-pub struct MsTape {
-    version: u64,
-    rows: usize,
-    chunks: Vec<Vec<(Vec<f32>, NetTape)>>,
-}
+/// The multi-scale flow: a [`Composed`] stack of [`MsCoupling`] layers.
+pub type MultiScale = Composed<MsCoupling>;
 
 impl MultiScale {
     /// A new flow (the identity) for `width × height` images with `scales` squeezes, conditioners
     /// of `features` channels and `blocks` residual blocks, weights from `seed`.
-    pub fn new(
-        width: usize,
-        height: usize,
-        transform: Transform,
-        scales: usize,
-        features: usize,
-        blocks: usize,
-        seed: u64,
-    ) -> Result<MultiScale> {
+    pub fn new(config: MultiScaleConfig) -> Result<MultiScale> {
+        let MultiScaleConfig {
+            width,
+            height,
+            transform,
+            scales,
+            features,
+            blocks,
+            seed,
+        } = config;
         transform.validate()?;
         if width < 2
             || height < 2
@@ -321,6 +298,7 @@ impl MultiScale {
                 idx,
                 mask,
                 net,
+                transform,
             });
         }
         let mut params = vec![0.0; offset];
@@ -331,149 +309,94 @@ impl MultiScale {
                 &mut rng,
             );
         }
-        Ok(MultiScale {
-            dim: width * height,
-            transform,
+        Ok(Composed::from_parts(
+            config,
             couplings,
             params,
-            version: 0,
-        })
+            width * height,
+            0,
+        ))
     }
+}
 
-    pub fn couplings(&self) -> &[MsCoupling] {
-        &self.couplings
-    }
+impl Layer for MsCoupling {
+    type Record = NetTape;
+    type Config = MultiScaleConfig;
+    const CHUNK_ROWS: usize = IMAGES_PER_CHUNK;
 
-    pub fn params(&self) -> &[f32] {
-        &self.params
-    }
-
-    /// Mutable parameters; invalidates tapes recorded before.
-    pub fn params_mut(&mut self) -> &mut [f32] {
-        self.version += 1;
-        &mut self.params
-    }
-
-    fn check_points(&self, x: &[f32]) -> Result<usize> {
-        crate::flow::check_points(
-            x,
-            self.dim,
-            "images (length must be a multiple of the pixel count)",
-        )
-    }
-
-    fn run(&self, u: &mut [f32], direction: Direction, record: bool) -> (Vec<f64>, Option<MsTape>) {
-        let dim = self.dim;
-        let rows = u.len() / dim;
-        let mut log_q = vec![0.0f64; rows];
-        let chunks: Vec<Vec<(Vec<f32>, NetTape)>> = u
-            .par_chunks_mut(IMAGES_PER_CHUNK * dim)
-            .zip(log_q.par_chunks_mut(IMAGES_PER_CHUNK))
-            .map(|(u, log_q)| {
-                let mut layers = Vec::new();
-                let order: Vec<usize> = match direction {
-                    Direction::Forward => (0..self.couplings.len()).collect(),
-                    Direction::Inverse => (0..self.couplings.len()).rev().collect(),
-                };
-                for l in order {
-                    let input = (record && direction == Direction::Forward).then(|| u.to_vec());
-                    let tape = self.couplings[l].apply(
-                        &self.params,
-                        self.transform,
-                        u,
-                        dim,
-                        log_q,
-                        direction,
-                    );
-                    if record {
-                        layers.push((input.unwrap_or_else(|| u.to_vec()), tape));
+    /// Runs the conditioner and transforms the B entries of `n` rows of `u` in place, adding
+    /// each row's ln|det| to `log_det`.
+    fn apply(&self, params: &[f32], rows: Rows<'_>, direction: Direction) -> NetTape {
+        let Rows {
+            u, dim, log_det, ..
+        } = rows;
+        let n = log_det.len();
+        let net_params = &params[self.net.offset..self.net.offset + self.net.param_count()];
+        let tape = self
+            .net
+            .forward(net_params, self.input(u, n, dim), n, self.h, self.w);
+        let (hw, co) = (self.h * self.w, self.net.c_out);
+        let np = self.transform.param_count();
+        with_transform!(self.transform, s => {
+            for r in 0..n {
+                for p in 0..hw {
+                    let out = &tape.out[(r * hw + p) * co..(r * hw + p + 1) * co];
+                    for ch in 0..self.c {
+                        if self.in_a(p, ch) {
+                            continue;
+                        }
+                        let at = self.param_slot(ch) * np;
+                        let k = r * dim + self.idx[p * self.c + ch];
+                        let v = u[k] as f64;
+                        let (v, ld) = match direction {
+                            Direction::Forward => s.forward(&out[at..at + np], v),
+                            Direction::Inverse => s.inverse(&out[at..at + np], v),
+                        };
+                        u[k] = v as f32;
+                        log_det[r] += ld;
                     }
                 }
-                if direction == Direction::Inverse {
-                    layers.reverse();
-                }
-                layers
-            })
-            .collect();
-        let tape = record.then_some(MsTape {
-            version: self.version,
-            rows,
-            chunks,
+            }
         });
-        (log_q, tape)
+        tape
     }
 
-    /// ln q of each image (row of `x`).
-    pub fn log_density(&self, x: &[f32]) -> Result<Vec<f64>> {
-        Ok(self.forward(x)?.1)
-    }
-
-    /// ln q with the tape for [`MultiScale::backward`].
-    pub fn log_density_for_training(&self, x: &[f32]) -> Result<(Vec<f64>, MsTape)> {
-        self.check_points(x)?;
-        let mut z = x.to_vec();
-        let (log_q, tape) = self.run(&mut z, Direction::Forward, true);
-        Ok((log_q, tape.expect("recorded")))
-    }
-
-    /// Data to latent: z and ln q(x).
-    pub fn forward(&self, x: &[f32]) -> Result<(Vec<f32>, Vec<f64>)> {
-        self.check_points(x)?;
-        let mut z = x.to_vec();
-        let (log_q, _) = self.run(&mut z, Direction::Forward, false);
-        Ok((z, log_q))
-    }
-
-    /// Latent to data.
-    pub fn inverse(&self, z: &[f32]) -> Result<Vec<f32>> {
-        self.check_points(z)?;
-        let mut x = z.to_vec();
-        self.run(&mut x, Direction::Inverse, false);
-        Ok(x)
-    }
-
-    /// Gradient of −Σ_i w_i ln q(x_i; θ) for the images whose pass recorded `tape`. Every chunk
-    /// runs its whole reverse pass into its own gradient; the chunks' gradients are summed in
-    /// chunk order.
-    pub fn backward(&self, tape: &MsTape, weights: &[f32]) -> Result<Vec<f32>> {
-        crate::flow::check_tape(self.version, tape.version, tape.rows, weights.len())?;
-        let dim = self.dim;
-        let per_chunk: Vec<Vec<f32>> = tape
-            .chunks
+    /// Chunk by chunk: every chunk runs its whole reverse pass into its own gradient, and the
+    /// chunks' gradients are summed in chunk order.
+    fn backward_stack(
+        stack: &MultiScale,
+        chunks: &[ChunkTape<NetTape>],
+        weights: &[f32],
+        grads: &mut [f32],
+    ) {
+        let dim = stack.dim;
+        let per_chunk: Vec<Vec<f32>> = chunks
             .par_iter()
             .enumerate()
             .map(|(c, layers)| {
                 let r0 = c * IMAGES_PER_CHUNK;
-                let n = layers[0].0.len() / dim;
+                let n = layers[0].input.len() / dim;
                 let g_ld: Vec<f32> = weights[r0..r0 + n].iter().map(|w| -w).collect();
                 let mut g_u = vec![0.0f32; n * dim];
-                let mut grads = vec![0.0f32; self.params.len()];
-                for (l, coupling) in self.couplings.iter().enumerate().rev() {
-                    let (input, net_tape) = &layers[l];
+                let mut grads = vec![0.0f32; stack.params.len()];
+                for (l, coupling) in stack.layers.iter().enumerate().rev() {
                     let range =
                         coupling.net.offset..coupling.net.offset + coupling.net.param_count();
-                    coupling.backward(
-                        &self.params,
-                        self.transform,
-                        net_tape,
-                        input,
-                        dim,
-                        &mut g_u,
-                        &g_ld,
-                        &mut grads[range],
-                        l > 0,
-                    );
+                    let grad = ChunkGrad {
+                        g_u: &mut g_u,
+                        g_log_det: &g_ld,
+                        params: &mut grads[range],
+                    };
+                    coupling.backward(&stack.params, &layers[l], dim, grad, l > 0);
                 }
                 grads
             })
             .collect();
-        let mut grads = vec![0.0f32; self.params.len()];
         for g in per_chunk {
             for (a, b) in grads.iter_mut().zip(&g) {
                 *a += b;
             }
         }
-        Ok(grads)
     }
 }
 

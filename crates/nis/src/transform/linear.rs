@@ -4,7 +4,7 @@
 //! relative position of x in its bin. Bin widths are fixed: the paper's Appendix A shows why
 //! learnable widths cannot be trained by these gradients.
 
-use super::{equal_bin, softmax_floor, softmax_floor_backward, with_scratch, Spline};
+use super::{equal_bin, softmax_floor, softmax_floor_backward, with_scratch, Transform};
 
 /// Smallest bin mass, as a fraction of the mean mass 1/K: the density never falls below this
 /// value, which keeps log-densities finite and importance weights f/q bounded. It is also mass
@@ -21,7 +21,7 @@ pub struct Linear {
     pub bins: usize,
 }
 
-impl Spline for Linear {
+impl Transform for Linear {
     fn param_count(&self) -> usize {
         self.bins
     }
@@ -80,7 +80,7 @@ impl Spline for Linear {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::spline::testing;
+    use crate::transform::testing;
 
     #[test]
     fn linear_round_trips_and_gradients() {

@@ -5,7 +5,7 @@
 use rand::{Rng, SeedableRng};
 use rand_pcg::Pcg64Mcg;
 
-use super::Spline;
+use super::Transform;
 
 /// Gaussian-ish random parameters of scale `scale` (sum of uniforms; no extra crate needed).
 pub(crate) fn random_params(n: usize, scale: f32, seed: u64) -> Vec<f32> {
@@ -39,7 +39,7 @@ fn f32_half_ulp(y: f64) -> f64 {
 }
 
 /// Runs every generic check on a transform.
-pub(crate) fn check_transform<S: Spline>(t: &S, strict: bool) {
+pub(crate) fn check_transform<S: Transform>(t: &S, strict: bool) {
     let n = t.param_count();
     let mut rng = Pcg64Mcg::seed_from_u64(42);
     for (set, p) in parameter_sets(n).iter().enumerate() {
@@ -114,7 +114,7 @@ pub(crate) fn check_transform<S: Spline>(t: &S, strict: bool) {
 }
 
 /// Compares `backward` with central differences of L = g_y·y + g_ld·log_det.
-fn check_gradients<S: Spline>(t: &S, p: &[f32], edges: &[f64], rng: &mut Pcg64Mcg) {
+fn check_gradients<S: Transform>(t: &S, p: &[f32], edges: &[f64], rng: &mut Pcg64Mcg) {
     let n = t.param_count();
     let mut g_p = vec![0.0f32; n];
     for _ in 0..20 {

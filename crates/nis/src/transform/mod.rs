@@ -2,10 +2,10 @@
 //!
 //! Each transform is a CDF whose shape is set by a short vector of *unnormalised* parameters that a
 //! conditioner network predicts (Müller et al. 2019, "Neural Importance Sampling", Sec. 3; Durkan et
-//! al. 2019 for the rational-quadratic spline). All four share one small surface, [`Spline`]:
+//! al. 2019 for the rational-quadratic spline). All four share one small surface, [`Transform`]:
 //! forward (x ↦ y and log dy/dx), inverse (y ↦ x and the same log-derivative), and the reverse-mode
 //! gradient of a scalar loss with respect to the input and the unnormalised parameters. The
-//! coupling layer knows transforms only through this surface and the [`Transform`] enum.
+//! coupling layer knows transforms only through this surface and the [`TransformKind`] enum.
 //!
 //! Parameters arrive as `f32` (the network's precision); the arithmetic inside runs in `f64`, so a
 //! round trip loses only what storing y as `f32` loses, and gradient checks can be tight.
@@ -29,8 +29,8 @@ pub const MAX_BINS: usize = 256;
 
 /// The surface every coupling transform implements.
 ///
-/// `p` holds the [`Spline::param_count`] unnormalised parameters of one transformed scalar.
-pub trait Spline {
+/// `p` holds the [`Transform::param_count`] unnormalised parameters of one transformed scalar.
+pub trait Transform {
     /// Number of unnormalised parameters per transformed dimension.
     fn param_count(&self) -> usize;
     /// y = C(x) and log C'(x), for x in [0, 1].
@@ -47,15 +47,15 @@ pub trait Spline {
 /// Which coupling transform a flow uses, with its bin count.
 ///
 /// ```
-/// use nis::spline::{Spline, Transform};
-/// let t = Transform::Quadratic { bins: 8 };
+/// use nis::transform::{Transform, TransformKind};
+/// let t = TransformKind::Quadratic { bins: 8 };
 /// let p = vec![0.0_f32; t.param_count()]; // zero parameters: the identity
 /// let (y, log_det) = t.forward(&p, 0.3);
 /// assert!((y - 0.3).abs() < 1e-12 && log_det.abs() < 1e-12);
 /// ```
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(tag = "kind", rename_all = "snake_case")]
-pub enum Transform {
+pub enum TransformKind {
     /// RealNVP's affine coupling, moved to [0, 1] through logit and sigmoid.
     Affine,
     /// Piecewise-linear CDF (piecewise-constant density), `bins` equal bins.
@@ -66,14 +66,14 @@ pub enum Transform {
     RationalQuadratic { bins: usize },
 }
 
-impl Transform {
+impl TransformKind {
     /// Checks the bin count.
     pub fn validate(&self) -> Result<()> {
         match *self {
-            Transform::Affine => Ok(()),
-            Transform::Linear { bins }
-            | Transform::Quadratic { bins }
-            | Transform::RationalQuadratic { bins } => {
+            TransformKind::Affine => Ok(()),
+            TransformKind::Linear { bins }
+            | TransformKind::Quadratic { bins }
+            | TransformKind::RationalQuadratic { bins } => {
                 if bins == 0 || bins > MAX_BINS {
                     Err(Error::Config(format!(
                         "a spline needs between 1 and {MAX_BINS} bins, got {bins}"
@@ -88,54 +88,54 @@ impl Transform {
     /// A short name for tables: `affine`, `pl32`, `pq32`, `rq8`.
     pub fn label(&self) -> String {
         match *self {
-            Transform::Affine => "affine".into(),
-            Transform::Linear { bins } => format!("pl{bins}"),
-            Transform::Quadratic { bins } => format!("pq{bins}"),
-            Transform::RationalQuadratic { bins } => format!("rq{bins}"),
+            TransformKind::Affine => "affine".into(),
+            TransformKind::Linear { bins } => format!("pl{bins}"),
+            TransformKind::Quadratic { bins } => format!("pq{bins}"),
+            TransformKind::RationalQuadratic { bins } => format!("rq{bins}"),
         }
     }
 }
 
 /// Calls `$body` with `$s` bound to the concrete transform, so hot loops are monomorphised.
-macro_rules! with_spline {
+macro_rules! with_transform {
     ($t:expr, $s:ident => $body:expr) => {
         match $t {
-            $crate::spline::Transform::Affine => {
-                let $s = $crate::spline::Affine;
+            $crate::transform::TransformKind::Affine => {
+                let $s = $crate::transform::Affine;
                 $body
             }
-            $crate::spline::Transform::Linear { bins } => {
-                let $s = $crate::spline::Linear { bins };
+            $crate::transform::TransformKind::Linear { bins } => {
+                let $s = $crate::transform::Linear { bins };
                 $body
             }
-            $crate::spline::Transform::Quadratic { bins } => {
-                let $s = $crate::spline::Quadratic { bins };
+            $crate::transform::TransformKind::Quadratic { bins } => {
+                let $s = $crate::transform::Quadratic { bins };
                 $body
             }
-            $crate::spline::Transform::RationalQuadratic { bins } => {
-                let $s = $crate::spline::RationalQuadratic { bins };
+            $crate::transform::TransformKind::RationalQuadratic { bins } => {
+                let $s = $crate::transform::RationalQuadratic { bins };
                 $body
             }
         }
     };
 }
-pub(crate) use with_spline;
+pub(crate) use with_transform;
 
-impl Spline for Transform {
+impl Transform for TransformKind {
     fn param_count(&self) -> usize {
-        with_spline!(*self, s => s.param_count())
+        with_transform!(*self, s => s.param_count())
     }
     fn forward(&self, p: &[f32], x: f64) -> (f64, f64) {
-        with_spline!(*self, s => s.forward(p, x))
+        with_transform!(*self, s => s.forward(p, x))
     }
     fn inverse(&self, p: &[f32], y: f64) -> (f64, f64) {
-        with_spline!(*self, s => s.inverse(p, y))
+        with_transform!(*self, s => s.inverse(p, y))
     }
     fn bin_edges(&self, p: &[f32]) -> Vec<f64> {
-        with_spline!(*self, s => s.bin_edges(p))
+        with_transform!(*self, s => s.bin_edges(p))
     }
     fn backward(&self, p: &[f32], x: f64, g_y: f64, g_log_det: f64, g_p: &mut [f32]) -> f64 {
-        with_spline!(*self, s => s.backward(p, x, g_y, g_log_det, g_p))
+        with_transform!(*self, s => s.backward(p, x, g_y, g_log_det, g_p))
     }
 }
 

@@ -4,16 +4,29 @@ use rand::{Rng, SeedableRng};
 use rand_pcg::Pcg64Mcg;
 
 use super::*;
+use crate::flow::{Bijection, Density};
 
-const TRANSFORMS: [Transform; 3] = [
-    Transform::Affine,
-    Transform::Quadratic { bins: 4 },
-    Transform::RationalQuadratic { bins: 4 },
+fn config(transform: TransformKind, seed: u64) -> MultiScaleConfig {
+    MultiScaleConfig {
+        width: 4,
+        height: 4,
+        transform,
+        scales: 1,
+        features: 4,
+        blocks: 1,
+        seed,
+    }
+}
+
+const TRANSFORMS: [TransformKind; 3] = [
+    TransformKind::Affine,
+    TransformKind::Quadratic { bins: 4 },
+    TransformKind::RationalQuadratic { bins: 4 },
 ];
 
 /// A small flow on 4×4 images with every parameter perturbed: not the identity.
-fn random_flow(transform: Transform, scale: f32) -> MultiScale {
-    let mut f = MultiScale::new(4, 4, transform, 1, 4, 1, 3).unwrap();
+fn random_flow(transform: TransformKind, scale: f32) -> MultiScale {
+    let mut f = MultiScale::new(config(transform, 3)).unwrap();
     let mut rng = Pcg64Mcg::seed_from_u64(5);
     for p in f.params_mut() {
         *p += scale * (2.0 * rng.random::<f32>() - 1.0);
@@ -70,6 +83,7 @@ fn squeezes_and_factoring_out_are_index_maps_over_every_pixel() {
                     c_out: 1,
                     offset: 0,
                 },
+                transform: TransformKind::Affine,
             };
             for p in 0..lh * lw {
                 for ch in 0..*c {
@@ -88,16 +102,20 @@ fn squeezes_and_factoring_out_are_index_maps_over_every_pixel() {
 #[test]
 fn new_flow_is_the_identity_and_inverse_round_trips() {
     let x = points(10, 16, 1);
-    let f = MultiScale::new(4, 4, Transform::Quadratic { bins: 4 }, 1, 4, 1, 0).unwrap();
-    assert!(f.log_density(&x).unwrap().iter().all(|l| l.abs() < 1e-6));
+    let f = MultiScale::new(config(TransformKind::Quadratic { bins: 4 }, 0)).unwrap();
+    assert!(f
+        .log_density(&x, None)
+        .unwrap()
+        .iter()
+        .all(|l| l.abs() < 1e-6));
     for t in TRANSFORMS {
         let f = random_flow(t, 0.3);
-        let (z, lq) = f.forward(&x).unwrap();
+        let (z, lq) = f.forward(&x, None).unwrap();
         assert!(
             lq.iter().any(|l| l.abs() > 1e-3),
             "{t:?} is not the identity"
         );
-        let back = f.inverse(&z).unwrap();
+        let back = f.inverse(&z, None).unwrap().0;
         for (a, b) in back.iter().zip(&x) {
             assert!((a - b).abs() < 1e-4, "{t:?}: {a} vs {b}");
         }
@@ -110,15 +128,15 @@ fn log_det_matches_finite_difference_jacobian() {
         let f = random_flow(t, 0.3);
         let d = 16;
         for x in points(3, d, 2).chunks(d) {
-            let logdet = crate::flow::tests::fd_log_det(|x| f.forward(x).unwrap().0, x, 1e-3);
-            let lq = f.log_density(x).unwrap()[0];
+            let logdet = crate::flow::tests::fd_log_det(|x| f.forward(x, None).unwrap().0, x, 1e-3);
+            let lq = f.log_density(x, None).unwrap()[0];
             assert!((lq - logdet).abs() < 2e-2, "{t:?}: {lq} vs {logdet}");
         }
     }
 }
 
 fn loss_at(f: &MultiScale, x: &[f32], w: &[f32]) -> f64 {
-    let lq = f.log_density(x).unwrap();
+    let lq = f.log_density(x, None).unwrap();
     -lq.iter().zip(w).map(|(l, &w)| l * w as f64).sum::<f64>()
 }
 
@@ -130,11 +148,11 @@ fn parameter_gradients_match_finite_differences() {
         let x = points(n, 16, 3);
         let mut rng = Pcg64Mcg::seed_from_u64(4);
         let w: Vec<f32> = (0..n).map(|_| rng.random::<f32>() / n as f32).collect();
-        let (_, tape) = f.log_density_for_training(&x).unwrap();
+        let tape = f.log_density_for_training(&x, None).unwrap().tape;
         let grad = f.backward(&tape, &w).unwrap();
         // One directional derivative per coupling's conditioner (its gradient plus noise): the
         // first couplings reach the loss through every later conditioner's input.
-        for c in f.couplings() {
+        for c in f.layers() {
             let block = c.net.offset..c.net.offset + c.net.param_count();
             let g = &grad[block.clone()];
             let gmax = g.iter().map(|g| g.abs()).fold(0.0, f32::max);
@@ -168,7 +186,7 @@ fn parameter_gradients_match_finite_differences() {
 
 #[test]
 fn gradients_are_identical_on_one_and_two_threads() {
-    let f = random_flow(Transform::Quadratic { bins: 4 }, 0.2);
+    let f = random_flow(TransformKind::Quadratic { bins: 4 }, 0.2);
     let x = points(37, 16, 6);
     let w = vec![1.0 / 37.0; 37];
     let run = |threads: usize| {
@@ -177,8 +195,8 @@ fn gradients_are_identical_on_one_and_two_threads() {
             .build()
             .unwrap()
             .install(|| {
-                let (lq, tape) = f.log_density_for_training(&x).unwrap();
-                (lq, f.backward(&tape, &w).unwrap())
+                let e = f.log_density_for_training(&x, None).unwrap();
+                (e.log_q, f.backward(&e.tape, &w).unwrap())
             })
     };
     assert_eq!(run(1), run(2));
