@@ -1,14 +1,14 @@
 //! `nis density` (train, sample, interpolate) and `nis bench density`: the paper's density
 //! estimation experiment (Müller et al. 2019, Sec. 5.1, Figure 4) on real digit images. All logic
-//! is in `nis::density` and `nis::data`; this file parses, shows progress and writes files.
+//! is in `nis_paper::density` and `nis_paper::data`; this file parses, shows progress and writes files.
 
 use std::path::{Path, PathBuf};
 
 use indicatif::{ProgressBar, ProgressStyle};
-use nis::data::{Dataset, Images};
-use nis::density::train::Progress;
-use nis::density::{cell_centres, figure, Arch, DensityConfig, Session};
 use nis::TransformKind;
+use nis_paper::data::{Dataset, Images};
+use nis_paper::density::train::Progress;
+use nis_paper::density::{cell_centres, figure, Arch, DensityConfig, Session};
 
 use crate::fit_image::Coupling;
 use crate::report;
@@ -380,9 +380,9 @@ struct Row {
     dataset: Dataset,
     label: String,
     params: usize,
-    stats: nis::density::EpochStats,
+    stats: nis_paper::density::EpochStats,
     /// The epoch with the lowest validation bits/dim.
-    best: nis::density::EpochStats,
+    best: nis_paper::density::EpochStats,
     samples: String,
     manifold: String,
 }
@@ -548,7 +548,7 @@ fn markdown(
             c.learning_rate,
             c.clip_norm.map_or("never".to_string(), |v| v.to_string()),
             c.batch,
-            nis::density::train::TRAIN_EVAL_IMAGES.min(*ntrain),
+            nis_paper::density::train::TRAIN_EVAL_IMAGES.min(*ntrain),
         ));
     }
     t.push_str(

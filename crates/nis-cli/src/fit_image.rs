@@ -1,16 +1,16 @@
 //! `nis fit-image` and `nis bench fit-image`: the paper's 2-D experiment (Müller et al. 2019,
 //! section 2.3, Figure 3). Fits a flow to an image (or a built-in pattern) and writes the
 //! learned density, the learning curves and a JSON summary; the benchmark compares the coupling
-//! transforms on every built-in target. All logic is in `nis::image`; this file parses, shows
+//! transforms on every built-in target. All logic is in `nis_paper::image`; this file parses, shows
 //! progress and writes files.
 
 use std::path::{Path, PathBuf};
 
 use indicatif::{ProgressBar, ProgressStyle};
 use nis::flow::FlowConfig;
-use nis::image::figure::{self, MontageRow};
-use nis::image::{Builtin, CurvePoint, Fit, FitConfig, Grid, Sampling, Target};
 use nis::TransformKind;
+use nis_paper::image::figure::{self, MontageRow};
+use nis_paper::image::{Builtin, CurvePoint, Fit, FitConfig, Grid, Sampling, Target};
 use serde::Serialize;
 
 use crate::report;
@@ -96,7 +96,7 @@ pub struct FitImageArgs {
 #[derive(Serialize)]
 struct Report<'a> {
     #[serde(flatten)]
-    summary: &'a nis::image::FitSummary,
+    summary: &'a nis_paper::image::FitSummary,
     config: &'a FitConfig,
     curve: &'a [CurvePoint],
 }
@@ -120,14 +120,14 @@ fn bar(len: usize, prefix: String) -> Result<ProgressBar, Box<dyn std::error::Er
 }
 
 /// Trains with a progress bar whose message shows the latest grid metrics.
-fn fit_with_bar(target: &Target, grid: &Grid, config: &FitConfig) -> Result<Fit, nis::Error> {
+fn fit_with_bar(target: &Target, grid: &Grid, config: &FitConfig) -> Result<Fit, nis_paper::Error> {
     let label = format!(
         "{} {}",
         target.name(),
-        nis::image::model_label(&config.flow)
+        nis_paper::image::model_label(&config.flow)
     );
     let pb = bar(config.steps, label).unwrap_or_else(|_| ProgressBar::new(config.steps as u64));
-    let fit = nis::image::fit(target, grid, config, &mut |step, metrics| {
+    let fit = nis_paper::image::fit(target, grid, config, &mut |step, metrics| {
         pb.set_position(step as u64);
         if let Some(m) = metrics {
             pb.set_message(format!("KL {:.4}  var {:.4}", m.kl, m.rel_var));
@@ -319,7 +319,7 @@ pub fn run_bench(args: &BenchFitImageArgs) -> Result<(), Box<dyn std::error::Err
 }
 
 /// The table of the benchmark, one row per target and model.
-fn markdown(args: &BenchFitImageArgs, summaries: &[nis::image::FitSummary]) -> String {
+fn markdown(args: &BenchFitImageArgs, summaries: &[nis_paper::image::FitSummary]) -> String {
     let images = args
         .docs_images
         .strip_prefix(args.docs.parent().unwrap_or(Path::new("")))
@@ -357,7 +357,7 @@ fn markdown(args: &BenchFitImageArgs, summaries: &[nis::image::FitSummary]) -> S
 
 /// The paper's claim, checked per target: PL-32 and PQ-32 with L = 2 reach a lower KL than
 /// affine couplings with L = 16.
-fn paper_check(summaries: &[nis::image::FitSummary]) -> String {
+fn paper_check(summaries: &[nis_paper::image::FitSummary]) -> String {
     let kl = |target: &str, model: &str| {
         summaries
             .iter()

@@ -42,21 +42,6 @@ pub enum Error {
         #[source]
         source: std::io::Error,
     },
-    /// A file that cannot be read as an image (missing, unreadable, not PNG/JPEG).
-    #[error("image {path}: {reason}")]
-    Image { path: PathBuf, reason: String },
-    /// A target that is no usable density: empty, all black, negative or non-finite.
-    #[error("target {name}: {reason}")]
-    Target { name: String, reason: String },
-    /// A data file that exists but cannot be read as the images it should hold.
-    #[error("data file {path}: {reason}")]
-    Data { path: PathBuf, reason: String },
-    /// A data file that is not there.
-    #[error("data file {path} not found: run scripts/fetch-data.sh (it fetches the image sets into data/)")]
-    MissingData { path: PathBuf },
-    /// A figure (PNG plot or false-colour image) that could not be drawn or encoded.
-    #[error("figure: {0}")]
-    Figure(String),
 }
 
 /// Shorthand for results of this crate.

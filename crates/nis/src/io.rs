@@ -46,12 +46,13 @@ pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<()> {
 }
 
 /// FNV-1a, 64 bit: detects corrupted weights (not an adversary).
-pub(crate) fn fnv1a(h: u64, bytes: &[u8]) -> u64 {
+pub fn fnv1a(h: u64, bytes: &[u8]) -> u64 {
     bytes
         .iter()
         .fold(h, |h, &b| (h ^ b as u64).wrapping_mul(0x100_0000_01b3))
 }
-pub(crate) const FNV_OFFSET: u64 = 0xcbf2_9ce4_8422_2325;
+/// The FNV-1a offset basis: the checksum of no bytes.
+pub const FNV_OFFSET: u64 = 0xcbf2_9ce4_8422_2325;
 
 /// The tensors of a flow: (name, shape, parameter range), in a fixed order.
 fn layout(flow: &Flow) -> Vec<(String, Vec<usize>, std::ops::Range<usize>)> {
@@ -124,7 +125,7 @@ pub fn load_with(path: &Path) -> Result<(Flow, HashMap<String, String>)> {
 }
 
 /// The metadata of a safetensors file that nis wrote as `what`, checked for the format tag.
-pub(crate) fn read_metadata(
+pub fn read_metadata(
     bytes: &[u8],
     format: &str,
     what: &str,

@@ -4,21 +4,28 @@
 //! learned from the integrand itself (Müller, McWilliams, Rousselle, Gross, Novák 2019, "Neural
 //! Importance Sampling"; workshop version "Monte Carlo Integration with Normalizing Flows").
 //!
-//! - [`spline`]: the 1-D coupling transforms (affine, piecewise-linear, piecewise-quadratic,
-//!   rational-quadratic).
-//! - [`flow`]: coupling layers, masks, the flow and its config.
-//! - [`loss`] and [`train`]: sample weights of the KL, χ² and NLL gradients; Adam steps.
-//! - [`io`]: saving and loading flows (config JSON + safetensors, atomic writes).
-//! - [`kernels`] and [`nn`]: the fused CPU kernels (dense layers, 3×3 convolutions), the MLP and
-//!   Adam.
-//! - [`data`] and [`density`]: real image sets (sklearn digits, MNIST) and density estimation in
-//!   bits/dim with coupling and multi-scale flows (the paper's Sec. 5.1).
+//! The pipeline, module by module (ARCHITECTURE.md draws it):
+//!
+//! - [`transform`]: the 1-D coupling transforms (affine, piecewise-linear, piecewise-quadratic,
+//!   rational-quadratic) behind one trait, [`Transform`], chosen by a [`TransformKind`].
+//! - [`flow`]: the [`flow::Density`] and [`flow::Bijection`] traits; coupling layers (mask,
+//!   one-blob encoding, conditioner, transform) composed into the coupling flow [`Flow`], RealNVP's
+//!   multi-scale flow, and the defensive mixture with the uniform density.
+//! - [`nn`]: the conditioners (MLP, residual 3×3 convolutions), the one-blob encoding, Adam.
+//! - [`kernels`]: the fused CPU kernels (gemm-based dense layers, 3×3 convolutions, SIMD loops).
+//! - [`loss`]: sample weights of the KL, χ² and NLL gradients; [`train`]: the training step and
+//!   the trainer that learns from Monte Carlo samples.
+//! - [`integrate`]: the integrand interface and the integrators (NIS, VEGAS+, plain MC), their
+//!   estimates and error bars, unweighted samples.
+//! - [`integrands`]: the built-in test suite with exact values.
+//! - [`io`]: model files (config JSON + safetensors) and atomic writes.
+//! - [`error`]: the typed errors of all of the above.
+//!
+//! The paper's experiments (2-D image targets, density estimation on real images, figures,
+//! benchmarks) live in the crate `nis-paper`; the path tracer and path guiding in `nis-render`.
 
-pub mod data;
-pub mod density;
 pub mod error;
 pub mod flow;
-pub mod image;
 pub mod integrands;
 pub mod integrate;
 pub mod io;
@@ -29,7 +36,7 @@ pub mod train;
 pub mod transform;
 
 pub use error::{Error, Result};
-pub use flow::{Flow, FlowConfig};
+pub use flow::{Bijection, Density, Flow, FlowConfig};
 pub use transform::{Transform, TransformKind};
 
 /// The README's example, compiled and run as a doctest.

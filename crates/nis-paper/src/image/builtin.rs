@@ -11,7 +11,7 @@ const SUPERSAMPLING: usize = 4;
 /// A built-in target density on [0,1]² (y up).
 ///
 /// ```
-/// use nis::image::Builtin;
+/// use nis_paper::image::Builtin;
 /// let b: Builtin = "rings".parse().unwrap();
 /// assert_eq!(b.name(), "rings");
 /// assert_eq!(b.raster(16).len(), 256);

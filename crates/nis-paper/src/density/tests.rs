@@ -6,7 +6,7 @@ use rand_pcg::Pcg64Mcg;
 use super::model::Arch;
 use super::*;
 use crate::data::{Dataset, Images};
-use crate::transform::TransformKind;
+use nis::transform::TransformKind;
 
 /// `n` random w×h images with `levels` levels whose left half is bright and right half dark
 /// (a learnable structure).

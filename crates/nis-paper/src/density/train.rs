@@ -21,10 +21,10 @@ use super::model::ModelConfig;
 use super::{bits_per_dim, dequantize};
 use crate::data::{Dataset, Images};
 use crate::error::{Error, Result};
-use crate::flow::Bijection;
-use crate::io::{fnv1a, write_atomic, FNV_OFFSET};
-use crate::nn::{Adam, AdamConfig};
-use crate::train::descend;
+use nis::flow::Bijection;
+use nis::io::{fnv1a, write_atomic, FNV_OFFSET};
+use nis::nn::{Adam, AdamConfig};
+use nis::train::descend;
 
 const FORMAT: &str = "nis-density/1";
 /// Rows per evaluation pass (the model cuts them into parallel chunks itself).
@@ -277,7 +277,7 @@ impl Session {
         meta.insert("checksum".into(), format!("{checksum:016x}"));
         let file = safetensors::serialize(views, Some(meta))
             .map_err(|e| Error::Config(format!("cannot serialise the checkpoint: {e}")))?;
-        write_atomic(path, &file)
+        Ok(write_atomic(path, &file)?)
     }
 
     /// Reads a checkpoint written by [`Session::save`].
@@ -286,9 +286,11 @@ impl Session {
             path: path.to_path_buf(),
             source,
         })?;
-        from_bytes(&bytes).map_err(|reason| Error::Model {
-            path: PathBuf::from(path),
-            reason,
+        from_bytes(&bytes).map_err(|reason| {
+            Error::Nis(nis::Error::Model {
+                path: PathBuf::from(path),
+                reason,
+            })
         })
     }
 }
@@ -303,11 +305,11 @@ fn adam_config(config: &DensityConfig) -> AdamConfig {
 
 fn mean_nll(log_q: &[f64]) -> Result<f64> {
     if let Some(i) = log_q.iter().position(|l| !l.is_finite()) {
-        return Err(Error::NonFinite {
+        return Err(Error::Nis(nis::Error::NonFinite {
             what: "log-density",
             index: i,
             value: log_q[i],
-        });
+        }));
     }
     Ok(-log_q.iter().sum::<f64>() / log_q.len().max(1) as f64)
 }
@@ -329,7 +331,7 @@ pub fn evaluate(model: &dyn Bijection, images: &Images) -> Result<f64> {
 }
 
 fn from_bytes(bytes: &[u8]) -> std::result::Result<Session, String> {
-    let meta = crate::io::read_metadata(bytes, FORMAT, "a nis checkpoint")?;
+    let meta = nis::io::read_metadata(bytes, FORMAT, "a nis checkpoint")?;
     let config: DensityConfig = serde_json::from_str(meta.get("config").ok_or("no config")?)
         .map_err(|e| format!("config is not valid: {e}"))?;
     let state: State = serde_json::from_str(meta.get("state").ok_or("no state")?)
@@ -383,7 +385,7 @@ impl DensityConfig {
     pub fn defaults(
         dataset: Dataset,
         arch: super::Arch,
-        transform: crate::transform::TransformKind,
+        transform: nis::transform::TransformKind,
     ) -> DensityConfig {
         let (side, couplings, blob_bins, mut batch) = match dataset {
             Dataset::Digits => (8, 0, 8, 64),

@@ -14,7 +14,7 @@
 //!
 //! - [`model`]: the models: a coupling flow with MLP conditioners on the flattened image, and
 //!   RealNVP's multi-scale flow with convolutional conditioners
-//!   ([`crate::flow::multiscale`]).
+//!   ([`nis::flow::multiscale`]).
 //! - [`train`]: the training session with validation, checkpoints and resume.
 //! - [`figure`]: sample grids and the latent-space interpolation of the paper's Figure 4.
 
@@ -34,7 +34,7 @@ use crate::data::Images;
 ///
 /// ```
 /// // q ≡ 1 (the uniform flow) on 8-bit images: exactly 8 bits per pixel.
-/// assert!((nis::density::bits_per_dim(0.0, 784, 256) - 8.0).abs() < 1e-12);
+/// assert!((nis_paper::density::bits_per_dim(0.0, 784, 256) - 8.0).abs() < 1e-12);
 /// ```
 pub fn bits_per_dim(mean_nll: f64, dim: usize, levels: usize) -> f64 {
     let d = dim as f64;

@@ -3,17 +3,17 @@
 //! one surface ([`Bijection`]: log-density with a tape, the parameter gradient of −Σ w ln q, and
 //! both directions of the map).
 //!
-//! - [`Arch::Mlp`]: the coupling flow of [`crate::flow`] on the flattened image — binary masks on
+//! - [`Arch::Mlp`]: the coupling flow of [`nis::flow`] on the flattened image — binary masks on
 //!   the pixel index, one-blob encoded MLP conditioners (Müller et al. 2019, Sec. 4).
 //! - [`Arch::MultiScale`]: RealNVP's multi-scale architecture with convolutional residual
-//!   conditioners ([`crate::flow::multiscale`]).
+//!   conditioners ([`nis::flow::multiscale`]).
 
 use serde::{Deserialize, Serialize};
 
 use crate::error::{Error, Result};
-use crate::flow::multiscale::{MultiScale, MultiScaleConfig};
-use crate::flow::{Bijection, Flow, FlowConfig};
-use crate::transform::TransformKind;
+use nis::flow::multiscale::{MultiScale, MultiScaleConfig};
+use nis::flow::{Bijection, Flow, FlowConfig};
+use nis::transform::TransformKind;
 
 /// Which network shape a model has.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]

@@ -14,8 +14,8 @@
 use serde::{Deserialize, Serialize};
 
 use crate::error::{Error, Result};
-use crate::flow::{Density, Flow};
 use crate::image::Target;
+use nis::flow::{Density, Flow};
 
 /// Largest number of grid cells per side (a larger image is resampled bilinearly).
 pub const MAX_GRID: usize = 512;
@@ -149,7 +149,7 @@ mod tests {
     fn an_untrained_flow_is_uniform_on_the_grid() {
         let t = crate::image::Target::builtin(crate::image::Builtin::Checkerboard, 60).unwrap();
         let g = Grid::new(&t, 60, 60).unwrap();
-        let flow = Flow::new(crate::flow::FlowConfig::new(2)).unwrap();
+        let flow = Flow::new(nis::flow::FlowConfig::new(2)).unwrap();
         let m = g.metrics(&flow).unwrap();
         // p is 2 on half the cells and 0 elsewhere (up to anti-aliased edges): KL ≈ ln 2.
         assert!((m.kl - 2f64.ln()).abs() < 0.05, "{m:?}");

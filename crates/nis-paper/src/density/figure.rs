@@ -9,7 +9,7 @@ use rand::SeedableRng;
 use rand_pcg::Pcg64Mcg;
 
 use crate::error::{Error, Result};
-use crate::flow::Bijection;
+use nis::flow::Bijection;
 
 /// `n` samples x = h⁻¹(z), z ~ U[0,1]^D from `seed` (row-major, n × D).
 pub fn samples(model: &dyn Bijection, n: usize, seed: u64) -> Result<Vec<f32>> {

@@ -10,12 +10,12 @@ use rand_pcg::Pcg64Mcg;
 use serde::{Deserialize, Serialize};
 
 use crate::error::{Error, Result};
-use crate::flow::{Density, Flow, FlowConfig};
 use crate::image::{Grid, GridMetrics, Target};
-use crate::loss::Loss;
-use crate::nn::AdamConfig;
-use crate::train::Trainer;
-use crate::transform::TransformKind;
+use nis::flow::{Density, Flow, FlowConfig};
+use nis::loss::Loss;
+use nis::nn::AdamConfig;
+use nis::train::Trainer;
+use nis::transform::TransformKind;
 
 /// Where the training points come from.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]

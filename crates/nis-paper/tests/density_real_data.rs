@@ -4,9 +4,9 @@
 
 use std::path::{Path, PathBuf};
 
-use nis::data::Dataset;
-use nis::density::{Arch, DensityConfig, Session};
 use nis::TransformKind;
+use nis_paper::data::Dataset;
+use nis_paper::density::{Arch, DensityConfig, Session};
 
 fn data_dir(file: &str) -> Option<PathBuf> {
     let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../data");

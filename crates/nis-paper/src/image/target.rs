@@ -15,7 +15,7 @@ use crate::image::builtin::Builtin;
 /// A non-negative raster on the unit square, read through bilinear interpolation.
 ///
 /// ```
-/// use nis::image::Target;
+/// use nis_paper::image::Target;
 /// let t = Target::from_luminance("ramp", 2, 1, vec![0.0, 1.0]).unwrap();
 /// assert!((t.value(0.5, 0.5) - 0.5).abs() < 1e-12);
 /// assert_eq!(t.value(0.0, 0.5), 0.0); // clamped to the left pixel
@@ -48,11 +48,11 @@ impl Target {
             return bad(format!("the image is empty ({width}×{height} pixels)"));
         }
         if luminance.len() != width * height {
-            return Err(Error::Dimension {
+            return Err(Error::Nis(nis::Error::Dimension {
                 what: "target luminance",
                 expected: width * height,
                 got: luminance.len(),
-            });
+            }));
         }
         if let Some(v) = luminance.iter().find(|v| !v.is_finite() || **v < 0.0) {
             return bad(format!("luminance {v} is not a finite non-negative number"));
