@@ -5,17 +5,12 @@
 use std::path::{Path, PathBuf};
 
 use indicatif::{ProgressBar, ProgressStyle};
-use nis::TransformKind;
 use nis_paper::data::{Dataset, Images};
-use nis_paper::density::train::Progress;
-use nis_paper::density::{cell_centres, figure, Arch, DensityConfig, Session};
+use nis_paper::density::figure::{self, default_scale, manifold_png};
+use nis_paper::density::train::{Progress, CHECKPOINT, HISTORY};
+use nis_paper::density::{DensityConfig, Session};
 
 use crate::fit_image::Coupling;
-use crate::report;
-
-/// File names inside a training directory.
-const CHECKPOINT: &str = "checkpoint.safetensors";
-const HISTORY: &str = "history.json";
 
 #[derive(clap::Subcommand)]
 pub enum DensityCommand {
@@ -159,10 +154,6 @@ fn checkpoint_path(p: &Path) -> PathBuf {
     }
 }
 
-fn default_scale(width: usize) -> usize {
-    (64 / width).max(2)
-}
-
 /// Trains `session` with a progress bar; writes the checkpoint and history into `out`.
 fn train_with_bar(
     session: &mut Session,
@@ -171,15 +162,19 @@ fn train_with_bar(
     epochs: usize,
     max_seconds: Option<f64>,
     out: &Path,
-) -> Res {
-    std::fs::create_dir_all(out)?;
+) -> nis_paper::Result<()> {
+    std::fs::create_dir_all(out).map_err(|source| nis_paper::Error::Io {
+        path: out.to_path_buf(),
+        source,
+    })?;
     let label = format!(
         "{} {}",
         session.config().dataset.name(),
         session.config().model.label()
     );
-    let pb =
-        ProgressBar::new(0).with_style(ProgressStyle::with_template("{prefix:>16} epoch {msg}")?);
+    let pb = ProgressBar::new(0).with_style(
+        ProgressStyle::with_template("{prefix:>16} epoch {msg}").expect("a valid template"),
+    );
     pb.set_prefix(label);
     let mut last = String::from("train –  valid –");
     let ckpt = out.join(CHECKPOINT);
@@ -214,11 +209,7 @@ fn train_with_bar(
         },
     )?;
     pb.finish_and_clear();
-    nis::io::write_atomic(
-        &out.join(HISTORY),
-        serde_json::to_string_pretty(session.history())?.as_bytes(),
-    )?;
-    Ok(())
+    session.write_history(&out.join(HISTORY))
 }
 
 fn train(a: &TrainArgs) -> Res {
@@ -289,7 +280,7 @@ fn sample(a: &SampleArgs) -> Res {
     let s = Session::load(&checkpoint_path(&a.model))?;
     let m = &s.config().model;
     let x = figure::samples(s.model(), a.n, a.seed)?;
-    let levels = levels_of(s.config().dataset);
+    let levels = s.config().dataset.levels();
     let png = figure::grid_png(
         &x,
         m.width,
@@ -303,41 +294,11 @@ fn sample(a: &SampleArgs) -> Res {
     Ok(())
 }
 
-fn levels_of(d: Dataset) -> usize {
-    match d {
-        Dataset::Digits => 17,
-        Dataset::Mnist => 256,
-    }
-}
-
-/// The manifold PNG of `session` from validation images `first..first + 4`.
-fn manifold_png(
-    session: &Session,
-    valid: &Images,
-    first: usize,
-    side: usize,
-    scale: usize,
-) -> Res<Vec<u8>> {
-    if first + 4 > valid.len() {
-        return Err(format!("only {} validation images", valid.len()).into());
-    }
-    let corners = cell_centres(valid, &[first, first + 1, first + 2, first + 3]);
-    let grid = figure::interpolate(session.model(), &corners, side)?;
-    Ok(figure::grid_png(
-        &grid,
-        valid.width,
-        valid.height,
-        valid.levels,
-        side,
-        scale,
-    )?)
-}
-
 fn interpolate(a: &InterpolateArgs) -> Res {
     let s = Session::load(&checkpoint_path(&a.model))?;
     let (_, valid) = s.config().dataset.load_split(&a.data)?;
     let scale = a.scale.unwrap_or(default_scale(valid.width));
-    let png = manifold_png(&s, &valid, a.first, a.side, scale)?;
+    let png = manifold_png(s.model(), &valid, a.first, a.side, scale)?;
     nis::io::write_atomic(&a.out, &png)?;
     println!("wrote {}", a.out.display());
     Ok(())
@@ -375,234 +336,32 @@ pub struct BenchDensityArgs {
     docs_images: PathBuf,
 }
 
-/// One trained model of the benchmark.
-struct Row {
-    dataset: Dataset,
-    label: String,
-    params: usize,
-    stats: nis_paper::density::EpochStats,
-    /// The epoch with the lowest validation bits/dim.
-    best: nis_paper::density::EpochStats,
-    samples: String,
-    manifold: String,
-}
-
 /// `nis bench density`: PQ against affine couplings at the same architecture and the same
 /// training time, on both image sets.
 pub fn run_bench(a: &BenchDensityArgs) -> Res {
-    let mut rows = Vec::new();
-    let mut settings = Vec::new();
-    for (dataset, minutes) in [
-        (Dataset::Digits, a.minutes_digits),
-        (Dataset::Mnist, a.minutes_mnist),
-    ] {
-        if a.only.as_deref().is_some_and(|o| o != dataset.name()) {
-            continue;
-        }
-        let (train, valid) = dataset.load_split(&a.data)?;
-        let archs: Vec<Arch> = a
+    let settings = nis_paper::bench::density::Settings {
+        minutes_digits: a.minutes_digits,
+        minutes_mnist: a.minutes_mnist,
+        only: a.only.as_deref().map(str::parse).transpose()?,
+        archs: a
             .archs
             .split(',')
             .map(str::parse)
-            .collect::<Result<_, _>>()?;
-        for (arch, transform) in archs.iter().flat_map(|&arch| {
-            [
-                TransformKind::Quadratic { bins: a.bins },
-                TransformKind::Affine,
-            ]
-            .map(|t| (arch, t))
-        }) {
-            let config = DensityConfig::defaults(dataset, arch, transform);
-            let name = format!(
-                "{}-{}",
-                dataset.name(),
-                config.model.label().replace(' ', "-")
-            );
-            let out = a.out.join(&name);
-            let mut session = Session::new(config.clone())?;
-            // Epochs far beyond what the time allows: the budget ends the run.
-            train_with_bar(
-                &mut session,
-                &train,
-                &valid,
-                100_000,
-                Some(minutes * 60.0),
-                &out,
-            )?;
-            let stats = session
-                .history()
-                .last()
-                .cloned()
-                .ok_or("no epoch was completed")?;
-            std::fs::create_dir_all(&a.docs_images)?;
-            let m = &config.model;
-            let scale = default_scale(m.width).min(3);
-            let x = figure::samples(session.model(), 64, 0)?;
-            let samples = format!("density-{name}-samples.png");
-            let png = figure::grid_png(&x, m.width, m.height, train.levels, 8, scale)?;
-            nis::io::write_atomic(&a.docs_images.join(&samples), &png)?;
-            let manifold = format!("density-{name}-manifold.png");
-            let png = manifold_png(&session, &valid, 0, 8, scale)?;
-            nis::io::write_atomic(&a.docs_images.join(&manifold), &png)?;
-            println!(
-                "{name}: {} params, {:.2} epochs in {:.1} min: train {:.4}, validation {:.4} bits/dim",
-                session.model().param_count(),
-                stats.epochs,
-                stats.seconds / 60.0,
-                stats.train_bpd,
-                stats.valid_bpd
-            );
-            if transform == TransformKind::Affine {
-                settings.push((config.clone(), minutes, train.len(), valid.len()));
-            }
-            let best = session
-                .history()
-                .iter()
-                .min_by(|a, b| a.valid_bpd.total_cmp(&b.valid_bpd))
-                .cloned()
-                .unwrap_or_else(|| stats.clone());
-            rows.push(Row {
-                dataset,
-                label: config.model.label(),
-                params: session.model().param_count(),
-                best,
-                stats,
-                samples,
-                manifold,
-            });
-        }
-    }
-    let body = markdown(a, &rows, &settings);
-    report::write_section(
-        &a.docs,
-        "density",
-        "Density estimation on real digits (paper Sec. 5.1, Figure 4)",
-        &body,
+            .collect::<Result<_, _>>()?,
+        bins: a.bins,
+        data: a.data.clone(),
+        out: a.out.clone(),
+        docs: a.docs.clone(),
+        docs_images: a.docs_images.clone(),
+    };
+    let body = nis_paper::bench::density::run(
+        &settings,
+        // Epochs far beyond what the time allows: the budget ends the run.
+        &mut |session, train, valid, seconds, out| {
+            train_with_bar(session, train, valid, 100_000, Some(seconds), out)
+        },
+        &mut |line| println!("{line}"),
     )?;
     println!("{body}");
     Ok(())
-}
-
-fn markdown(
-    a: &BenchDensityArgs,
-    rows: &[Row],
-    settings: &[(DensityConfig, f64, usize, usize)],
-) -> String {
-    let images = a
-        .docs_images
-        .strip_prefix(a.docs.parent().unwrap_or(Path::new("")))
-        .unwrap_or(&a.docs_images)
-        .display()
-        .to_string();
-    let mut t = format!(
-        "Reproduce: `scripts/fetch-data.sh && nis bench density --minutes-digits {} \
-         --minutes-mnist {} --bins {}`.\n\n\
-         The paper trains a RealNVP multi-scale flow with piecewise-quadratic couplings (K = 4) on \
-         CelebA and reports 2.85 / 2.89 bits/dim (train / validation) against 2.97 / 3.02 for \
-         affine couplings. Here: the same comparison on real digit images, both couplings with \
-         the same conditioner architecture and the same training time.\n\n\
-         **bits/dim.** Images x ∈ {{0..L−1}}^D are dequantised to y = (x + u)/L, u ~ U[0,1)^D, \
-         and the flow's density q on [0,1]^D is exact (change of variables through every \
-         coupling, uniform latent). Since the discrete model P(x) = ∫_cell(x) q(y) dy satisfies \
-         −log₂ P(x) ≤ E_u[−ln q(y)]/ln 2 + D log₂ L,\n\n\
-         bits/dim = (E_u[−ln q((x + u)/L)] + D ln L) / (D ln 2),\n\n\
-         estimated with one u per image (fixed noise for evaluation). The untrained flow (q ≡ 1) \
-         scores exactly log₂ L: 4.087 for the digits (L = 17), 8 for MNIST (L = 256).\n\n\
-         Settings:\n\n",
-        a.minutes_digits, a.minutes_mnist, a.bins
-    );
-    for (c, minutes, ntrain, nvalid) in settings {
-        let m = &c.model;
-        let model = match m.arch {
-            Arch::Mlp => format!(
-                "MLP coupling flow: {} couplings (binary masks on the pixel index and their \
-                 complements), conditioners one-blob {} → {}×{} ReLU MLP",
-                if m.couplings == 0 {
-                    2 * (usize::BITS - (m.dim() - 1).leading_zeros()) as usize
-                } else {
-                    m.couplings
-                },
-                m.blob_bins,
-                m.hidden_layers,
-                m.hidden_width
-            ),
-            Arch::MultiScale => format!(
-                "multi-scale flow: {} scales (3 checkerboard couplings, squeeze, 3 channel \
-                 couplings, factor out half; 4 checkerboard couplings at the end), conditioners \
-                 3×3 conv {} channels with {} residual block{}",
-                m.scales,
-                m.features,
-                m.blocks,
-                if m.blocks == 1 { "" } else { "s" }
-            ),
-        };
-        t.push_str(&format!(
-            "* {} {}: {ntrain} training / {nvalid} validation images ({}×{}, fixed split), \
-             {model}; Adam (learning rate {}, gradient norm clipped at {}), batch {}, \
-             {minutes} minutes of training per model (evaluation not counted); training \
-             bits/dim on the first {} training images.\n",
-            c.dataset.name(),
-            m.label().split(' ').next().unwrap_or(""),
-            m.width,
-            m.height,
-            c.learning_rate,
-            c.clip_norm.map_or("never".to_string(), |v| v.to_string()),
-            c.batch,
-            nis_paper::density::train::TRAIN_EVAL_IMAGES.min(*ntrain),
-        ));
-    }
-    t.push_str(
-        "\nFinal: after the time budget. Best: the lowest validation bits/dim after any epoch \
-         (early stopping; the small training sets are overfitted within the budget).\n\n\
-         | data | model | parameters | epochs | minutes | final train bits/dim | final validation \
-         bits/dim | best validation bits/dim (epoch) |\n\
-         |---|---|---:|---:|---:|---:|---:|---:|\n",
-    );
-    for r in rows {
-        t.push_str(&format!(
-            "| {} | {} | {} | {:.1} | {:.2} | {:.4} | {:.4} | {:.4} ({:.0}) |\n",
-            r.dataset.name(),
-            r.label,
-            r.params,
-            r.stats.epochs,
-            r.stats.seconds / 60.0,
-            r.stats.train_bpd,
-            r.stats.valid_bpd,
-            r.best.valid_bpd,
-            r.best.epochs
-        ));
-    }
-    t.push_str("\nPaper check (piecewise-quadratic below affine in validation bits/dim):\n\n");
-    for d in [Dataset::Digits, Dataset::Mnist] {
-        for arch in ["mlp", "multiscale"] {
-            let v: Vec<&Row> = rows
-                .iter()
-                .filter(|r| r.dataset == d && r.label.starts_with(arch))
-                .collect();
-            if let [pq, affine] = v.as_slice() {
-                let verdict = |a: f64, b: f64| if a < b { "yes" } else { "**no**" };
-                t.push_str(&format!(
-                    "* {} {arch}: final {} ({:.4} vs {:.4}), best {} ({:.4} vs {:.4})\n",
-                    d.name(),
-                    verdict(pq.stats.valid_bpd, affine.stats.valid_bpd),
-                    pq.stats.valid_bpd,
-                    affine.stats.valid_bpd,
-                    verdict(pq.best.valid_bpd, affine.best.valid_bpd),
-                    pq.best.valid_bpd,
-                    affine.best.valid_bpd
-                ));
-            }
-        }
-    }
-    t.push_str("\nSamples (left) and the latent manifold of four validation images (right):\n\n");
-    for r in rows {
-        t.push_str(&format!(
-            "{} {}: ![samples]({images}/{}) ![manifold]({images}/{})\n\n",
-            r.dataset.name(),
-            r.label,
-            r.samples,
-            r.manifold
-        ));
-    }
-    t
 }

@@ -9,11 +9,9 @@ use std::path::{Path, PathBuf};
 use indicatif::{ProgressBar, ProgressStyle};
 use nis::flow::FlowConfig;
 use nis::TransformKind;
-use nis_paper::image::figure::{self, MontageRow};
-use nis_paper::image::{Builtin, CurvePoint, Fit, FitConfig, Grid, Sampling, Target};
+use nis_paper::image::figure;
+use nis_paper::image::{CurvePoint, Fit, FitConfig, Grid, Sampling, Target};
 use serde::Serialize;
-
-use crate::report;
 
 /// The coupling transform, as named on the command line.
 #[derive(Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
@@ -225,162 +223,24 @@ pub struct BenchFitImageArgs {
     docs_images: PathBuf,
 }
 
-/// File names of the figures in `--docs-images`.
-const DOCS_MONTAGE: &str = "fit-image-montage.png";
-const DOCS_CURVES: &str = "fit-image-curves.png";
-
-/// The models of the paper's comparison: same MLP, same steps, same samples.
-fn bench_models() -> Vec<(TransformKind, usize)> {
-    vec![
-        (TransformKind::Affine, 2),
-        (TransformKind::Affine, 16),
-        (TransformKind::Linear { bins: 32 }, 2),
-        (TransformKind::Quadratic { bins: 32 }, 2),
-        (TransformKind::RationalQuadratic { bins: 32 }, 2),
-    ]
-}
-
 /// `nis bench fit-image`.
 pub fn run_bench(args: &BenchFitImageArgs) -> Result<(), Box<dyn std::error::Error>> {
-    std::fs::create_dir_all(&args.out)?;
-    let mut rows = Vec::new();
-    let mut summaries = Vec::new();
-    let mut models = Vec::new();
-    for which in Builtin::ALL {
-        let target = Target::builtin(which, args.resolution)?;
-        let grid = Grid::for_target(&target)?;
-        let mut row = MontageRow {
-            name: target.name().to_string(),
-            size: grid.size(),
-            p: grid.p().to_vec(),
-            q: Vec::new(),
-        };
-        let mut series = Vec::new();
-        models.clear();
-        for (transform, couplings) in bench_models() {
-            let config = FitConfig {
-                flow: FlowConfig {
-                    transform,
-                    couplings,
-                    seed: args.seed,
-                    ..FlowConfig::new(2)
-                },
-                steps: args.steps,
-                batch: args.batch,
-                learning_rate: args.learning_rate,
-                seed: args.seed,
-                ..FitConfig::default()
-            };
-            let fit = fit_with_bar(&target, &grid, &config)?;
-            let s = &fit.summary;
-            println!(
-                "{:>13} {:>12} {:>7} params  KL {:.5}  var {:.5}  {:.1} s",
-                s.target, s.model, s.param_count, s.final_kl, s.final_rel_var, s.seconds
-            );
-            row.q.push(grid.q(&fit.flow)?);
-            models.push(s.model.clone());
-            series.push((s.model.clone(), fit.curve.clone()));
-            summaries.push(fit.summary);
-        }
-        let curves = figure::png_bytes(&figure::curves(target.name(), &series)?)?;
-        write(
-            &args.out.join(format!("curves-{}.png", target.name())),
-            &curves,
-        )?;
-        if rows.is_empty() {
-            std::fs::create_dir_all(&args.docs_images)?;
-            write(&args.docs_images.join(DOCS_CURVES), &curves)?;
-        }
-        rows.push(row);
-    }
-    let montage = figure::png_bytes(&figure::montage(&models, &rows, 192)?)?;
-    write(&args.out.join("montage.png"), &montage)?;
-    // A smaller copy for the repository (kept under ~300 KB).
-    let small = figure::png_bytes(&figure::montage(&models, &rows, 100)?)?;
-    write(&args.docs_images.join(DOCS_MONTAGE), &small)?;
-    write(
-        &args.out.join("results.json"),
-        serde_json::to_string_pretty(&summaries)?.as_bytes(),
-    )?;
-    let body = markdown(args, &summaries);
-    report::write_section(
-        &args.docs,
-        "fit-image",
-        "2-D image targets (paper Figure 3)",
-        &body,
-    )?;
+    let settings = nis_paper::bench::fit_image::Settings {
+        steps: args.steps,
+        batch: args.batch,
+        resolution: args.resolution,
+        learning_rate: args.learning_rate,
+        seed: args.seed,
+        out: args.out.clone(),
+        docs: args.docs.clone(),
+        docs_images: args.docs_images.clone(),
+    };
+    nis_paper::bench::fit_image::run(&settings, &mut fit_with_bar, &mut |line| println!("{line}"))?;
     println!(
-        "wrote {}, {}/montage.png, curves-*.png, results.json and the table in {}",
-        args.docs_images.join(DOCS_MONTAGE).display(),
+        "wrote the montage and curves to {} and {}, results.json, and the table in {}",
+        args.docs_images.display(),
         args.out.display(),
         args.docs.display()
     );
     Ok(())
-}
-
-/// The table of the benchmark, one row per target and model.
-fn markdown(args: &BenchFitImageArgs, summaries: &[nis_paper::image::FitSummary]) -> String {
-    let images = args
-        .docs_images
-        .strip_prefix(args.docs.parent().unwrap_or(Path::new("")))
-        .unwrap_or(&args.docs_images)
-        .display();
-    let mut t = format!(
-        "Reproduce: `nis bench fit-image --steps {} --batch {} --resolution {} --learning-rate {} \
-         --seed {}`.\n\n\
-         Every model: MLP 3×64 (ReLU), one-blob 32, Adam (learning rate {}), KL gradient on \
-         the same {} uniform points per step, {} steps. KL and variance are exact on the \
-         {}² pixel grid.\n\n\
-         ![montage]({images}/{DOCS_MONTAGE})\n\n\
-         ![curves]({images}/{DOCS_CURVES})\n\n\
-         | target | model | parameters | KL (nats) | Var(f/q)/F² | seconds |\n\
-         |---|---|---:|---:|---:|---:|\n",
-        args.steps,
-        args.batch,
-        args.resolution,
-        args.learning_rate,
-        args.seed,
-        args.learning_rate,
-        args.batch,
-        args.steps,
-        args.resolution,
-    );
-    for s in summaries {
-        t.push_str(&format!(
-            "| {} | {} | {} | {:.4} | {:.4} | {:.2} |\n",
-            s.target, s.model, s.param_count, s.final_kl, s.final_rel_var, s.seconds
-        ));
-    }
-    t.push_str(&paper_check(summaries));
-    t
-}
-
-/// The paper's claim, checked per target: PL-32 and PQ-32 with L = 2 reach a lower KL than
-/// affine couplings with L = 16.
-fn paper_check(summaries: &[nis_paper::image::FitSummary]) -> String {
-    let kl = |target: &str, model: &str| {
-        summaries
-            .iter()
-            .find(|s| s.target == target && s.model == model)
-            .map(|s| s.final_kl)
-    };
-    let mut targets: Vec<&str> = summaries.iter().map(|s| s.target.as_str()).collect();
-    targets.dedup();
-    let mut lines = String::from("\nPaper check (lower KL than affine L=16):\n\n");
-    for target in targets {
-        let Some(affine) = kl(target, "affine L=16") else {
-            continue;
-        };
-        let verdict = |model: &str| match kl(target, model) {
-            Some(k) if k < affine => format!("{model} yes ({:.1}× lower)", affine / k),
-            Some(_) => format!("{model} **no**"),
-            None => format!("{model} not run"),
-        };
-        lines.push_str(&format!(
-            "* {target}: {}, {}\n",
-            verdict("pl32 L=2"),
-            verdict("pq32 L=2")
-        ));
-    }
-    lines
 }

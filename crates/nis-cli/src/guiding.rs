@@ -300,7 +300,7 @@ pub fn run_bench(args: &BenchGuidingArgs) -> Result<(), Box<dyn std::error::Erro
         res = args.res,
         rspp = args.reference_spp,
     );
-    crate::report::write_section(&args.docs, "guiding", "Path guiding", &body)?;
+    nis_paper::report::write_section(&args.docs, "guiding", "Path guiding", &body)?;
     eprintln!("wrote {} and {}", args.docs.display(), args.img.display());
     Ok(())
 }

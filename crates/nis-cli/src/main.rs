@@ -7,7 +7,6 @@ mod fit_image;
 mod guiding;
 mod integrate;
 mod render;
-mod report;
 
 use std::path::PathBuf;
 use std::process::ExitCode;

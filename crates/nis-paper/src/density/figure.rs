@@ -8,8 +8,43 @@ use ::image::GrayImage;
 use rand::SeedableRng;
 use rand_pcg::Pcg64Mcg;
 
+use super::cell_centres;
+use crate::data::Images;
 use crate::error::{Error, Result};
 use nis::flow::Bijection;
+
+/// Pixels per image pixel that make a `width`-wide image about 64 pixels wide (at least 2).
+pub fn default_scale(width: usize) -> usize {
+    (64 / width).max(2)
+}
+
+/// The PNG of the manifold of `model` spanned by validation images `first..first + 4` of
+/// `images` (at the centres of their cells), on a `side × side` grid, each pixel `scale`-fold.
+pub fn manifold_png(
+    model: &dyn Bijection,
+    images: &Images,
+    first: usize,
+    side: usize,
+    scale: usize,
+) -> Result<Vec<u8>> {
+    if first + 4 > images.len() {
+        return Err(Error::Config(format!(
+            "the manifold needs images {first}..{} but there are only {}",
+            first + 4,
+            images.len()
+        )));
+    }
+    let corners = cell_centres(images, &[first, first + 1, first + 2, first + 3]);
+    let grid = interpolate(model, &corners, side)?;
+    grid_png(
+        &grid,
+        images.width,
+        images.height,
+        images.levels,
+        side,
+        scale,
+    )
+}
 
 /// `n` samples x = h⁻¹(z), z ~ U[0,1]^D from `seed` (row-major, n × D).
 pub fn samples(model: &dyn Bijection, n: usize, seed: u64) -> Result<Vec<f32>> {

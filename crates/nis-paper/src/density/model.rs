@@ -99,6 +99,12 @@ impl ModelConfig {
         })
     }
 
+    /// MLP: the number of coupling layers the model has (`couplings`, or by default one pass of
+    /// all binary masks and their complements, 2⌈log₂ D⌉).
+    pub fn coupling_count(&self) -> usize {
+        self.flow_config().coupling_count()
+    }
+
     fn flow_config(&self) -> FlowConfig {
         FlowConfig {
             dim: self.dim(),

@@ -27,6 +27,9 @@ use nis::nn::{Adam, AdamConfig};
 use nis::train::descend;
 
 const FORMAT: &str = "nis-density/1";
+/// File names inside a training directory: the checkpoint and the per-epoch history (JSON).
+pub const CHECKPOINT: &str = "checkpoint.safetensors";
+pub const HISTORY: &str = "history.json";
 /// Rows per evaluation pass (the model cuts them into parallel chunks itself).
 const EVAL_ROWS: usize = 4096;
 /// Training bits/dim are measured on at most this many training images (a fixed subset).
@@ -236,6 +239,12 @@ impl Session {
             return Err(Error::Config("no training images".into()));
         }
         Ok(())
+    }
+
+    /// Writes the per-epoch statistics as JSON, atomically.
+    pub fn write_history(&self, path: &Path) -> Result<()> {
+        let json = serde_json::to_string_pretty(&self.history).expect("statistics serialise");
+        Ok(write_atomic(path, json.as_bytes())?)
     }
 
     /// Writes the checkpoint (weights, Adam moments, epoch, history) atomically.

@@ -1,0 +1,39 @@
+//! The benchmark drivers behind `nis bench …`: each runs its experiment, writes its figures and
+//! its section of `docs/`, and returns the Markdown. Progress is the caller's: drivers take the
+//! long-running step (a fit, a training run) or a line logger as closures, so the command line can
+//! show bars and a test can run them silently.
+//!
+//! - [`flow`]: flow throughput against bare gemm and PyTorch (`docs/BENCHMARKS.md`).
+//! - [`fit_image`]: the paper's Figure 3, couplings on 2-D image targets (`docs/REPRODUCTION.md`).
+//! - [`density`]: the paper's Figure 4, PQ against affine couplings on real digits.
+
+pub mod density;
+pub mod fit_image;
+pub mod flow;
+
+use std::time::Instant;
+
+/// Median seconds of `reps` runs of `f` after one warm-up.
+pub fn time(reps: usize, mut f: impl FnMut()) -> f64 {
+    f();
+    let mut t: Vec<f64> = (0..reps)
+        .map(|_| {
+            let s = Instant::now();
+            f();
+            s.elapsed().as_secs_f64()
+        })
+        .collect();
+    t.sort_by(f64::total_cmp);
+    t[reps / 2]
+}
+
+/// Writes `bytes` to `path` atomically, creating its directory.
+pub(crate) fn write_file(path: &std::path::Path, bytes: &[u8]) -> crate::Result<()> {
+    if let Some(dir) = path.parent() {
+        std::fs::create_dir_all(dir).map_err(|source| crate::Error::Io {
+            path: dir.to_path_buf(),
+            source,
+        })?;
+    }
+    Ok(nis::io::write_atomic(path, bytes)?)
+}

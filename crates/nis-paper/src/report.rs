@@ -1,0 +1,87 @@
+//! The writers of `docs/`: benchmark results go into a tagged section of a Markdown file
+//! (`<!-- key:start -->` … `<!-- key:end -->`), keeping the other sections, with the machine they
+//! ran on.
+
+use std::path::Path;
+
+use crate::error::{Error, Result};
+
+/// A one-line description of this machine: CPU model, logical cores, date.
+pub fn machine() -> String {
+    let cpu = std::fs::read_to_string("/proc/cpuinfo")
+        .ok()
+        .and_then(|s| {
+            s.lines()
+                .find(|l| l.starts_with("model name"))
+                .and_then(|l| l.split(':').nth(1))
+                .map(|m| m.trim().to_string())
+        })
+        .unwrap_or_else(|| "unknown CPU".into());
+    let cores = std::thread::available_parallelism().map_or(0, |n| n.get());
+    let date = std::process::Command::new("date")
+        .arg("-u")
+        .arg("+%Y-%m-%d %H:%M UTC")
+        .output()
+        .ok()
+        .map(|o| String::from_utf8_lossy(&o.stdout).trim().to_string())
+        .unwrap_or_default();
+    format!("{cpu}, {cores} logical cores, {date}")
+}
+
+/// Replaces (or appends) the section tagged `key` in `path` with `body`, atomically.
+pub fn write_section(path: &Path, key: &str, title: &str, body: &str) -> Result<()> {
+    let old = std::fs::read_to_string(path).unwrap_or_else(|_| "# Benchmarks\n".into());
+    let (start, end) = (
+        format!("<!-- {key}:start -->"),
+        format!("<!-- {key}:end -->"),
+    );
+    let section = format!(
+        "{start}\n## {title}\n\nMachine: {}.\n\n{body}\n{end}",
+        machine()
+    );
+    let new = match (old.find(&start), old.find(&end)) {
+        (Some(a), Some(b)) if a < b => format!("{}{section}{}", &old[..a], &old[b + end.len()..]),
+        _ => format!("{}\n{section}\n", old.trim_end()),
+    };
+    if let Some(dir) = path.parent() {
+        std::fs::create_dir_all(dir).map_err(|source| Error::Io {
+            path: dir.to_path_buf(),
+            source,
+        })?;
+    }
+    nis::io::write_atomic(path, new.as_bytes())?;
+    Ok(())
+}
+
+/// `path` relative to the directory of the Markdown file `docs`, for links inside it.
+pub fn relative_to(docs: &Path, path: &Path) -> String {
+    path.strip_prefix(docs.parent().unwrap_or(Path::new("")))
+        .unwrap_or(path)
+        .display()
+        .to_string()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_section_is_replaced_in_place_and_others_are_kept() {
+        let dir = std::env::temp_dir().join(format!("nis-report-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let path = dir.join("B.md");
+        std::fs::write(&path, "# Benchmarks\n\nintro\n").unwrap();
+        write_section(&path, "a", "A", "first").unwrap();
+        write_section(&path, "b", "B", "other").unwrap();
+        write_section(&path, "a", "A", "second").unwrap();
+        let text = std::fs::read_to_string(&path).unwrap();
+        assert!(text.starts_with("# Benchmarks\n\nintro\n"));
+        assert!(text.contains("second") && !text.contains("first") && text.contains("other"));
+        assert!(text.find("second").unwrap() < text.find("other").unwrap());
+        assert_eq!(
+            relative_to(&dir.join("B.md"), &dir.join("img/x.png")),
+            "img/x.png"
+        );
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
+}
