@@ -2,7 +2,7 @@
 //! count or a time budget is reached.
 //!
 //! Every sample has its own random stream, seeded from `(seed, pixel, sample index)` by the
-//! SplitMix64 finaliser (Steele et al. 2014), so an image depends only on the seed and the
+//! SplitMix64 finaliser ([`splitmix64`], Steele et al. 2014), so an image depends only on the seed and the
 //! sample count, never on the number of threads or on how samples are split into passes.
 //! Pixels use a box filter: a sample lands uniformly in its pixel and counts only there.
 
@@ -16,6 +16,7 @@ use crate::film::Image;
 use crate::geometry::{luminance, Rgb};
 use crate::guiding::Guide;
 use crate::integrator::{uniform, Integrator, PathStats};
+use crate::sampling::splitmix64;
 use crate::scene::Scene;
 
 /// How long to render.
@@ -44,13 +45,6 @@ pub struct RenderOutput {
 
 /// Side of the square tiles that threads take one at a time.
 pub const TILE_SIZE: u32 = 16;
-
-fn splitmix64(mut x: u64) -> u64 {
-    x = x.wrapping_add(0x9e37_79b9_7f4a_7c15);
-    x = (x ^ (x >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
-    x = (x ^ (x >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
-    x ^ (x >> 31)
-}
 
 /// The random stream of sample `sample` of pixel `pixel`.
 pub fn sample_rng(seed: u64, pixel: u64, sample: u64) -> Pcg32 {

@@ -51,6 +51,15 @@ use crate::geometry::luminance;
 /// Scalars a vertex is described by: position (3), outgoing direction (2), normal (2).
 const CONTEXT_SCALARS: usize = 7;
 
+/// Mixed into the seed of the selection network's initial weights, so that they are not drawn
+/// from the same stream as the flow's (which [`Flow::new`] seeds with the seed itself).
+const SELECTION_SEED_SALT: u64 = 0x005e_1ec7;
+
+/// Bit position of the training phase's index in the seed of its batch stream: each phase
+/// draws its batches from a stream of its own, disjoint from the weights' streams above (whose
+/// salts use only the low bits).
+const PHASE_SEED_SHIFT: u32 = 32;
+
 /// 1/(4π): the Jacobian of the cylindrical map from [0, 1]² to the sphere.
 const INV_FOUR_PI: f32 = 1.0 / (4.0 * std::f32::consts::PI);
 
@@ -238,7 +247,7 @@ impl NisGuide {
             ],
         };
         let mut selection_params = vec![0.0; selection.param_count()];
-        let mut rng = Pcg64Mcg::seed_from_u64(config.seed ^ 0x005e_1ec7);
+        let mut rng = Pcg64Mcg::seed_from_u64(config.seed ^ SELECTION_SEED_SALT);
         selection.init(&mut selection_params, &mut rng);
         let extent = (bounds.max - bounds.min).max(Vec3::splat(1e-6));
         // A small margin keeps positions on the bounding box's faces inside the encoding.
@@ -396,7 +405,8 @@ impl NisGuide {
         if !self.buffer.is_empty() {
             let steps = (new_records / self.config.batch)
                 .clamp(self.config.min_steps, self.config.max_steps);
-            let mut rng = Pcg64Mcg::seed_from_u64(self.config.seed ^ (iteration as u64 + 1) << 32);
+            let phase = iteration as u64 + 1;
+            let mut rng = Pcg64Mcg::seed_from_u64(self.config.seed ^ phase << PHASE_SEED_SHIFT);
             let size = self.config.batch.min(self.buffer.len());
             let mut batch = Vec::with_capacity(size);
             for _ in 0..steps {
