@@ -11,20 +11,21 @@
 //! weights by the mixture density `α p_guide + (1 − α) p_bsdf`. [`NoGuide`] (α = 0) is plain
 //! unidirectional path tracing.
 //!
-//! Implementations: [`ppg`] (the SD-tree of practical path guiding) and [`gmm`] (Gaussian
-//! mixtures on the hemisphere in a spatial kd-tree). Both learn from the records of one
+//! Implementations: [`ppg`] (the SD-tree of practical path guiding), [`gmm`] (Gaussian
+//! mixtures on the hemisphere) — both keep their directional distributions in the leaves of one
+//! [`spatial`] tree — and [`neural`] (a normalizing flow). Both learn from the records of one
 //! training iteration at its end, in a sorted order, so a trained guide depends only on the
 //! records, never on the threads that delivered them.
 
 use glam::{Vec2, Vec3};
 
 use crate::bsdf::Material;
-use crate::bvh::Aabb;
 use crate::geometry::Rgb;
 
 pub mod gmm;
 pub mod neural;
 pub mod ppg;
+pub mod spatial;
 #[cfg(test)]
 mod tests;
 
@@ -53,15 +54,6 @@ pub fn cylindrical_to_dir(c: Vec2) -> Vec3 {
     let sin_theta = (1.0 - cos_theta * cos_theta).max(0.0).sqrt();
     let (sin_phi, cos_phi) = (2.0 * std::f32::consts::PI * c.y).sin_cos();
     Vec3::new(sin_theta * cos_phi, sin_theta * sin_phi, cos_theta)
-}
-
-/// `p` in coordinates of the cube `bounds` (`min` and the largest extent), clamped to
-/// `[0, 1)³`: where the spatial trees of the guides descend.
-fn unit_position(bounds: &Aabb, p: Vec3) -> Vec3 {
-    let extent = (bounds.max - bounds.min)
-        .max_element()
-        .max(f32::MIN_POSITIVE);
-    ((p - bounds.min) / extent).clamp(Vec3::ZERO, Vec3::splat(ONE_MINUS_EPSILON))
 }
 
 /// Bit patterns of `values`, a total order key for sorting records so that learning does not

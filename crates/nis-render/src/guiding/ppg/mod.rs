@@ -1,10 +1,10 @@
 //! Practical Path Guiding (Müller, Gross & Novák 2017, "Practical Path Guiding for Efficient
 //! Light-Transport Simulation", EGSR): an *SD-tree* that learns the incident radiance.
 //!
-//! Space is a binary tree over the scene's bounding cube, split at the midpoint along x, y, z
-//! in turn (§5.1); each spatial leaf holds a *directional quadtree* over world-space
-//! cylindrical coordinates `((cos θ + 1)/2, φ/2π)` whose nodes store the radiance flux of
-//! their four quadrants (§5.2). Sampling descends the quadtree picking children by their
+//! Space is the binary tree of [`spatial`](super::spatial) over the scene's bounding cube, split
+//! at the midpoint along x, y, z in turn (§5.1); each spatial leaf holds a *directional
+//! quadtree* ([`quadtree`]) over world-space cylindrical coordinates `((cos θ + 1)/2, φ/2π)`
+//! whose nodes store the radiance flux of their four quadrants (§5.2). Sampling descends the quadtree picking children by their
 //! flux; the density is the product of `4 · child / parent` along the way, divided by `4π` (the
 //! cylindrical map preserves area).
 //!
@@ -31,12 +31,13 @@ use std::sync::Mutex;
 
 use glam::{Vec2, Vec3};
 
-use super::{
-    bits_key, cylindrical_to_dir, dir_to_cylindrical, unit_position, Guide, GuideRecord,
-    GuideVertex, ONE_MINUS_EPSILON,
-};
+use super::spatial::SpatialTree;
+use super::{bits_key, cylindrical_to_dir, dir_to_cylindrical, Guide, GuideRecord, GuideVertex};
 use crate::bsdf::Material;
 use crate::bvh::Aabb;
+use quadtree::QuadTree;
+
+mod quadtree;
 
 /// Parameters of [`Ppg`]; the defaults are the paper's.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -78,166 +79,6 @@ impl Default for PpgConfig {
     }
 }
 
-/// A quadtree node: the flux of its four quadrants (quadrant `q` covers `x ≥ ½` if `q & 1`,
-/// `y ≥ ½` if `q & 2`) and their children (0: the quadrant is a leaf; the root is never a
-/// child, and children always come after their parent in the node list).
-#[derive(Clone, Copy, Debug, Default)]
-struct QuadNode {
-    flux: [f64; 4],
-    child: [u32; 4],
-}
-
-/// The directional quadtree over the unit square of cylindrical coordinates.
-#[derive(Clone, Debug)]
-struct QuadTree {
-    nodes: Vec<QuadNode>,
-}
-
-impl Default for QuadTree {
-    fn default() -> Self {
-        Self {
-            nodes: vec![QuadNode::default()],
-        }
-    }
-}
-
-/// Quadrant of `x` in the unit square and `x` in that quadrant's own unit square (exact in
-/// floating point: scaling by 2 and subtracting 1).
-fn descend(x: Vec2) -> (usize, Vec2) {
-    let hx = x.x >= 0.5;
-    let hy = x.y >= 0.5;
-    let q = usize::from(hx) + 2 * usize::from(hy);
-    let shift = Vec2::new(f32::from(u8::from(hx)), f32::from(u8::from(hy)));
-    (q, 2.0 * x - shift)
-}
-
-impl QuadTree {
-    fn total(&self) -> f64 {
-        self.nodes[0].flux.iter().sum()
-    }
-
-    /// Add `flux` to the leaf quadrant containing `x`.
-    fn deposit(&mut self, mut x: Vec2, flux: f64) {
-        let mut i = 0;
-        loop {
-            let (q, next) = descend(x);
-            let c = self.nodes[i].child[q] as usize;
-            if c == 0 {
-                self.nodes[i].flux[q] += flux;
-                return;
-            }
-            i = c;
-            x = next;
-        }
-    }
-
-    /// Make every inner quadrant's flux the sum of its children's (children follow parents,
-    /// so one backward sweep suffices).
-    fn sum_up(&mut self) {
-        for i in (0..self.nodes.len()).rev() {
-            for q in 0..4 {
-                let c = self.nodes[i].child[q] as usize;
-                if c != 0 {
-                    self.nodes[i].flux[q] = self.nodes[c].flux.iter().sum();
-                }
-            }
-        }
-    }
-
-    /// Density on the unit square at `x`; uniform where a node has no flux at all.
-    fn pdf(&self, mut x: Vec2) -> f64 {
-        let mut pdf = 1.0;
-        let mut i = 0;
-        loop {
-            let node = &self.nodes[i];
-            let total: f64 = node.flux.iter().sum();
-            if total <= 0.0 {
-                return pdf;
-            }
-            let (q, next) = descend(x);
-            pdf *= 4.0 * node.flux[q] / total;
-            let c = node.child[q] as usize;
-            if c == 0 || pdf == 0.0 {
-                return pdf;
-            }
-            i = c;
-            x = next;
-        }
-    }
-
-    /// A point of the unit square with density [`QuadTree::pdf`], by hierarchical warping:
-    /// each level picks the x half, then the y half within it, and rescales the random numbers.
-    fn sample(&self, u: Vec2) -> Vec2 {
-        let mut u = [f64::from(u.x), f64::from(u.y)];
-        let mut origin = [0.0f64; 2];
-        let mut size = 1.0f64;
-        let mut i = 0;
-        loop {
-            let f = &self.nodes[i].flux;
-            let total: f64 = f.iter().sum();
-            if total <= 0.0 {
-                break;
-            }
-            let pick = |u: &mut f64, p: f64| {
-                if *u < p {
-                    *u /= p;
-                    0
-                } else {
-                    *u = (*u - p) / (1.0 - p);
-                    1
-                }
-            };
-            let hx = pick(&mut u[0], (f[0] + f[2]) / total);
-            let (lo, hi) = if hx == 0 { (f[0], f[2]) } else { (f[1], f[3]) };
-            let hy = pick(&mut u[1], lo / (lo + hi));
-            size *= 0.5;
-            origin[0] += size * hx as f64;
-            origin[1] += size * hy as f64;
-            let c = self.nodes[i].child[hx + 2 * hy] as usize;
-            if c == 0 {
-                break;
-            }
-            i = c;
-        }
-        let at = |o: f64, u: f64| ((o + size * u.clamp(0.0, 1.0)) as f32).min(ONE_MINUS_EPSILON);
-        Vec2::new(at(origin[0], u[0]), at(origin[1], u[1]))
-    }
-
-    /// An empty tree (no flux) whose structure is refined from this one's flux (§5.2): a
-    /// quadrant with more than `rho` of the total is subdivided, down to `max_depth` levels.
-    /// Without any flux the fraction of a level-`d` quadrant is taken as `4^-d`.
-    fn refined(&self, max_depth: u32, rho: f64) -> QuadTree {
-        let total = self.total();
-        let mut out = QuadTree::default();
-        // (node in `out`, its flux per quadrant, the node of `self` it mirrors, depth)
-        let mut stack = vec![(0usize, self.nodes[0].flux, Some(0usize), 1u32)];
-        while let Some((o, flux, source, depth)) = stack.pop() {
-            for q in 0..4 {
-                let fraction = if total > 0.0 {
-                    flux[q] / total
-                } else {
-                    0.25f64.powi(depth as i32)
-                };
-                if depth >= max_depth || fraction <= rho {
-                    continue;
-                }
-                let c = out.nodes.len();
-                out.nodes.push(QuadNode::default());
-                out.nodes[o].child[q] = c as u32;
-                let mirrored = source
-                    .map(|s| self.nodes[s].child[q] as usize)
-                    .filter(|&s| s != 0);
-                let child_flux = match mirrored {
-                    Some(s) => self.nodes[s].flux,
-                    None => [flux[q] / 4.0; 4],
-                };
-                stack.push((c, child_flux, mirrored, depth + 1));
-            }
-        }
-        out
-    }
-}
-
 /// A spatial leaf: the two directional trees of §5.3 and the samples the building one got.
 #[derive(Clone, Debug, Default)]
 struct Leaf {
@@ -246,14 +87,6 @@ struct Leaf {
     building: QuadTree,
     /// Samples (fractions of samples with the spatial filter) the building tree received.
     samples: f64,
-}
-
-#[derive(Clone, Copy, Debug)]
-enum SpatialNode {
-    /// Split at the midpoint of `axis`; children are node indices (lower half first).
-    Inner { axis: usize, children: [usize; 2] },
-    /// Index into [`Ppg::leaves`].
-    Leaf(usize),
 }
 
 /// One training sample reduced to what PPG keeps: position, direction and flux.
@@ -285,9 +118,7 @@ impl Deposit {
 #[derive(Debug)]
 pub struct Ppg {
     config: PpgConfig,
-    bounds: Aabb,
-    nodes: Vec<SpatialNode>,
-    leaves: Vec<Leaf>,
+    tree: SpatialTree<Leaf>,
     pending: Mutex<Vec<Deposit>>,
     iteration: u32,
     learning: bool,
@@ -298,9 +129,7 @@ impl Ppg {
     pub fn new(bounds: Aabb, config: PpgConfig) -> Self {
         Self {
             config,
-            bounds,
-            nodes: vec![SpatialNode::Leaf(0)],
-            leaves: vec![Leaf::default()],
+            tree: SpatialTree::new(bounds, Leaf::default()),
             pending: Mutex::new(Vec::new()),
             iteration: 0,
             learning: true,
@@ -319,118 +148,51 @@ impl Ppg {
 
     /// Number of spatial leaves.
     pub fn spatial_leaves(&self) -> usize {
-        self.leaves.len()
+        self.tree.leaves().len()
     }
 
     fn leaf(&self, p: Vec3) -> &Leaf {
-        &self.leaves[self.leaf_index(p)]
-    }
-
-    fn leaf_index(&self, p: Vec3) -> usize {
-        self.locate(unit_position(&self.bounds, p)).0
-    }
-
-    /// The leaf containing `x` (in the unit cube) and the size of its cell.
-    fn locate(&self, mut x: Vec3) -> (usize, Vec3) {
-        let mut size = Vec3::ONE;
-        let mut i = 0;
-        loop {
-            match self.nodes[i] {
-                SpatialNode::Leaf(l) => return (l, size),
-                SpatialNode::Inner { axis, children } => {
-                    let upper = x[axis] >= 0.5;
-                    x[axis] = 2.0 * x[axis] - f32::from(u8::from(upper));
-                    size[axis] *= 0.5;
-                    i = children[usize::from(upper)];
-                }
-            }
-        }
-    }
-
-    /// Leaves overlapping the box `[lo, hi]` of the unit cube, with the overlap volumes.
-    fn overlaps(&self, lo: Vec3, hi: Vec3, out: &mut Vec<(usize, f64)>) {
-        out.clear();
-        let mut stack = vec![(0usize, Vec3::ZERO, Vec3::ONE)];
-        while let Some((i, cell_lo, cell_hi)) = stack.pop() {
-            match self.nodes[i] {
-                SpatialNode::Leaf(l) => {
-                    let d = (cell_hi.min(hi) - cell_lo.max(lo))
-                        .max(Vec3::ZERO)
-                        .as_dvec3();
-                    let volume = d.x * d.y * d.z;
-                    if volume > 0.0 {
-                        out.push((l, volume));
-                    }
-                }
-                SpatialNode::Inner { axis, children } => {
-                    let mid = 0.5 * (cell_lo[axis] + cell_hi[axis]);
-                    if lo[axis] < mid {
-                        let mut h = cell_hi;
-                        h[axis] = mid;
-                        stack.push((children[0], cell_lo, h));
-                    }
-                    if hi[axis] > mid {
-                        let mut l = cell_lo;
-                        l[axis] = mid;
-                        stack.push((children[1], l, cell_hi));
-                    }
-                }
-            }
-        }
+        self.tree.leaf(self.tree.leaf_index(p))
     }
 
     /// Deposit one record into the building trees, at its leaf or spread by the box filter.
     fn deposit(&mut self, d: &Deposit, overlaps: &mut Vec<(usize, f64)>) {
-        let x = unit_position(&self.bounds, d.p);
+        let x = self.tree.unit_position(d.p);
         let c = dir_to_cylindrical(d.wi);
-        let (l, size) = self.locate(x);
+        let at = self.tree.locate_unit(x);
+        let (l, size) = (at.leaf, at.size);
         if self.config.spatial_filter {
             let (lo, hi) = (
                 (x - 0.5 * size).max(Vec3::ZERO),
                 (x + 0.5 * size).min(Vec3::ONE),
             );
-            self.overlaps(lo, hi, overlaps);
+            self.tree.overlaps(lo, hi, overlaps);
             let total: f64 = overlaps.iter().map(|o| o.1).sum();
             if total > 0.0 {
+                let leaves = self.tree.leaves_mut();
                 for &(l, v) in overlaps.iter() {
                     let w = v / total;
-                    self.leaves[l].samples += w;
-                    self.leaves[l].building.deposit(c, w * f64::from(d.flux));
+                    leaves[l].samples += w;
+                    leaves[l].building.deposit(c, w * f64::from(d.flux));
                 }
                 return;
             }
         }
-        self.leaves[l].samples += 1.0;
-        self.leaves[l].building.deposit(c, f64::from(d.flux));
+        let leaf = &mut self.tree.leaves_mut()[l];
+        leaf.samples += 1.0;
+        leaf.building.deposit(c, f64::from(d.flux));
     }
 
     /// Split leaves that received more than `threshold` samples, recursively (children get
     /// copies of the trees and half the count, Müller et al.'s `SDTree::refine`).
     fn refine_space(&mut self, threshold: f64) {
-        let mut stack = vec![(0usize, 0usize, 0u32)]; // (node, axis, depth)
-        while let Some((i, axis, depth)) = stack.pop() {
-            match self.nodes[i] {
-                SpatialNode::Inner { axis, children } => {
-                    for c in children {
-                        stack.push((c, (axis + 1) % 3, depth + 1));
-                    }
-                }
-                SpatialNode::Leaf(l) => {
-                    if self.leaves[l].samples <= threshold || depth >= self.config.max_spatial_depth
-                    {
-                        continue;
-                    }
-                    self.leaves[l].samples *= 0.5;
-                    let copy = self.leaves[l].clone();
-                    self.leaves.push(copy);
-                    let children = [self.nodes.len(), self.nodes.len() + 1];
-                    self.nodes.push(SpatialNode::Leaf(l));
-                    self.nodes.push(SpatialNode::Leaf(self.leaves.len() - 1));
-                    self.nodes[i] = SpatialNode::Inner { axis, children };
-                    stack.push((i, axis, depth));
-                }
-            }
-        }
+        self.tree
+            .refine(self.config.max_spatial_depth, |leaf, _axis| {
+                (leaf.samples > threshold).then(|| {
+                    leaf.samples *= 0.5;
+                    leaf.clone()
+                })
+            });
     }
 }
 
@@ -488,7 +250,7 @@ impl Guide for Ppg {
         for d in &deposits {
             self.deposit(d, &mut overlaps);
         }
-        for leaf in &mut self.leaves {
+        for leaf in self.tree.leaves_mut() {
             leaf.sampling = std::mem::take(&mut leaf.building);
             leaf.sampling.sum_up();
             leaf.sampling_total = leaf.sampling.total();
@@ -496,7 +258,7 @@ impl Guide for Ppg {
         let threshold = self.config.spatial_threshold * 2f64.powf(0.5 * f64::from(self.iteration));
         self.refine_space(threshold);
         let (depth, rho) = (self.config.max_quadtree_depth, self.config.flux_threshold);
-        for leaf in &mut self.leaves {
+        for leaf in self.tree.leaves_mut() {
             leaf.building = leaf.sampling.refined(depth, rho);
             leaf.samples = 0.0;
         }
@@ -573,7 +335,7 @@ mod tests {
             leaves_after(&mut g, 400);
             g
         };
-        let at = |p: Vec3| g.leaf_index(p);
+        let at = |p: Vec3| g.tree.leaf_index(p);
         assert_eq!(at(Vec3::new(0.3, 0.3, 0.3)), at(Vec3::new(0.1, 0.4, 0.9)));
         assert_ne!(at(Vec3::new(0.3, 0.3, 0.3)), at(Vec3::new(0.6, 0.3, 0.3)));
         assert_ne!(at(Vec3::new(0.3, 0.3, 0.3)), at(Vec3::new(0.3, 0.6, 0.3)));
@@ -597,9 +359,9 @@ mod tests {
                 wi: Vec3::Z,
                 flux: 1.0,
             };
-            g.leaves.iter_mut().for_each(|l| l.samples = 0.0);
+            g.tree.leaves_mut().iter_mut().for_each(|l| l.samples = 0.0);
             g.deposit(&d, &mut overlaps);
-            [g.leaves[0].samples, g.leaves[1].samples]
+            [g.tree.leaf(0).samples, g.tree.leaf(1).samples]
         };
         let close = |a: [f64; 2], b: [f64; 2]| (a[0] - b[0]).abs() + (a[1] - b[1]).abs() < 1e-6;
         // The box is as wide as the cell (½ along x) and clipped to the cube.
@@ -608,44 +370,5 @@ mod tests {
         assert!(close(shares(0.5), [0.5, 0.5]));
         assert!(close(shares(0.4), [0.7, 0.3]), "{:?}", shares(0.4));
         assert!(close(shares(0.9), [0.0, 1.0]));
-    }
-
-    #[test]
-    fn quadtree_subdivides_quadrants_above_rho_of_the_flux() {
-        // Flux fractions of the four top-level quadrants: 0.5 %, 0.5 %, 5 %, 94 %.
-        let mut tree = QuadTree::default();
-        let fractions = [0.005, 0.005, 0.05, 0.94];
-        for (q, f) in fractions.iter().enumerate() {
-            let centre = Vec2::new(0.25 + 0.5 * (q & 1) as f32, 0.25 + 0.5 * (q >> 1) as f32);
-            tree.deposit(centre, *f);
-        }
-        tree.sum_up();
-        let refined = tree.refined(20, 0.01);
-        // 0.5 % stays a leaf; 5 % gets a node whose quadrants (1.25 % each) get nodes whose
-        // quadrants (0.31 %) stay leaves: 1 + 4 nodes; 94 % → 23.5 % → 5.9 % → 1.5 % → 0.37 %:
-        // 1 + 4 + 16 + 64 nodes. With the root: 91.
-        assert_eq!(refined.nodes.len(), 1 + 5 + 85);
-        assert_eq!(refined.nodes[0].child[0], 0);
-        assert_eq!(refined.nodes[0].child[1], 0);
-        assert!(refined.total() == 0.0);
-        // The depth limit caps the refinement: with 2 levels only the root's quadrants 2, 3
-        // get nodes.
-        assert_eq!(tree.refined(2, 0.01).nodes.len(), 3);
-        // Without flux, quadrants are refined while 4^-d > ρ: levels 1..3 (1 + 4 + 16 + 64).
-        assert_eq!(QuadTree::default().refined(20, 0.01).nodes.len(), 85);
-    }
-
-    #[test]
-    fn quadtree_density_is_the_product_of_four_times_child_over_parent() {
-        let mut tree = QuadTree::default().refined(2, 0.01); // root + 4 children
-        tree.deposit(Vec2::new(0.1, 0.1), 3.0); // quadrant 0 of quadrant 0
-        tree.deposit(Vec2::new(0.9, 0.9), 1.0); // quadrant 3 of quadrant 3
-        tree.sum_up();
-        // 4 · 3/4 at the root, 4 · 3/3 below.
-        assert!((tree.pdf(Vec2::new(0.1, 0.1)) - 12.0).abs() < 1e-12);
-        assert!((tree.pdf(Vec2::new(0.9, 0.9)) - 4.0).abs() < 1e-12);
-        assert_eq!(tree.pdf(Vec2::new(0.9, 0.1)), 0.0);
-        let s = tree.sample(Vec2::new(0.5, 0.5));
-        assert!(s.x < 0.25 && s.y < 0.25, "{s}");
     }
 }
