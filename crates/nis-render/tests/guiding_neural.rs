@@ -6,8 +6,9 @@ use glam::{Vec2, Vec3};
 use nis_render::bvh::Aabb;
 use nis_render::geometry::Rgb;
 use nis_render::guiding::gmm::{Gmm, GmmConfig};
-use nis_render::guiding::neural::{from_cylindrical, to_cylindrical, NisGuide, NisGuideConfig};
+use nis_render::guiding::neural::{NisGuide, NisGuideConfig};
 use nis_render::guiding::ppg::{Ppg, PpgConfig};
+use nis_render::guiding::{cylindrical_to_dir, dir_to_cylindrical};
 use nis_render::guiding::{Guide, GuideRecord, GuideVertex, NoGuide};
 use nis_render::integrator::{Integrator, Strategy};
 use nis_render::render::{render, render_guided, Budget};
@@ -50,7 +51,7 @@ fn trained_guide(iterations: usize, records: usize) -> NisGuide {
         guide.begin_iteration(it);
         let batch: Vec<GuideRecord> = (0..records)
             .map(|_| {
-                let wi = from_cylindrical([rng.random(), rng.random()]);
+                let wi = cylindrical_to_dir(Vec2::new(rng.random(), rng.random()));
                 let l = (20.0 * (wi.dot(lobe()) - 1.0)).exp();
                 GuideRecord {
                     vertex: vertex(),
@@ -75,8 +76,8 @@ fn cell_probabilities(guide: &NisGuide, nu: usize, nv: usize, sub: usize) -> Vec
     let mut dirs = Vec::with_capacity(mu * mv);
     for i in 0..mu {
         for j in 0..mv {
-            let x = [(i as f32 + 0.5) / mu as f32, (j as f32 + 0.5) / mv as f32];
-            dirs.push(from_cylindrical(x));
+            let x = Vec2::new((i as f32 + 0.5) / mu as f32, (j as f32 + 0.5) / mv as f32);
+            dirs.push(cylindrical_to_dir(x));
         }
     }
     let mut pdf = vec![0.0; dirs.len()];
@@ -96,10 +97,10 @@ fn cell_probabilities(guide: &NisGuide, nu: usize, nv: usize, sub: usize) -> Vec
 fn cylindrical_map_round_trips() {
     let mut rng = Pcg64Mcg::seed_from_u64(1);
     for _ in 0..10_000 {
-        let x: [f32; 2] = [rng.random(), rng.random()];
-        let w = from_cylindrical(x);
+        let x = Vec2::new(rng.random(), rng.random());
+        let w = cylindrical_to_dir(x);
         assert!((w.length() - 1.0).abs() < 1e-5);
-        let y = to_cylindrical(w);
+        let y = dir_to_cylindrical(w);
         assert!((x[0] - y[0]).abs() < 1e-4, "{x:?} -> {y:?}");
         // φ wraps around at 0 = 1.
         let dv = (x[1] - y[1]).abs();
@@ -178,7 +179,7 @@ fn trained_density_is_normalised_concentrated_and_matches_its_samples() {
     let expected = cell_probabilities(&guide, nu, nv, 16);
     let mut counts = vec![0.0f64; nu * nv];
     for d in &dirs {
-        let x = to_cylindrical(*d);
+        let x = dir_to_cylindrical(*d);
         let i = ((x[0] * nu as f32) as usize).min(nu - 1);
         let j = ((x[1] * nv as f32) as usize).min(nv - 1);
         counts[i * nv + j] += 1.0;

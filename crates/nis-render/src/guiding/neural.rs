@@ -2,7 +2,8 @@
 //!
 //! At every path vertex a normalizing flow gives the density of incident directions:
 //! a 2-D flow on [0, 1]² over world-space cylindrical coordinates
-//! `((cos θ + 1)/2, φ/2π)` of the direction (an area-preserving map, so
+//! `((cos θ + 1)/2, φ/2π)` of the direction ([`dir_to_cylindrical`], the map PPG's quadtrees
+//! use too; area-preserving, so
 //! `p(ω) = q(u, v)/4π`), conditioned on the one-blob-encoded vertex position (normalised
 //! to the scene box), outgoing direction and shading normal (both in cylindrical
 //! coordinates). A second, small network predicts the selection probability `c(x, ω_o)` of
@@ -43,7 +44,7 @@ use rand_pcg::Pcg64Mcg;
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
-use super::{Guide, GuideRecord, GuideVertex};
+use super::{cylindrical_to_dir, dir_to_cylindrical, Guide, GuideRecord, GuideVertex};
 use crate::bsdf::Material;
 use crate::bvh::Aabb;
 use crate::geometry::luminance;
@@ -185,24 +186,6 @@ pub struct NisGuide {
     history: Vec<TrainingStats>,
 }
 
-/// World direction → `((cos θ + 1)/2, φ/2π)` in [0, 1]².
-pub fn to_cylindrical(w: Vec3) -> [f32; 2] {
-    let u = ((w.z + 1.0) * 0.5).clamp(0.0, 1.0);
-    let mut v = w.y.atan2(w.x) * (0.5 * std::f32::consts::FRAC_1_PI);
-    if v < 0.0 {
-        v += 1.0;
-    }
-    [u, v.clamp(0.0, 1.0)]
-}
-
-/// `((cos θ + 1)/2, φ/2π)` → world direction.
-pub fn from_cylindrical(x: [f32; 2]) -> Vec3 {
-    let z = 2.0 * x[0] - 1.0;
-    let r = (1.0 - z * z).max(0.0).sqrt();
-    let (s, c) = (2.0 * std::f32::consts::PI * x[1]).sin_cos();
-    Vec3::new(r * c, r * s, z)
-}
-
 fn sigmoid(z: f32) -> f32 {
     1.0 / (1.0 + (-z).exp())
 }
@@ -281,9 +264,9 @@ impl NisGuide {
 
     fn context_scalars(&self, v: &GuideVertex) -> [f32; CONTEXT_SCALARS] {
         let p = ((v.p - self.origin) * self.inv_extent).clamp(Vec3::ZERO, Vec3::ONE);
-        let wo = to_cylindrical(v.wo);
-        let n = to_cylindrical(v.n);
-        [p.x, p.y, p.z, wo[0], wo[1], n[0], n[1]]
+        let wo = dir_to_cylindrical(v.wo);
+        let n = dir_to_cylindrical(v.n);
+        [p.x, p.y, p.z, wo.x, wo.y, n.x, n.y]
     }
 
     /// One-blob features of context scalars, `rows × 7·bins`.
@@ -472,13 +455,16 @@ impl Guide for NisGuide {
             // ln|∂x/∂z| = −ln q(x).
             let pdf = ((-log_det[i]).exp() as f32) * INV_FOUR_PI;
             *o = (pdf.is_finite() && pdf > 0.0)
-                .then(|| (from_cylindrical([x[2 * i], x[2 * i + 1]]), pdf));
+                .then(|| (cylindrical_to_dir(Vec2::new(x[2 * i], x[2 * i + 1])), pdf));
         }
     }
 
     fn pdf_batch(&self, vertices: &[GuideVertex], wi: &[Vec3], out: &mut [f32]) {
         let context = self.vertex_context(vertices);
-        let x: Vec<f32> = wi.iter().flat_map(|&w| to_cylindrical(w)).collect();
+        let x: Vec<f32> = wi
+            .iter()
+            .flat_map(|&w| dir_to_cylindrical(w).to_array())
+            .collect();
         match self.flow.log_density(&x, Some(&context)) {
             Ok(log_q) => {
                 for (o, l) in out.iter_mut().zip(log_q) {
@@ -502,7 +488,7 @@ impl Guide for NisGuide {
             let f = luminance(r.radiance * r.bsdf_cos);
             (f > 0.0 && f.is_finite() && r.pdf > 0.0).then(|| Sample {
                 context: self.context_scalars(&r.vertex),
-                x: to_cylindrical(r.wi),
+                x: dir_to_cylindrical(r.wi).to_array(),
                 f,
                 pdf: r.pdf,
                 bsdf_pdf: r.bsdf_pdf,
