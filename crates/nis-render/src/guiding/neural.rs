@@ -30,8 +30,6 @@
 //! The integrator traces thousands of paths as one wavefront ([`Guide::batch_paths`]), so
 //! every query below runs the networks on large batches.
 
-use std::sync::Mutex;
-
 use glam::{Vec2, Vec3};
 use nis::flow::{Flow, FlowConfig};
 use nis::kernels::elementwise::one_blob;
@@ -44,8 +42,10 @@ use rand_pcg::Pcg64Mcg;
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
-use super::{cylindrical_to_dir, dir_to_cylindrical, Guide, GuideRecord, GuideVertex};
-use crate::bsdf::Material;
+use super::{
+    cylindrical_to_dir, dir_to_cylindrical, Guide, GuideRecord, GuideSample, GuideVertex, PdfQuery,
+    SampleQuery,
+};
 use crate::bvh::Aabb;
 use crate::geometry::luminance;
 
@@ -139,9 +139,10 @@ impl Default for NisGuideConfig {
     }
 }
 
-/// What a training record keeps.
+/// What the neural guide keeps of a training record. A training pass's
+/// [`Guide::Statistics`] are its samples, in the order they were made.
 #[derive(Clone, Copy, Debug)]
-struct Sample {
+pub struct Sample {
     context: [f32; CONTEXT_SCALARS],
     /// The direction in cylindrical coordinates.
     x: [f32; 2],
@@ -179,7 +180,6 @@ pub struct NisGuide {
     selection: Mlp,
     selection_params: Vec<f32>,
     selection_adam: Adam,
-    incoming: Mutex<Vec<Sample>>,
     buffer: Vec<Sample>,
     training: bool,
     trained: bool,
@@ -244,7 +244,6 @@ impl NisGuide {
             origin: bounds.min - margin,
             inv_extent: (extent + 2.0 * margin).recip(),
             config,
-            incoming: Mutex::new(Vec::new()),
             buffer: Vec::new(),
             training: true,
             trained: false,
@@ -371,10 +370,17 @@ impl NisGuide {
         Ok(stats)
     }
 
-    /// Train on the records of the pass that just ended.
-    fn train(&mut self, iteration: usize) {
+    /// The rows of the encoded `context` of the vertices `rows` refers to.
+    fn gather(&self, context: &[f32], rows: impl Iterator<Item = usize>) -> Vec<f32> {
+        let cdim = self.selection.dims[0];
+        rows.flat_map(|r| &context[r * cdim..(r + 1) * cdim])
+            .copied()
+            .collect()
+    }
+
+    /// Train on the records of the pass that just ended (the `iteration`-th training phase).
+    fn train(&mut self, new: Vec<Sample>, iteration: usize) {
         let start = std::time::Instant::now();
-        let new = std::mem::take(&mut *self.incoming.lock().expect("guide records"));
         let new_records = new.len();
         self.buffer.extend(new);
         if self.buffer.len() > self.config.buffer {
@@ -414,38 +420,35 @@ impl NisGuide {
 }
 
 impl Guide for NisGuide {
-    fn selection_probability(&self, vertex: &GuideVertex, material: &Material) -> f32 {
-        let mut out = [0.0];
-        self.selection_probabilities(std::slice::from_ref(vertex), &[material], &mut out);
-        out[0]
+    /// The one-blob encoded context of every vertex, `rows × 7·bins`, computed once and shared
+    /// by the selection network and the flow's sampling and density queries.
+    type Prepared = Vec<f32>;
+    type Statistics = Vec<Sample>;
+
+    fn prepare(&self, vertices: &[GuideVertex], context: &mut Vec<f32>) {
+        *context = self.vertex_context(vertices);
     }
 
-    fn sample(&self, vertex: &GuideVertex, u: Vec2) -> Option<(Vec3, f32)> {
-        let mut out = [None];
-        self.sample_batch(std::slice::from_ref(vertex), &[u], &mut out);
-        out[0]
-    }
-
-    fn pdf(&self, vertex: &GuideVertex, wi: Vec3) -> f32 {
-        let mut out = [0.0];
-        self.pdf_batch(std::slice::from_ref(vertex), &[wi], &mut out);
-        out[0]
-    }
-
-    fn selection_probabilities(&self, vertices: &[GuideVertex], _: &[&Material], out: &mut [f32]) {
+    fn selection_probabilities(&self, _: &[GuideVertex], context: &Vec<f32>, out: &mut [f32]) {
         if !self.trained {
             out.fill(0.0);
             return;
         }
-        let (_, c) = self.select(&self.vertex_context(vertices));
+        let (_, c) = self.select(context);
         out.copy_from_slice(&c);
     }
 
-    fn sample_batch(&self, vertices: &[GuideVertex], u: &[Vec2], out: &mut [Option<(Vec3, f32)>]) {
-        let context = self.vertex_context(vertices);
-        let z: Vec<f32> = u
+    fn sample_batch(
+        &self,
+        _: &[GuideVertex],
+        context: &Vec<f32>,
+        queries: &[SampleQuery],
+        out: &mut [Option<GuideSample>],
+    ) {
+        let context = self.gather(context, queries.iter().map(|q| q.vertex));
+        let z: Vec<f32> = queries
             .iter()
-            .flat_map(|u| [u.x.clamp(0.0, 1.0), u.y.clamp(0.0, 1.0)])
+            .flat_map(|q| [q.u.x.clamp(0.0, 1.0), q.u.y.clamp(0.0, 1.0)])
             .collect();
         let Ok((x, log_det)) = self.flow.inverse(&z, Some(&context)) else {
             out.fill(None);
@@ -454,16 +457,24 @@ impl Guide for NisGuide {
         for (i, o) in out.iter_mut().enumerate() {
             // ln|∂x/∂z| = −ln q(x).
             let pdf = ((-log_det[i]).exp() as f32) * INV_FOUR_PI;
-            *o = (pdf.is_finite() && pdf > 0.0)
-                .then(|| (cylindrical_to_dir(Vec2::new(x[2 * i], x[2 * i + 1])), pdf));
+            *o = (pdf.is_finite() && pdf > 0.0).then(|| GuideSample {
+                wi: cylindrical_to_dir(Vec2::new(x[2 * i], x[2 * i + 1])),
+                pdf,
+            });
         }
     }
 
-    fn pdf_batch(&self, vertices: &[GuideVertex], wi: &[Vec3], out: &mut [f32]) {
-        let context = self.vertex_context(vertices);
-        let x: Vec<f32> = wi
+    fn pdf_batch(
+        &self,
+        _: &[GuideVertex],
+        context: &Vec<f32>,
+        queries: &[PdfQuery],
+        out: &mut [f32],
+    ) {
+        let context = self.gather(context, queries.iter().map(|q| q.vertex));
+        let x: Vec<f32> = queries
             .iter()
-            .flat_map(|&w| dir_to_cylindrical(w).to_array())
+            .flat_map(|q| dir_to_cylindrical(q.wi).to_array())
             .collect();
         match self.flow.log_density(&x, Some(&context)) {
             Ok(log_q) => {
@@ -483,8 +494,8 @@ impl Guide for NisGuide {
         self.training
     }
 
-    fn record(&self, records: &[GuideRecord]) {
-        let samples = records.iter().filter_map(|r| {
+    fn accumulate(&self, records: &[GuideRecord], samples: &mut Vec<Sample>) {
+        samples.extend(records.iter().filter_map(|r| {
             let f = luminance(r.radiance * r.bsdf_cos);
             (f > 0.0 && f.is_finite() && r.pdf > 0.0).then(|| Sample {
                 context: self.context_scalars(&r.vertex),
@@ -493,13 +504,14 @@ impl Guide for NisGuide {
                 pdf: r.pdf,
                 bsdf_pdf: r.bsdf_pdf,
             })
-        });
-        self.incoming.lock().expect("guide records").extend(samples);
+        }));
     }
 
-    fn end_iteration(&mut self, iteration: usize) {
+    fn update(&mut self, samples: Vec<Sample>) {
         if self.training {
-            self.train(iteration);
+            // Phases are counted by the guide itself: the `k`-th update draws its batches from
+            // the `k`-th stream.
+            self.train(samples, self.history.len());
         }
     }
 

@@ -22,14 +22,11 @@
 //! Each iteration's records are sorted before fitting, so the result does not depend on the
 //! order in which render threads delivered them.
 
-use std::sync::Mutex;
-
-use glam::{DVec2, Vec2, Vec3};
+use glam::{DVec2, Vec3};
 use rayon::prelude::*;
 
 use super::spatial::SpatialTree;
-use super::{bits_key, Guide, GuideRecord, GuideVertex};
-use crate::bsdf::Material;
+use super::{bits_key, Guide, GuideRecord, GuideSample, GuideVertex, PdfQuery, SampleQuery};
 use crate::bvh::Aabb;
 use crate::sampling::square_to_disk_concentric;
 use disk::{disk_to_hemisphere, hemisphere_to_disk, Mixture};
@@ -114,9 +111,10 @@ fn to_local(frame: &[Vec3; 3], w: Vec3) -> Vec3 {
     Vec3::new(w.dot(frame[0]), w.dot(frame[1]), w.dot(frame[2]))
 }
 
-/// One training sample reduced to what the mixtures need.
+/// One training record reduced to what the mixtures need. A training pass's
+/// [`Guide::Statistics`] are its samples, in the order they were made.
 #[derive(Clone, Copy, Debug)]
-struct Sample {
+pub struct Sample {
     p: Vec3,
     n: Vec3,
     wi: Vec3,
@@ -175,6 +173,15 @@ impl Leaf {
     }
 }
 
+/// A vertex's spatial leaf, normal class and the local frame of that class: the per-vertex
+/// work of a batch of queries ([`Guide::Prepared`]).
+#[derive(Clone, Copy, Debug)]
+pub struct Lookup {
+    leaf: usize,
+    class: usize,
+    frame: [Vec3; 3],
+}
+
 /// Vorba-style Gaussian-mixture guide (see the module documentation).
 ///
 /// ```
@@ -191,7 +198,6 @@ impl Leaf {
 pub struct Gmm {
     config: GmmConfig,
     tree: SpatialTree<Leaf>,
-    pending: Mutex<Vec<Sample>>,
     iteration: u32,
     learning: bool,
 }
@@ -206,7 +212,6 @@ impl Gmm {
         Self {
             config,
             tree: SpatialTree::new(bounds, Leaf::default()),
-            pending: Mutex::new(Vec::new()),
             iteration: 0,
             learning: true,
         }
@@ -227,11 +232,19 @@ impl Gmm {
         self.tree.leaves().len()
     }
 
-    /// The trained mixture for `vertex` (if any) and the local frame of its normal class.
-    fn mixture(&self, vertex: &GuideVertex) -> (Option<&Mixture>, [Vec3; 3]) {
+    /// Where the mixture of `vertex` is kept, and the local frame of its normal class.
+    fn lookup(&self, vertex: &GuideVertex) -> Lookup {
         let (class, frame) = class_frame(reflection_normal(vertex));
-        let leaf = self.tree.leaf(self.tree.leaf_index(vertex.p));
-        (leaf.mixtures[class].as_ref(), frame)
+        Lookup {
+            leaf: self.tree.leaf_index(vertex.p),
+            class,
+            frame,
+        }
+    }
+
+    /// The trained mixture of a looked-up vertex, if any.
+    fn mixture(&self, at: &Lookup) -> Option<&Mixture> {
+        self.tree.leaf(at.leaf).mixtures[at.class].as_ref()
     }
 }
 
@@ -268,31 +281,59 @@ fn fit_mixtures(mixtures: &mut [Option<Mixture>; 6], samples: &[Sample], config:
 }
 
 impl Guide for Gmm {
-    fn selection_probability(&self, vertex: &GuideVertex, material: &Material) -> f32 {
-        if material.is_delta() || self.mixture(vertex).0.is_none() {
-            0.0
-        } else {
-            1.0 - self.config.bsdf_fraction
+    type Prepared = Vec<Lookup>;
+    type Statistics = Vec<Sample>;
+
+    fn prepare(&self, vertices: &[GuideVertex], lookups: &mut Vec<Lookup>) {
+        lookups.clear();
+        lookups.extend(vertices.iter().map(|v| self.lookup(v)));
+    }
+
+    fn selection_probabilities(&self, _: &[GuideVertex], lookups: &Vec<Lookup>, out: &mut [f32]) {
+        for (at, o) in lookups.iter().zip(out) {
+            *o = if self.mixture(at).is_none() {
+                0.0
+            } else {
+                1.0 - self.config.bsdf_fraction
+            };
         }
     }
 
-    fn sample(&self, vertex: &GuideVertex, u: Vec2) -> Option<(Vec3, f32)> {
-        let (mixture, f) = self.mixture(vertex);
-        let d = match mixture {
-            Some(m) => m.sample_disk(u),
-            None => square_to_disk_concentric(u).as_dvec2(),
-        };
-        let w = disk_to_hemisphere(d);
-        let wi = (w.x * f[0] + w.y * f[1] + w.z * f[2]).normalize();
-        // The density of the direction returned (what `pdf(wi)` computes, without a second
-        // lookup), not of `d`: the two differ by round-off.
-        let pdf = density(mixture, &f, wi);
-        (pdf > 0.0).then_some((wi, pdf))
+    fn sample_batch(
+        &self,
+        _: &[GuideVertex],
+        lookups: &Vec<Lookup>,
+        queries: &[SampleQuery],
+        out: &mut [Option<GuideSample>],
+    ) {
+        for (q, o) in queries.iter().zip(out) {
+            let at = &lookups[q.vertex];
+            let mixture = self.mixture(at);
+            let d = match mixture {
+                Some(m) => m.sample_disk(q.u),
+                None => square_to_disk_concentric(q.u).as_dvec2(),
+            };
+            let w = disk_to_hemisphere(d);
+            let f = &at.frame;
+            let wi = (w.x * f[0] + w.y * f[1] + w.z * f[2]).normalize();
+            // The density of the direction returned (what `pdf(wi)` computes), not of `d`: the
+            // two differ by round-off.
+            let pdf = density(mixture, f, wi);
+            *o = (pdf > 0.0).then_some(GuideSample { wi, pdf });
+        }
     }
 
-    fn pdf(&self, vertex: &GuideVertex, wi: Vec3) -> f32 {
-        let (mixture, frame) = self.mixture(vertex);
-        density(mixture, &frame, wi)
+    fn pdf_batch(
+        &self,
+        _: &[GuideVertex],
+        lookups: &Vec<Lookup>,
+        queries: &[PdfQuery],
+        out: &mut [f32],
+    ) {
+        for (q, o) in queries.iter().zip(out) {
+            let at = &lookups[q.vertex];
+            *o = density(self.mixture(at), &at.frame, q.wi);
+        }
     }
 
     fn wants_records(&self) -> bool {
@@ -303,8 +344,8 @@ impl Guide for Gmm {
         self.learning = false;
     }
 
-    fn record(&self, records: &[GuideRecord]) {
-        let samples = records.iter().filter_map(|r| {
+    fn accumulate(&self, records: &[GuideRecord], samples: &mut Vec<Sample>) {
+        samples.extend(records.iter().filter_map(|r| {
             let weight = r.radiance.max(Vec3::ZERO).element_sum() / (3.0 * r.pdf);
             (r.pdf > 0.0 && weight.is_finite()).then_some(Sample {
                 p: r.vertex.p,
@@ -312,16 +353,13 @@ impl Guide for Gmm {
                 wi: r.wi,
                 weight,
             })
-        });
-        let mut pending = self.pending.lock().unwrap_or_else(|e| e.into_inner());
-        pending.extend(samples);
+        }));
     }
 
-    fn end_iteration(&mut self, _iteration: usize) {
+    fn update(&mut self, mut samples: Vec<Sample>) {
         if !self.learning {
             return;
         }
-        let mut samples = std::mem::take(self.pending.get_mut().unwrap_or_else(|e| e.into_inner()));
         samples.sort_unstable_by_key(Sample::key);
         for s in samples {
             let at = self.tree.locate_unit(self.tree.unit_position(s.p));

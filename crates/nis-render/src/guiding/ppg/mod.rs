@@ -16,7 +16,7 @@
 //! tree is refined from the new sampling tree: a quadrant carrying more than a fraction `ρ` of
 //! the total flux gets children (a new child inherits a quarter of its parent's flux, so
 //! refinement may go several levels at once), others become leaves (§5.2). `k` counts the
-//! `end_iteration` calls of this guide, not the render loop's pass index.
+//! [`Guide::update`]s of this guide, not the render loop's pass index.
 //!
 //! As in the paper, guiding is radiance-driven (the flux is not multiplied by the BSDF) and
 //! records are deposited at their own position, unless [`PpgConfig::spatial_filter`] asks
@@ -27,13 +27,14 @@
 //! 0.
 
 use std::f64::consts::PI;
-use std::sync::Mutex;
 
-use glam::{Vec2, Vec3};
+use glam::Vec3;
 
 use super::spatial::SpatialTree;
-use super::{bits_key, cylindrical_to_dir, dir_to_cylindrical, Guide, GuideRecord, GuideVertex};
-use crate::bsdf::Material;
+use super::{
+    bits_key, cylindrical_to_dir, dir_to_cylindrical, Guide, GuideRecord, GuideSample, GuideVertex,
+    PdfQuery, SampleQuery,
+};
 use crate::bvh::Aabb;
 use quadtree::QuadTree;
 
@@ -89,9 +90,10 @@ struct Leaf {
     samples: f64,
 }
 
-/// One training sample reduced to what PPG keeps: position, direction and flux.
+/// One training record reduced to what PPG keeps: position, direction and flux. A training
+/// pass's [`Guide::Statistics`] are its deposits, in the order they were made.
 #[derive(Clone, Copy, Debug)]
-struct Deposit {
+pub struct Deposit {
     p: Vec3,
     wi: Vec3,
     flux: f32,
@@ -119,7 +121,6 @@ impl Deposit {
 pub struct Ppg {
     config: PpgConfig,
     tree: SpatialTree<Leaf>,
-    pending: Mutex<Vec<Deposit>>,
     iteration: u32,
     learning: bool,
 }
@@ -130,7 +131,6 @@ impl Ppg {
         Self {
             config,
             tree: SpatialTree::new(bounds, Leaf::default()),
-            pending: Mutex::new(Vec::new()),
             iteration: 0,
             learning: true,
         }
@@ -149,10 +149,6 @@ impl Ppg {
     /// Number of spatial leaves.
     pub fn spatial_leaves(&self) -> usize {
         self.tree.leaves().len()
-    }
-
-    fn leaf(&self, p: Vec3) -> &Leaf {
-        self.tree.leaf(self.tree.leaf_index(p))
     }
 
     /// Deposit one record into the building trees, at its leaf or spread by the box filter.
@@ -197,25 +193,53 @@ impl Ppg {
 }
 
 impl Guide for Ppg {
-    fn selection_probability(&self, vertex: &GuideVertex, material: &Material) -> f32 {
-        if material.is_delta() || self.leaf(vertex.p).sampling_total <= 0.0 {
-            0.0
-        } else {
-            1.0 - self.config.bsdf_fraction
+    /// The spatial leaf of each vertex.
+    type Prepared = Vec<usize>;
+    type Statistics = Vec<Deposit>;
+
+    fn prepare(&self, vertices: &[GuideVertex], leaves: &mut Vec<usize>) {
+        leaves.clear();
+        leaves.extend(vertices.iter().map(|v| self.tree.leaf_index(v.p)));
+    }
+
+    fn selection_probabilities(&self, _: &[GuideVertex], leaves: &Vec<usize>, out: &mut [f32]) {
+        for (&l, o) in leaves.iter().zip(out) {
+            *o = if self.tree.leaf(l).sampling_total <= 0.0 {
+                0.0
+            } else {
+                1.0 - self.config.bsdf_fraction
+            };
         }
     }
 
-    fn sample(&self, vertex: &GuideVertex, u: Vec2) -> Option<(Vec3, f32)> {
-        let leaf = self.leaf(vertex.p);
-        let wi = cylindrical_to_dir(leaf.sampling.sample(u));
-        // The density of the direction actually returned, so that it equals `pdf(wi)` even
-        // where rounding moved it across a cell boundary.
-        let pdf = (leaf.sampling.pdf(dir_to_cylindrical(wi)) / (4.0 * PI)) as f32;
-        (pdf > 0.0).then_some((wi, pdf))
+    fn sample_batch(
+        &self,
+        _: &[GuideVertex],
+        leaves: &Vec<usize>,
+        queries: &[SampleQuery],
+        out: &mut [Option<GuideSample>],
+    ) {
+        for (q, o) in queries.iter().zip(out) {
+            let tree = &self.tree.leaf(leaves[q.vertex]).sampling;
+            let wi = cylindrical_to_dir(tree.sample(q.u));
+            // The density of the direction actually returned, so that it equals `pdf(wi)` even
+            // where rounding moved it across a cell boundary.
+            let pdf = (tree.pdf(dir_to_cylindrical(wi)) / (4.0 * PI)) as f32;
+            *o = (pdf > 0.0).then_some(GuideSample { wi, pdf });
+        }
     }
 
-    fn pdf(&self, vertex: &GuideVertex, wi: Vec3) -> f32 {
-        (self.leaf(vertex.p).sampling.pdf(dir_to_cylindrical(wi)) / (4.0 * PI)) as f32
+    fn pdf_batch(
+        &self,
+        _: &[GuideVertex],
+        leaves: &Vec<usize>,
+        queries: &[PdfQuery],
+        out: &mut [f32],
+    ) {
+        for (q, o) in queries.iter().zip(out) {
+            let tree = &self.tree.leaf(leaves[q.vertex]).sampling;
+            *o = (tree.pdf(dir_to_cylindrical(q.wi)) / (4.0 * PI)) as f32;
+        }
     }
 
     fn wants_records(&self) -> bool {
@@ -226,25 +250,21 @@ impl Guide for Ppg {
         self.learning = false;
     }
 
-    fn record(&self, records: &[GuideRecord]) {
-        let deposits = records.iter().filter_map(|r| {
+    fn accumulate(&self, records: &[GuideRecord], deposits: &mut Vec<Deposit>) {
+        deposits.extend(records.iter().filter_map(|r| {
             let flux = r.radiance.max(Vec3::ZERO).element_sum() / (3.0 * r.pdf);
             (r.pdf > 0.0 && flux.is_finite()).then_some(Deposit {
                 p: r.vertex.p,
                 wi: r.wi,
                 flux,
             })
-        });
-        let mut pending = self.pending.lock().unwrap_or_else(|e| e.into_inner());
-        pending.extend(deposits);
+        }));
     }
 
-    fn end_iteration(&mut self, _iteration: usize) {
+    fn update(&mut self, mut deposits: Vec<Deposit>) {
         if !self.learning {
             return;
         }
-        let mut deposits =
-            std::mem::take(self.pending.get_mut().unwrap_or_else(|e| e.into_inner()));
         deposits.sort_unstable_by_key(Deposit::key);
         let mut overlaps = Vec::new();
         for d in &deposits {
@@ -305,8 +325,9 @@ mod tests {
     /// `n` samples at one point, then one training iteration; the spatial leaf count.
     fn leaves_after(guide: &mut Ppg, n: usize) -> usize {
         let records = vec![record(Vec3::splat(0.3), Vec3::Z, 1.0); n];
-        guide.record(&records);
-        guide.end_iteration(0);
+        let mut deposits = Vec::new();
+        guide.accumulate(&records, &mut deposits);
+        guide.update(deposits);
         guide.spatial_leaves()
     }
 
