@@ -11,9 +11,9 @@ use nis_render::film::Image;
 use nis_render::guiding::gmm::{Gmm, GmmConfig};
 use nis_render::guiding::neural::{GuideLoss, NisGuide, NisGuideConfig};
 use nis_render::guiding::ppg::{Ppg, PpgConfig};
-use nis_render::guiding::{Guide, NoGuide};
+use nis_render::guiding::NoGuide;
 use nis_render::integrator::{Integrator, Strategy};
-use nis_render::render::{render, render_guided, Budget, RenderOutput};
+use nis_render::render::{render, Budget, RenderOptions, RenderOutput, Schedule};
 use nis_render::scene::Scene;
 
 /// Render a scene with the CPU path tracer.
@@ -116,32 +116,23 @@ pub struct CompareArgs {
 /// The `--guide` choices.
 pub const GUIDES: [&str; 5] = ["none", "ppg", "gmm", "nis-kl", "nis-chi2"];
 
-/// A guide by its `--guide` name, for `scene`.
-pub fn make_guide(
-    name: &str,
+/// The neural guide for `--guide nis-kl` / `nis-chi2`: `config` (JSON) merged over the defaults.
+fn neural_guide(
     scene: &Scene,
+    loss: GuideLoss,
     seed: u64,
     config: Option<&str>,
-) -> Result<Box<dyn Guide>, Box<dyn std::error::Error>> {
-    let nis = |loss| -> Result<Box<dyn Guide>, Box<dyn std::error::Error>> {
-        let base: NisGuideConfig = match config {
-            Some(json) => serde_json::from_str(json).map_err(|e| format!("--guide-config: {e}"))?,
-            None => NisGuideConfig::default(),
-        };
-        let config = NisGuideConfig { loss, seed, ..base };
-        Ok(Box::new(NisGuide::new(scene.bounds(), config)?))
+) -> Result<NisGuide, Box<dyn std::error::Error>> {
+    let base: NisGuideConfig = match config {
+        Some(json) => serde_json::from_str(json).map_err(|e| format!("--guide-config: {e}"))?,
+        None => NisGuideConfig::default(),
     };
-    match name {
-        "none" => Ok(Box::new(NoGuide)),
-        "ppg" => Ok(Box::new(Ppg::new(scene.bounds(), PpgConfig::default()))),
-        "gmm" => Ok(Box::new(Gmm::new(scene.bounds(), GmmConfig::default()))),
-        "nis-kl" => nis(GuideLoss::Kl),
-        "nis-chi2" => nis(GuideLoss::ChiSquare),
-        _ => Err(format!("unknown guide '{name}' (choose from {})", GUIDES.join(", ")).into()),
-    }
+    let config = NisGuideConfig { loss, seed, ..base };
+    Ok(NisGuide::new(scene.bounds(), config)?)
 }
 
-/// Render with `guide` (`none`: plain path tracing in one pass).
+/// Render with the guide named `guide` (`none`: plain path tracing in one pass; the others
+/// train first, see [`Schedule::Training`]).
 pub fn render_with(
     scene: &Scene,
     integrator: &Integrator,
@@ -151,25 +142,41 @@ pub fn render_with(
     guide_config: Option<&str>,
     progress: &(dyn Fn(f64) + Sync),
 ) -> Result<RenderOutput, Box<dyn std::error::Error>> {
-    if guide == "none" {
-        return Ok(render(
-            scene,
-            integrator,
-            budget,
-            seed,
-            &mut NoGuide,
-            progress,
-        ));
-    }
-    let mut g = make_guide(guide, scene, seed, guide_config)?;
-    Ok(render_guided(
-        scene,
-        integrator,
+    let options = |schedule| RenderOptions {
+        integrator: *integrator,
         budget,
         seed,
-        g.as_mut(),
-        progress,
-    ))
+        schedule,
+    };
+    let guided = options(Schedule::Training);
+    let bounds = scene.bounds();
+    Ok(match guide {
+        "none" => render(scene, &options(Schedule::Plain), &mut NoGuide, progress),
+        "ppg" => {
+            let mut ppg = Ppg::new(bounds, PpgConfig::default());
+            render(scene, &guided, &mut ppg, progress)
+        }
+        "gmm" => {
+            let mut gmm = Gmm::new(bounds, GmmConfig::default());
+            render(scene, &guided, &mut gmm, progress)
+        }
+        "nis-kl" | "nis-chi2" => {
+            let loss = if guide == "nis-kl" {
+                GuideLoss::Kl
+            } else {
+                GuideLoss::ChiSquare
+            };
+            let mut nis = neural_guide(scene, loss, seed, guide_config)?;
+            render(scene, &guided, &mut nis, progress)
+        }
+        _ => {
+            return Err(format!(
+                "unknown guide '{guide}' (choose from {})",
+                GUIDES.join(", ")
+            )
+            .into())
+        }
+    })
 }
 
 fn load(

@@ -163,7 +163,12 @@ impl Bvh {
         let mut order: Vec<u32> = (0..triangles.len() as u32).collect();
         let mut nodes = Vec::with_capacity(2 * triangles.len() / MAX_LEAF + 1);
         if !triangles.is_empty() {
-            build_node(&mut nodes, &mut order, 0, 0, &bounds, &centroids);
+            Builder {
+                nodes: &mut nodes,
+                bounds: &bounds,
+                centroids: &centroids,
+            }
+            .build_node(&mut order, 0, 0);
         }
         let triangles = order.iter().map(|&i| triangles[i as usize]).collect();
         (Bvh { nodes, triangles }, order)
@@ -314,89 +319,95 @@ impl Bvh {
     }
 }
 
-/// Build the subtree over `order[..]` (which starts at `first` in the final triangle array).
-fn build_node(
-    nodes: &mut Vec<Node>,
-    order: &mut [u32],
-    first: usize,
-    depth: usize,
-    bounds: &[Aabb],
-    centroids: &[Vec3],
-) -> usize {
-    let node_bounds = order
-        .iter()
-        .fold(Aabb::EMPTY, |b, &i| b.union(&bounds[i as usize]));
-    let this = nodes.len();
-    nodes.push(Node {
-        min: node_bounds.min.into(),
-        max: node_bounds.max.into(),
-        offset: first as u32,
-        count: order.len() as u16,
-        axis: 0,
-    });
-    if order.len() <= MAX_LEAF {
-        return this;
-    }
-    let mut cb = Aabb::EMPTY;
-    for &i in order.iter() {
-        cb.grow(centroids[i as usize]);
-    }
-    let extent = cb.max - cb.min;
-    let axis = extent.max_position();
-    if depth >= MAX_SAH_DEPTH {
-        // Deep below here SAH may be peeling off a few triangles at a time; split at the
-        // median instead, which bounds the remaining depth by log2(n) and so the
-        // traversal stack.
-        let mid = order.len() / 2;
-        order.select_nth_unstable_by(mid, |&a, &b| {
-            centroids[a as usize][axis].total_cmp(&centroids[b as usize][axis])
-        });
-        return finish_interior(
-            nodes, order, first, depth, bounds, centroids, this, mid, axis,
-        );
-    }
-    let split = if extent[axis] > 0.0 {
-        best_split(order, axis, &cb, bounds, centroids, &node_bounds)
-    } else {
-        None
-    };
-    let mid = match split {
-        Some(pos) => partition(order, |i| centroids[i as usize][axis] < pos),
-        // All centroids coincide (or no split pays off) but too many for one leaf: halve.
-        None if order.len() > u16::MAX as usize / 2 || order.len() > 4 * MAX_LEAF => {
-            order.len() / 2
-        }
-        None => return this,
-    };
-    let mid = if mid == 0 || mid == order.len() {
-        order.len() / 2
-    } else {
-        mid
-    };
-    finish_interior(
-        nodes, order, first, depth, bounds, centroids, this, mid, axis,
-    )
+/// The state of a BVH build: the nodes so far, and every triangle's bounds and centroid.
+struct Builder<'a> {
+    nodes: &'a mut Vec<Node>,
+    bounds: &'a [Aabb],
+    centroids: &'a [Vec3],
 }
 
-/// Build both children of node `this`, split at `mid`, and link them.
-fn finish_interior(
-    nodes: &mut Vec<Node>,
-    order: &mut [u32],
-    first: usize,
-    depth: usize,
-    bounds: &[Aabb],
-    centroids: &[Vec3],
-    this: usize,
+impl Builder<'_> {
+    /// Build the subtree over `order[..]` (which starts at `first` in the final triangle
+    /// array).
+    fn build_node(&mut self, order: &mut [u32], first: usize, depth: usize) -> usize {
+        let (bounds, centroids) = (self.bounds, self.centroids);
+        let node_bounds = order
+            .iter()
+            .fold(Aabb::EMPTY, |b, &i| b.union(&bounds[i as usize]));
+        let this = self.nodes.len();
+        self.nodes.push(Node {
+            min: node_bounds.min.into(),
+            max: node_bounds.max.into(),
+            offset: first as u32,
+            count: order.len() as u16,
+            axis: 0,
+        });
+        if order.len() <= MAX_LEAF {
+            return this;
+        }
+        let mut cb = Aabb::EMPTY;
+        for &i in order.iter() {
+            cb.grow(centroids[i as usize]);
+        }
+        let extent = cb.max - cb.min;
+        let axis = extent.max_position();
+        if depth >= MAX_SAH_DEPTH {
+            // Deep below here SAH may be peeling off a few triangles at a time; split at the
+            // median instead, which bounds the remaining depth by log2(n) and so the
+            // traversal stack.
+            let mid = order.len() / 2;
+            order.select_nth_unstable_by(mid, |&a, &b| {
+                centroids[a as usize][axis].total_cmp(&centroids[b as usize][axis])
+            });
+            return self.finish_interior(order, first, depth, this, Split { mid, axis });
+        }
+        let split = if extent[axis] > 0.0 {
+            best_split(order, axis, &cb, bounds, centroids, &node_bounds)
+        } else {
+            None
+        };
+        let mid = match split {
+            Some(pos) => partition(order, |i| centroids[i as usize][axis] < pos),
+            // All centroids coincide (or no split pays off) but too many for one leaf: halve.
+            None if order.len() > u16::MAX as usize / 2 || order.len() > 4 * MAX_LEAF => {
+                order.len() / 2
+            }
+            None => return this,
+        };
+        let mid = if mid == 0 || mid == order.len() {
+            order.len() / 2
+        } else {
+            mid
+        };
+        self.finish_interior(order, first, depth, this, Split { mid, axis })
+    }
+
+    /// Build both children of node `this`, split as `split` says, and link them.
+    fn finish_interior(
+        &mut self,
+        order: &mut [u32],
+        first: usize,
+        depth: usize,
+        this: usize,
+        split: Split,
+    ) -> usize {
+        let (left, right) = order.split_at_mut(split.mid);
+        self.build_node(left, first, depth + 1);
+        let right_child = self.build_node(right, first + split.mid, depth + 1);
+        let node = &mut self.nodes[this];
+        node.offset = right_child as u32;
+        node.count = 0;
+        node.axis = split.axis as u16;
+        this
+    }
+}
+
+/// Where an interior node splits its triangles: the first index of the right child's part of
+/// the order, and the axis the split was made along.
+#[derive(Clone, Copy, Debug)]
+struct Split {
     mid: usize,
     axis: usize,
-) -> usize {
-    let (left, right) = order.split_at_mut(mid);
-    build_node(nodes, left, first, depth + 1, bounds, centroids);
-    let right_child = build_node(nodes, right, first + mid, depth + 1, bounds, centroids);
-    nodes[this].offset = right_child as u32;
-    nodes[this].count = 0;
-    nodes[this].axis = axis as u16;
-    this
 }
 
 /// The SAH-best split position along `axis`, or `None` if a leaf is cheaper.

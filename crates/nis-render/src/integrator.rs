@@ -14,10 +14,11 @@ use glam::{Vec2, Vec3};
 use rand::RngCore;
 use rand_pcg::Pcg32;
 
+use crate::bsdf::{BsdfSample, Material};
 use crate::geometry::{offset_origin, Frame, Ray, Rgb, RAY_EPSILON};
-use crate::guiding::{Guide, GuideRecord, GuideVertex};
+use crate::guiding::{Guide, GuideRecord, GuideSample, GuideVertex, PdfQuery, SampleQuery};
 use crate::sampling::power_heuristic;
-use crate::scene::{Scene, NO_LIGHT};
+use crate::scene::{Scene, SurfaceHit, NO_LIGHT};
 
 /// Which techniques estimate the light arriving at a vertex.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Default)]
@@ -139,20 +140,75 @@ impl PathState {
     }
 }
 
+/// Emitted radiance a path's ray reached, and its MIS weight (kept apart: the estimator
+/// multiplies throughput, radiance and weight in that order).
+#[derive(Clone, Copy, Debug)]
+struct Emission {
+    radiance: Rgb,
+    weight: f32,
+}
+
+/// An unoccluded light sample at a vertex: the parts of its contribution that do not depend on
+/// the guide (whose density enters the MIS weight once the batch of guide queries is answered).
+#[derive(Clone, Copy, Debug)]
+struct LightContribution {
+    /// Direction to the light (world).
+    wi: Vec3,
+    /// Light-sampling density of `wi`.
+    light_pdf: f32,
+    /// Radiance arriving along `wi`.
+    radiance: Rgb,
+    /// BSDF value for `(wo, wi)`.
+    f: Rgb,
+    /// BSDF sampling density of `wi`.
+    bsdf_pdf: f32,
+}
+
+/// How a vertex continues its path: the sampled direction and what the estimator needs of it.
+#[derive(Clone, Copy, Debug)]
+struct Scatter {
+    /// Direction (world).
+    wi: Vec3,
+    /// BSDF value (for a delta lobe, its weight divided by `|cos θi|`).
+    f: Rgb,
+    /// Density the direction was drawn with: the guide–BSDF mixture's, or a delta lobe's
+    /// probability.
+    pdf: f32,
+    /// The BSDF's own density of `wi`.
+    bsdf_pdf: f32,
+    /// Whether `wi` came from a delta lobe.
+    delta: bool,
+    /// Relative index of refraction crossed.
+    eta: f32,
+}
+
 /// One scattering vertex of one path during a wavefront step.
 struct Bounce {
     path: usize,
-    hit: crate::scene::SurfaceHit,
+    hit: SurfaceHit,
     frame: Frame,
     wo: Vec3,
     vertex: GuideVertex,
+    /// Index of the vertex in the step's guide batch (`None` at delta vertices, never guided).
+    guided: Option<usize>,
     /// Selection probability of the guide here.
     alpha: f32,
-    /// An unoccluded light sample: (direction, light pdf, radiance, BSDF value, BSDF pdf).
-    nee: Option<(Vec3, f32, Rgb, Rgb, f32)>,
+    /// An unoccluded light sample.
+    light: Option<LightContribution>,
     /// Index of the guide-density query for the light sample's direction.
-    nee_query: Option<usize>,
+    light_query: Option<usize>,
     technique: Technique,
+}
+
+impl Bounce {
+    /// Density of the one-sample guide–BSDF mixture, given the guide's and the BSDF's.
+    fn mixture_pdf(&self, guide_pdf: f32, bsdf_pdf: f32) -> f32 {
+        if self.alpha > 0.0 {
+            self.alpha * guide_pdf + (1.0 - self.alpha) * bsdf_pdf
+        } else {
+            bsdf_pdf
+        }
+    }
 }
 
 /// How a vertex continues its path.
@@ -163,55 +219,98 @@ enum Technique {
     Guide(usize),
     /// The BSDF's sample (`None`: it drew nothing), and the index of the guide-density query of
     /// its direction (`None` when the guide is off here or the sample is a delta).
-    Bsdf(Option<crate::bsdf::BsdfSample>, Option<usize>),
+    Bsdf(Option<BsdfSample>, Option<usize>),
 }
 
-/// The guide queries of one wavefront step, answered in one batch call each.
-#[derive(Default)]
-struct Queries {
-    pdf_vertices: Vec<GuideVertex>,
-    pdf_directions: Vec<Vec3>,
+/// The guide queries of one wavefront step: the guided vertices, what the guide prepared for
+/// them, and the sample and density queries that refer to them, answered in one batch call each.
+struct GuideBatch<G: Guide + ?Sized> {
+    vertices: Vec<GuideVertex>,
+    prepared: G::Prepared,
+    alphas: Vec<f32>,
+    pdf_queries: Vec<PdfQuery>,
     pdfs: Vec<f32>,
-    sample_vertices: Vec<GuideVertex>,
-    sample_u: Vec<Vec2>,
-    samples: Vec<Option<(Vec3, f32)>>,
+    sample_queries: Vec<SampleQuery>,
+    samples: Vec<Option<GuideSample>>,
 }
 
-impl Queries {
-    fn clear(&mut self) {
-        self.pdf_vertices.clear();
-        self.pdf_directions.clear();
-        self.sample_vertices.clear();
-        self.sample_u.clear();
+impl<G: Guide + ?Sized> GuideBatch<G> {
+    fn new() -> Self {
+        Self {
+            vertices: Vec::new(),
+            prepared: G::Prepared::default(),
+            alphas: Vec::new(),
+            pdf_queries: Vec::new(),
+            pdfs: Vec::new(),
+            sample_queries: Vec::new(),
+            samples: Vec::new(),
+        }
     }
 
-    /// Queue the guide's density of `wi` at `vertex`; returns the query's index.
-    fn pdf(&mut self, vertex: GuideVertex, wi: Vec3) -> usize {
-        self.pdf_vertices.push(vertex);
-        self.pdf_directions.push(wi);
-        self.pdf_vertices.len() - 1
+    /// Add a vertex to the batch; returns its index.
+    fn push(&mut self, vertex: GuideVertex) -> usize {
+        self.vertices.push(vertex);
+        self.vertices.len() - 1
     }
 
-    /// Queue a guide sample at `vertex` from `u`; returns the query's index.
-    fn sample(&mut self, vertex: GuideVertex, u: Vec2) -> usize {
-        self.sample_vertices.push(vertex);
-        self.sample_u.push(u);
-        self.sample_vertices.len() - 1
+    /// Prepare the guide for the batch's vertices and get their selection probabilities.
+    fn select(&mut self, guide: &G) {
+        self.alphas.clear();
+        self.alphas.resize(self.vertices.len(), 0.0);
+        if !self.vertices.is_empty() {
+            guide.prepare(&self.vertices, &mut self.prepared);
+            guide.selection_probabilities(&self.vertices, &self.prepared, &mut self.alphas);
+        }
+        self.pdf_queries.clear();
+        self.sample_queries.clear();
+    }
+
+    /// Queue the guide's density of `wi` at vertex `vertex`; returns the query's index.
+    fn pdf(&mut self, vertex: usize, wi: Vec3) -> usize {
+        self.pdf_queries.push(PdfQuery { vertex, wi });
+        self.pdf_queries.len() - 1
+    }
+
+    /// Queue a guide sample at vertex `vertex` from `u`; returns the query's index.
+    fn sample(&mut self, vertex: usize, u: Vec2) -> usize {
+        self.sample_queries.push(SampleQuery { vertex, u });
+        self.sample_queries.len() - 1
     }
 
     /// Answer all queued queries.
-    fn run<G: Guide + ?Sized>(&mut self, guide: &G) {
+    fn run(&mut self, guide: &G) {
         self.pdfs.clear();
-        self.pdfs.resize(self.pdf_vertices.len(), 0.0);
+        self.pdfs.resize(self.pdf_queries.len(), 0.0);
         if !self.pdfs.is_empty() {
-            guide.pdf_batch(&self.pdf_vertices, &self.pdf_directions, &mut self.pdfs);
+            guide.pdf_batch(
+                &self.vertices,
+                &self.prepared,
+                &self.pdf_queries,
+                &mut self.pdfs,
+            );
         }
         self.samples.clear();
-        self.samples.resize(self.sample_vertices.len(), None);
+        self.samples.resize(self.sample_queries.len(), None);
         if !self.samples.is_empty() {
-            guide.sample_batch(&self.sample_vertices, &self.sample_u, &mut self.samples);
+            guide.sample_batch(
+                &self.vertices,
+                &self.prepared,
+                &self.sample_queries,
+                &mut self.samples,
+            );
         }
     }
+}
+
+/// Camera rays traced together, each with its random stream, and where their radiance
+/// estimates go.
+pub struct Wavefront<'a> {
+    /// Camera rays.
+    pub rays: &'a [Ray],
+    /// One random stream per ray.
+    pub rngs: &'a mut [Pcg32],
+    /// One radiance estimate per ray (written).
+    pub radiance: &'a mut [Rgb],
 }
 
 impl Integrator {
@@ -237,245 +336,154 @@ impl Integrator {
         records: Option<&mut Vec<GuideRecord>>,
     ) -> Rgb {
         let mut out = [Rgb::ZERO];
-        self.trace(
-            scene,
-            &[ray],
-            std::slice::from_mut(rng),
-            guide,
-            stats,
-            records,
-            &mut out,
-        );
+        let paths = Wavefront {
+            rays: &[ray],
+            rngs: std::slice::from_mut(rng),
+            radiance: &mut out,
+        };
+        self.trace(scene, paths, guide, stats, records);
         out[0]
     }
 
     /// One-sample radiance estimates of a batch of camera rays, traced as a wavefront: all
-    /// live paths advance one bounce at a time, so the guide is queried in batches (one call
-    /// per bounce for selection probabilities, one for directions and one for densities).
-    /// Path `i` draws its random numbers from `rngs[i]` in the same order as a path traced
-    /// alone, so the result of a path does not depend on the batch it is traced in. Records
-    /// of finished paths are appended path by path, in batch order.
-    #[allow(clippy::too_many_arguments)]
+    /// live paths advance one bounce at a time, so the guide is queried in batches (per bounce,
+    /// one preparation and selection call for all guided vertices, one call for directions and
+    /// one for densities). Path `i` draws its random numbers from `rngs[i]` in the same order
+    /// as a path traced alone, so the result of a path does not depend on the batch it is
+    /// traced in. Records of finished paths are appended path by path, in batch order.
     pub fn trace<G: Guide + ?Sized>(
         &self,
         scene: &Scene,
-        rays: &[Ray],
-        rngs: &mut [Pcg32],
+        paths: Wavefront<'_>,
         guide: &G,
         stats: &mut PathStats,
         mut records: Option<&mut Vec<GuideRecord>>,
-        out: &mut [Rgb],
     ) {
-        assert!(rays.len() == rngs.len() && rays.len() == out.len());
+        let Wavefront {
+            rays,
+            rngs,
+            radiance,
+        } = paths;
+        assert!(rays.len() == rngs.len() && rays.len() == radiance.len());
         let want_records = records.is_some();
         let mut paths: Vec<PathState> = rays.iter().map(|&r| PathState::new(r)).collect();
         let mut live: Vec<usize> = (0..paths.len()).collect();
-        let lights = &scene.lights;
-        let mut vertices: Vec<Bounce> = Vec::new();
-        let mut guide_vertices: Vec<GuideVertex> = Vec::new();
-        let mut materials: Vec<&crate::bsdf::Material> = Vec::new();
-        let mut alphas: Vec<f32> = Vec::new();
-        let mut queries = Queries::default();
+        let mut bounces: Vec<Bounce> = Vec::new();
+        let mut batch = GuideBatch::<G>::new();
         while !live.is_empty() {
-            // 1. Intersect, collect emission, and set up the vertices that scatter.
-            vertices.clear();
+            // 1. Intersect, collect emission, and set up the vertices that scatter; non-delta
+            //    ones join the guide batch.
+            bounces.clear();
+            batch.vertices.clear();
             for &i in &live {
                 let path = &mut paths[i];
                 stats.rays += 1;
-                let ray = path.ray;
-                let Some(hit) = scene.intersect(&ray, f32::INFINITY) else {
-                    if let Some(env) = lights.environment {
-                        if !(path.depth == 0 && self.hide_emitters) {
-                            let w = self.emitter_weight(
-                                path.prev_delta,
-                                path.prev_pdf,
-                                lights.pdf_environment(),
-                            );
-                            path.add(path.beta * env * w);
-                        }
-                    }
+                let hit = scene.intersect(&path.ray, f32::INFINITY);
+                if let Some(e) = self.emitted(scene, path, hit.as_ref()) {
+                    path.add(path.beta * e.radiance * e.weight);
+                }
+                let Some(hit) = hit else {
                     path.alive = false;
                     continue;
                 };
-                let wo_world = -ray.dir;
-                if hit.light != NO_LIGHT && !(path.depth == 0 && self.hide_emitters) {
-                    let cos_light = hit.ns.dot(wo_world);
-                    if cos_light > 0.0 {
-                        let light = &lights.area[hit.light as usize];
-                        let w = if self.strategy == Strategy::Mis && !path.prev_delta {
-                            power_heuristic(
-                                path.prev_pdf,
-                                lights.pdf_area(
-                                    hit.light as usize,
-                                    (hit.p - path.prev_p).length(),
-                                    cos_light,
-                                ),
-                            )
-                        } else {
-                            self.emitter_weight(path.prev_delta, path.prev_pdf, 0.0)
-                        };
-                        path.add(path.beta * light.radiance * w);
-                    }
-                }
                 if self.max_depth >= 0 && path.depth as i64 + 1 >= i64::from(self.max_depth) {
                     path.alive = false;
                     continue;
                 }
+                let wo_world = -path.ray.dir;
                 let frame = Frame::from_normal(hit.ns);
-                vertices.push(Bounce {
+                let vertex = GuideVertex {
+                    p: hit.p,
+                    n: hit.ns,
+                    wo: wo_world,
+                };
+                let delta = scene.materials[hit.material as usize].is_delta();
+                bounces.push(Bounce {
                     path: i,
                     wo: frame.to_local(wo_world),
                     frame,
                     hit,
-                    vertex: GuideVertex {
-                        p: hit.p,
-                        n: hit.ns,
-                        wo: wo_world,
-                    },
+                    vertex,
+                    guided: (!delta).then(|| batch.push(vertex)),
                     alpha: 0.0,
-                    nee: None,
-                    nee_query: None,
+                    light: None,
+                    light_query: None,
                     technique: Technique::Pending,
                 });
             }
 
-            // 2. Selection probabilities of the guide, for all non-delta vertices at once.
-            guide_vertices.clear();
-            materials.clear();
-            for b in &vertices {
-                let material = &scene.materials[b.hit.material as usize];
-                if !material.is_delta() {
-                    guide_vertices.push(b.vertex);
-                    materials.push(material);
-                }
-            }
-            alphas.clear();
-            alphas.resize(guide_vertices.len(), 0.0);
-            if !guide_vertices.is_empty() {
-                guide.selection_probabilities(&guide_vertices, &materials, &mut alphas);
-            }
+            // 2. Selection probabilities of the guide, for all guided vertices at once.
+            batch.select(guide);
 
             // 3. Next-event estimation up to the shadow ray, technique selection and BSDF
             //    sampling; queue the guide densities and samples these need.
-            queries.clear();
-            let mut next_alpha = alphas.iter();
-            for b in &mut vertices {
+            for b in &mut bounces {
                 let material = &scene.materials[b.hit.material as usize];
-                let delta = material.is_delta();
-                if !delta {
-                    b.alpha = *next_alpha.next().expect("one alpha per non-delta vertex");
+                if let Some(g) = b.guided {
+                    b.alpha = batch.alphas[g];
                 }
                 let rng = &mut rngs[b.path];
-                if !delta && self.strategy != Strategy::Bsdf && !lights.is_empty() {
-                    let u_light = uniform(rng);
-                    if let Some(ls) = lights.sample(b.hit.p, u_light, uniform2(rng)) {
-                        let wi = b.frame.to_local(ls.wi);
-                        let f = material.f(b.wo, wi);
-                        if f != Rgb::ZERO {
-                            stats.shadow_rays += 1;
-                            // Aim from the offset origin at the light point, and stop short
-                            // of it by the same kind of offset, so neither surface occludes.
-                            let origin = offset_origin(b.hit.p, b.hit.ng, ls.wi);
-                            let (shadow, t_max) = if ls.dist.is_finite() {
-                                let to = ls.point - origin;
-                                let d = to.length();
-                                let margin = RAY_EPSILON * (1.0 + ls.point.abs().max_element());
-                                (Ray::new(origin, to / d), d - margin)
-                            } else {
-                                (Ray::new(origin, ls.wi), f32::INFINITY)
-                            };
-                            if !scene.occluded(&shadow, t_max) {
-                                if self.strategy == Strategy::Mis && b.alpha > 0.0 {
-                                    b.nee_query = Some(queries.pdf(b.vertex, ls.wi));
-                                }
-                                b.nee =
-                                    Some((ls.wi, ls.pdf, ls.radiance, f, material.pdf(b.wo, wi)));
-                            }
-                        }
+                if let Some(g) = b.guided {
+                    b.light = self.sample_light(scene, b, material, rng, stats);
+                    if let Some(light) = b.light.filter(|_| self.strategy == Strategy::Mis) {
+                        b.light_query = (b.alpha > 0.0).then(|| batch.pdf(g, light.wi));
                     }
                 }
                 let u_select = uniform(rng);
                 let u_lobe = uniform(rng);
                 let u_dir = uniform2(rng);
-                b.technique = if b.alpha > 0.0 && u_select < b.alpha {
-                    Technique::Guide(queries.sample(b.vertex, u_dir))
-                } else {
-                    let sample = material.sample(b.wo, u_lobe, u_dir);
-                    let query = sample
-                        .filter(|s| !s.delta && b.alpha > 0.0)
-                        .map(|s| queries.pdf(b.vertex, b.frame.to_world(s.wi)));
-                    Technique::Bsdf(sample, query)
-                };
-            }
-            queries.run(guide);
-
-            // 4. Finish next-event estimation and continue (or end) every path.
-            for b in &vertices {
-                let material = &scene.materials[b.hit.material as usize];
-                let path = &mut paths[b.path];
-                let mixture = |guide_pdf: f32, bsdf_pdf: f32| {
-                    if b.alpha > 0.0 {
-                        b.alpha * guide_pdf + (1.0 - b.alpha) * bsdf_pdf
-                    } else {
-                        bsdf_pdf
+                b.technique = match b.guided {
+                    Some(g) if b.alpha > 0.0 && u_select < b.alpha => {
+                        Technique::Guide(batch.sample(g, u_dir))
+                    }
+                    _ => {
+                        let sample = material.sample(b.wo, u_lobe, u_dir);
+                        let query = b
+                            .guided
+                            .filter(|_| b.alpha > 0.0)
+                            .zip(sample.filter(|s| !s.delta))
+                            .map(|(g, s)| batch.pdf(g, b.frame.to_world(s.wi)));
+                        Technique::Bsdf(sample, query)
                     }
                 };
-                if let Some((wi_world, light_pdf, radiance, f, bsdf_pdf)) = b.nee {
-                    let w = if self.strategy == Strategy::Mis {
-                        let guide_pdf = b.nee_query.map_or(0.0, |q| queries.pdfs[q]);
-                        power_heuristic(light_pdf, mixture(guide_pdf, bsdf_pdf))
-                    } else {
-                        1.0
-                    };
-                    let wi = b.frame.to_local(wi_world);
-                    path.add(path.beta * f * wi.z.abs() * radiance * (w / light_pdf));
+            }
+            batch.run(guide);
+
+            // 4. Finish next-event estimation and continue (or end) every path.
+            for b in &bounces {
+                let material = &scene.materials[b.hit.material as usize];
+                let path = &mut paths[b.path];
+                if let Some(light) = b.light {
+                    let guide_pdf = b.light_query.map_or(0.0, |q| batch.pdfs[q]);
+                    path.add(self.light_contribution(path.beta, b, &light, guide_pdf));
                 }
-                let continued = match b.technique {
-                    Technique::Bsdf(sample, query) => sample.map(|s| {
-                        let wi_world = b.frame.to_world(s.wi);
-                        let pdf = if s.delta {
-                            s.pdf
-                        } else {
-                            mixture(query.map_or(0.0, |q| queries.pdfs[q]), s.pdf)
-                        };
-                        (wi_world, s.f, pdf, s.pdf, s.delta, s.eta)
-                    }),
-                    Technique::Guide(q) => queries.samples[q].map(|(wi_world, guide_pdf)| {
-                        let wi = b.frame.to_local(wi_world);
-                        let bsdf_pdf = material.pdf(b.wo, wi);
-                        let pdf = mixture(guide_pdf, bsdf_pdf);
-                        (wi_world, material.f(b.wo, wi), pdf, bsdf_pdf, false, 1.0)
-                    }),
-                    Technique::Pending => unreachable!("every vertex chose a technique"),
-                };
-                let Some((wi_world, f, pdf, bsdf_pdf, sampled_delta, sample_eta)) = continued
-                else {
+                let Some(scatter) = Self::scatter(b, material, &batch) else {
                     path.alive = false;
                     continue;
                 };
-                if pdf <= 0.0 || f == Rgb::ZERO {
+                if scatter.pdf <= 0.0 || scatter.f == Rgb::ZERO {
                     path.alive = false;
                     continue;
                 }
-                let cos = b.frame.n.dot(wi_world).abs();
-                path.beta *= f * (cos / pdf);
-                path.eta *= sample_eta;
-                if want_records && !sampled_delta {
+                let cos = b.frame.n.dot(scatter.wi).abs();
+                path.beta *= scatter.f * (cos / scatter.pdf);
+                path.eta *= scatter.eta;
+                if want_records && !scatter.delta {
                     path.pending.push(PendingRecord {
                         record: GuideRecord {
                             vertex: b.vertex,
-                            wi: wi_world,
-                            pdf,
-                            bsdf_pdf,
-                            bsdf_cos: f * cos,
+                            wi: scatter.wi,
+                            pdf: scatter.pdf,
+                            bsdf_pdf: scatter.bsdf_pdf,
+                            bsdf_cos: scatter.f * cos,
                             radiance: Rgb::ZERO,
                         },
                         throughput: path.beta,
                     });
                 }
-                path.prev_pdf = pdf;
+                path.prev_pdf = scatter.pdf;
                 path.prev_p = b.hit.p;
-                path.prev_delta = sampled_delta;
+                path.prev_delta = scatter.delta;
                 path.depth += 1;
                 if path.depth >= self.rr_depth {
                     let q = (path.beta.max_element() * path.eta * path.eta).min(0.95);
@@ -487,15 +495,161 @@ impl Integrator {
                     // belongs to the radiance estimate of the path after them.
                     path.beta /= q;
                 }
-                path.ray = Ray::new(offset_origin(b.hit.p, b.hit.ng, wi_world), wi_world);
+                path.ray = Ray::new(offset_origin(b.hit.p, b.hit.ng, scatter.wi), scatter.wi);
             }
             live.retain(|&i| paths[i].alive);
         }
-        for (o, path) in out.iter_mut().zip(&mut paths) {
+        for (o, path) in radiance.iter_mut().zip(&mut paths) {
             *o = path.l;
             if let Some(records) = records.as_deref_mut() {
                 records.extend(path.pending.drain(..).map(|p| p.record));
             }
+        }
+    }
+
+    /// What `path` receives from what its ray reached: the environment when `hit` is `None`,
+    /// an area light's emission if it hit one from the front, with the MIS weight against
+    /// light sampling at the previous vertex. `None` when nothing emits, or emitters seen
+    /// directly are hidden.
+    fn emitted(
+        &self,
+        scene: &Scene,
+        path: &PathState,
+        hit: Option<&SurfaceHit>,
+    ) -> Option<Emission> {
+        if path.depth == 0 && self.hide_emitters {
+            return None;
+        }
+        let lights = &scene.lights;
+        let Some(hit) = hit else {
+            let env = lights.environment?;
+            let weight =
+                self.emitter_weight(path.prev_delta, path.prev_pdf, lights.pdf_environment());
+            return Some(Emission {
+                radiance: env,
+                weight,
+            });
+        };
+        if hit.light == NO_LIGHT {
+            return None;
+        }
+        let cos_light = hit.ns.dot(-path.ray.dir);
+        if cos_light <= 0.0 {
+            return None;
+        }
+        let light = &lights.area[hit.light as usize];
+        let weight = if self.strategy == Strategy::Mis && !path.prev_delta {
+            let distance = (hit.p - path.prev_p).length();
+            let light_pdf = lights.pdf_area(hit.light as usize, distance, cos_light);
+            power_heuristic(path.prev_pdf, light_pdf)
+        } else {
+            self.emitter_weight(path.prev_delta, path.prev_pdf, 0.0)
+        };
+        Some(Emission {
+            radiance: light.radiance,
+            weight,
+        })
+    }
+
+    /// Next-event estimation at a non-delta vertex up to its shadow ray (pbrt's `SampleLd`
+    /// without the MIS weight, which needs the guide's density): a light sample, if the
+    /// strategy uses light sampling, its BSDF value is non-zero and it is unoccluded. Draws
+    /// three random numbers whenever the strategy samples lights and the scene has any.
+    fn sample_light(
+        &self,
+        scene: &Scene,
+        b: &Bounce,
+        material: &Material,
+        rng: &mut Pcg32,
+        stats: &mut PathStats,
+    ) -> Option<LightContribution> {
+        let lights = &scene.lights;
+        if self.strategy == Strategy::Bsdf || lights.is_empty() {
+            return None;
+        }
+        let u_light = uniform(rng);
+        let ls = lights.sample(b.hit.p, u_light, uniform2(rng))?;
+        let wi = b.frame.to_local(ls.wi);
+        let f = material.f(b.wo, wi);
+        if f == Rgb::ZERO {
+            return None;
+        }
+        stats.shadow_rays += 1;
+        // Aim from the offset origin at the light point, and stop short of it by the same kind
+        // of offset, so neither surface occludes.
+        let origin = offset_origin(b.hit.p, b.hit.ng, ls.wi);
+        let (shadow, t_max) = if ls.dist.is_finite() {
+            let to = ls.point - origin;
+            let d = to.length();
+            let margin = RAY_EPSILON * (1.0 + ls.point.abs().max_element());
+            (Ray::new(origin, to / d), d - margin)
+        } else {
+            (Ray::new(origin, ls.wi), f32::INFINITY)
+        };
+        if scene.occluded(&shadow, t_max) {
+            return None;
+        }
+        Some(LightContribution {
+            wi: ls.wi,
+            light_pdf: ls.pdf,
+            radiance: ls.radiance,
+            f,
+            bsdf_pdf: material.pdf(b.wo, wi),
+        })
+    }
+
+    /// The light sample's contribution to a path of throughput `beta`, weighted by the power
+    /// heuristic against the guide–BSDF mixture whose guide density of the direction is
+    /// `guide_pdf`.
+    fn light_contribution(
+        &self,
+        beta: Rgb,
+        b: &Bounce,
+        light: &LightContribution,
+        guide_pdf: f32,
+    ) -> Rgb {
+        let w = if self.strategy == Strategy::Mis {
+            power_heuristic(light.light_pdf, b.mixture_pdf(guide_pdf, light.bsdf_pdf))
+        } else {
+            1.0
+        };
+        let cos = b.frame.to_local(light.wi).z.abs();
+        beta * light.f * cos * light.radiance * (w / light.light_pdf)
+    }
+
+    /// The direction a vertex continues in, from the technique it chose (`None`: the
+    /// technique drew nothing).
+    fn scatter<G: Guide + ?Sized>(
+        b: &Bounce,
+        material: &Material,
+        batch: &GuideBatch<G>,
+    ) -> Option<Scatter> {
+        match b.technique {
+            Technique::Bsdf(sample, query) => sample.map(|s| Scatter {
+                wi: b.frame.to_world(s.wi),
+                f: s.f,
+                pdf: if s.delta {
+                    s.pdf
+                } else {
+                    b.mixture_pdf(query.map_or(0.0, |q| batch.pdfs[q]), s.pdf)
+                },
+                bsdf_pdf: s.pdf,
+                delta: s.delta,
+                eta: s.eta,
+            }),
+            Technique::Guide(q) => batch.samples[q].map(|g| {
+                let wi = b.frame.to_local(g.wi);
+                let bsdf_pdf = material.pdf(b.wo, wi);
+                Scatter {
+                    wi: g.wi,
+                    f: material.f(b.wo, wi),
+                    pdf: b.mixture_pdf(g.pdf, bsdf_pdf),
+                    bsdf_pdf,
+                    delta: false,
+                    eta: 1.0,
+                }
+            }),
+            Technique::Pending => unreachable!("every vertex chose a technique"),
         }
     }
 

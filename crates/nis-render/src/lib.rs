@@ -4,16 +4,22 @@
 //! The layout follows pbrt-v4, one concept per module: [`geometry`] and [`sampling`] (shared
 //! math), [`shape`] and [`bvh`] (geometry and its acceleration structure), [`camera`],
 //! [`bsdf`] (materials), [`light`], [`scene`], [`integrator`] (path tracing with NEE + MIS),
-//! [`render`] (the parallel, deterministic render loop), [`guiding`] (the interface that path
-//! guiding methods implement), [`film`] and [`compare`] (images and error metrics), [`xml`]
+//! [`render`] (the parallel, deterministic render loop, its training schedule and the combination
+//! of passes), [`guiding`] (the interface that path guiding methods implement, and the methods), [`film`] and [`compare`] (images and error metrics), [`xml`]
 //! (Mitsuba 3 scenes) and [`scenes`] (the built-in test scenes, themselves Mitsuba XML).
 //!
 //! ```
-//! use nis_render::{render::{render, Budget}, integrator::{Integrator, Strategy}};
+//! use nis_render::integrator::{Integrator, Strategy};
+//! use nis_render::render::{render, Budget, RenderOptions, Schedule};
 //! let mut scene = nis_render::scenes::load("cornell-box").unwrap();
 //! scene.camera.set_resolution(8, 8);
-//! let integrator = Integrator::from_scene(&scene, Strategy::Mis);
-//! let out = render(&scene, &integrator, Budget::Samples(2), 1, &mut nis_render::guiding::NoGuide, &|_| {});
+//! let options = RenderOptions {
+//!     integrator: Integrator::from_scene(&scene, Strategy::Mis),
+//!     budget: Budget::Samples(2),
+//!     seed: 1,
+//!     schedule: Schedule::Plain,
+//! };
+//! let out = render(&scene, &options, &mut nis_render::guiding::NoGuide, &|_| {});
 //! assert_eq!(out.image.pixels.len(), 64);
 //! ```
 

@@ -1,8 +1,10 @@
-//! Warps from uniform random numbers to directions and points, discrete distributions, and the
-//! power heuristic for multiple importance sampling.
+//! Warps from uniform random numbers to directions and points, discrete distributions, the
+//! power heuristic for multiple importance sampling, and the one integer hash of the crate.
 //!
 //! The warps are the standard ones (Pharr, Jakob & Humphreys, *Physically Based Rendering*, 4th
-//! ed., ch. A.5); the power heuristic with β = 2 is Veach's (thesis, 1997, §9.2.4).
+//! ed., ch. A.5); the power heuristic with β = 2 is Veach's (thesis, 1997, §9.2.4); the hash is
+//! the SplitMix64 finaliser (Steele, Lea & Flood 2014, "Fast Splittable Pseudorandom Number
+//! Generators"), which seeds every random stream of a render.
 
 use std::f32::consts::PI;
 
@@ -57,6 +59,15 @@ pub fn power_heuristic(pdf_a: f32, pdf_b: f32) -> f32 {
     } else {
         0.0
     }
+}
+
+/// The SplitMix64 finaliser: a bijective 64-bit mix whose outputs for consecutive inputs look
+/// independent, used to derive seeds and extra random numbers from integers.
+pub fn splitmix64(mut x: u64) -> u64 {
+    x = x.wrapping_add(0x9e37_79b9_7f4a_7c15);
+    x = (x ^ (x >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
+    x = (x ^ (x >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
+    x ^ (x >> 31)
 }
 
 /// A discrete distribution over `0..n` with probabilities proportional to given weights.

@@ -3,13 +3,12 @@
 //! and a diffuse convex object under a uniform sky reflects exactly `albedo × sky`.
 
 use std::path::Path;
-use std::sync::Mutex;
 
-use glam::{Vec2, Vec3};
-use nis_render::bsdf::Material;
-use nis_render::guiding::{Guide, GuideRecord, GuideVertex, NoGuide};
+use nis_render::guiding::{
+    Guide, GuideRecord, GuideSample, GuideVertex, NoGuide, PdfQuery, SampleQuery,
+};
 use nis_render::integrator::{Integrator, Strategy};
-use nis_render::render::{render, Budget};
+use nis_render::render::{render, Budget, RenderOptions, Schedule};
 use nis_render::sampling::square_to_uniform_sphere;
 use nis_render::xml::load_scene_str;
 
@@ -19,26 +18,39 @@ use common::mean_over_seeds;
 /// A deliberately poor guide: uniform directions, chosen half of the time.
 #[derive(Default)]
 struct UniformGuide {
-    records: Mutex<Vec<GuideRecord>>,
+    records: Vec<GuideRecord>,
     iterations: usize,
     /// Paths per wavefront (0: the trait's default).
     batch: usize,
 }
 
 impl Guide for UniformGuide {
-    fn selection_probability(&self, _: &GuideVertex, _: &Material) -> f32 {
-        0.5
+    type Prepared = ();
+    type Statistics = Vec<GuideRecord>;
+
+    fn prepare(&self, _: &[GuideVertex], _: &mut ()) {}
+
+    fn selection_probabilities(&self, _: &[GuideVertex], _: &(), out: &mut [f32]) {
+        out.fill(0.5);
     }
 
-    fn sample(&self, _: &GuideVertex, u: Vec2) -> Option<(Vec3, f32)> {
-        Some((
-            square_to_uniform_sphere(u),
-            1.0 / (4.0 * std::f32::consts::PI),
-        ))
+    fn sample_batch(
+        &self,
+        _: &[GuideVertex],
+        _: &(),
+        queries: &[SampleQuery],
+        out: &mut [Option<GuideSample>],
+    ) {
+        for (q, o) in queries.iter().zip(out) {
+            *o = Some(GuideSample {
+                wi: square_to_uniform_sphere(q.u),
+                pdf: 1.0 / (4.0 * std::f32::consts::PI),
+            });
+        }
     }
 
-    fn pdf(&self, _: &GuideVertex, _: Vec3) -> f32 {
-        1.0 / (4.0 * std::f32::consts::PI)
+    fn pdf_batch(&self, _: &[GuideVertex], _: &(), _: &[PdfQuery], out: &mut [f32]) {
+        out.fill(1.0 / (4.0 * std::f32::consts::PI));
     }
 
     fn wants_records(&self) -> bool {
@@ -53,11 +65,12 @@ impl Guide for UniformGuide {
         }
     }
 
-    fn record(&self, records: &[GuideRecord]) {
-        self.records.lock().unwrap().extend_from_slice(records);
+    fn accumulate(&self, records: &[GuideRecord], statistics: &mut Vec<GuideRecord>) {
+        statistics.extend_from_slice(records);
     }
 
-    fn end_iteration(&mut self, _: usize) {
+    fn update(&mut self, records: Vec<GuideRecord>) {
+        self.records.extend(records);
         self.iterations += 1;
     }
 }
@@ -79,7 +92,7 @@ fn guided_mixture_is_unbiased_and_records_paths() {
         );
     }
     assert_eq!(guide.iterations, 24);
-    let records = guide.records.into_inner().unwrap();
+    let records = guide.records;
     assert!(records.len() > 1000);
     for r in &records {
         assert!(r.pdf > 0.0 && (r.wi.length() - 1.0).abs() < 1e-4);
@@ -130,9 +143,12 @@ fn wavefront_batches_do_not_change_the_image() {
         .map(|b| {
             render(
                 &scene,
-                &integrator,
-                Budget::Samples(4),
-                3,
+                &RenderOptions {
+                    integrator,
+                    budget: Budget::Samples(4),
+                    seed: 3,
+                    schedule: Schedule::Plain,
+                },
                 &mut UniformGuide {
                     batch: b,
                     ..UniformGuide::default()

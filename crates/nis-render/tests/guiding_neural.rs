@@ -6,11 +6,13 @@ use glam::{Vec2, Vec3};
 use nis_render::bvh::Aabb;
 use nis_render::geometry::Rgb;
 use nis_render::guiding::gmm::{Gmm, GmmConfig};
-use nis_render::guiding::neural::{from_cylindrical, to_cylindrical, NisGuide, NisGuideConfig};
+use nis_render::guiding::neural::{NisGuide, NisGuideConfig};
 use nis_render::guiding::ppg::{Ppg, PpgConfig};
-use nis_render::guiding::{Guide, GuideRecord, GuideVertex, NoGuide};
+use nis_render::guiding::{cylindrical_to_dir, dir_to_cylindrical};
+use nis_render::guiding::{Guide, GuideRecord, GuideVertex, NoGuide, PdfQuery, SampleQuery};
 use nis_render::integrator::{Integrator, Strategy};
-use nis_render::render::{render, render_guided, Budget};
+use nis_render::render::{render, Budget, RenderOptions, Schedule};
+use nis_render::scene::Scene;
 use rand::{Rng, SeedableRng};
 use rand_pcg::Pcg64Mcg;
 
@@ -46,11 +48,10 @@ fn trained_guide(iterations: usize, records: usize) -> NisGuide {
     };
     let mut guide = NisGuide::new(unit_box(), config).unwrap();
     let mut rng = Pcg64Mcg::seed_from_u64(5);
-    for it in 0..iterations {
-        guide.begin_iteration(it);
+    for _ in 0..iterations {
         let batch: Vec<GuideRecord> = (0..records)
             .map(|_| {
-                let wi = from_cylindrical([rng.random(), rng.random()]);
+                let wi = cylindrical_to_dir(Vec2::new(rng.random(), rng.random()));
                 let l = (20.0 * (wi.dot(lobe()) - 1.0)).exp();
                 GuideRecord {
                     vertex: vertex(),
@@ -62,10 +63,22 @@ fn trained_guide(iterations: usize, records: usize) -> NisGuide {
                 }
             })
             .collect();
-        guide.record(&batch);
-        guide.end_iteration(it);
+        let mut samples = Vec::new();
+        guide.accumulate(&batch, &mut samples);
+        guide.update(samples);
     }
     guide
+}
+
+/// The guide's densities of `dirs` at [`vertex`], in one batch.
+fn pdfs(guide: &NisGuide, dirs: &[Vec3]) -> Vec<f32> {
+    let vertices = [vertex()];
+    let mut context = Vec::new();
+    guide.prepare(&vertices, &mut context);
+    let queries: Vec<PdfQuery> = dirs.iter().map(|&wi| PdfQuery { vertex: 0, wi }).collect();
+    let mut pdf = vec![0.0; dirs.len()];
+    guide.pdf_batch(&vertices, &context, &queries, &mut pdf);
+    pdf
 }
 
 /// Probability of each of `nu × nv` cells of the cylindrical square under the guide's
@@ -75,12 +88,11 @@ fn cell_probabilities(guide: &NisGuide, nu: usize, nv: usize, sub: usize) -> Vec
     let mut dirs = Vec::with_capacity(mu * mv);
     for i in 0..mu {
         for j in 0..mv {
-            let x = [(i as f32 + 0.5) / mu as f32, (j as f32 + 0.5) / mv as f32];
-            dirs.push(from_cylindrical(x));
+            let x = Vec2::new((i as f32 + 0.5) / mu as f32, (j as f32 + 0.5) / mv as f32);
+            dirs.push(cylindrical_to_dir(x));
         }
     }
-    let mut pdf = vec![0.0; dirs.len()];
-    guide.pdf_batch(&vec![vertex(); dirs.len()], &dirs, &mut pdf);
+    let pdf = pdfs(guide, &dirs);
     // dω = 4π du dv.
     let cell = f64::from(FOUR_PI) / (mu * mv) as f64;
     let mut p = vec![0.0; nu * nv];
@@ -96,10 +108,10 @@ fn cell_probabilities(guide: &NisGuide, nu: usize, nv: usize, sub: usize) -> Vec
 fn cylindrical_map_round_trips() {
     let mut rng = Pcg64Mcg::seed_from_u64(1);
     for _ in 0..10_000 {
-        let x: [f32; 2] = [rng.random(), rng.random()];
-        let w = from_cylindrical(x);
+        let x = Vec2::new(rng.random(), rng.random());
+        let w = cylindrical_to_dir(x);
         assert!((w.length() - 1.0).abs() < 1e-5);
-        let y = to_cylindrical(w);
+        let y = dir_to_cylindrical(w);
         assert!((x[0] - y[0]).abs() < 1e-4, "{x:?} -> {y:?}");
         // φ wraps around at 0 = 1.
         let dv = (x[1] - y[1]).abs();
@@ -110,27 +122,20 @@ fn cylindrical_map_round_trips() {
 #[test]
 fn untrained_guide_is_uniform_and_unselected() {
     let guide = NisGuide::new(unit_box(), NisGuideConfig::default()).unwrap();
-    let mut pdf = [0.0];
-    guide.pdf_batch(&[vertex()], &[lobe()], &mut pdf);
+    let pdf = pdfs(&guide, &[lobe()]);
     assert!((pdf[0] - 1.0 / FOUR_PI).abs() < 1e-6);
-    let material = nis_render::bsdf::Material::new(nis_render::bsdf::Bsdf::Diffuse {
-        reflectance: Rgb::splat(0.5),
-    });
-    assert_eq!(guide.selection_probability(&vertex(), &material), 0.0);
+    assert_eq!(guide.selection_probability(&vertex()), 0.0);
 }
 
 #[test]
 fn selection_network_waits_for_one_training_phase() {
-    let material = nis_render::bsdf::Material::new(nis_render::bsdf::Bsdf::Diffuse {
-        reflectance: Rgb::splat(0.5),
-    });
     // After the first phase only the flow has learned: the guide is used half of the time.
     let once = trained_guide(1, 4096);
-    assert_eq!(once.selection_probability(&vertex(), &material), 0.5);
+    assert_eq!(once.selection_probability(&vertex()), 0.5);
     // Then the selection network learns too (here the guide is far better than the BSDF's
     // uniform density, so it is chosen more often).
     let twice = trained_guide(2, 4096);
-    assert!(twice.selection_probability(&vertex(), &material) > 0.5);
+    assert!(twice.selection_probability(&vertex()) > 0.5);
 }
 
 #[test]
@@ -149,8 +154,7 @@ fn trained_density_is_normalised_concentrated_and_matches_its_samples() {
 
     // Learned: far more density on the lobe than uniform (the target's peak is 3.2, uniform
     // 0.08) and far less in the opposite direction.
-    let mut pdf = [0.0; 2];
-    guide.pdf_batch(&[vertex(); 2], &[lobe(), -lobe()], &mut pdf);
+    let pdf = pdfs(&guide, &[lobe(), -lobe()]);
     assert!(pdf[0] > 10.0 / FOUR_PI, "p(lobe) = {}", pdf[0]);
     assert!(pdf[1] < 0.5 / FOUR_PI, "p(-lobe) = {}", pdf[1]);
 
@@ -161,14 +165,16 @@ fn trained_density_is_normalised_concentrated_and_matches_its_samples() {
     let u: Vec<Vec2> = (0..n)
         .map(|_| Vec2::new(rng.random(), rng.random()))
         .collect();
-    let vertices = vec![vertex(); n];
+    let vertices = [vertex()];
+    let mut context = Vec::new();
+    guide.prepare(&vertices, &mut context);
+    let queries: Vec<SampleQuery> = u.iter().map(|&u| SampleQuery { vertex: 0, u }).collect();
     let mut samples = vec![None; n];
-    guide.sample_batch(&vertices, &u, &mut samples);
-    let dirs: Vec<Vec3> = samples.iter().map(|s| s.unwrap().0).collect();
-    let mut pdf = vec![0.0; n];
-    guide.pdf_batch(&vertices, &dirs, &mut pdf);
+    guide.sample_batch(&vertices, &context, &queries, &mut samples);
+    let dirs: Vec<Vec3> = samples.iter().map(|s| s.unwrap().wi).collect();
+    let pdf = pdfs(&guide, &dirs);
     for (s, p) in samples.iter().zip(&pdf) {
-        let q = s.unwrap().1;
+        let q = s.unwrap().pdf;
         assert!(
             (q - p).abs() <= 2e-3 * p.max(q),
             "sampled {q} vs evaluated {p}"
@@ -178,7 +184,7 @@ fn trained_density_is_normalised_concentrated_and_matches_its_samples() {
     let expected = cell_probabilities(&guide, nu, nv, 16);
     let mut counts = vec![0.0f64; nu * nv];
     for d in &dirs {
-        let x = to_cylindrical(*d);
+        let x = dir_to_cylindrical(*d);
         let i = ((x[0] * nu as f32) as usize).min(nu - 1);
         let j = ((x[1] * nv as f32) as usize).min(nv - 1);
         counts[i * nv + j] += 1.0;
@@ -220,11 +226,14 @@ fn guided_render_is_unbiased_and_deterministic() {
             ..NisGuideConfig::default()
         };
         let mut guide = NisGuide::new(scene.bounds(), config).unwrap();
-        let out = render_guided(
+        let out = render(
             &scene,
-            &integrator,
-            Budget::Samples(16),
-            seed,
+            &RenderOptions {
+                integrator,
+                budget: Budget::Samples(16),
+                seed,
+                schedule: Schedule::Training,
+            },
             &mut guide,
             &|_| {},
         );
@@ -234,9 +243,12 @@ fn guided_render_is_unbiased_and_deterministic() {
     let plain = |seed: u64| {
         render(
             &scene,
-            &integrator,
-            Budget::Samples(16),
-            seed,
+            &RenderOptions {
+                integrator,
+                budget: Budget::Samples(16),
+                seed,
+                schedule: Schedule::Plain,
+            },
             &mut NoGuide,
             &|_| {},
         )
@@ -306,37 +318,49 @@ fn scenes_without_light_or_with_the_camera_inside_a_mesh_render_black() {
     for (origin, light) in [("0, 1, 4", false), ("0, 0, 0.2", true)] {
         let scene = cube_scene(origin, light);
         let integrator = Integrator::from_scene(&scene, Strategy::Mis);
-        let guides: Vec<Box<dyn Guide>> = vec![
-            Box::new(NisGuide::new(scene.bounds(), NisGuideConfig::default()).unwrap()),
-            Box::new(Ppg::new(scene.bounds(), PpgConfig::default())),
-            Box::new(Gmm::new(scene.bounds(), GmmConfig::default())),
-        ];
-        for mut guide in guides {
-            let out = render_guided(
-                &scene,
-                &integrator,
-                Budget::Samples(8),
-                1,
-                guide.as_mut(),
-                &|_| {},
-            );
+        let options = RenderOptions {
+            integrator,
+            budget: Budget::Samples(8),
+            seed: 1,
+            schedule: Schedule::Training,
+        };
+        fn check<G: Guide>(scene: &Scene, options: &RenderOptions, mut guide: G, at: &str) {
+            let out = render(scene, options, &mut guide, &|_| {});
             assert_eq!(out.stats.invalid, 0);
             assert!(
                 out.image.pixels.iter().all(|p| *p == Rgb::ZERO),
-                "camera at {origin}, light {light}: {}",
+                "{at}: {}",
                 out.image.mean()
             );
         }
+        let at = format!("camera at {origin}, light {light}");
+        let nis = NisGuide::new(scene.bounds(), NisGuideConfig::default()).unwrap();
+        check(&scene, &options, nis, &at);
+        check(
+            &scene,
+            &options,
+            Ppg::new(scene.bounds(), PpgConfig::default()),
+            &at,
+        );
+        check(
+            &scene,
+            &options,
+            Gmm::new(scene.bounds(), GmmConfig::default()),
+            &at,
+        );
     }
     // The lit cube seen from outside is not black (the scene itself is fine).
     let scene = cube_scene("0, 2.5, 4", true);
     let integrator = Integrator::from_scene(&scene, Strategy::Mis);
     let mut guide = NisGuide::new(scene.bounds(), NisGuideConfig::default()).unwrap();
-    let out = render_guided(
+    let out = render(
         &scene,
-        &integrator,
-        Budget::Samples(8),
-        1,
+        &RenderOptions {
+            integrator,
+            budget: Budget::Samples(8),
+            seed: 1,
+            schedule: Schedule::Training,
+        },
         &mut guide,
         &|_| {},
     );

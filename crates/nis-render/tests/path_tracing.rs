@@ -8,7 +8,7 @@ use std::path::Path;
 
 use nis_render::guiding::NoGuide;
 use nis_render::integrator::{Integrator, Strategy};
-use nis_render::render::{render, Budget};
+use nis_render::render::{render, Budget, RenderOptions, Schedule};
 use nis_render::scene::Scene;
 use nis_render::xml::load_scene_str;
 
@@ -48,9 +48,12 @@ fn mean_and_std_err(
     for seed in 0..repeats {
         let out = render(
             scene,
-            &integrator,
-            Budget::Samples(spp),
-            100 + seed,
+            &RenderOptions {
+                integrator,
+                budget: Budget::Samples(spp),
+                seed: 100 + seed,
+                schedule: Schedule::Plain,
+            },
             &mut NoGuide,
             &|_| {},
         );
@@ -168,9 +171,12 @@ fn images_do_not_depend_on_the_thread_count() {
         pool.install(|| {
             render(
                 &scene,
-                &integrator,
-                Budget::Samples(3),
-                5,
+                &RenderOptions {
+                    integrator,
+                    budget: Budget::Samples(3),
+                    seed: 5,
+                    schedule: Schedule::Plain,
+                },
                 &mut NoGuide,
                 &|_| {},
             )

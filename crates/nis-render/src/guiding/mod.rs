@@ -3,28 +3,29 @@
 //!
 //! Guiding methods (Müller et al. 2017, "Practical Path Guiding"; Vorba et al. 2014, "On-line
 //! Learning of Parametric Mixture Models for Light Transport Simulation"; Müller et al. 2019,
-//! "Neural Importance Sampling") share one narrow interface, [`Guide`]: at a path vertex, draw
-//! a direction with its density and evaluate the density of any direction; after paths finish,
-//! learn from what they found ([`GuideRecord`]); and be told when a training iteration starts
-//! and ends. The integrator uses the *one-sample* mixture of the guide and the BSDF: with the
-//! guide's selection probability `α` it samples the guide, otherwise the BSDF, and always
-//! weights by the mixture density `α p_guide + (1 − α) p_bsdf`. [`NoGuide`] (α = 0) is plain
-//! unidirectional path tracing.
+//! "Neural Importance Sampling") share one narrow interface, [`Guide`]: at a batch of path
+//! vertices, give the selection probability, draw directions with their densities and evaluate
+//! the density of any direction; after paths finish, accumulate what they found
+//! ([`GuideRecord`]) into statistics and learn from them. The integrator uses the *one-sample*
+//! mixture of the guide and the BSDF: with the guide's selection probability `α` it samples the
+//! guide, otherwise the BSDF, and always weights by the mixture density
+//! `α p_guide + (1 − α) p_bsdf`; vertices with a delta BSDF are never guided. [`NoGuide`]
+//! (α = 0) is plain unidirectional path tracing.
 //!
-//! Implementations: [`ppg`] (the SD-tree of practical path guiding) and [`gmm`] (Gaussian
-//! mixtures on the hemisphere in a spatial kd-tree). Both learn from the records of one
-//! training iteration at its end, in a sorted order, so a trained guide depends only on the
-//! records, never on the threads that delivered them.
+//! Implementations: [`ppg`] (the SD-tree of practical path guiding), [`gmm`] (Gaussian
+//! mixtures on the hemisphere) — both keep their directional distributions in the leaves of one
+//! [`spatial`] tree — and [`neural`] (a normalizing flow). The classical guides learn from the
+//! records of one training pass in a sorted order, so a trained guide depends only on the
+//! records, never on the order in which they arrived.
 
 use glam::{Vec2, Vec3};
 
-use crate::bsdf::Material;
-use crate::bvh::Aabb;
 use crate::geometry::Rgb;
 
 pub mod gmm;
 pub mod neural;
 pub mod ppg;
+pub mod spatial;
 #[cfg(test)]
 mod tests;
 
@@ -53,15 +54,6 @@ pub fn cylindrical_to_dir(c: Vec2) -> Vec3 {
     let sin_theta = (1.0 - cos_theta * cos_theta).max(0.0).sqrt();
     let (sin_phi, cos_phi) = (2.0 * std::f32::consts::PI * c.y).sin_cos();
     Vec3::new(sin_theta * cos_phi, sin_theta * sin_phi, cos_theta)
-}
-
-/// `p` in coordinates of the cube `bounds` (`min` and the largest extent), clamped to
-/// `[0, 1)³`: where the spatial trees of the guides descend.
-fn unit_position(bounds: &Aabb, p: Vec3) -> Vec3 {
-    let extent = (bounds.max - bounds.min)
-        .max_element()
-        .max(f32::MIN_POSITIVE);
-    ((p - bounds.min) / extent).clamp(Vec3::ZERO, Vec3::splat(ONE_MINUS_EPSILON))
 }
 
 /// Bit patterns of `values`, a total order key for sorting records so that learning does not
@@ -101,47 +93,173 @@ pub struct GuideRecord {
     pub radiance: Rgb,
 }
 
-/// A directional sampling distribution that may learn from finished paths.
+/// A direction drawn from a guide, with the solid-angle density it was drawn with.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct GuideSample {
+    /// World-space unit direction.
+    pub wi: Vec3,
+    /// Solid-angle density of `wi` under the guide (positive).
+    pub pdf: f32,
+}
+
+/// A request for a guide sample at vertex `vertex` of a batch, from the random numbers `u`.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct SampleQuery {
+    /// Index of the vertex in the batch.
+    pub vertex: usize,
+    /// Two uniform numbers in `[0, 1)`.
+    pub u: Vec2,
+}
+
+/// A request for the guide's density of direction `wi` at vertex `vertex` of a batch.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct PdfQuery {
+    /// Index of the vertex in the batch.
+    pub vertex: usize,
+    /// World-space unit direction.
+    pub wi: Vec3,
+}
+
+/// What a guide accumulates from records until its next update: a plain value (numbers and
+/// vectors of them, no locks or handles) with an associative, order-respecting `merge`, so the
+/// statistics of several waves, threads or processes can be combined (e.g. gathered or summed
+/// over MPI ranks) before one update that every process then applies alike.
+pub trait GuideStatistics: Default + Send {
+    /// Add `later`'s statistics after this one's.
+    fn merge(&mut self, later: Self);
+}
+
+/// Nothing to learn from.
+impl GuideStatistics for () {
+    fn merge(&mut self, _: Self) {}
+}
+
+/// Records (reduced to what a guide keeps), in the order they were made.
+impl<T: Send> GuideStatistics for Vec<T> {
+    fn merge(&mut self, later: Self) {
+        self.extend(later);
+    }
+}
+
+/// A directional sampling distribution over incident directions at path vertices, mixed with
+/// BSDF sampling, that may learn from finished paths.
 ///
-/// Implementations are shared between render threads: sampling takes `&self`, learning
-/// (`record`) too (use interior mutability, e.g. a `Mutex`'d buffer), while iteration hooks
-/// take `&mut self` and are called between render passes.
+/// **Queries come in batches.** In every bounce of a wavefront the integrator gathers the
+/// guided vertices, calls [`Guide::prepare`] once for all of them, then asks
+/// [`Guide::selection_probabilities`] and answers [`SampleQuery`]s and [`PdfQuery`]s that refer
+/// to those vertices by index. Per-vertex work that every query shares (a neural guide's
+/// encoded context, a classical guide's spatial lookup) goes into [`Guide::Prepared`] and is
+/// done once. [`Guide::selection_probability`], [`Guide::sample`] and [`Guide::pdf`] are
+/// one-vertex conveniences on top of the batched methods.
+///
+/// **Learning is accumulate, then update.** While rendering a training pass, the render loop
+/// hands each wave's records to [`Guide::accumulate`] (`&self`, so waves may do it in
+/// parallel) and [`merge`](GuideStatistics::merge)s the per-wave [`Guide::Statistics`] in wave
+/// order; after the pass, [`Guide::update`] (`&mut self`) applies them. No guide needs
+/// interior mutability, training depends only on the records and their order, never on the
+/// threads, and the statistics are a plain value that several processes' renders could
+/// combine before one update (the later MPI driver's reduction goes between the two steps).
+///
+/// ```
+/// use glam::{Vec2, Vec3};
+/// use nis_render::guiding::{Guide, GuideSample, GuideVertex, PdfQuery, SampleQuery};
+///
+/// /// Uniform directions over the sphere, chosen half of the time.
+/// struct Uniform;
+///
+/// impl Guide for Uniform {
+///     type Prepared = ();
+///     type Statistics = ();
+///     fn prepare(&self, _: &[GuideVertex], _: &mut ()) {}
+///     fn selection_probabilities(&self, _: &[GuideVertex], _: &(), out: &mut [f32]) {
+///         out.fill(0.5);
+///     }
+///     fn sample_batch(&self, _: &[GuideVertex], _: &(), q: &[SampleQuery], out: &mut [Option<GuideSample>]) {
+///         for (q, o) in q.iter().zip(out) {
+///             let wi = nis_render::sampling::square_to_uniform_sphere(q.u);
+///             *o = Some(GuideSample { wi, pdf: 0.25 / std::f32::consts::PI });
+///         }
+///     }
+///     fn pdf_batch(&self, _: &[GuideVertex], _: &(), _: &[PdfQuery], out: &mut [f32]) {
+///         out.fill(0.25 / std::f32::consts::PI);
+///     }
+/// }
+///
+/// let v = GuideVertex { p: Vec3::ZERO, n: Vec3::Z, wo: Vec3::Z };
+/// assert_eq!(Uniform.selection_probability(&v), 0.5);
+/// assert_eq!(Uniform.sample(&v, Vec2::splat(0.5)).unwrap().pdf, Uniform.pdf(&v, Vec3::X));
+/// ```
 pub trait Guide: Send + Sync {
-    /// Probability `α` of sampling the guide rather than the BSDF at this vertex; 0 disables
-    /// guiding here.
-    fn selection_probability(&self, vertex: &GuideVertex, material: &Material) -> f32;
+    /// Per-vertex work [`Guide::prepare`] does once for a batch of vertices and every query on
+    /// that batch reuses. The integrator keeps one and hands it back, so its buffers are reused.
+    type Prepared: Default + Send;
 
-    /// Draw a world-space direction and its solid-angle density.
-    fn sample(&self, vertex: &GuideVertex, u: Vec2) -> Option<(Vec3, f32)>;
+    /// What [`Guide::accumulate`] collects from records for [`Guide::update`].
+    type Statistics: GuideStatistics;
 
-    /// Solid-angle density of [`Guide::sample`] producing `wi`.
-    fn pdf(&self, vertex: &GuideVertex, wi: Vec3) -> f32;
+    /// Do the per-vertex work for queries at `vertices` (overwriting `prepared`).
+    fn prepare(&self, vertices: &[GuideVertex], prepared: &mut Self::Prepared);
 
-    /// [`Guide::selection_probability`] for many vertices at once (`out[i]` for
-    /// `vertices[i]` with `materials[i]`); override to batch the work.
+    /// Probability `α` of sampling the guide rather than the BSDF at each vertex (`out[i]` for
+    /// `vertices[i]`); 0 disables guiding there.
     fn selection_probabilities(
         &self,
         vertices: &[GuideVertex],
-        materials: &[&Material],
+        prepared: &Self::Prepared,
         out: &mut [f32],
-    ) {
-        for ((v, m), o) in vertices.iter().zip(materials).zip(out) {
-            *o = self.selection_probability(v, m);
-        }
+    );
+
+    /// Draw a direction for each query (`None` where the guide cannot sample).
+    fn sample_batch(
+        &self,
+        vertices: &[GuideVertex],
+        prepared: &Self::Prepared,
+        queries: &[SampleQuery],
+        out: &mut [Option<GuideSample>],
+    );
+
+    /// Solid-angle density of each query's direction under [`Guide::sample_batch`].
+    fn pdf_batch(
+        &self,
+        vertices: &[GuideVertex],
+        prepared: &Self::Prepared,
+        queries: &[PdfQuery],
+        out: &mut [f32],
+    );
+
+    /// [`Guide::selection_probabilities`] at one vertex.
+    fn selection_probability(&self, vertex: &GuideVertex) -> f32 {
+        let vertices = std::slice::from_ref(vertex);
+        let mut prepared = Self::Prepared::default();
+        self.prepare(vertices, &mut prepared);
+        let mut out = [0.0];
+        self.selection_probabilities(vertices, &prepared, &mut out);
+        out[0]
     }
 
-    /// [`Guide::sample`] for many vertices at once; override to batch the work.
-    fn sample_batch(&self, vertices: &[GuideVertex], u: &[Vec2], out: &mut [Option<(Vec3, f32)>]) {
-        for ((v, &u), o) in vertices.iter().zip(u).zip(out) {
-            *o = self.sample(v, u);
-        }
+    /// [`Guide::sample_batch`] at one vertex.
+    fn sample(&self, vertex: &GuideVertex, u: Vec2) -> Option<GuideSample> {
+        let vertices = std::slice::from_ref(vertex);
+        let mut prepared = Self::Prepared::default();
+        self.prepare(vertices, &mut prepared);
+        let mut out = [None];
+        self.sample_batch(
+            vertices,
+            &prepared,
+            &[SampleQuery { vertex: 0, u }],
+            &mut out,
+        );
+        out[0]
     }
 
-    /// [`Guide::pdf`] for many vertices at once; override to batch the work.
-    fn pdf_batch(&self, vertices: &[GuideVertex], wi: &[Vec3], out: &mut [f32]) {
-        for ((v, &w), o) in vertices.iter().zip(wi).zip(out) {
-            *o = self.pdf(v, w);
-        }
+    /// [`Guide::pdf_batch`] at one vertex.
+    fn pdf(&self, vertex: &GuideVertex, wi: Vec3) -> f32 {
+        let vertices = std::slice::from_ref(vertex);
+        let mut prepared = Self::Prepared::default();
+        self.prepare(vertices, &mut prepared);
+        let mut out = [0.0];
+        self.pdf_batch(vertices, &prepared, &[PdfQuery { vertex: 0, wi }], &mut out);
+        out[0]
     }
 
     /// How many paths the integrator should trace together as one wavefront. Guides whose
@@ -151,20 +269,18 @@ pub trait Guide: Send + Sync {
         64
     }
 
-    /// Whether the integrator should collect [`GuideRecord`]s (costs time; off when not
-    /// training).
+    /// Whether the integrator should collect [`GuideRecord`]s for this guide (costs time; off
+    /// when not training).
     fn wants_records(&self) -> bool {
         false
     }
 
-    /// Learn from the records of a batch of finished paths.
-    fn record(&self, _records: &[GuideRecord]) {}
+    /// Add what `records` (from finished paths, in path order) teach to `statistics`.
+    fn accumulate(&self, _records: &[GuideRecord], _statistics: &mut Self::Statistics) {}
 
-    /// Called before render pass `iteration` starts.
-    fn begin_iteration(&mut self, _iteration: usize) {}
-
-    /// Called after render pass `iteration` has finished (e.g. to refit or train).
-    fn end_iteration(&mut self, _iteration: usize) {}
+    /// Learn from the statistics of a training pass (e.g. refit the distribution, or take
+    /// gradient steps).
+    fn update(&mut self, _statistics: Self::Statistics) {}
 
     /// Called once training is over: the remaining passes only render (a guide should stop
     /// asking for records).
@@ -176,15 +292,26 @@ pub trait Guide: Send + Sync {
 pub struct NoGuide;
 
 impl Guide for NoGuide {
-    fn selection_probability(&self, _: &GuideVertex, _: &Material) -> f32 {
-        0.0
+    type Prepared = ();
+    type Statistics = ();
+
+    fn prepare(&self, _: &[GuideVertex], _: &mut ()) {}
+
+    fn selection_probabilities(&self, _: &[GuideVertex], _: &(), out: &mut [f32]) {
+        out.fill(0.0);
     }
 
-    fn sample(&self, _: &GuideVertex, _: Vec2) -> Option<(Vec3, f32)> {
-        None
+    fn sample_batch(
+        &self,
+        _: &[GuideVertex],
+        _: &(),
+        _: &[SampleQuery],
+        out: &mut [Option<GuideSample>],
+    ) {
+        out.fill(None);
     }
 
-    fn pdf(&self, _: &GuideVertex, _: Vec3) -> f32 {
-        0.0
+    fn pdf_batch(&self, _: &[GuideVertex], _: &(), _: &[PdfQuery], out: &mut [f32]) {
+        out.fill(0.0);
     }
 }

@@ -2,7 +2,8 @@
 //!
 //! At every path vertex a normalizing flow gives the density of incident directions:
 //! a 2-D flow on [0, 1]² over world-space cylindrical coordinates
-//! `((cos θ + 1)/2, φ/2π)` of the direction (an area-preserving map, so
+//! `((cos θ + 1)/2, φ/2π)` of the direction ([`dir_to_cylindrical`], the map PPG's quadtrees
+//! use too; area-preserving, so
 //! `p(ω) = q(u, v)/4π`), conditioned on the one-blob-encoded vertex position (normalised
 //! to the scene box), outgoing direction and shading normal (both in cylindrical
 //! coordinates). A second, small network predicts the selection probability `c(x, ω_o)` of
@@ -29,8 +30,6 @@
 //! The integrator traces thousands of paths as one wavefront ([`Guide::batch_paths`]), so
 //! every query below runs the networks on large batches.
 
-use std::sync::Mutex;
-
 use glam::{Vec2, Vec3};
 use nis::flow::{Bijection, Density, Flow, FlowConfig};
 use nis::kernels::elementwise::one_blob;
@@ -43,13 +42,24 @@ use rand_pcg::Pcg64Mcg;
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
-use super::{Guide, GuideRecord, GuideVertex};
-use crate::bsdf::Material;
+use super::{
+    cylindrical_to_dir, dir_to_cylindrical, Guide, GuideRecord, GuideSample, GuideVertex, PdfQuery,
+    SampleQuery,
+};
 use crate::bvh::Aabb;
 use crate::geometry::luminance;
 
 /// Scalars a vertex is described by: position (3), outgoing direction (2), normal (2).
 const CONTEXT_SCALARS: usize = 7;
+
+/// Mixed into the seed of the selection network's initial weights, so that they are not drawn
+/// from the same stream as the flow's (which [`Flow::new`] seeds with the seed itself).
+const SELECTION_SEED_SALT: u64 = 0x005e_1ec7;
+
+/// Bit position of the training phase's index in the seed of its batch stream: each phase
+/// draws its batches from a stream of its own, disjoint from the weights' streams above (whose
+/// salts use only the low bits).
+const PHASE_SEED_SHIFT: u32 = 32;
 
 /// 1/(4π): the Jacobian of the cylindrical map from [0, 1]² to the sphere.
 const INV_FOUR_PI: f32 = 1.0 / (4.0 * std::f32::consts::PI);
@@ -129,9 +139,10 @@ impl Default for NisGuideConfig {
     }
 }
 
-/// What a training record keeps.
+/// What the neural guide keeps of a training record. A training pass's
+/// [`Guide::Statistics`] are its samples, in the order they were made.
 #[derive(Clone, Copy, Debug)]
-struct Sample {
+pub struct Sample {
     context: [f32; CONTEXT_SCALARS],
     /// The direction in cylindrical coordinates.
     x: [f32; 2],
@@ -169,29 +180,10 @@ pub struct NisGuide {
     selection: Mlp,
     selection_params: Vec<f32>,
     selection_adam: Adam,
-    incoming: Mutex<Vec<Sample>>,
     buffer: Vec<Sample>,
     training: bool,
     trained: bool,
     history: Vec<TrainingStats>,
-}
-
-/// World direction → `((cos θ + 1)/2, φ/2π)` in [0, 1]².
-pub fn to_cylindrical(w: Vec3) -> [f32; 2] {
-    let u = ((w.z + 1.0) * 0.5).clamp(0.0, 1.0);
-    let mut v = w.y.atan2(w.x) * (0.5 * std::f32::consts::FRAC_1_PI);
-    if v < 0.0 {
-        v += 1.0;
-    }
-    [u, v.clamp(0.0, 1.0)]
-}
-
-/// `((cos θ + 1)/2, φ/2π)` → world direction.
-pub fn from_cylindrical(x: [f32; 2]) -> Vec3 {
-    let z = 2.0 * x[0] - 1.0;
-    let r = (1.0 - z * z).max(0.0).sqrt();
-    let (s, c) = (2.0 * std::f32::consts::PI * x[1]).sin_cos();
-    Vec3::new(r * c, r * s, z)
 }
 
 fn sigmoid(z: f32) -> f32 {
@@ -238,7 +230,7 @@ impl NisGuide {
             ],
         };
         let mut selection_params = vec![0.0; selection.param_count()];
-        let mut rng = Pcg64Mcg::seed_from_u64(config.seed ^ 0x005e_1ec7);
+        let mut rng = Pcg64Mcg::seed_from_u64(config.seed ^ SELECTION_SEED_SALT);
         selection.init(&mut selection_params, &mut rng);
         let extent = (bounds.max - bounds.min).max(Vec3::splat(1e-6));
         // A small margin keeps positions on the bounding box's faces inside the encoding.
@@ -252,7 +244,6 @@ impl NisGuide {
             origin: bounds.min - margin,
             inv_extent: (extent + 2.0 * margin).recip(),
             config,
-            incoming: Mutex::new(Vec::new()),
             buffer: Vec::new(),
             training: true,
             trained: false,
@@ -272,9 +263,9 @@ impl NisGuide {
 
     fn context_scalars(&self, v: &GuideVertex) -> [f32; CONTEXT_SCALARS] {
         let p = ((v.p - self.origin) * self.inv_extent).clamp(Vec3::ZERO, Vec3::ONE);
-        let wo = to_cylindrical(v.wo);
-        let n = to_cylindrical(v.n);
-        [p.x, p.y, p.z, wo[0], wo[1], n[0], n[1]]
+        let wo = dir_to_cylindrical(v.wo);
+        let n = dir_to_cylindrical(v.n);
+        [p.x, p.y, p.z, wo.x, wo.y, n.x, n.y]
     }
 
     /// One-blob features of context scalars, `rows × 7·bins`.
@@ -383,10 +374,17 @@ impl NisGuide {
         Ok(stats)
     }
 
-    /// Train on the records of the pass that just ended.
-    fn train(&mut self, iteration: usize) {
+    /// The rows of the encoded `context` of the vertices `rows` refers to.
+    fn gather(&self, context: &[f32], rows: impl Iterator<Item = usize>) -> Vec<f32> {
+        let cdim = self.selection.dims[0];
+        rows.flat_map(|r| &context[r * cdim..(r + 1) * cdim])
+            .copied()
+            .collect()
+    }
+
+    /// Train on the records of the pass that just ended (the `iteration`-th training phase).
+    fn train(&mut self, new: Vec<Sample>, iteration: usize) {
         let start = std::time::Instant::now();
-        let new = std::mem::take(&mut *self.incoming.lock().expect("guide records"));
         let new_records = new.len();
         self.buffer.extend(new);
         if self.buffer.len() > self.config.buffer {
@@ -400,7 +398,8 @@ impl NisGuide {
         if !self.buffer.is_empty() {
             let steps = (new_records / self.config.batch)
                 .clamp(self.config.min_steps, self.config.max_steps);
-            let mut rng = Pcg64Mcg::seed_from_u64(self.config.seed ^ (iteration as u64 + 1) << 32);
+            let phase = iteration as u64 + 1;
+            let mut rng = Pcg64Mcg::seed_from_u64(self.config.seed ^ phase << PHASE_SEED_SHIFT);
             let size = self.config.batch.min(self.buffer.len());
             let mut batch = Vec::with_capacity(size);
             for _ in 0..steps {
@@ -425,38 +424,35 @@ impl NisGuide {
 }
 
 impl Guide for NisGuide {
-    fn selection_probability(&self, vertex: &GuideVertex, material: &Material) -> f32 {
-        let mut out = [0.0];
-        self.selection_probabilities(std::slice::from_ref(vertex), &[material], &mut out);
-        out[0]
+    /// The one-blob encoded context of every vertex, `rows × 7·bins`, computed once and shared
+    /// by the selection network and the flow's sampling and density queries.
+    type Prepared = Vec<f32>;
+    type Statistics = Vec<Sample>;
+
+    fn prepare(&self, vertices: &[GuideVertex], context: &mut Vec<f32>) {
+        *context = self.vertex_context(vertices);
     }
 
-    fn sample(&self, vertex: &GuideVertex, u: Vec2) -> Option<(Vec3, f32)> {
-        let mut out = [None];
-        self.sample_batch(std::slice::from_ref(vertex), &[u], &mut out);
-        out[0]
-    }
-
-    fn pdf(&self, vertex: &GuideVertex, wi: Vec3) -> f32 {
-        let mut out = [0.0];
-        self.pdf_batch(std::slice::from_ref(vertex), &[wi], &mut out);
-        out[0]
-    }
-
-    fn selection_probabilities(&self, vertices: &[GuideVertex], _: &[&Material], out: &mut [f32]) {
+    fn selection_probabilities(&self, _: &[GuideVertex], context: &Vec<f32>, out: &mut [f32]) {
         if !self.trained {
             out.fill(0.0);
             return;
         }
-        let (_, c) = self.select(&self.vertex_context(vertices));
+        let (_, c) = self.select(context);
         out.copy_from_slice(&c);
     }
 
-    fn sample_batch(&self, vertices: &[GuideVertex], u: &[Vec2], out: &mut [Option<(Vec3, f32)>]) {
-        let context = self.vertex_context(vertices);
-        let z: Vec<f32> = u
+    fn sample_batch(
+        &self,
+        _: &[GuideVertex],
+        context: &Vec<f32>,
+        queries: &[SampleQuery],
+        out: &mut [Option<GuideSample>],
+    ) {
+        let context = self.gather(context, queries.iter().map(|q| q.vertex));
+        let z: Vec<f32> = queries
             .iter()
-            .flat_map(|u| [u.x.clamp(0.0, 1.0), u.y.clamp(0.0, 1.0)])
+            .flat_map(|q| [q.u.x.clamp(0.0, 1.0), q.u.y.clamp(0.0, 1.0)])
             .collect();
         let Ok((x, log_det)) = self.flow.inverse(&z, Some(&context)) else {
             out.fill(None);
@@ -465,14 +461,25 @@ impl Guide for NisGuide {
         for (i, o) in out.iter_mut().enumerate() {
             // ln|∂x/∂z| = −ln q(x).
             let pdf = ((-log_det[i]).exp() as f32) * INV_FOUR_PI;
-            *o = (pdf.is_finite() && pdf > 0.0)
-                .then(|| (from_cylindrical([x[2 * i], x[2 * i + 1]]), pdf));
+            *o = (pdf.is_finite() && pdf > 0.0).then(|| GuideSample {
+                wi: cylindrical_to_dir(Vec2::new(x[2 * i], x[2 * i + 1])),
+                pdf,
+            });
         }
     }
 
-    fn pdf_batch(&self, vertices: &[GuideVertex], wi: &[Vec3], out: &mut [f32]) {
-        let context = self.vertex_context(vertices);
-        let x: Vec<f32> = wi.iter().flat_map(|&w| to_cylindrical(w)).collect();
+    fn pdf_batch(
+        &self,
+        _: &[GuideVertex],
+        context: &Vec<f32>,
+        queries: &[PdfQuery],
+        out: &mut [f32],
+    ) {
+        let context = self.gather(context, queries.iter().map(|q| q.vertex));
+        let x: Vec<f32> = queries
+            .iter()
+            .flat_map(|q| dir_to_cylindrical(q.wi).to_array())
+            .collect();
         match self.flow.log_density(&x, Some(&context)) {
             Ok(log_q) => {
                 for (o, l) in out.iter_mut().zip(log_q) {
@@ -491,23 +498,24 @@ impl Guide for NisGuide {
         self.training
     }
 
-    fn record(&self, records: &[GuideRecord]) {
-        let samples = records.iter().filter_map(|r| {
+    fn accumulate(&self, records: &[GuideRecord], samples: &mut Vec<Sample>) {
+        samples.extend(records.iter().filter_map(|r| {
             let f = luminance(r.radiance * r.bsdf_cos);
             (f > 0.0 && f.is_finite() && r.pdf > 0.0).then(|| Sample {
                 context: self.context_scalars(&r.vertex),
-                x: to_cylindrical(r.wi),
+                x: dir_to_cylindrical(r.wi).to_array(),
                 f,
                 pdf: r.pdf,
                 bsdf_pdf: r.bsdf_pdf,
             })
-        });
-        self.incoming.lock().expect("guide records").extend(samples);
+        }));
     }
 
-    fn end_iteration(&mut self, iteration: usize) {
+    fn update(&mut self, samples: Vec<Sample>) {
         if self.training {
-            self.train(iteration);
+            // Phases are counted by the guide itself: the `k`-th update draws its batches from
+            // the `k`-th stream.
+            self.train(samples, self.history.len());
         }
     }
 

@@ -11,8 +11,10 @@ use rand_pcg::Pcg32;
 
 use super::gmm::{Gmm, GmmConfig};
 use super::ppg::{Ppg, PpgConfig};
-use super::{cylindrical_to_dir, dir_to_cylindrical, Guide, GuideRecord, GuideVertex};
-use crate::bsdf::{Bsdf, Material};
+use super::{
+    cylindrical_to_dir, dir_to_cylindrical, Guide, GuideRecord, GuideSample, GuideStatistics,
+    GuideVertex,
+};
 use crate::bvh::Aabb;
 use crate::geometry::Frame;
 
@@ -109,15 +111,24 @@ const POSITIONS: [Vec3; 3] = [
     Vec3::new(0.5, 0.9, 0.9),
 ];
 
+/// One training pass of `guide` on `batches` of records, accumulated batch by batch (as the
+/// render loop does wave by wave) and merged in order.
+fn learn<G: Guide>(guide: &mut G, batches: &[&[GuideRecord]]) {
+    let mut statistics = G::Statistics::default();
+    for batch in batches {
+        let mut s = G::Statistics::default();
+        guide.accumulate(batch, &mut s);
+        statistics.merge(s);
+    }
+    guide.update(statistics);
+}
+
 /// Train `guide` for `iterations` iterations of `n` records per position.
 fn train<G: Guide>(guide: &mut G, n: usize, hemisphere: bool, iterations: usize) {
     for it in 0..iterations {
-        guide.begin_iteration(it);
         let rs = records(&POSITIONS, n, hemisphere, 17 + it as u64);
-        for chunk in rs.chunks(1000) {
-            guide.record(chunk);
-        }
-        guide.end_iteration(it);
+        let chunks: Vec<&[GuideRecord]> = rs.chunks(1000).collect();
+        learn(guide, &chunks);
     }
 }
 
@@ -174,7 +185,7 @@ fn check_density<G: Guide>(guide: &G, v: &GuideVertex, n: usize, seed: u64) -> (
     for _ in 0..n {
         let u = Vec2::new(uniform(&mut rng), uniform(&mut rng));
         match guide.sample(v, u) {
-            Some((wi, pdf)) => {
+            Some(GuideSample { wi, pdf }) => {
                 assert_eq!(
                     pdf.to_bits(),
                     guide.pdf(v, wi).to_bits(),
@@ -216,14 +227,11 @@ const Z_CRITICAL: f64 = 3.09;
 
 #[test]
 fn untrained_guides_are_uniform_and_not_selected() {
-    let diffuse = Material::new(Bsdf::Diffuse {
-        reflectance: Vec3::splat(0.5),
-    });
     let v = vertex(Vec3::splat(0.5));
     let ppg = Ppg::new(unit_box(), PpgConfig::default());
     let gmm = Gmm::new(unit_box(), GmmConfig::default());
-    assert_eq!(ppg.selection_probability(&v, &diffuse), 0.0);
-    assert_eq!(gmm.selection_probability(&v, &diffuse), 0.0);
+    assert_eq!(ppg.selection_probability(&v), 0.0);
+    assert_eq!(gmm.selection_probability(&v), 0.0);
     for w in [Vec3::Z, -Vec3::Z, Vec3::new(0.6, -0.8, 0.0)] {
         assert!((ppg.pdf(&v, w) - 0.25 / std::f32::consts::PI).abs() < 1e-7);
     }
@@ -242,13 +250,10 @@ fn untrained_guides_are_uniform_and_not_selected() {
 /// (a)–(d) for a trained guide at each training position; `uniform` is the density of the
 /// uniform guide over its domain.
 fn check_trained<G: Guide>(guide: &G, uniform: f64, integral_tol: f64) {
-    let diffuse = Material::new(Bsdf::Diffuse {
-        reflectance: Vec3::splat(0.5),
-    });
     let [a, b] = lights();
     for (i, &p) in POSITIONS.iter().enumerate() {
         let v = vertex(p);
-        assert_eq!(guide.selection_probability(&v, &diffuse), 0.5);
+        assert_eq!(guide.selection_probability(&v), 0.5);
         let (integral, z, refused) = check_density(guide, &v, 200_000, 10 + i as u64);
         assert!((integral - 1.0).abs() < integral_tol, "∫ pdf = {integral}");
         assert!(z < Z_CRITICAL, "χ² z = {z} at {p}");
@@ -302,7 +307,7 @@ fn fingerprint<G: Guide>(guide: &G) -> Vec<u32> {
             let c = Vec2::new((i as f32 + 0.5) / 64.0, (i * 37 % 64) as f32 / 64.0);
             out.push(guide.pdf(&vertex(p), cylindrical_to_dir(c)).to_bits());
         }
-        let (w, pdf) = guide.sample(&vertex(p), Vec2::new(0.3, 0.6)).unwrap();
+        let GuideSample { wi: w, pdf } = guide.sample(&vertex(p), Vec2::new(0.3, 0.6)).unwrap();
         out.extend([w.x.to_bits(), w.y.to_bits(), w.z.to_bits(), pdf.to_bits()]);
     }
     out
@@ -312,12 +317,10 @@ fn learn_in_two_orders<G: Guide>(mut make: impl FnMut() -> G, hemisphere: bool) 
     let (mut g1, mut g2) = (make(), make());
     for it in 0..2 {
         let rs = records(&POSITIONS, 3000, hemisphere, 5 + it);
-        g1.record(&rs);
-        for batch in shuffled_batches(&rs) {
-            g2.record(&batch);
-        }
-        g1.end_iteration(0);
-        g2.end_iteration(0);
+        learn(&mut g1, &[&rs]);
+        let batches = shuffled_batches(&rs);
+        let batches: Vec<&[GuideRecord]> = batches.iter().map(Vec::as_slice).collect();
+        learn(&mut g2, &batches);
     }
     [fingerprint(&g1), fingerprint(&g2)]
 }

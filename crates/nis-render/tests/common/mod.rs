@@ -2,7 +2,7 @@
 
 use nis_render::guiding::Guide;
 use nis_render::integrator::{Integrator, Strategy};
-use nis_render::render::{render, Budget};
+use nis_render::render::{render, Budget, RenderOptions, Schedule};
 use nis_render::scene::Scene;
 
 /// Image means per channel over `repeats` seeds, and their standard errors.
@@ -17,9 +17,12 @@ pub fn mean_over_seeds<G: Guide>(
     for (seed, s) in samples.iter_mut().enumerate() {
         let img = render(
             scene,
-            &integrator,
-            Budget::Samples(8),
-            7 + seed as u64,
+            &RenderOptions {
+                integrator,
+                budget: Budget::Samples(8),
+                seed: 7 + seed as u64,
+                schedule: Schedule::Plain,
+            },
             guide,
             &|_| {},
         )

@@ -1,0 +1,392 @@
+//! The render loop: tiles of the image traced in parallel, pass after pass, until a sample
+//! count or a time budget is reached, with a guide learning between passes.
+//!
+//! Every sample has its own random stream, seeded from `(seed, pixel, sample index)` by the
+//! SplitMix64 finaliser ([`splitmix64`], Steele et al. 2014), so an image depends only on the
+//! seed and the sample count, never on the number of threads or on how samples are split into
+//! passes. Pixels use a box filter: a sample lands uniformly in its pixel and counts only there.
+//!
+//! [`render`] is the one entry point; [`RenderOptions::schedule`] says whether the guide trains
+//! in passes of its own first ([`schedule`], whose passes are then combined by inverse variance,
+//! [`combine`]) or learns, if it wants to, after every pass of a plain render.
+
+use std::ops::Range;
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::time::Instant;
+
+use rand_pcg::Pcg32;
+use rayon::prelude::*;
+
+use crate::film::Image;
+use crate::geometry::Rgb;
+use crate::guiding::{Guide, GuideStatistics};
+use crate::integrator::{uniform, Integrator, PathStats, Wavefront};
+use crate::sampling::splitmix64;
+use crate::scene::Scene;
+
+pub mod combine;
+pub mod schedule;
+
+use combine::{average, combine, PassSums, PixelSum};
+use schedule::TrainingPasses;
+pub use schedule::{training_schedule, TrainingSchedule};
+
+/// How long to render.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Budget {
+    /// Exactly this many samples per pixel (in one pass, unless a guide trains first).
+    Samples(u32),
+    /// One-sample passes until this many seconds have passed (at least one pass).
+    Seconds(f64),
+}
+
+/// How the passes of a render are arranged.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum Schedule {
+    /// The whole budget renders the image: one pass of `n` samples per pixel, or one-sample
+    /// passes until the time is up, all averaged. A guide that wants records learns from every
+    /// pass after it ends (so several renders can train it).
+    #[default]
+    Plain,
+    /// A guided render: training passes ([`schedule`]) while the guide learns after each, then
+    /// the guide stops learning ([`Guide::end_training`]) for a final phase with the rest of the
+    /// budget. Every pass is an unbiased image whatever the guide had learned by then; the
+    /// result combines them by inverse variance ([`combine`]), so the training passes are not
+    /// wasted.
+    Training,
+}
+
+/// Everything a render is asked for, besides the scene, the guide and progress reports.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct RenderOptions {
+    /// The path tracer's settings.
+    pub integrator: Integrator,
+    /// How long to render; samples per pixel count all passes, training included.
+    pub budget: Budget,
+    /// Seed of every sample's random stream.
+    pub seed: u64,
+    /// Plain, or training passes first.
+    pub schedule: Schedule,
+}
+
+/// A finished render.
+#[derive(Clone, Debug)]
+pub struct RenderOutput {
+    /// Mean of the samples of each pixel (for a training schedule, the inverse-variance
+    /// combination of the passes).
+    pub image: Image,
+    /// Samples per pixel taken.
+    pub spp: u32,
+    /// Of those, samples per pixel of the training passes.
+    pub training_spp: u32,
+    /// Ray and path counts.
+    pub stats: PathStats,
+    /// Wall-clock seconds spent tracing.
+    pub seconds: f64,
+}
+
+/// Side of the square tiles that threads take one at a time.
+pub const TILE_SIZE: u32 = 16;
+
+/// Paths a wave traces together, at least (whole tiles are never split).
+pub const WAVE_PATHS: usize = 4096;
+
+/// Waves rendered in parallel before their guide statistics are merged, in wave order.
+const WAVES_PER_GROUP: usize = 16;
+
+/// The random stream of sample `sample` of pixel `pixel`.
+pub fn sample_rng(seed: u64, pixel: u64, sample: u64) -> Pcg32 {
+    let state = splitmix64(splitmix64(splitmix64(seed) ^ pixel) ^ sample);
+    Pcg32::new(state, splitmix64(state) | 1)
+}
+
+/// Render `scene` as `options` say, guided by `guide`. `progress` is called with the fraction
+/// done after every wave of paths.
+///
+/// ```
+/// use nis_render::integrator::{Integrator, Strategy};
+/// use nis_render::render::{render, Budget, RenderOptions, Schedule};
+/// let mut scene = nis_render::scenes::load("cornell-box").unwrap();
+/// scene.camera.set_resolution(8, 8);
+/// let options = RenderOptions {
+///     integrator: Integrator::from_scene(&scene, Strategy::Mis),
+///     budget: Budget::Samples(4),
+///     seed: 1,
+///     schedule: Schedule::Training,
+/// };
+/// let out = render(&scene, &options, &mut nis_render::guiding::NoGuide, &|_| {});
+/// assert_eq!((out.spp, out.training_spp), (4, 1));
+/// ```
+pub fn render<G: Guide + ?Sized>(
+    scene: &Scene,
+    options: &RenderOptions,
+    guide: &mut G,
+    progress: &(dyn Fn(f64) + Sync),
+) -> RenderOutput {
+    let mut renderer = Renderer {
+        scene,
+        options,
+        start: Instant::now(),
+        stats: PathStats::default(),
+    };
+    let (w, h) = (scene.camera.width(), scene.camera.height());
+    let (image, spp, training_spp) = match options.schedule {
+        Schedule::Plain => {
+            let mut sums = vec![PixelSum::default(); w as usize * h as usize];
+            let spp = renderer.passes(guide, options.budget, 0, true, &mut sums, progress);
+            (average(w, h, &sums, spp), spp, 0)
+        }
+        Schedule::Training => renderer.train_then_render(guide, progress),
+    };
+    RenderOutput {
+        image,
+        spp,
+        training_spp,
+        stats: renderer.stats,
+        seconds: renderer.start.elapsed().as_secs_f64(),
+    }
+}
+
+/// One render in progress: what its passes share, and its counters.
+struct Renderer<'a> {
+    scene: &'a Scene,
+    options: &'a RenderOptions,
+    start: Instant,
+    stats: PathStats,
+}
+
+/// What one wave of paths produced.
+struct WaveResult<S> {
+    /// Pixel index and the sums of its samples.
+    pixels: Vec<(usize, PixelSum)>,
+    stats: PathStats,
+    /// The guide's statistics of the wave's records.
+    statistics: S,
+}
+
+impl Renderer<'_> {
+    /// The passes of [`Schedule::Training`]: training passes, then the final phase. Returns the
+    /// image, the samples per pixel and those of training.
+    fn train_then_render<G: Guide + ?Sized>(
+        &mut self,
+        guide: &mut G,
+        progress: &(dyn Fn(f64) + Sync),
+    ) -> (Image, u32, u32) {
+        let (w, h) = (self.scene.camera.width(), self.scene.camera.height());
+        let budget = self.options.budget;
+        let start = self.start;
+        let overall = |done: u32, f: f64, count: u32| match budget {
+            Budget::Samples(n) => progress((f64::from(done) + f * f64::from(count)) / f64::from(n)),
+            Budget::Seconds(t) => progress((start.elapsed().as_secs_f64() / t).min(1.0)),
+        };
+        // Every pass's pixel sums, kept for the final combination.
+        let mut passes: Vec<PassSums> = Vec::new();
+        let training = TrainingPasses::new(budget, start);
+        let mut spp = 0u32;
+        while let Some(count) = training.next(passes.len(), spp) {
+            let mut sums = vec![PixelSum::default(); w as usize * h as usize];
+            let done = spp;
+            self.pass(guide, spp..spp + count, true, &mut sums, &|f| {
+                overall(done, f, count)
+            });
+            passes.push(PassSums {
+                spp: count,
+                pixels: sums,
+            });
+            spp += count;
+        }
+        guide.end_training();
+        let training_spp = spp;
+        let rest = match budget {
+            Budget::Samples(n) => Budget::Samples(n - training_spp),
+            seconds => seconds,
+        };
+        let mut sums = vec![PixelSum::default(); w as usize * h as usize];
+        let final_spp = self.passes(
+            guide,
+            rest,
+            training_spp,
+            false,
+            &mut sums,
+            &|f| match rest {
+                Budget::Samples(n) => overall(training_spp, f, n),
+                Budget::Seconds(_) => progress(f),
+            },
+        );
+        passes.push(PassSums {
+            spp: final_spp,
+            pixels: sums,
+        });
+        (
+            combine(w, h, &passes),
+            training_spp + final_spp,
+            training_spp,
+        )
+    }
+
+    /// Adds the passes of `budget` to `sums`, from sample index `first` on: one pass of `n` spp,
+    /// or one-spp passes until the time is up. With `learn`, the guide learns after every pass.
+    /// `progress` gets the fraction of the passes done (of the time, for a time budget).
+    /// Returns the samples per pixel added.
+    fn passes<G: Guide + ?Sized>(
+        &mut self,
+        guide: &mut G,
+        budget: Budget,
+        first: u32,
+        learn: bool,
+        sums: &mut [PixelSum],
+        progress: &(dyn Fn(f64) + Sync),
+    ) -> u32 {
+        let start = self.start;
+        let mut spp = 0u32;
+        loop {
+            let count = match budget {
+                Budget::Samples(n) => n,
+                Budget::Seconds(_) => 1,
+            };
+            let samples = first + spp..first + spp + count;
+            self.pass(guide, samples, learn, sums, &|f| match budget {
+                Budget::Samples(_) => progress(f),
+                Budget::Seconds(t) => progress((start.elapsed().as_secs_f64() / t).min(1.0)),
+            });
+            spp += count;
+            match budget {
+                Budget::Samples(_) => break,
+                Budget::Seconds(t) if start.elapsed().as_secs_f64() >= t => break,
+                Budget::Seconds(_) => {}
+            }
+        }
+        spp
+    }
+
+    /// Add the samples `samples` of every pixel to `sums`; with `learn`, a guide that wants
+    /// records learns from the pass's paths once it is done.
+    ///
+    /// Tiles are grouped into waves of at least [`WAVE_PATHS`] paths that the integrator traces
+    /// bounce by bounce (so a guide sees large batches); waves run in parallel, a group of them
+    /// at a time, and accumulate their records into guide statistics of their own, which are
+    /// merged in wave order, so training does not depend on the thread count.
+    fn pass<G: Guide + ?Sized>(
+        &mut self,
+        guide: &mut G,
+        samples: Range<u32>,
+        learn: bool,
+        sums: &mut [PixelSum],
+        progress: &(dyn Fn(f64) + Sync),
+    ) {
+        let scene = self.scene;
+        let (w, h) = (scene.camera.width(), scene.camera.height());
+        let tiles: Vec<(u32, u32)> = (0..h.div_ceil(TILE_SIZE))
+            .flat_map(|ty| {
+                (0..w.div_ceil(TILE_SIZE)).map(move |tx| (tx * TILE_SIZE, ty * TILE_SIZE))
+            })
+            .collect();
+        let count = samples.len();
+        let tile_paths = (TILE_SIZE * TILE_SIZE) as usize * count;
+        let tiles_per_wave = WAVE_PATHS.div_ceil(tile_paths.max(1)).max(1);
+        let waves: Vec<&[(u32, u32)]> = tiles.chunks(tiles_per_wave).collect();
+        let done = AtomicU64::new(0);
+        let n_waves = waves.len() as f64;
+        let learn = learn && guide.wants_records();
+        let mut statistics = G::Statistics::default();
+        let shared: &G = guide;
+        for group in waves.chunks(WAVES_PER_GROUP) {
+            let results: Vec<WaveResult<G::Statistics>> = group
+                .par_iter()
+                .map(|wave| {
+                    let result = self.wave(shared, wave, samples.clone(), learn);
+                    let d = done.fetch_add(1, Ordering::Relaxed) + 1;
+                    progress(d as f64 / n_waves);
+                    result
+                })
+                .collect();
+            for result in results {
+                self.stats.merge(&result.stats);
+                for (i, v) in result.pixels {
+                    sums[i].merge(&v);
+                }
+                statistics.merge(result.statistics);
+            }
+        }
+        if learn {
+            guide.update(statistics);
+        }
+    }
+
+    /// Trace the samples `samples` of every pixel of the tiles `wave`.
+    fn wave<G: Guide + ?Sized>(
+        &self,
+        guide: &G,
+        wave: &[(u32, u32)],
+        samples: Range<u32>,
+        learn: bool,
+    ) -> WaveResult<G::Statistics> {
+        let scene = self.scene;
+        let (w, h) = (scene.camera.width(), scene.camera.height());
+        let mut stats = PathStats::default();
+        let mut pixels = Vec::new();
+        let mut rays = Vec::new();
+        let mut rngs = Vec::new();
+        for &(x0, y0) in wave {
+            for y in y0..(y0 + TILE_SIZE).min(h) {
+                for x in x0..(x0 + TILE_SIZE).min(w) {
+                    let pixel = u64::from(y) * u64::from(w) + u64::from(x);
+                    pixels.push(pixel as usize);
+                    for s in samples.clone() {
+                        let mut rng = sample_rng(self.options.seed, pixel, u64::from(s));
+                        rays.push(
+                            scene
+                                .camera
+                                .ray(x as f32 + uniform(&mut rng), y as f32 + uniform(&mut rng)),
+                        );
+                        rngs.push(rng);
+                    }
+                }
+            }
+        }
+        let mut radiance = vec![Rgb::ZERO; rays.len()];
+        let mut records = Vec::new();
+        let batch = guide.batch_paths().max(1);
+        for ((rays, rngs), radiance) in rays
+            .chunks(batch)
+            .zip(rngs.chunks_mut(batch))
+            .zip(radiance.chunks_mut(batch))
+        {
+            let paths = Wavefront {
+                rays,
+                rngs,
+                radiance,
+            };
+            let records = learn.then_some(&mut records);
+            self.options
+                .integrator
+                .trace(scene, paths, guide, &mut stats, records);
+        }
+        stats.paths += rays.len() as u64;
+        let per_pixel = samples.len().max(1);
+        let pixels = pixels
+            .iter()
+            .zip(radiance.chunks(per_pixel))
+            .map(|(&pixel, ls)| {
+                let mut sum = PixelSum::default();
+                for l in ls {
+                    if l.is_finite() {
+                        sum.add_sample(*l);
+                    } else {
+                        stats.invalid += 1;
+                    }
+                }
+                (pixel, sum)
+            })
+            .collect();
+        let mut statistics = G::Statistics::default();
+        if !records.is_empty() {
+            guide.accumulate(&records, &mut statistics);
+        }
+        WaveResult {
+            pixels,
+            stats,
+            statistics,
+        }
+    }
+}
