@@ -9,7 +9,7 @@ use nis_render::compare::{compare, error_map, ImageErrors};
 use nis_render::film::Image;
 use nis_render::geometry::Rgb;
 use nis_render::integrator::{Integrator, Strategy};
-use nis_render::render::{Budget, RenderOutput};
+use nis_render::render::{Budget, RenderOptions, RenderOutput, Schedule};
 use nis_render::scene::Scene;
 
 use crate::render::{render_with, GUIDES};
@@ -88,7 +88,13 @@ fn run_one(
     label: String,
 ) -> Result<RenderOutput, Box<dyn std::error::Error>> {
     let bar = bar(label)?;
-    let out = render_with(scene, integrator, budget, seed, method, None, &|f| {
+    let options = RenderOptions {
+        integrator: *integrator,
+        budget,
+        seed,
+        schedule: Schedule::Plain,
+    };
+    let out = render_with(scene, &options, method, None, &|f| {
         bar.set_position((f * 1000.0) as u64)
     })?;
     bar.finish_and_clear();

@@ -8,12 +8,9 @@ use std::time::Duration;
 use indicatif::{ProgressBar, ProgressStyle};
 use nis_render::compare::{compare, error_map};
 use nis_render::film::Image;
-use nis_render::guiding::gmm::{Gmm, GmmConfig};
-use nis_render::guiding::neural::{GuideLoss, NisGuide, NisGuideConfig};
-use nis_render::guiding::ppg::{Ppg, PpgConfig};
-use nis_render::guiding::NoGuide;
+use nis_render::guiding::spec::GuideSpec;
 use nis_render::integrator::{Integrator, Strategy};
-use nis_render::render::{render, Budget, RenderOptions, RenderOutput, Schedule};
+use nis_render::render::{Budget, RenderOptions, RenderOutput, Schedule};
 use nis_render::scene::Scene;
 
 /// Render a scene with the CPU path tracer.
@@ -114,69 +111,19 @@ pub struct CompareArgs {
 }
 
 /// The `--guide` choices.
-pub const GUIDES: [&str; 5] = ["none", "ppg", "gmm", "nis-kl", "nis-chi2"];
+pub const GUIDES: [&str; 5] = GuideSpec::NAMES;
 
-/// The neural guide for `--guide nis-kl` / `nis-chi2`: `config` (JSON) merged over the defaults.
-fn neural_guide(
-    scene: &Scene,
-    loss: GuideLoss,
-    seed: u64,
-    config: Option<&str>,
-) -> Result<NisGuide, Box<dyn std::error::Error>> {
-    let base: NisGuideConfig = match config {
-        Some(json) => serde_json::from_str(json).map_err(|e| format!("--guide-config: {e}"))?,
-        None => NisGuideConfig::default(),
-    };
-    let config = NisGuideConfig { loss, seed, ..base };
-    Ok(NisGuide::new(scene.bounds(), config)?)
-}
-
-/// Render with the guide named `guide` (`none`: plain path tracing in one pass; the others
-/// train first, see [`Schedule::Training`]).
+/// Render with the guide named `guide` and its `--guide-config` settings (see
+/// [`GuideSpec::parse`]).
 pub fn render_with(
     scene: &Scene,
-    integrator: &Integrator,
-    budget: Budget,
-    seed: u64,
+    options: &RenderOptions,
     guide: &str,
     guide_config: Option<&str>,
     progress: &(dyn Fn(f64) + Sync),
 ) -> Result<RenderOutput, Box<dyn std::error::Error>> {
-    let options = |schedule| RenderOptions {
-        integrator: *integrator,
-        budget,
-        seed,
-        schedule,
-    };
-    let guided = options(Schedule::Training);
-    let bounds = scene.bounds();
-    Ok(match guide {
-        "none" => render(scene, &options(Schedule::Plain), &mut NoGuide, progress),
-        "ppg" => {
-            let mut ppg = Ppg::new(bounds, PpgConfig::default());
-            render(scene, &guided, &mut ppg, progress)
-        }
-        "gmm" => {
-            let mut gmm = Gmm::new(bounds, GmmConfig::default());
-            render(scene, &guided, &mut gmm, progress)
-        }
-        "nis-kl" | "nis-chi2" => {
-            let loss = if guide == "nis-kl" {
-                GuideLoss::Kl
-            } else {
-                GuideLoss::ChiSquare
-            };
-            let mut nis = neural_guide(scene, loss, seed, guide_config)?;
-            render(scene, &guided, &mut nis, progress)
-        }
-        _ => {
-            return Err(format!(
-                "unknown guide '{guide}' (choose from {})",
-                GUIDES.join(", ")
-            )
-            .into())
-        }
-    })
+    let spec = GuideSpec::parse(guide, guide_config, options.seed)?;
+    Ok(spec.render(scene, options, progress)?)
 }
 
 fn load(
@@ -244,11 +191,15 @@ pub fn run_render(args: &RenderArgs) -> Result<(), Box<dyn std::error::Error>> {
     bar.enable_steady_tick(Duration::from_millis(250));
     let progress = |f: f64| bar.set_position((f * 1000.0) as u64);
     let run = || {
+        let options = RenderOptions {
+            integrator,
+            budget,
+            seed: args.seed,
+            schedule: Schedule::Plain,
+        };
         render_with(
             &scene,
-            &integrator,
-            budget,
-            args.seed,
+            &options,
             &args.guide,
             args.guide_config.as_deref(),
             &progress,

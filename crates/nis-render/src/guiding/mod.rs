@@ -26,6 +26,7 @@ pub mod gmm;
 pub mod neural;
 pub mod ppg;
 pub mod spatial;
+pub mod spec;
 #[cfg(test)]
 mod tests;
 

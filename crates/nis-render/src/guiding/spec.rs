@@ -1,0 +1,101 @@
+//! Guides by name: what `--guide NAME --guide-config JSON` means, in one place (pbrt's
+//! `Create(name, parameters)`). A [`GuideSpec`] is parsed from a name and optional settings, then
+//! builds its guide for a scene and renders with it: `none` is plain path tracing in one pass,
+//! every other guide trains in passes of its own first ([`Schedule::Training`]).
+
+use crate::bvh::Aabb;
+use crate::guiding::gmm::{Gmm, GmmConfig};
+use crate::guiding::neural::{GuideLoss, NisGuide, NisGuideConfig};
+use crate::guiding::ppg::{Ppg, PpgConfig};
+use crate::guiding::{Guide, NoGuide};
+use crate::render::{render, RenderOptions, RenderOutput, Schedule};
+use crate::scene::Scene;
+use crate::Error;
+
+/// A guiding method and its settings.
+#[derive(Clone, Debug)]
+pub enum GuideSpec {
+    /// Unidirectional path tracing.
+    None,
+    /// Practical path guiding (SD-trees).
+    Ppg(PpgConfig),
+    /// Gaussian mixtures (Vorba et al. 2014).
+    Gmm(GmmConfig),
+    /// Neural importance sampling of directions.
+    Neural(NisGuideConfig),
+}
+
+impl GuideSpec {
+    /// The names [`GuideSpec::parse`] knows.
+    pub const NAMES: [&'static str; 5] = ["none", "ppg", "gmm", "nis-kl", "nis-chi2"];
+
+    /// The guide called `name` with default settings, or for the neural guides with `config`
+    /// (JSON, merged over the defaults; `loss` and `seed` come from the name and `seed`).
+    ///
+    /// ```
+    /// use nis_render::guiding::spec::GuideSpec;
+    /// assert!(matches!(GuideSpec::parse("ppg", None, 0), Ok(GuideSpec::Ppg(_))));
+    /// assert!(GuideSpec::parse("nis-kl", Some(r#"{"couplings": 4}"#), 0).is_ok());
+    /// assert!(GuideSpec::parse("vmf", None, 0).is_err());
+    /// ```
+    pub fn parse(name: &str, config: Option<&str>, seed: u64) -> Result<GuideSpec, Error> {
+        let loss = match name {
+            "none" | "ppg" | "gmm" if config.is_some() => {
+                return Err(Error::Invalid(format!(
+                    "the guide '{name}' takes no settings (only the neural guides do)"
+                )))
+            }
+            "none" => return Ok(GuideSpec::None),
+            "ppg" => return Ok(GuideSpec::Ppg(PpgConfig::default())),
+            "gmm" => return Ok(GuideSpec::Gmm(GmmConfig::default())),
+            "nis-kl" => GuideLoss::Kl,
+            "nis-chi2" => GuideLoss::ChiSquare,
+            _ => {
+                return Err(Error::Invalid(format!(
+                    "unknown guide '{name}' (choose from {})",
+                    Self::NAMES.join(", ")
+                )))
+            }
+        };
+        let base: NisGuideConfig = match config {
+            Some(json) => serde_json::from_str(json)
+                .map_err(|e| Error::Invalid(format!("guide settings: {e}")))?,
+            None => NisGuideConfig::default(),
+        };
+        Ok(GuideSpec::Neural(NisGuideConfig { loss, seed, ..base }))
+    }
+
+    /// Builds the guide for `scene` and renders with it; `options.schedule` is set by the guide
+    /// (plain for `none`, training passes first for the others).
+    pub fn render(
+        &self,
+        scene: &Scene,
+        options: &RenderOptions,
+        progress: &(dyn Fn(f64) + Sync),
+    ) -> Result<RenderOutput, Error> {
+        let bounds: Aabb = scene.bounds();
+        let with = |schedule| RenderOptions {
+            schedule,
+            ..*options
+        };
+        fn run<G: Guide>(
+            scene: &Scene,
+            options: &RenderOptions,
+            mut guide: G,
+            progress: &(dyn Fn(f64) + Sync),
+        ) -> RenderOutput {
+            render(scene, options, &mut guide, progress)
+        }
+        let guided = with(Schedule::Training);
+        Ok(match self {
+            GuideSpec::None => run(scene, &with(Schedule::Plain), NoGuide, progress),
+            GuideSpec::Ppg(c) => run(scene, &guided, Ppg::new(bounds, *c), progress),
+            GuideSpec::Gmm(c) => run(scene, &guided, Gmm::new(bounds, *c), progress),
+            GuideSpec::Neural(c) => {
+                let guide = NisGuide::new(bounds, c.clone())
+                    .map_err(|e| Error::Invalid(format!("neural guide: {e}")))?;
+                run(scene, &guided, guide, progress)
+            }
+        })
+    }
+}
