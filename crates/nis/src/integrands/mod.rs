@@ -42,7 +42,7 @@ impl Integrand for Builtin {
     fn dim(&self) -> Option<usize> {
         Some(self.dim)
     }
-    fn eval_batch(&self, x: &[f64], dim: usize, out: &mut [f64]) {
+    fn eval_batch(&self, x: &[f64], dim: usize, out: &mut [f64]) -> Result<()> {
         (&*self.f).eval_batch(x, dim, out)
     }
 }

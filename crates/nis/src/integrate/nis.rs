@@ -16,7 +16,12 @@ use rand::{Rng, SeedableRng};
 use rand_pcg::Pcg64Mcg;
 use serde::{Deserialize, Serialize};
 
-use super::{check_dim, evaluate, Accumulator, Integrand, IntegrationResult, Progress};
+use super::integrand::column;
+use super::result::ComponentAccumulator;
+use super::{
+    check_dim, evaluate, report, Accumulator, Integrand, IntegrationResult, Integrator, Method,
+    Progress, TrainOn,
+};
 use crate::error::{Error, Result};
 use crate::flow::{Flow, FlowConfig};
 use crate::loss::Loss;
@@ -28,8 +33,9 @@ use crate::train::Trainer;
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct NisConfig {
-    /// The flow (its `dim` is set from the integrand).
+    /// The flow (its `dim` is set from the integrator's; its `seed` initialises the weights).
     pub flow: FlowConfig,
+    /// The training loss.
     pub loss: Loss,
     /// Samples per adaptive iteration.
     pub batch: usize,
@@ -38,6 +44,7 @@ pub struct NisConfig {
     pub steps_per_batch: usize,
     /// Share of the evaluation budget spent in the adaptive phase.
     pub train_fraction: f64,
+    /// The optimiser.
     pub adam: AdamConfig,
     /// The learning rate decays exponentially over the adaptive phase to this fraction of its
     /// initial value (1: constant; Adam's own `decay` is then set from the number of steps).
@@ -49,6 +56,10 @@ pub struct NisConfig {
     pub anneal_from: f64,
     /// Iterations of the final phase (for χ²/dof).
     pub final_iterations: usize,
+    /// Seed of the random streams (training, estimating, unweighting).
+    pub seed: u64,
+    /// The component of a vector-valued integrand the flow learns.
+    pub train_on: TrainOn,
 }
 
 impl Default for NisConfig {
@@ -74,11 +85,21 @@ impl Default for NisConfig {
             uniform_fraction: 0.002,
             anneal_from: 0.1,
             final_iterations: 10,
+            seed: 0,
+            train_on: TrainOn::default(),
         }
     }
 }
 
 impl NisConfig {
+    /// A builder starting from the defaults.
+    pub fn builder() -> NisConfigBuilder {
+        NisConfigBuilder {
+            config: NisConfig::default(),
+            seed: None,
+        }
+    }
+
     fn validate(&self) -> Result<()> {
         let ok = self.batch >= 2
             && self.steps_per_batch >= 1
@@ -97,12 +118,140 @@ impl NisConfig {
     }
 }
 
-/// A flow-based integrator: train it, then estimate with it (again and again, or after saving).
+/// Builds a [`NisConfig`] with named setters.
+///
+/// ```
+/// use nis::integrate::nis::NisConfig;
+/// use nis::{loss::Loss, Transform};
+/// let c = NisConfig::builder()
+///     .transform(Transform::RationalQuadratic { bins: 8 })
+///     .loss(Loss::ChiSquare)
+///     .batch(2048)
+///     .learning_rate(1e-3)
+///     .seed(4)
+///     .build()
+///     .unwrap();
+/// assert_eq!((c.batch, c.seed, c.flow.seed), (2048, 4, 4));
+/// assert!(NisConfig::builder().train_fraction(1.5).build().is_err());
+/// ```
+#[derive(Clone, Debug)]
+pub struct NisConfigBuilder {
+    config: NisConfig,
+    seed: Option<u64>,
+}
+
+impl NisConfigBuilder {
+    /// Sets [`NisConfig::flow`] (its `seed` too, unless [`NisConfigBuilder::seed`] is given).
+    pub fn flow(mut self, flow: FlowConfig) -> Self {
+        self.config.flow = flow;
+        self
+    }
+    /// Sets the flow's coupling transform.
+    pub fn transform(mut self, transform: Transform) -> Self {
+        self.config.flow.transform = transform;
+        self
+    }
+    /// Sets [`NisConfig::loss`].
+    pub fn loss(mut self, loss: Loss) -> Self {
+        self.config.loss = loss;
+        self
+    }
+    /// Sets [`NisConfig::batch`].
+    pub fn batch(mut self, batch: usize) -> Self {
+        self.config.batch = batch;
+        self
+    }
+    /// Sets [`NisConfig::steps_per_batch`].
+    pub fn steps_per_batch(mut self, steps: usize) -> Self {
+        self.config.steps_per_batch = steps;
+        self
+    }
+    /// Sets [`NisConfig::train_fraction`].
+    pub fn train_fraction(mut self, fraction: f64) -> Self {
+        self.config.train_fraction = fraction;
+        self
+    }
+    /// Sets [`NisConfig::adam`].
+    pub fn adam(mut self, adam: AdamConfig) -> Self {
+        self.config.adam = adam;
+        self
+    }
+    /// Sets Adam's initial learning rate.
+    pub fn learning_rate(mut self, rate: f32) -> Self {
+        self.config.adam.learning_rate = rate;
+        self
+    }
+    /// Sets [`NisConfig::learning_rate_end`].
+    pub fn learning_rate_end(mut self, fraction: f32) -> Self {
+        self.config.learning_rate_end = fraction;
+        self
+    }
+    /// Sets [`NisConfig::uniform_fraction`].
+    pub fn uniform_fraction(mut self, fraction: f64) -> Self {
+        self.config.uniform_fraction = fraction;
+        self
+    }
+    /// Sets [`NisConfig::anneal_from`].
+    pub fn anneal_from(mut self, beta: f64) -> Self {
+        self.config.anneal_from = beta;
+        self
+    }
+    /// Sets [`NisConfig::final_iterations`].
+    pub fn final_iterations(mut self, iterations: usize) -> Self {
+        self.config.final_iterations = iterations;
+        self
+    }
+    /// Sets [`NisConfig::train_on`].
+    pub fn train_on(mut self, train_on: TrainOn) -> Self {
+        self.config.train_on = train_on;
+        self
+    }
+    /// Seeds the run: the random streams ([`NisConfig::seed`]) and the flow's initialisation
+    /// (its `seed`), whatever order the setters came in.
+    pub fn seed(mut self, seed: u64) -> Self {
+        self.seed = Some(seed);
+        self
+    }
+    /// The checked settings.
+    pub fn build(mut self) -> Result<NisConfig> {
+        if let Some(seed) = self.seed {
+            self.config.seed = seed;
+            self.config.flow.seed = seed;
+        }
+        self.config.validate()?;
+        Ok(self.config)
+    }
+}
+
+/// A flow-based integrator: it trains its flow, then estimates with it (again and again, or after
+/// saving). It owns the flow, the optimiser's state and the random streams, so a second
+/// [`Integrator::integrate`] trains further from where the first stopped.
 pub struct NisIntegrator {
-    pub config: NisConfig,
+    config: NisConfig,
     trainer: Trainer,
-    /// Evaluations spent training so far.
-    pub trained_evals: u64,
+    /// Evaluations spent training so far (over all calls, and before saving).
+    trained_evals: u64,
+    /// Whether this object has set the learning-rate schedule (its first training does).
+    scheduled: bool,
+    streams: Streams,
+    progress: Option<Box<dyn Progress>>,
+}
+
+/// The random streams, one per use, so that training more does not shift the estimate's points.
+struct Streams {
+    train: Pcg64Mcg,
+    estimate: Pcg64Mcg,
+    unweight: Pcg64Mcg,
+}
+
+impl Streams {
+    fn new(seed: u64) -> Streams {
+        Streams {
+            train: Pcg64Mcg::seed_from_u64(seed ^ 0x7261_696e),
+            estimate: Pcg64Mcg::seed_from_u64(seed ^ 0x6573_7469),
+            unweight: Pcg64Mcg::seed_from_u64(seed ^ 0x756e_7765),
+        }
+    }
 }
 
 /// A batch from the defensive mixture: points (as f64 for the integrand), the
@@ -123,9 +272,12 @@ impl NisIntegrator {
         })?;
         let trainer = Trainer::new(flow, config.loss, config.adam)?;
         Ok(NisIntegrator {
+            streams: Streams::new(config.seed),
             config,
             trainer,
             trained_evals: 0,
+            scheduled: false,
+            progress: None,
         })
     }
 
@@ -134,129 +286,157 @@ impl NisIntegrator {
         self.trainer.flow()
     }
 
-    fn draw(&self, n: usize, rng: &mut Pcg64Mcg, for_training: bool) -> Result<MixtureBatch> {
-        let flow = self.trainer.flow();
-        let dim = flow.dim();
-        let lambda = self.config.uniform_fraction;
-        let n_u = ((lambda * n as f64).round() as usize).min(n.saturating_sub(1));
-        let n_f = n - n_u;
-        let flow_part = if for_training {
-            flow.sample_for_training(n_f, None, rng)?
-        } else {
-            flow.sample(n_f, None, rng)?
-        };
-        let mut x32 = flow_part.x.clone();
-        x32.extend((0..n_u * dim).map(|_| rng.random::<f32>()));
-        let lq_u = flow.log_density(&x32[n_f * dim..], None)?;
-        let mix = |lq: f64| (lambda + (1.0 - lambda) * lq.exp()).ln();
-        let log_q_mix = flow_part
-            .log_q
-            .iter()
-            .chain(&lq_u)
-            .map(|&l| mix(l))
-            .collect();
-        let x64 = x32.iter().map(|&v| v as f64).collect();
-        Ok(MixtureBatch {
-            x64,
-            log_q_mix,
-            flow_part,
-        })
+    /// Its settings.
+    pub fn config(&self) -> &NisConfig {
+        &self.config
     }
 
-    /// The adaptive phase: `evals` evaluations in batches, one training step per batch.
-    pub fn train(
-        &mut self,
-        f: &dyn Integrand,
-        evals: u64,
-        seed: u64,
-        progress: Progress,
-    ) -> Result<()> {
+    /// Evaluations spent training so far, over all calls (and before saving, for a loaded one).
+    pub fn trained_evals(&self) -> u64 {
+        self.trained_evals
+    }
+
+    /// Restarts the random streams from `seed` (e.g. to estimate with a loaded integrator under
+    /// another seed than the one it was trained with).
+    pub fn set_seed(&mut self, seed: u64) {
+        self.config.seed = seed;
+        self.streams = Streams::new(seed);
+    }
+
+    /// The adaptive phase: `evals` more evaluations in batches, one training step (or
+    /// `steps_per_batch`) per batch. The first training of a new integrator sets the schedule —
+    /// the learning rate decays over its steps to `learning_rate_end` of its start, and an
+    /// untrained flow anneals its target from |f|^`anneal_from` — later ones continue Adam as it
+    /// stands on the plain target.
+    pub fn train(&mut self, f: &dyn Integrand, evals: u64) -> Result<()> {
         let dim = self.flow().dim();
         check_dim(f, dim)?;
-        let mut rng = Pcg64Mcg::seed_from_u64(seed ^ 0x7261_696e);
+        let k = f.components();
+        self.config.train_on.check(k)?;
         let batch = self.config.batch;
         let steps = (evals / batch as u64) as usize;
-        let decay = self
-            .config
-            .learning_rate_end
-            .powf(1.0 / steps.max(1) as f32);
-        self.trainer
-            .set_learning_rate_decay(decay * self.config.adam.decay)?;
+        if !self.scheduled {
+            let decay = self
+                .config
+                .learning_rate_end
+                .powf(1.0 / steps.max(1) as f32);
+            self.trainer
+                .set_learning_rate_decay(decay * self.config.adam.decay)?;
+            self.scheduled = true;
+        }
+        let anneal = self.trained_evals == 0 && steps > 1;
+        let mut done = 0;
         for step in 0..steps {
-            let beta = if steps > 1 {
+            let beta = if anneal {
                 let t = (2.0 * step as f64 / steps as f64).min(1.0);
                 self.config.anneal_from + t * (1.0 - self.config.anneal_from)
             } else {
                 1.0
             };
             self.trainer.set_temperature(beta);
-            let b = self.draw(batch, &mut rng, true)?;
+            let b = draw(
+                self.trainer.flow(),
+                self.config.uniform_fraction,
+                batch,
+                &mut self.streams.train,
+                true,
+            )?;
             let fx = evaluate(f, &b.x64, dim)?;
+            let target = self.config.train_on.target(&fx, k);
             self.trained_evals += batch as u64;
+            done += batch as u64;
             let n_f = b.flow_part.len();
             // Skip the step when the flow's share saw nothing: there is no direction to learn.
-            if fx[..n_f].iter().any(|v| *v != 0.0) {
-                self.trainer.step_on_policy(&b.flow_part, &fx[..n_f])?;
+            if target[..n_f].iter().any(|v| *v != 0.0) {
+                self.trainer.step_on_policy(&b.flow_part, &target[..n_f])?;
                 for _ in 1..self.config.steps_per_batch {
                     self.trainer
-                        .step(&b.flow_part.x, None, &fx[..n_f], &b.flow_part.log_q)?;
+                        .step(&b.flow_part.x, None, &target[..n_f], &b.flow_part.log_q)?;
                 }
             }
-            progress(self.trained_evals, evals, "nis: training");
+            report(&mut self.progress, done, evals, "nis: training");
         }
         Ok(())
     }
 
-    /// The final phase: the flow frozen, `evals` evaluations in `final_iterations` iterations.
-    pub fn estimate(
-        &self,
+    /// The final phase alone: the flow frozen, `evals` evaluations in `final_iterations`
+    /// iterations. For a trained or loaded integrator; the result counts only these evaluations.
+    pub fn estimate(&mut self, f: &dyn Integrand, evals: u64) -> Result<IntegrationResult> {
+        self.final_phase(f, evals, 0, Instant::now())
+    }
+
+    /// The final phase, after `trained` evaluations of training in the same call (for the
+    /// evaluation count and the progress) that started at `started`.
+    fn final_phase(
+        &mut self,
         f: &dyn Integrand,
         evals: u64,
-        seed: u64,
-        progress: Progress,
-    ) -> Result<Accumulator> {
+        trained: u64,
+        started: Instant,
+    ) -> Result<IntegrationResult> {
         let dim = self.flow().dim();
         check_dim(f, dim)?;
-        let mut rng = Pcg64Mcg::seed_from_u64(seed ^ 0x6573_7469);
+        let k = f.components();
         let iters = self.config.final_iterations.clamp(1, evals.max(1) as usize);
         let mut acc = Accumulator::default();
+        let mut comps = ComponentAccumulator::new(k);
         let mut done = 0u64;
         for it in 0..iters {
             let n = ((evals * (it as u64 + 1)) / iters as u64 - done).max(2) as usize;
             // Draw in pieces of bounded memory, pooled into one iteration.
-            let mut w = Vec::with_capacity(n);
-            while w.len() < n {
-                let m = (n - w.len()).min(1 << 16);
-                w.extend(self.weighted_batch(f, m, &mut rng)?.1);
+            let mut w = Vec::with_capacity(n * k);
+            while w.len() < n * k {
+                let m = (n - w.len() / k).min(1 << 16);
+                let (flow, lambda) = (self.trainer.flow(), self.config.uniform_fraction);
+                w.extend(weights(flow, lambda, f, m, &mut self.streams.estimate)?.1);
             }
-            acc.add_weights(&w);
+            acc.add_weights(&column(&w, k, 0));
+            if k > 1 {
+                comps.add_weights(&w);
+            }
             done += n as u64;
-            progress(
-                self.trained_evals + done,
-                self.trained_evals + evals,
+            report(
+                &mut self.progress,
+                trained + done,
+                trained + evals,
                 "nis: estimating",
             );
         }
-        Ok(acc)
+        let mut r = acc.finish(trained + done, started, Vec::new());
+        if k > 1 {
+            r.components = Some(comps.finish());
+        }
+        Ok(r)
     }
 
-    /// `n` points of the frozen sampler and their weights f/q_mix.
-    pub fn weighted_batch(
+    /// `n` points of the frozen sampler and the weights of the target the flow learns
+    /// ([`NisConfig::train_on`]), drawn from `rng`.
+    pub(crate) fn target_weights(
         &self,
         f: &dyn Integrand,
         n: usize,
         rng: &mut Pcg64Mcg,
     ) -> Result<(Vec<f64>, Vec<f64>)> {
-        let dim = self.flow().dim();
-        check_dim(f, dim)?;
-        let b = self.draw(n, rng, false)?;
-        let fx = evaluate(f, &b.x64, dim)?;
-        let w = fx
-            .iter()
-            .zip(&b.log_q_mix)
-            .map(|(v, l)| v * (-l).exp())
-            .collect();
-        Ok((b.x64, w))
+        check_dim(f, self.flow().dim())?;
+        let k = f.components();
+        self.config.train_on.check(k)?;
+        let (x, w) = weights(self.flow(), self.config.uniform_fraction, f, n, rng)?;
+        Ok((x, self.config.train_on.target(&w, k)))
+    }
+
+    /// Takes the unweighting stream out (put it back with [`NisIntegrator::put_unweight_rng`]).
+    pub(crate) fn take_unweight_rng(&mut self) -> Pcg64Mcg {
+        std::mem::replace(&mut self.streams.unweight, Pcg64Mcg::new(0))
+    }
+
+    /// Puts the unweighting stream back.
+    pub(crate) fn put_unweight_rng(&mut self, rng: Pcg64Mcg) {
+        self.streams.unweight = rng;
+    }
+
+    /// Reports progress to the observer, if any.
+    pub(crate) fn report(&mut self, done: u64, total: u64, status: &str) {
+        report(&mut self.progress, done, total, status);
     }
 
     /// Saves the trained flow with the integrator's settings beside it (atomically).
@@ -270,7 +450,9 @@ impl NisIntegrator {
         crate::io::save_with(self.flow(), path, &meta)
     }
 
-    /// Loads an integrator saved by [`NisIntegrator::save`].
+    /// Loads an integrator saved by [`NisIntegrator::save`]: its flow and settings (the seed they
+    /// were trained with included; see [`NisIntegrator::set_seed`]). The optimiser's state is not
+    /// saved: training a loaded integrator further starts Adam afresh.
     pub fn load(path: &Path) -> Result<NisIntegrator> {
         let (flow, meta) = crate::io::load_with(path)?;
         let bad = |reason: &str| Error::Model {
@@ -288,28 +470,95 @@ impl NisIntegrator {
             .unwrap_or(0);
         let trainer = Trainer::new(flow, config.loss, config.adam)?;
         Ok(NisIntegrator {
+            streams: Streams::new(config.seed),
             config,
             trainer,
             trained_evals,
+            scheduled: false,
+            progress: None,
         })
     }
 }
 
-/// Trains a fresh integrator on `train_fraction` of `evals` and estimates with the rest.
-pub fn integrate(
+impl Integrator for NisIntegrator {
+    fn method(&self) -> Method {
+        Method::Nis
+    }
+
+    fn dim(&self) -> usize {
+        self.flow().dim()
+    }
+
+    fn set_progress(&mut self, progress: Option<Box<dyn Progress>>) {
+        self.progress = progress;
+    }
+
+    /// Trains on `train_fraction` of `evals` (whole batches), then estimates with the rest.
+    fn integrate(&mut self, f: &dyn Integrand, evals: u64) -> Result<IntegrationResult> {
+        let started = Instant::now();
+        let batch = self.config.batch as u64;
+        let train = ((evals as f64 * self.config.train_fraction) as u64 / batch) * batch;
+        self.train(f, train)?;
+        self.final_phase(f, evals - train, train, started)
+    }
+
+    fn save(&self, path: &Path) -> Result<()> {
+        NisIntegrator::save(self, path)
+    }
+}
+
+/// `n` points of the defensive mixture of `flow` with a share `lambda` of uniform ones.
+fn draw(
+    flow: &Flow,
+    lambda: f64,
+    n: usize,
+    rng: &mut Pcg64Mcg,
+    for_training: bool,
+) -> Result<MixtureBatch> {
+    let dim = flow.dim();
+    let n_u = ((lambda * n as f64).round() as usize).min(n.saturating_sub(1));
+    let n_f = n - n_u;
+    let flow_part = if for_training {
+        flow.sample_for_training(n_f, None, rng)?
+    } else {
+        flow.sample(n_f, None, rng)?
+    };
+    let mut x32 = flow_part.x.clone();
+    x32.extend((0..n_u * dim).map(|_| rng.random::<f32>()));
+    let lq_u = flow.log_density(&x32[n_f * dim..], None)?;
+    let mix = |lq: f64| (lambda + (1.0 - lambda) * lq.exp()).ln();
+    let log_q_mix = flow_part
+        .log_q
+        .iter()
+        .chain(&lq_u)
+        .map(|&l| mix(l))
+        .collect();
+    let x64 = x32.iter().map(|&v| v as f64).collect();
+    Ok(MixtureBatch {
+        x64,
+        log_q_mix,
+        flow_part,
+    })
+}
+
+/// `n` points of the frozen mixture and their weights f/q_mix (`n × k`, row-major).
+fn weights(
+    flow: &Flow,
+    lambda: f64,
     f: &dyn Integrand,
-    dim: usize,
-    config: &NisConfig,
-    evals: u64,
-    seed: u64,
-    progress: Progress,
-) -> Result<(IntegrationResult, NisIntegrator)> {
-    let started = Instant::now();
-    let mut nis = NisIntegrator::new(dim, config.clone())?;
-    let train =
-        ((evals as f64 * config.train_fraction) as u64 / config.batch as u64) * config.batch as u64;
-    nis.train(f, train, seed, progress)?;
-    let acc = nis.estimate(f, evals - nis.trained_evals, seed, progress)?;
-    let n_eval = nis.trained_evals + acc.iterations.iter().map(|i| i.2).sum::<u64>();
-    Ok((acc.finish(n_eval, started, Vec::new()), nis))
+    n: usize,
+    rng: &mut Pcg64Mcg,
+) -> Result<(Vec<f64>, Vec<f64>)> {
+    let k = f.components();
+    let b = draw(flow, lambda, n, rng, false)?;
+    let fx = evaluate(f, &b.x64, flow.dim())?;
+    let w = fx
+        .chunks_exact(k)
+        .zip(&b.log_q_mix)
+        .flat_map(|(v, l)| {
+            let inv_q = (-l).exp();
+            v.iter().map(move |v| v * inv_q)
+        })
+        .collect();
+    Ok((b.x64, w))
 }
