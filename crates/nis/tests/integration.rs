@@ -6,7 +6,9 @@ use nis::integrands;
 use nis::integrate::nis::{NisConfig, NisIntegrator};
 use nis::integrate::uniform::{PlainMc, PlainMcConfig};
 use nis::integrate::vegas::{Vegas, VegasConfig};
-use nis::integrate::{integrator, Integrand, IntegrationResult, Integrator, Method, Settings};
+use nis::integrate::{
+    integrator, Integrand, IntegrationResult, Integrator, Method, Settings, TrainOn, VectorFn,
+};
 use nis::{Error, FlowConfig, Transform};
 
 /// A small, fast NIS setup for many repetitions at small budgets.
@@ -444,4 +446,144 @@ fn methods_are_built_by_name() {
         integrator(Method::Vegas, 2, &bad),
         Err(Error::Config(_))
     ));
+}
+
+/// [camel, camel·x₀, 1] on [0, 1]²: a total, a first moment and the volume, with integrals E,
+/// E/2 (the camel is symmetric under x → 1 − x) and 1.
+fn camel_moments(camel: &integrands::Builtin) -> impl Integrand + '_ {
+    VectorFn::new(3, move |x: &[f64], out: &mut [f64]| {
+        let c = camel.value(x);
+        out[0] = c;
+        out[1] = c * x[0];
+        out[2] = 1.0;
+    })
+}
+
+/// Settings for many repetitions: the small flow, every method seeded with `seed`.
+fn small_settings(seed: u64) -> Settings {
+    let mut s = Settings::default().seed(seed);
+    s.nis = NisConfig {
+        flow: FlowConfig {
+            seed,
+            ..small_nis().flow
+        },
+        ..s.nis
+    };
+    s.nis.batch = 512;
+    s
+}
+
+#[test]
+fn vector_integrands_estimate_every_component_from_the_same_points() {
+    let camel = integrands::by_name("camel", Some(2)).unwrap();
+    let f = camel_moments(&camel);
+    let exact = [camel.exact, camel.exact / 2.0, 1.0];
+    for method in Method::ALL {
+        for train_on in [TrainOn::Component(0), TrainOn::SumAbs] {
+            let settings = small_settings(4).train_on(train_on);
+            let r = integrator(method, 2, &settings)
+                .unwrap()
+                .integrate(&f, 40_000)
+                .unwrap();
+            let c = r.components.clone().expect("three components");
+            assert_eq!((c.mean.len(), c.std_err.len(), c.cov.len()), (3, 3, 9));
+            // The scalar fields are component 0's.
+            assert_eq!(c.mean[0].to_bits(), r.value.to_bits(), "{method}");
+            assert_eq!(r.estimates(), c);
+            assert!(r.to_string().contains("component 2:"));
+            assert!(serde_json::to_string(&r).unwrap().contains("\"cov\":["));
+            for j in 0..3 {
+                assert_eq!(c.std_err[j], c.cov[j * 3 + j].sqrt());
+                for i in 0..3 {
+                    assert_eq!(c.cov[i * 3 + j], c.cov[j * 3 + i]);
+                }
+                let err = (c.mean[j] - exact[j]).abs();
+                if c.std_err[j] == 0.0 {
+                    // Plain MC's weight for the constant is exactly 1.
+                    assert!(method == Method::Uniform && j == 2 && err == 0.0);
+                } else {
+                    assert!(
+                        err < 4.0 * c.std_err[j],
+                        "{method} {train_on:?} component {j}: {} ± {} vs {}",
+                        c.mean[j],
+                        c.std_err[j],
+                        exact[j]
+                    );
+                }
+            }
+            // camel and camel·x₀ are strongly correlated (ρ ≈ ½·E/√(E·E⟨x₀²⟩) ≈ 0.9).
+            let rho = c.cov[1] / (c.std_err[0] * c.std_err[1]);
+            assert!(rho > 0.5, "{method}: ρ = {rho}");
+        }
+        // Training on component 0, the vector run's first component is the scalar run, bit for bit.
+        let scalar = integrator(method, 2, &small_settings(4))
+            .unwrap()
+            .integrate(&camel, 40_000)
+            .unwrap();
+        let vector = integrator(method, 2, &small_settings(4))
+            .unwrap()
+            .integrate(&f, 40_000)
+            .unwrap();
+        assert_eq!(
+            [scalar.value, scalar.std_err, scalar.chi2_per_dof].map(f64::to_bits),
+            [vector.value, vector.std_err, vector.chi2_per_dof].map(f64::to_bits),
+            "{method}"
+        );
+        assert_eq!(scalar.estimates().mean, vec![scalar.value]);
+        // A component that does not exist is refused.
+        let bad = small_settings(4).train_on(TrainOn::Component(3));
+        if method != Method::Uniform {
+            assert!(matches!(
+                integrator(method, 2, &bad).unwrap().integrate(&f, 10_000),
+                Err(Error::Config(_))
+            ));
+        }
+    }
+}
+
+/// The reported k × k covariance is the covariance of the estimates: over R independent runs, the
+/// sample covariance of their means agrees with the mean reported one. With R runs of
+/// (near-normal) means, the sample covariance s_ij has variance (σ_ii·σ_jj + σ_ij²)/(R − 1); each
+/// entry may differ from the reported one by 4 of those standard deviations.
+#[test]
+fn component_covariance_matches_the_spread_of_independent_runs() {
+    const R: usize = 100;
+    let camel = integrands::by_name("camel", Some(2)).unwrap();
+    let f = camel_moments(&camel);
+    for method in Method::ALL {
+        let runs: Vec<_> = (0..R as u64)
+            .map(|seed| {
+                integrator(method, 2, &small_settings(100 + seed))
+                    .unwrap()
+                    .integrate(&f, 20_000)
+                    .unwrap()
+                    .components
+                    .unwrap()
+            })
+            .collect();
+        let mean: Vec<f64> = (0..3)
+            .map(|j| runs.iter().map(|c| c.mean[j]).sum::<f64>() / R as f64)
+            .collect();
+        for i in 0..3 {
+            for j in i..3 {
+                let sample = runs
+                    .iter()
+                    .map(|c| (c.mean[i] - mean[i]) * (c.mean[j] - mean[j]))
+                    .sum::<f64>()
+                    / (R - 1) as f64;
+                let reported = |a: usize, b: usize| {
+                    runs.iter().map(|c| c.cov[a * 3 + b]).sum::<f64>() / R as f64
+                };
+                let (cij, cii, cjj) = (reported(i, j), reported(i, i), reported(j, j));
+                let sd = ((cii * cjj + cij * cij) / (R - 1) as f64).sqrt();
+                eprintln!(
+                    "{method} cov[{i}][{j}]: runs {sample:.3e}, reported {cij:.3e} ± {sd:.1e}"
+                );
+                assert!(
+                    (sample - cij).abs() <= 4.0 * sd,
+                    "{method} cov[{i}][{j}]: sample {sample:e} vs reported {cij:e} (σ {sd:e})"
+                );
+            }
+        }
+    }
 }

@@ -562,3 +562,75 @@ fn weights(
         .collect();
     Ok((b.x64, w))
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn every_builder_setter_sets_its_field_and_the_seed_reaches_the_flow() {
+        let flow = FlowConfig {
+            hidden_width: 8,
+            seed: 99,
+            ..FlowConfig::default()
+        };
+        let adam = AdamConfig {
+            clip_norm: None,
+            ..AdamConfig::default()
+        };
+        let c = NisConfig::builder()
+            .seed(6)
+            .flow(flow.clone())
+            .transform(Transform::Linear { bins: 4 })
+            .loss(Loss::ChiSquare)
+            .batch(100)
+            .steps_per_batch(3)
+            .train_fraction(0.25)
+            .adam(adam)
+            .learning_rate(2e-3)
+            .learning_rate_end(0.5)
+            .uniform_fraction(0.01)
+            .anneal_from(0.5)
+            .final_iterations(4)
+            .train_on(TrainOn::SumAbs)
+            .build()
+            .unwrap();
+        let expected = NisConfig {
+            flow: FlowConfig {
+                hidden_width: 8,
+                transform: Transform::Linear { bins: 4 },
+                seed: 6,
+                ..FlowConfig::default()
+            },
+            loss: Loss::ChiSquare,
+            batch: 100,
+            steps_per_batch: 3,
+            train_fraction: 0.25,
+            adam: AdamConfig {
+                learning_rate: 2e-3,
+                ..adam
+            },
+            learning_rate_end: 0.5,
+            uniform_fraction: 0.01,
+            anneal_from: 0.5,
+            final_iterations: 4,
+            seed: 6,
+            train_on: TrainOn::SumAbs,
+        };
+        assert_eq!(c, expected);
+        // Without `seed`, the flow keeps its own.
+        let c = NisConfig::builder().flow(flow).build().unwrap();
+        assert_eq!((c.seed, c.flow.seed), (0, 99));
+        for bad in [
+            NisConfig::builder().batch(1),
+            NisConfig::builder().steps_per_batch(0),
+            NisConfig::builder().train_fraction(1.0),
+            NisConfig::builder().uniform_fraction(-0.1),
+            NisConfig::builder().anneal_from(0.0),
+            NisConfig::builder().final_iterations(0),
+            NisConfig::builder().learning_rate_end(0.0),
+        ] {
+            assert!(matches!(bad.build(), Err(Error::Config(_))));
+        }
+    }
+}

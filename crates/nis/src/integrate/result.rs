@@ -50,6 +50,45 @@ impl IntegrationResult {
     }
 }
 
+/// A readable summary, as `vegas`'s `result.summary()`: the final phase's iterations, the result,
+/// and every component of a vector-valued integrand.
+impl std::fmt::Display for IntegrationResult {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        writeln!(
+            f,
+            "{:>5}  {:>24}  {:>10}",
+            "itn", "estimate ± std_err", "evals"
+        )?;
+        for (i, it) in self.iterations.iter().enumerate() {
+            writeln!(
+                f,
+                "{:>5}  {:>12.6e} ± {:<9.2e}  {:>10}",
+                i + 1,
+                it.estimate,
+                it.variance.sqrt(),
+                it.evals
+            )?;
+        }
+        write!(
+            f,
+            "result {:.8e} ± {:.3e}   χ²/dof {:.2}   n_eval {}   rel.var/eval {:.3e}   unw.eff {:.4}   {:.2} s",
+            self.value,
+            self.std_err,
+            self.chi2_per_dof,
+            self.n_eval,
+            self.rel_var_per_eval,
+            self.unweighting_efficiency,
+            self.seconds
+        )?;
+        if let Some(c) = &self.components {
+            for (j, (m, e)) in c.mean.iter().zip(&c.std_err).enumerate() {
+                write!(f, "\ncomponent {j}: {m:.8e} ± {e:.3e}")?;
+            }
+        }
+        Ok(())
+    }
+}
+
 /// Estimates of all k components of a vector-valued integrand, from the same points.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct ComponentEstimates {

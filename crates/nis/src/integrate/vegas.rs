@@ -499,13 +499,19 @@ fn add_cube_components(fx: &[f64], jacs: &[f64], volume: f64, mean: &mut [f64], 
         }
     }
     m.iter_mut().for_each(|a| *a /= nh);
+    // Σ (f_a·J − m_a)(f_b·J − m_b), each product formed once so the matrix is exactly symmetric.
+    let mut sum = vec![0.0; k * k];
     for (row, jac) in fx.chunks_exact(k).zip(jacs) {
         for a in 0..k {
             let da = row[a] * jac - m[a];
             for b in 0..k {
-                cov[a * k + b] += volume * volume * da * (row[b] * jac - m[b]) / (nh - 1.0) / nh;
+                sum[a * k + b] += da * (row[b] * jac - m[b]);
             }
         }
+    }
+    let scale = volume * volume / (nh - 1.0) / nh;
+    for (c, s) in cov.iter_mut().zip(&sum) {
+        *c += scale * s;
     }
     for (a, v) in mean.iter_mut().zip(&m) {
         *a += volume * v;
