@@ -517,3 +517,64 @@ fn add_cube_components(fx: &[f64], jacs: &[f64], volume: f64, mean: &mut [f64], 
         *a += volume * v;
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn every_builder_setter_sets_its_field() {
+        let c = VegasConfig::builder()
+            .increments(50)
+            .alpha(1.5)
+            .beta(0.5)
+            .iterations(12)
+            .warmup(3)
+            .min_per_cube(4)
+            .seed(8)
+            .train_on(TrainOn::Component(2))
+            .build()
+            .unwrap();
+        let expected = VegasConfig {
+            increments: 50,
+            alpha: 1.5,
+            beta: 0.5,
+            iterations: 12,
+            warmup: 3,
+            min_per_cube: 4,
+            seed: 8,
+            train_on: TrainOn::Component(2),
+        };
+        assert_eq!(c, expected);
+        for bad in [
+            VegasConfig::builder().increments(0),
+            VegasConfig::builder().alpha(-1.0),
+            VegasConfig::builder().beta(-1.0),
+            VegasConfig::builder().min_per_cube(1),
+            VegasConfig::builder().iterations(4).warmup(4),
+        ] {
+            assert!(matches!(bad.build(), Err(Error::Config(_))));
+        }
+        assert!(Vegas::new(0, VegasConfig::default()).is_err());
+    }
+
+    #[test]
+    fn a_second_call_keeps_the_adapted_map() {
+        // A peak at 0.2 in each coordinate: after a call the map's increments crowd around it.
+        let f = |x: &[f64]| (-((x[0] - 0.2).powi(2) + (x[1] - 0.2).powi(2)) / 0.002).exp();
+        let mut v = Vegas::new(2, VegasConfig::builder().seed(1).build().unwrap()).unwrap();
+        v.integrate(&f, 20_000).unwrap();
+        let edges = v.map.as_ref().unwrap().edges.clone();
+        let n = v.map.as_ref().unwrap().n;
+        // Half the increments lie within ±0.1 of the peak (a uniform map puts a fifth there).
+        let near = edges[..=n]
+            .iter()
+            .filter(|e| (*e - 0.2).abs() < 0.1)
+            .count();
+        assert!(near > n / 2, "{near} of {n}");
+        v.integrate(&f, 20_000).unwrap();
+        let after = &v.map.as_ref().unwrap().edges;
+        assert_eq!(after.len(), edges.len());
+        assert_ne!(after, &edges, "the map adapted further");
+    }
+}
