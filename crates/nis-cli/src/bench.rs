@@ -4,8 +4,7 @@
 
 use std::path::Path;
 
-use nis::integrate::nis::NisConfig;
-use nis::integrate::{uniform, vegas, IntegrationResult};
+use nis::integrate::{integrator, IntegrationResult, Method, Settings};
 use nis::loss::Loss;
 use nis::TransformKind;
 use nis_paper::report;
@@ -17,67 +16,58 @@ pub fn run_flow(batch: usize, torch: bool, docs: &Path) -> Result<(), Box<dyn st
     Ok(())
 }
 
-/// One method of the integration benchmark.
+/// One method of the integration benchmark: a method of the library, with the flow's transform
+/// and loss for NIS.
 struct MethodSpec {
     label: &'static str,
-    run: fn(&nis::integrands::Builtin, u64, u64) -> Result<IntegrationResult, nis::Error>,
+    method: Method,
+    nis: Option<(TransformKind, Loss)>,
 }
 
-fn nis_with(
-    f: &nis::integrands::Builtin,
-    evals: u64,
-    seed: u64,
-    transform: TransformKind,
-    loss: Loss,
-) -> Result<IntegrationResult, nis::Error> {
-    let mut c = NisConfig {
-        loss,
-        ..NisConfig::default()
-    };
-    c.flow.transform = transform;
-    Ok(nis::integrate::nis::integrate(f, f.dim, &c, evals, seed, &mut |_, _, _| {})?.0)
+impl MethodSpec {
+    fn run(
+        &self,
+        f: &nis::integrands::Builtin,
+        evals: u64,
+        seed: u64,
+    ) -> Result<IntegrationResult, nis::Error> {
+        let mut settings = Settings::default().seed(seed);
+        if let Some((transform, loss)) = self.nis {
+            settings.nis.flow.transform = transform;
+            settings.nis.loss = loss;
+        }
+        integrator(self.method, f.dim, &settings)?.integrate(f, evals)
+    }
 }
 
 fn methods() -> Vec<MethodSpec> {
+    let nis = |label, transform, loss| MethodSpec {
+        label,
+        method: Method::Nis,
+        nis: Some((transform, loss)),
+    };
     vec![
         MethodSpec {
             label: "uniform",
-            run: |f, n, s| uniform::integrate(f, f.dim, n, 10, s, &mut |_, _, _| {}),
+            method: Method::Uniform,
+            nis: None,
         },
         MethodSpec {
             label: "VEGAS+",
-            run: |f, n, s| {
-                vegas::Vegas::new(Default::default())?.integrate(f, f.dim, n, s, &mut |_, _, _| {})
-            },
+            method: Method::Vegas,
+            nis: None,
         },
-        MethodSpec {
-            label: "NIS-PQ/KL",
-            run: |f, n, s| nis_with(f, n, s, TransformKind::Quadratic { bins: 16 }, Loss::Kl),
-        },
-        MethodSpec {
-            label: "NIS-PQ/χ²",
-            run: |f, n, s| {
-                nis_with(
-                    f,
-                    n,
-                    s,
-                    TransformKind::Quadratic { bins: 16 },
-                    Loss::ChiSquare,
-                )
-            },
-        },
-        MethodSpec {
-            label: "NIS-RQ/KL",
-            run: |f, n, s| {
-                nis_with(
-                    f,
-                    n,
-                    s,
-                    TransformKind::RationalQuadratic { bins: 16 },
-                    Loss::Kl,
-                )
-            },
-        },
+        nis("NIS-PQ/KL", TransformKind::Quadratic { bins: 16 }, Loss::Kl),
+        nis(
+            "NIS-PQ/χ²",
+            TransformKind::Quadratic { bins: 16 },
+            Loss::ChiSquare,
+        ),
+        nis(
+            "NIS-RQ/KL",
+            TransformKind::RationalQuadratic { bins: 16 },
+            Loss::Kl,
+        ),
     ]
 }
 
@@ -116,7 +106,7 @@ pub fn run_integrate(
             secs.push_str(&format!("| {} | {d} |", e.name));
             let (mut vegas_rv, mut best_nis) = (f64::NAN, f64::INFINITY);
             for m in &methods {
-                let r = (m.run)(&f, evals, 0)?;
+                let r = m.run(&f, evals, 0)?;
                 let pull = (r.value - f.exact) / r.std_err;
                 eprintln!(
                     "{:<13} d={d:<2} {:<10} {:.6e} ± {:.2e} (exact {:.6e}) rel.var {:.3e} pull {pull:+.2} {:.1}s",
@@ -126,9 +116,9 @@ pub fn run_integrate(
                 secs.push_str(&format!(" {:.2} |", r.seconds));
                 // A confident wrong answer does not count as a variance.
                 let ok = pull.abs() < 5.0;
-                if m.label == "VEGAS+" {
+                if m.method == Method::Vegas {
                     vegas_rv = if ok { r.rel_var_per_eval } else { f64::NAN };
-                } else if m.label.starts_with("NIS") && ok {
+                } else if m.method == Method::Nis && ok {
                     best_nis = best_nis.min(r.rel_var_per_eval);
                 }
             }

@@ -2,18 +2,20 @@
 
 use std::path::PathBuf;
 
+use clap::builder::{PossibleValuesParser, TypedValueParser};
 use indicatif::{ProgressBar, ProgressStyle};
 use nis::flow::Density;
 use nis::integrands::{self, Builtin, SUITE};
-use nis::integrate::{nis::NisConfig, nis::NisIntegrator, uniform, vegas, IntegrationResult};
+use nis::integrate::{
+    nis::NisConfig, nis::NisIntegrator, IntegrationResult, Integrator, Method, Settings,
+};
 use nis::loss::Loss;
 use nis::TransformKind;
 
-#[derive(Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
-pub enum Method {
-    Nis,
-    Vegas,
-    Uniform,
+/// `--method`: the library's method names, listed in `--help`.
+fn method_parser() -> impl TypedValueParser<Value = Method> {
+    PossibleValuesParser::new(Method::ALL.map(Method::name))
+        .map(|s| s.parse::<Method>().expect("a listed method"))
 }
 
 #[derive(Clone, Copy, clap::ValueEnum)]
@@ -32,7 +34,7 @@ pub struct IntegrateArgs {
     #[arg(long)]
     pub dim: Option<usize>,
     /// Method; without it, NIS, VEGAS+ and plain MC run side by side.
-    #[arg(long, value_enum)]
+    #[arg(long, value_parser = method_parser())]
     pub method: Option<Method>,
     /// Coupling transform of the flow.
     #[arg(long, value_enum, default_value = "pq")]
@@ -79,6 +81,7 @@ impl IntegrateArgs {
             Coupling::Affine => TransformKind::Affine,
         };
         c.flow.seed = self.seed;
+        c.seed = self.seed;
         if let Some(patch) = &self.nis_config {
             // Merge the given fields into the defaults, one level into "flow" and "adam".
             let mut v = serde_json::to_value(&c)?;
@@ -116,62 +119,57 @@ fn bar(label: &str) -> ProgressBar {
         .with_prefix(label.to_string())
 }
 
+impl IntegrateArgs {
+    /// Every method's settings from the flags (all seeded with `--seed`).
+    pub fn settings(&self) -> Result<Settings, Error> {
+        let s = Settings::default().seed(self.seed);
+        Ok(Settings {
+            nis: self.nis_config()?,
+            ..s
+        })
+    }
+}
+
 /// Runs one method on a built-in integrand.
 pub fn run_method(
     f: &Builtin,
     method: Method,
     args: &IntegrateArgs,
 ) -> Result<IntegrationResult, Error> {
-    let pb = bar(match method {
-        Method::Nis => "nis",
-        Method::Vegas => "vegas",
-        Method::Uniform => "uniform",
-    });
-    let mut progress = |done: u64, total: u64, msg: &str| {
-        pb.set_length(total.max(1));
-        pb.set_position(done);
-        pb.set_message(msg.to_string());
-    };
-    let r = match method {
-        Method::Nis => {
-            if let Some(path) = &args.load {
-                let started = std::time::Instant::now();
-                let nis = NisIntegrator::load(path)?;
-                if nis.flow().dim() != f.dim {
-                    return Err(format!(
-                        "{} holds a {}-dimensional integrator, the integrand has {} dimensions",
-                        path.display(),
-                        nis.flow().dim(),
-                        f.dim
-                    )
-                    .into());
-                }
-                let acc = nis.estimate(f, args.evals, args.seed, &mut progress)?;
-                let n_eval = acc.iterations.iter().map(|i| i.2).sum();
-                acc.finish(n_eval, started, Vec::new())
-            } else {
-                let (r, nis) = nis::integrate::nis::integrate(
-                    f,
-                    f.dim,
-                    &args.nis_config()?,
-                    args.evals,
-                    args.seed,
-                    &mut progress,
-                )?;
-                if let Some(path) = &args.save {
-                    nis.save(path)?;
-                }
-                r
-            }
+    let pb = bar(method.name());
+    let progress = {
+        let pb = pb.clone();
+        move |done: u64, total: u64, msg: &str| {
+            pb.set_length(total.max(1));
+            pb.set_position(done);
+            pb.set_message(msg.to_string());
         }
-        Method::Vegas => vegas::Vegas::new(Default::default())?.integrate(
-            f,
-            f.dim,
-            args.evals,
-            args.seed,
-            &mut progress,
-        )?,
-        Method::Uniform => uniform::integrate(f, f.dim, args.evals, 10, args.seed, &mut progress)?,
+    };
+    let r = match (&args.load, method) {
+        (Some(path), Method::Nis) => {
+            let mut nis = NisIntegrator::load(path)?;
+            if nis.flow().dim() != f.dim {
+                return Err(format!(
+                    "{} holds a {}-dimensional integrator, the integrand has {} dimensions",
+                    path.display(),
+                    nis.flow().dim(),
+                    f.dim
+                )
+                .into());
+            }
+            nis.set_seed(args.seed);
+            nis.set_progress(Some(Box::new(progress)));
+            nis.estimate(f, args.evals)?
+        }
+        _ => {
+            let mut integ = nis::integrate::integrator(method, f.dim, &args.settings()?)?;
+            integ.set_progress(Some(Box::new(progress)));
+            let r = integ.integrate(f, args.evals)?;
+            if let (Some(path), Method::Nis) = (&args.save, method) {
+                integ.save(path)?;
+            }
+            r
+        }
     };
     pb.finish_and_clear();
     Ok(r)
@@ -199,7 +197,7 @@ pub fn run(args: &IntegrateArgs) -> Result<(), Error> {
     let methods = match args.method {
         Some(m) => vec![m],
         None if args.json => vec![Method::Nis],
-        None => vec![Method::Nis, Method::Vegas, Method::Uniform],
+        None => Method::ALL.to_vec(),
     };
     if args.json {
         let r = run_method(&f, methods[0], args)?;
@@ -227,11 +225,7 @@ pub fn run(args: &IntegrateArgs) -> Result<(), Error> {
     println!("{HEADER}");
     for m in methods {
         let r = run_method(&f, m, args)?;
-        let label = match m {
-            Method::Nis => "nis",
-            Method::Vegas => "vegas+",
-            Method::Uniform => "uniform",
-        };
+        let label = m.label();
         println!("{}", row(label, &r, f.exact));
         for w in &r.warnings {
             eprintln!("warning ({label}): {w}");
@@ -281,27 +275,33 @@ pub struct SampleArgs {
 pub fn sample(args: &SampleArgs) -> Result<(), Error> {
     let f = integrands::by_name(&args.name, args.dim)?;
     let pb = bar("sample");
-    let mut progress = |done: u64, total: u64, msg: &str| {
-        pb.set_length(total.max(1));
-        pb.set_position(done);
-        pb.set_message(msg.to_string());
-    };
-    let nis = match &args.load {
-        Some(path) => NisIntegrator::load(path)?,
-        None => {
-            let mut nis = NisIntegrator::new(f.dim, NisConfig::default())?;
-            nis.train(&f, args.evals, args.seed, &mut progress)?;
-            nis
+    let progress = {
+        let pb = pb.clone();
+        move |done: u64, total: u64, msg: &str| {
+            pb.set_length(total.max(1));
+            pb.set_position(done);
+            pb.set_message(msg.to_string());
         }
     };
-    let u = nis::integrate::unweight::unweighted(
-        &nis,
-        &f,
-        args.n,
-        args.overweight,
-        args.seed,
-        &mut progress,
-    )?;
+    let mut nis = match &args.load {
+        Some(path) => {
+            let mut nis = NisIntegrator::load(path)?;
+            nis.set_seed(args.seed);
+            nis
+        }
+        None => NisIntegrator::new(
+            f.dim,
+            NisConfig {
+                seed: args.seed,
+                ..NisConfig::default()
+            },
+        )?,
+    };
+    nis.set_progress(Some(Box::new(progress)));
+    if args.load.is_none() {
+        nis.train(&f, args.evals)?;
+    }
+    let u = nis.unweighted(&f, args.n, args.overweight)?;
     pb.finish_and_clear();
     let bytes = if args.out.extension().is_some_and(|e| e == "csv") {
         u.to_csv().into_bytes()

@@ -32,6 +32,12 @@ pub enum Error {
     /// The integrand returned NaN or ±∞.
     #[error("the integrand returned {value} at the point {point:?}")]
     Integrand { point: Vec<f64>, value: f64 },
+    /// The integrand reported a failure of its own; the run stopped at that batch.
+    #[error("the integrand failed: {message}")]
+    IntegrandFailed {
+        /// The integrand's own account of what went wrong.
+        message: String,
+    },
     /// A model file that cannot be read back as the flow it claims to be.
     #[error("model file {path}: {reason}")]
     Model { path: PathBuf, reason: String },

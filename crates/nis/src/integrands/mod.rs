@@ -15,6 +15,7 @@ type PointFn = Box<dyn Fn(&[f64]) -> f64 + Send + Sync>;
 pub struct Builtin {
     /// Name as the CLI knows it.
     pub name: String,
+    /// The dimension it is defined in.
     pub dim: usize,
     /// The exact integral over the unit hypercube.
     pub exact: f64,
@@ -42,15 +43,18 @@ impl Integrand for Builtin {
     fn dim(&self) -> Option<usize> {
         Some(self.dim)
     }
-    fn eval_batch(&self, x: &[f64], dim: usize, out: &mut [f64]) {
+    fn eval_batch(&self, x: &[f64], dim: usize, out: &mut [f64]) -> Result<()> {
         (&*self.f).eval_batch(x, dim, out)
     }
 }
 
 /// One entry of the suite listing: a name, the dimensions it is run in, a description.
 pub struct SuiteEntry {
+    /// Name as `by_name` knows it.
     pub name: &'static str,
+    /// The dimensions the benchmark runs it in.
     pub dims: &'static [usize],
+    /// One line for `nis list`.
     pub description: &'static str,
 }
 

@@ -4,32 +4,142 @@ use std::time::Instant;
 
 use rand::{Rng, SeedableRng};
 use rand_pcg::Pcg64Mcg;
+use serde::{Deserialize, Serialize};
 
-use super::{check_dim, evaluate, Accumulator, Integrand, IntegrationResult, Progress};
-use crate::error::Result;
+use super::result::ComponentAccumulator;
+use super::{
+    check_dim, evaluate, integrand::column, report, Accumulator, Integrand, IntegrationResult,
+    Integrator, Method, Progress,
+};
+use crate::error::{Error, Result};
 
-/// Integrates `f` with `evals` uniform points in `iterations` equal iterations.
-pub fn integrate(
-    f: &dyn Integrand,
-    dim: usize,
-    evals: u64,
-    iterations: usize,
-    seed: u64,
-    progress: Progress,
-) -> Result<IntegrationResult> {
-    check_dim(f, dim)?;
-    let started = Instant::now();
-    let mut rng = Pcg64Mcg::seed_from_u64(seed);
-    let iterations = iterations.clamp(1, evals.max(1) as usize);
-    let mut acc = Accumulator::default();
-    let mut done = 0;
-    for it in 0..iterations {
-        let n = (evals * (it as u64 + 1) / iterations as u64 - done).max(1) as usize;
-        let x: Vec<f64> = (0..n * dim).map(|_| rng.random::<f64>()).collect();
-        let w = evaluate(f, &x, dim)?;
-        acc.add_weights(&w);
-        done += n as u64;
-        progress(done, evals, "uniform");
+/// Settings of plain Monte Carlo.
+#[derive(Clone, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct PlainMcConfig {
+    /// Equal iterations the evaluations are split into (for χ²/dof).
+    pub iterations: usize,
+    /// Seed of the random points.
+    pub seed: u64,
+}
+
+impl Default for PlainMcConfig {
+    fn default() -> Self {
+        PlainMcConfig {
+            iterations: 10,
+            seed: 0,
+        }
     }
-    Ok(acc.finish(done, started, Vec::new()))
+}
+
+impl PlainMcConfig {
+    /// A builder starting from the defaults.
+    pub fn builder() -> PlainMcConfigBuilder {
+        PlainMcConfigBuilder(PlainMcConfig::default())
+    }
+
+    fn validate(&self) -> Result<()> {
+        if self.iterations == 0 {
+            return Err(Error::Config(
+                "plain Monte Carlo needs at least one iteration".into(),
+            ));
+        }
+        Ok(())
+    }
+}
+
+/// Builds a [`PlainMcConfig`] with named setters.
+///
+/// ```
+/// use nis::integrate::uniform::PlainMcConfig;
+/// let c = PlainMcConfig::builder().iterations(5).seed(3).build().unwrap();
+/// assert_eq!((c.iterations, c.seed), (5, 3));
+/// ```
+#[derive(Clone, Debug)]
+pub struct PlainMcConfigBuilder(PlainMcConfig);
+
+impl PlainMcConfigBuilder {
+    /// Sets [`PlainMcConfig::iterations`].
+    pub fn iterations(mut self, iterations: usize) -> Self {
+        self.0.iterations = iterations;
+        self
+    }
+    /// Sets [`PlainMcConfig::seed`].
+    pub fn seed(mut self, seed: u64) -> Self {
+        self.0.seed = seed;
+        self
+    }
+    /// The checked settings.
+    pub fn build(self) -> Result<PlainMcConfig> {
+        self.0.validate()?;
+        Ok(self.0)
+    }
+}
+
+/// Plain Monte Carlo integrator: each call draws fresh uniform points from its random stream.
+pub struct PlainMc {
+    config: PlainMcConfig,
+    dim: usize,
+    rng: Pcg64Mcg,
+    progress: Option<Box<dyn Progress>>,
+}
+
+impl PlainMc {
+    /// A plain Monte Carlo integrator in `dim` dimensions.
+    pub fn new(dim: usize, config: PlainMcConfig) -> Result<PlainMc> {
+        config.validate()?;
+        Ok(PlainMc {
+            rng: Pcg64Mcg::seed_from_u64(config.seed),
+            config,
+            dim,
+            progress: None,
+        })
+    }
+
+    /// Its settings.
+    pub fn config(&self) -> &PlainMcConfig {
+        &self.config
+    }
+}
+
+impl Integrator for PlainMc {
+    fn method(&self) -> Method {
+        Method::Uniform
+    }
+
+    fn dim(&self) -> usize {
+        self.dim
+    }
+
+    fn set_progress(&mut self, progress: Option<Box<dyn Progress>>) {
+        self.progress = progress;
+    }
+
+    /// `evals` uniform points in `iterations` equal iterations.
+    fn integrate(&mut self, f: &dyn Integrand, evals: u64) -> Result<IntegrationResult> {
+        let dim = self.dim;
+        check_dim(f, dim)?;
+        let k = f.components();
+        let started = Instant::now();
+        let iterations = self.config.iterations.clamp(1, evals.max(1) as usize);
+        let mut acc = Accumulator::default();
+        let mut comps = ComponentAccumulator::new(k);
+        let mut done = 0;
+        for it in 0..iterations {
+            let n = (evals * (it as u64 + 1) / iterations as u64 - done).max(1) as usize;
+            let x: Vec<f64> = (0..n * dim).map(|_| self.rng.random::<f64>()).collect();
+            let w = evaluate(f, &x, dim)?;
+            acc.add_weights(&column(&w, k, 0));
+            if k > 1 {
+                comps.add_weights(&w);
+            }
+            done += n as u64;
+            report(&mut self.progress, done, evals, "uniform");
+        }
+        let mut r = acc.finish(done, started, Vec::new());
+        if k > 1 {
+            r.components = Some(comps.finish());
+        }
+        Ok(r)
+    }
 }

@@ -7,17 +7,18 @@
 //! calibration batch. Accepted points whose |w| exceeds w_max keep the excess as a weight
 //! |w|/w_max > 1, so the sample stays exact as a weighted sample and is unweighted up to that share.
 
-use rand::{Rng, SeedableRng};
+use rand::Rng;
 use rand_pcg::Pcg64Mcg;
 
 use super::nis::NisIntegrator;
-use super::{Integrand, Progress};
+use super::Integrand;
 use crate::error::{Error, Result};
 use crate::flow::Density;
 
 /// Unweighted points with their (rare) residual weights.
 #[derive(Clone, Debug)]
 pub struct Unweighted {
+    /// Coordinates per point.
     pub dim: usize,
     /// Row-major points, `n × dim`.
     pub points: Vec<f64>,
@@ -31,15 +32,29 @@ pub struct Unweighted {
     pub overweight: f64,
 }
 
-/// Draws `n` unweighted points from a trained integrator. `overweight` is the tolerated share of
-/// weight mass above the robust maximum (e.g. 1e-3).
-pub fn unweighted(
-    nis: &NisIntegrator,
+impl NisIntegrator {
+    /// Draws `n` unweighted points of the target the flow learned (|f| of a scalar integrand)
+    /// from this trained integrator, continuing its unweighting stream. `overweight` is the
+    /// tolerated share of weight mass above the robust maximum (e.g. 1e-3).
+    pub fn unweighted(
+        &mut self,
+        f: &dyn Integrand,
+        n: usize,
+        overweight: f64,
+    ) -> Result<Unweighted> {
+        let mut rng = self.take_unweight_rng();
+        let u = unweighted_from(self, f, n, overweight, &mut rng);
+        self.put_unweight_rng(rng);
+        u
+    }
+}
+
+fn unweighted_from(
+    nis: &mut NisIntegrator,
     f: &dyn Integrand,
     n: usize,
     overweight: f64,
-    seed: u64,
-    progress: Progress,
+    rng: &mut Pcg64Mcg,
 ) -> Result<Unweighted> {
     if !(0.0..0.5).contains(&overweight) {
         return Err(Error::Config(format!(
@@ -47,10 +62,9 @@ pub fn unweighted(
         )));
     }
     let dim = nis.flow().dim();
-    let mut rng = Pcg64Mcg::seed_from_u64(seed ^ 0x756e_7765);
     let batch = 1 << 16;
     // Calibration: the robust maximum from one batch of weights.
-    let (_, w) = nis.weighted_batch(f, batch, &mut rng)?;
+    let (_, w) = nis.target_weights(f, batch, rng)?;
     let mut a: Vec<f64> = w.iter().map(|v| v.abs()).collect();
     a.sort_by(|x, y| y.total_cmp(x));
     let total: f64 = a.iter().sum();
@@ -75,7 +89,7 @@ pub fn unweighted(
     let (mut points, mut weights) = (Vec::with_capacity(n * dim), Vec::with_capacity(n));
     let mut proposed = 0usize;
     while weights.len() < n {
-        let (x, w) = nis.weighted_batch(f, batch, &mut rng)?;
+        let (x, w) = nis.target_weights(f, batch, rng)?;
         proposed += w.len();
         for (p, &wi) in x.chunks_exact(dim).zip(&w) {
             if weights.len() < n && rng.random::<f64>() * w_max < wi.abs() {
@@ -83,7 +97,7 @@ pub fn unweighted(
                 weights.push(wi.signum() * (wi.abs() / w_max).max(1.0));
             }
         }
-        progress(weights.len() as u64, n as u64, "unweighting");
+        nis.report(weights.len() as u64, n as u64, "unweighting");
         if proposed > 1000 * n.max(1000) {
             return Err(Error::Config(format!(
                 "unweighting efficiency below 1e-3 ({} of {proposed} accepted): train longer",
@@ -133,26 +147,19 @@ impl Unweighted {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::integrate::nis::{integrate, NisConfig};
+    use crate::integrate::nis::NisConfig;
+    use crate::integrate::Integrator;
 
     #[test]
     fn unweighted_points_follow_the_integrand() {
         // f(x) = 2x₀ on [0,1]²: the x₀-marginal of unweighted points has mean 2/3, variance 1/18.
         let f = |x: &[f64]| 2.0 * x[0];
-        let (_, nis) = integrate(
-            &f,
-            2,
-            &NisConfig {
-                batch: 1024,
-                ..Default::default()
-            },
-            100_000,
-            1,
-            &mut |_, _, _| {},
-        )
-        .unwrap();
+        let config = NisConfig::builder().batch(1024).build().unwrap();
+        let mut nis = NisIntegrator::new(2, NisConfig { seed: 1, ..config }).unwrap();
+        nis.integrate(&f, 100_000).unwrap();
+        nis.set_seed(2);
         let n = 20_000;
-        let u = unweighted(&nis, &f, n, 1e-3, 2, &mut |_, _, _| {}).unwrap();
+        let u = nis.unweighted(&f, n, 1e-3).unwrap();
         assert_eq!(u.weights.len(), n);
         assert!(u.overweight <= 1.001e-3 && u.efficiency > 0.1);
         let mean = u.points.chunks(2).map(|p| p[0]).sum::<f64>() / n as f64;
@@ -165,6 +172,6 @@ mod tests {
         assert!(csv.starts_with("x0,x1,weight\n") && csv.lines().count() == n + 1);
         let bin = u.to_binary();
         assert_eq!(bin.len(), 8 + 4 + 8 + n * 3 * 8);
-        assert!(unweighted(&nis, &f, 10, 0.7, 1, &mut |_, _, _| {}).is_err());
+        assert!(nis.unweighted(&f, 10, 0.7).is_err());
     }
 }

@@ -16,7 +16,11 @@ use rand::{Rng, SeedableRng};
 use rand_pcg::Pcg64Mcg;
 use serde::{Deserialize, Serialize};
 
-use super::{check_dim, evaluate, Accumulator, Integrand, IntegrationResult, Progress};
+use super::result::ComponentAccumulator;
+use super::{
+    check_dim, evaluate, report, Accumulator, Integrand, IntegrationResult, Integrator, Method,
+    Progress, TrainOn,
+};
 use crate::error::{Error, Result};
 
 /// VEGAS+ settings (the map and stratification defaults follow the `vegas` package: 1000
@@ -39,6 +43,10 @@ pub struct VegasConfig {
     pub warmup: usize,
     /// Fewest points per hypercube.
     pub min_per_cube: usize,
+    /// Seed of the random points.
+    pub seed: u64,
+    /// The component of a vector-valued integrand the map and the strata adapt to.
+    pub train_on: TrainOn,
 }
 
 impl Default for VegasConfig {
@@ -50,7 +58,92 @@ impl Default for VegasConfig {
             iterations: 0,
             warmup: 0,
             min_per_cube: 2,
+            seed: 0,
+            train_on: TrainOn::default(),
         }
+    }
+}
+
+impl VegasConfig {
+    /// A builder starting from the defaults.
+    pub fn builder() -> VegasConfigBuilder {
+        VegasConfigBuilder(VegasConfig::default())
+    }
+
+    fn validate(&self) -> Result<()> {
+        let c = self;
+        let auto = c.iterations == 0 && c.warmup == 0;
+        if c.increments == 0
+            || (!auto && c.iterations <= c.warmup)
+            || c.min_per_cube < 2
+            || c.alpha < 0.0
+            || c.beta < 0.0
+        {
+            return Err(Error::Config(format!(
+                "VEGAS needs increments ≥ 1, more iterations than warm-up ones and ≥ 2 points per \
+                 hypercube: {c:?}"
+            )));
+        }
+        Ok(())
+    }
+}
+
+/// Builds a [`VegasConfig`] with named setters.
+///
+/// ```
+/// use nis::integrate::vegas::VegasConfig;
+/// let c = VegasConfig::builder().alpha(1.0).iterations(20).warmup(5).seed(2).build().unwrap();
+/// assert_eq!((c.alpha, c.iterations, c.warmup, c.seed), (1.0, 20, 5, 2));
+/// assert!(VegasConfig::builder().iterations(3).warmup(3).build().is_err());
+/// ```
+#[derive(Clone, Debug)]
+pub struct VegasConfigBuilder(VegasConfig);
+
+impl VegasConfigBuilder {
+    /// Sets [`VegasConfig::increments`].
+    pub fn increments(mut self, increments: usize) -> Self {
+        self.0.increments = increments;
+        self
+    }
+    /// Sets [`VegasConfig::alpha`].
+    pub fn alpha(mut self, alpha: f64) -> Self {
+        self.0.alpha = alpha;
+        self
+    }
+    /// Sets [`VegasConfig::beta`].
+    pub fn beta(mut self, beta: f64) -> Self {
+        self.0.beta = beta;
+        self
+    }
+    /// Sets [`VegasConfig::iterations`].
+    pub fn iterations(mut self, iterations: usize) -> Self {
+        self.0.iterations = iterations;
+        self
+    }
+    /// Sets [`VegasConfig::warmup`].
+    pub fn warmup(mut self, warmup: usize) -> Self {
+        self.0.warmup = warmup;
+        self
+    }
+    /// Sets [`VegasConfig::min_per_cube`].
+    pub fn min_per_cube(mut self, min_per_cube: usize) -> Self {
+        self.0.min_per_cube = min_per_cube;
+        self
+    }
+    /// Sets [`VegasConfig::seed`].
+    pub fn seed(mut self, seed: u64) -> Self {
+        self.0.seed = seed;
+        self
+    }
+    /// Sets [`VegasConfig::train_on`].
+    pub fn train_on(mut self, train_on: TrainOn) -> Self {
+        self.0.train_on = train_on;
+        self
+    }
+    /// The checked settings.
+    pub fn build(self) -> Result<VegasConfig> {
+        self.0.validate()?;
+        Ok(self.0)
     }
 }
 
@@ -148,40 +241,54 @@ impl Map {
     }
 }
 
-/// The VEGAS+ integrator.
+/// The VEGAS+ integrator: its map, its stratification's σ_h estimates and its random stream
+/// persist between calls, so a second [`Integrator::integrate`] continues adapting them.
 pub struct Vegas {
-    pub config: VegasConfig,
+    config: VegasConfig,
+    dim: usize,
+    /// Built by the first call (its increments are capped by that call's budget).
+    map: Option<Map>,
+    /// Damped σ_h estimates driving the allocation, one per hypercube (reset when a call's
+    /// budget gives another number of hypercubes).
+    sigma: Vec<f64>,
+    rng: Pcg64Mcg,
+    progress: Option<Box<dyn Progress>>,
+}
+
+/// One call's plan: iterations, warm-up, points per iteration and the stratification.
+struct Plan {
+    iterations: usize,
+    warmup: usize,
+    increments: usize,
+    per_iter: usize,
+    strata: usize,
+    cubes: usize,
 }
 
 impl Vegas {
-    /// A VEGAS+ integrator with the given settings.
-    pub fn new(config: VegasConfig) -> Result<Vegas> {
-        let c = &config;
-        let auto = c.iterations == 0 && c.warmup == 0;
-        if c.increments == 0
-            || (!auto && c.iterations <= c.warmup)
-            || c.min_per_cube < 2
-            || c.alpha < 0.0
-            || c.beta < 0.0
-        {
-            return Err(Error::Config(format!(
-                "VEGAS needs increments ≥ 1, more iterations than warm-up ones and ≥ 2 points per \
-                 hypercube: {c:?}"
-            )));
+    /// A VEGAS+ integrator in `dim` dimensions with the given settings.
+    pub fn new(dim: usize, config: VegasConfig) -> Result<Vegas> {
+        config.validate()?;
+        if dim == 0 {
+            return Err(Error::Config("dimension must be at least 1".into()));
         }
-        Ok(Vegas { config })
+        Ok(Vegas {
+            rng: Pcg64Mcg::seed_from_u64(config.seed),
+            config,
+            dim,
+            map: None,
+            sigma: Vec::new(),
+            progress: None,
+        })
     }
 
-    /// Integrates `f` over [0, 1]^dim with `evals` evaluations in all.
-    pub fn integrate(
-        &self,
-        f: &dyn Integrand,
-        dim: usize,
-        evals: u64,
-        seed: u64,
-        progress: Progress,
-    ) -> Result<IntegrationResult> {
-        check_dim(f, dim)?;
+    /// Its settings.
+    pub fn config(&self) -> &VegasConfig {
+        &self.config
+    }
+
+    fn plan(&self, evals: u64) -> Plan {
+        let dim = self.dim;
         let mut c = self.config.clone();
         if c.iterations == 0 {
             let by_dim: u64 = match dim {
@@ -196,12 +303,9 @@ impl Vegas {
             c.warmup = c.iterations.div_ceil(4);
         }
         // Increments each need several points per iteration to be adapted from.
-        c.increments = c
+        let increments = c
             .increments
             .min((evals as usize / c.iterations / 10).max(1));
-        let c = &c;
-        let started = Instant::now();
-        let mut rng = Pcg64Mcg::seed_from_u64(seed);
         let per_iter = (evals / c.iterations as u64).max(c.min_per_cube as u64 * 2) as usize;
         // Strata per dimension: as many hypercubes as leave min_per_cube points each.
         let strata = (((per_iter / c.min_per_cube) as f64)
@@ -213,17 +317,65 @@ impl Vegas {
             .filter(|&n| n <= per_iter)
             .unwrap_or(1);
         let strata = if cubes == 1 { 1 } else { strata };
-        let mut map = Map::new(dim, c.increments);
-        // Damped σ_h estimates driving the allocation; start equal.
-        let mut sigma = vec![1.0f64; cubes];
+        Plan {
+            iterations: c.iterations,
+            warmup: c.warmup,
+            increments,
+            per_iter,
+            strata,
+            cubes,
+        }
+    }
+}
+
+impl Integrator for Vegas {
+    fn method(&self) -> Method {
+        Method::Vegas
+    }
+
+    fn dim(&self) -> usize {
+        self.dim
+    }
+
+    fn set_progress(&mut self, progress: Option<Box<dyn Progress>>) {
+        self.progress = progress;
+    }
+
+    /// `evals` evaluations in all: the first `warmup` iterations only adapt the map and strata,
+    /// the others also make the estimate (and keep adapting them for the next call).
+    fn integrate(&mut self, f: &dyn Integrand, evals: u64) -> Result<IntegrationResult> {
+        let dim = self.dim;
+        check_dim(f, dim)?;
+        let k = f.components();
+        let train_on = self.config.train_on;
+        train_on.check(k)?;
+        let (min_per_cube, alpha, beta) = (
+            self.config.min_per_cube,
+            self.config.alpha,
+            self.config.beta,
+        );
+        let plan = self.plan(evals);
+        let started = Instant::now();
+        let (strata, cubes, per_iter) = (plan.strata, plan.cubes, plan.per_iter);
+        let map = self
+            .map
+            .get_or_insert_with(|| Map::new(dim, plan.increments));
+        let increments = map.n;
+        if self.sigma.len() != cubes {
+            // Start equal.
+            self.sigma = vec![1.0f64; cubes];
+        }
+        let sigma = &mut self.sigma;
+        let rng = &mut self.rng;
         let mut acc = Accumulator::default();
+        let mut comps = ComponentAccumulator::new(k);
         let mut n_eval = 0u64;
         let (mut y, mut x, mut inc) = (vec![0.0; dim], Vec::new(), vec![0usize; dim]);
-        for it in 0..c.iterations {
+        for it in 0..plan.iterations {
             // Allocate points to hypercubes ∝ σ_h^β, at least min_per_cube each.
-            let weights: Vec<f64> = sigma.iter().map(|s| s.powf(c.beta)).collect();
+            let weights: Vec<f64> = sigma.iter().map(|s| s.powf(beta)).collect();
             let wsum: f64 = weights.iter().sum();
-            let spare = per_iter.saturating_sub(cubes * c.min_per_cube) as f64;
+            let spare = per_iter.saturating_sub(cubes * min_per_cube) as f64;
             // Cumulative rounding hands out exactly the spare points.
             let mut cum = 0.0;
             let mut given = 0usize;
@@ -238,7 +390,7 @@ impl Vegas {
                     let upto = cum.round() as usize;
                     let extra = upto.saturating_sub(given);
                     given += extra;
-                    c.min_per_cube + extra
+                    min_per_cube + extra
                 })
                 .collect();
             let total: usize = counts.iter().sum();
@@ -249,10 +401,10 @@ impl Vegas {
             let mut point = vec![0.0; dim];
             for (h, &nh) in counts.iter().enumerate() {
                 for _ in 0..nh {
-                    let mut k = h;
+                    let mut kk = h;
                     for yd in y.iter_mut() {
-                        *yd = ((k % strata) as f64 + rng.random::<f64>()) / strata as f64;
-                        k /= strata;
+                        *yd = ((kk % strata) as f64 + rng.random::<f64>()) / strata as f64;
+                        kk /= strata;
                     }
                     jacs.push(map.apply(&y, &mut point, &mut inc));
                     x.extend_from_slice(&point);
@@ -260,47 +412,169 @@ impl Vegas {
                 }
             }
             let fx = evaluate(f, &x, dim)?;
+            let target = train_on.target(&fx, k);
             n_eval += total as u64;
             // Per hypercube: mean and variance of f·J; the estimate Σ_h V_h·mean_h.
             let volume = 1.0 / cubes as f64;
             let (mut estimate, mut variance) = (0.0, 0.0);
-            let mut grid_acc = vec![0.0; dim * c.increments];
+            let (mut mean_k, mut cov_k) = (vec![0.0; k], vec![0.0; k * k]);
+            let mut grid_acc = vec![0.0; dim * increments];
             let mut w_eff = Vec::with_capacity(total);
             let mut start = 0;
             for (h, &nh) in counts.iter().enumerate() {
-                let fj: Vec<f64> = (start..start + nh).map(|i| fx[i] * jacs[i]).collect();
-                let mean = fj.iter().sum::<f64>() / nh as f64;
-                let var = fj.iter().map(|v| (v - mean).powi(2)).sum::<f64>() / (nh - 1) as f64;
+                let (mean, var, fj) = cube_stats((start..start + nh).map(|i| fx[i * k] * jacs[i]));
                 estimate += volume * mean;
                 variance += volume * volume * var / nh as f64;
-                for (k, v) in fj.iter().enumerate() {
+                for v in &fj {
+                    w_eff.push(v * volume * total as f64 / nh as f64);
+                }
+                // The map and the strata adapt to the target (component 0 of a scalar: f).
+                let (_, t_var, tj) = cube_stats((start..start + nh).map(|i| target[i] * jacs[i]));
+                for (kk, v) in tj.iter().enumerate() {
                     // ∫(fJ)² dy from this cube's samples: each stands for V_h/n_h of y-space.
                     let contrib = v * v * volume / nh as f64;
                     for d in 0..dim {
-                        grid_acc[d * c.increments + incs[(start + k) * dim + d]] += contrib;
+                        grid_acc[d * increments + incs[(start + kk) * dim + d]] += contrib;
                     }
-                    w_eff.push(v * volume * total as f64 / nh as f64);
                 }
-                sigma[h] = 0.5 * sigma[h] + 0.5 * (volume * var.sqrt());
+                sigma[h] = 0.5 * sigma[h] + 0.5 * (volume * t_var.sqrt());
+                if k > 1 {
+                    add_cube_components(
+                        &fx[start * k..(start + nh) * k],
+                        &jacs[start..start + nh],
+                        volume,
+                        &mut mean_k,
+                        &mut cov_k,
+                    );
+                }
                 start += nh;
             }
             if sigma.iter().all(|s| *s == 0.0) {
                 sigma.fill(1.0);
             }
-            if it >= c.warmup {
+            if it >= plan.warmup {
                 acc.add_iteration(estimate, variance, &w_eff);
+                if k > 1 {
+                    comps.add_iteration(mean_k, cov_k, total as u64);
+                }
             }
-            map.adapt(&grid_acc, c.alpha);
-            progress(
+            map.adapt(&grid_acc, alpha);
+            report(
+                &mut self.progress,
                 n_eval,
                 evals,
-                if it < c.warmup {
+                if it < plan.warmup {
                     "vegas: adapting"
                 } else {
                     "vegas: estimating"
                 },
             );
         }
-        Ok(acc.finish(n_eval, started, Vec::new()))
+        let mut r = acc.finish(n_eval, started, Vec::new());
+        if k > 1 {
+            r.components = Some(comps.finish());
+        }
+        Ok(r)
+    }
+}
+
+/// Mean and sample variance of one hypercube's values f·J, and the values.
+fn cube_stats(values: impl Iterator<Item = f64>) -> (f64, f64, Vec<f64>) {
+    let fj: Vec<f64> = values.collect();
+    let nh = fj.len();
+    let mean = fj.iter().sum::<f64>() / nh as f64;
+    let var = fj.iter().map(|v| (v - mean).powi(2)).sum::<f64>() / (nh - 1) as f64;
+    (mean, var, fj)
+}
+
+/// Adds one hypercube's share V_h·mean_h of every component to `mean` and V_h²·Cov_h/n_h to
+/// `cov`, from its values `fx` (`n_h × k`) and Jacobians.
+fn add_cube_components(fx: &[f64], jacs: &[f64], volume: f64, mean: &mut [f64], cov: &mut [f64]) {
+    let k = mean.len();
+    let nh = jacs.len() as f64;
+    let mut m = vec![0.0; k];
+    for (row, j) in fx.chunks_exact(k).zip(jacs) {
+        for (a, v) in m.iter_mut().zip(row) {
+            *a += v * j;
+        }
+    }
+    m.iter_mut().for_each(|a| *a /= nh);
+    // Σ (f_a·J − m_a)(f_b·J − m_b), each product formed once so the matrix is exactly symmetric.
+    let mut sum = vec![0.0; k * k];
+    for (row, jac) in fx.chunks_exact(k).zip(jacs) {
+        for a in 0..k {
+            let da = row[a] * jac - m[a];
+            for b in 0..k {
+                sum[a * k + b] += da * (row[b] * jac - m[b]);
+            }
+        }
+    }
+    let scale = volume * volume / (nh - 1.0) / nh;
+    for (c, s) in cov.iter_mut().zip(&sum) {
+        *c += scale * s;
+    }
+    for (a, v) in mean.iter_mut().zip(&m) {
+        *a += volume * v;
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn every_builder_setter_sets_its_field() {
+        let c = VegasConfig::builder()
+            .increments(50)
+            .alpha(1.5)
+            .beta(0.5)
+            .iterations(12)
+            .warmup(3)
+            .min_per_cube(4)
+            .seed(8)
+            .train_on(TrainOn::Component(2))
+            .build()
+            .unwrap();
+        let expected = VegasConfig {
+            increments: 50,
+            alpha: 1.5,
+            beta: 0.5,
+            iterations: 12,
+            warmup: 3,
+            min_per_cube: 4,
+            seed: 8,
+            train_on: TrainOn::Component(2),
+        };
+        assert_eq!(c, expected);
+        for bad in [
+            VegasConfig::builder().increments(0),
+            VegasConfig::builder().alpha(-1.0),
+            VegasConfig::builder().beta(-1.0),
+            VegasConfig::builder().min_per_cube(1),
+            VegasConfig::builder().iterations(4).warmup(4),
+        ] {
+            assert!(matches!(bad.build(), Err(Error::Config(_))));
+        }
+        assert!(Vegas::new(0, VegasConfig::default()).is_err());
+    }
+
+    #[test]
+    fn a_second_call_keeps_the_adapted_map() {
+        // A peak at 0.2 in each coordinate: after a call the map's increments crowd around it.
+        let f = |x: &[f64]| (-((x[0] - 0.2).powi(2) + (x[1] - 0.2).powi(2)) / 0.002).exp();
+        let mut v = Vegas::new(2, VegasConfig::builder().seed(1).build().unwrap()).unwrap();
+        v.integrate(&f, 20_000).unwrap();
+        let edges = v.map.as_ref().unwrap().edges.clone();
+        let n = v.map.as_ref().unwrap().n;
+        // Half the increments lie within ±0.1 of the peak (a uniform map puts a fifth there).
+        let near = edges[..=n]
+            .iter()
+            .filter(|e| (*e - 0.2).abs() < 0.1)
+            .count();
+        assert!(near > n / 2, "{near} of {n}");
+        v.integrate(&f, 20_000).unwrap();
+        let after = &v.map.as_ref().unwrap().edges;
+        assert_eq!(after.len(), edges.len());
+        assert_ne!(after, &edges, "the map adapted further");
     }
 }

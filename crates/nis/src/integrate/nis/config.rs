@@ -1,0 +1,276 @@
+//! The NIS integrator's settings, [`NisConfig`], and their builder.
+
+use serde::{Deserialize, Serialize};
+
+use crate::error::{Error, Result};
+use crate::flow::FlowConfig;
+use crate::integrate::TrainOn;
+use crate::loss::Loss;
+use crate::nn::AdamConfig;
+use crate::transform::TransformKind;
+
+/// Settings of the NIS integrator. The defaults work across the built-in suite untuned.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct NisConfig {
+    /// The flow (its `dim` is set from the integrator's; its `seed` initialises the weights).
+    pub flow: FlowConfig,
+    /// The training loss.
+    pub loss: Loss,
+    /// Samples per adaptive iteration.
+    pub batch: usize,
+    /// Adam steps per batch: the first on-policy, the others reuse the batch off-policy (its
+    /// points keep the density they were drawn from), trading compute for evaluations.
+    pub steps_per_batch: usize,
+    /// Share of the evaluation budget spent in the adaptive phase.
+    pub train_fraction: f64,
+    /// The optimiser.
+    pub adam: AdamConfig,
+    /// The learning rate decays exponentially over the adaptive phase to this fraction of its
+    /// initial value (1: constant; Adam's own `decay` is then set from the number of steps).
+    pub learning_rate_end: f32,
+    /// Share λ of uniform points in every batch (the defensive mixture).
+    pub uniform_fraction: f64,
+    /// Initial exponent β of the tempered target |f|^β; rises linearly to 1 over the first half
+    /// of training (1: no annealing).
+    pub anneal_from: f64,
+    /// Iterations of the final phase (for χ²/dof).
+    pub final_iterations: usize,
+    /// Seed of the random streams (training, estimating, unweighting).
+    pub seed: u64,
+    /// The component of a vector-valued integrand the flow learns.
+    pub train_on: TrainOn,
+}
+
+impl Default for NisConfig {
+    fn default() -> Self {
+        NisConfig {
+            flow: FlowConfig {
+                transform: TransformKind::Quadratic { bins: 16 },
+                hidden_layers: 2,
+                hidden_width: 32,
+                blob_bins: 16,
+                ..FlowConfig::default()
+            },
+            loss: Loss::Kl,
+            batch: 1024,
+            steps_per_batch: 1,
+            train_fraction: 0.4,
+            adam: AdamConfig {
+                learning_rate: 5e-3,
+                clip_norm: Some(10.0),
+                ..Default::default()
+            },
+            learning_rate_end: 0.1,
+            uniform_fraction: 0.002,
+            anneal_from: 0.1,
+            final_iterations: 10,
+            seed: 0,
+            train_on: TrainOn::default(),
+        }
+    }
+}
+
+impl NisConfig {
+    /// A builder starting from the defaults.
+    pub fn builder() -> NisConfigBuilder {
+        NisConfigBuilder {
+            config: NisConfig::default(),
+            seed: None,
+        }
+    }
+
+    pub(super) fn validate(&self) -> Result<()> {
+        let ok = self.batch >= 2
+            && self.steps_per_batch >= 1
+            && (0.0..1.0).contains(&self.train_fraction)
+            && (0.0..1.0).contains(&self.uniform_fraction)
+            && self.anneal_from > 0.0
+            && self.anneal_from <= 1.0
+            && self.final_iterations >= 1
+            && self.learning_rate_end > 0.0
+            && self.learning_rate_end <= 1.0;
+        if ok {
+            Ok(())
+        } else {
+            Err(Error::Config(format!("invalid NIS settings: {self:?}")))
+        }
+    }
+}
+
+/// Builds a [`NisConfig`] with named setters.
+///
+/// ```
+/// use nis::integrate::nis::NisConfig;
+/// use nis::{loss::Loss, TransformKind};
+/// let c = NisConfig::builder()
+///     .transform(TransformKind::RationalQuadratic { bins: 8 })
+///     .loss(Loss::ChiSquare)
+///     .batch(2048)
+///     .learning_rate(1e-3)
+///     .seed(4)
+///     .build()
+///     .unwrap();
+/// assert_eq!((c.batch, c.seed, c.flow.seed), (2048, 4, 4));
+/// assert!(NisConfig::builder().train_fraction(1.5).build().is_err());
+/// ```
+#[derive(Clone, Debug)]
+pub struct NisConfigBuilder {
+    config: NisConfig,
+    seed: Option<u64>,
+}
+
+impl NisConfigBuilder {
+    /// Sets [`NisConfig::flow`] (its `seed` too, unless [`NisConfigBuilder::seed`] is given).
+    pub fn flow(mut self, flow: FlowConfig) -> Self {
+        self.config.flow = flow;
+        self
+    }
+    /// Sets the flow's coupling transform.
+    pub fn transform(mut self, transform: TransformKind) -> Self {
+        self.config.flow.transform = transform;
+        self
+    }
+    /// Sets [`NisConfig::loss`].
+    pub fn loss(mut self, loss: Loss) -> Self {
+        self.config.loss = loss;
+        self
+    }
+    /// Sets [`NisConfig::batch`].
+    pub fn batch(mut self, batch: usize) -> Self {
+        self.config.batch = batch;
+        self
+    }
+    /// Sets [`NisConfig::steps_per_batch`].
+    pub fn steps_per_batch(mut self, steps: usize) -> Self {
+        self.config.steps_per_batch = steps;
+        self
+    }
+    /// Sets [`NisConfig::train_fraction`].
+    pub fn train_fraction(mut self, fraction: f64) -> Self {
+        self.config.train_fraction = fraction;
+        self
+    }
+    /// Sets [`NisConfig::adam`].
+    pub fn adam(mut self, adam: AdamConfig) -> Self {
+        self.config.adam = adam;
+        self
+    }
+    /// Sets Adam's initial learning rate.
+    pub fn learning_rate(mut self, rate: f32) -> Self {
+        self.config.adam.learning_rate = rate;
+        self
+    }
+    /// Sets [`NisConfig::learning_rate_end`].
+    pub fn learning_rate_end(mut self, fraction: f32) -> Self {
+        self.config.learning_rate_end = fraction;
+        self
+    }
+    /// Sets [`NisConfig::uniform_fraction`].
+    pub fn uniform_fraction(mut self, fraction: f64) -> Self {
+        self.config.uniform_fraction = fraction;
+        self
+    }
+    /// Sets [`NisConfig::anneal_from`].
+    pub fn anneal_from(mut self, beta: f64) -> Self {
+        self.config.anneal_from = beta;
+        self
+    }
+    /// Sets [`NisConfig::final_iterations`].
+    pub fn final_iterations(mut self, iterations: usize) -> Self {
+        self.config.final_iterations = iterations;
+        self
+    }
+    /// Sets [`NisConfig::train_on`].
+    pub fn train_on(mut self, train_on: TrainOn) -> Self {
+        self.config.train_on = train_on;
+        self
+    }
+    /// Seeds the run: the random streams ([`NisConfig::seed`]) and the flow's initialisation
+    /// (its `seed`), whatever order the setters came in.
+    pub fn seed(mut self, seed: u64) -> Self {
+        self.seed = Some(seed);
+        self
+    }
+    /// The checked settings.
+    pub fn build(mut self) -> Result<NisConfig> {
+        if let Some(seed) = self.seed {
+            self.config.seed = seed;
+            self.config.flow.seed = seed;
+        }
+        self.config.validate()?;
+        Ok(self.config)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn every_builder_setter_sets_its_field_and_the_seed_reaches_the_flow() {
+        let flow = FlowConfig {
+            hidden_width: 8,
+            seed: 99,
+            ..FlowConfig::default()
+        };
+        let adam = AdamConfig {
+            clip_norm: None,
+            ..AdamConfig::default()
+        };
+        let c = NisConfig::builder()
+            .seed(6)
+            .flow(flow.clone())
+            .transform(TransformKind::Linear { bins: 4 })
+            .loss(Loss::ChiSquare)
+            .batch(100)
+            .steps_per_batch(3)
+            .train_fraction(0.25)
+            .adam(adam)
+            .learning_rate(2e-3)
+            .learning_rate_end(0.5)
+            .uniform_fraction(0.01)
+            .anneal_from(0.5)
+            .final_iterations(4)
+            .train_on(TrainOn::SumAbs)
+            .build()
+            .unwrap();
+        let expected = NisConfig {
+            flow: FlowConfig {
+                hidden_width: 8,
+                transform: TransformKind::Linear { bins: 4 },
+                seed: 6,
+                ..FlowConfig::default()
+            },
+            loss: Loss::ChiSquare,
+            batch: 100,
+            steps_per_batch: 3,
+            train_fraction: 0.25,
+            adam: AdamConfig {
+                learning_rate: 2e-3,
+                ..adam
+            },
+            learning_rate_end: 0.5,
+            uniform_fraction: 0.01,
+            anneal_from: 0.5,
+            final_iterations: 4,
+            seed: 6,
+            train_on: TrainOn::SumAbs,
+        };
+        assert_eq!(c, expected);
+        // Without `seed`, the flow keeps its own.
+        let c = NisConfig::builder().flow(flow).build().unwrap();
+        assert_eq!((c.seed, c.flow.seed), (0, 99));
+        for bad in [
+            NisConfig::builder().batch(1),
+            NisConfig::builder().steps_per_batch(0),
+            NisConfig::builder().train_fraction(1.0),
+            NisConfig::builder().uniform_fraction(-0.1),
+            NisConfig::builder().anneal_from(0.0),
+            NisConfig::builder().final_iterations(0),
+            NisConfig::builder().learning_rate_end(0.0),
+        ] {
+            assert!(matches!(bad.build(), Err(Error::Config(_))));
+        }
+    }
+}

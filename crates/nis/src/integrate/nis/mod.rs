@@ -1,0 +1,348 @@
+//! Neural importance sampling (Müller et al. 2019, Sec. 3): a flow learns |f|/∫|f| from the
+//! integrand's own values during an adaptive phase, then is frozen and sampled for the estimate.
+//!
+//! Sampling uses a defensive mixture q_mix = λ·uniform + (1 − λ)·q with fixed counts per batch
+//! (the balance heuristic of multiple importance sampling): weights f/q_mix are bounded by f/λ
+//! wherever the flow has not (yet) put mass, which keeps error bars honest when the flow misses
+//! a sliver of the integrand. Training sees only the flow's share of each batch, on-policy.
+//! Early training optionally targets the tempered |f|^β with β rising to 1 (annealing), so that a
+//! flow which has only seen the far tails of several modes is pulled toward all of them.
+
+use std::collections::HashMap;
+use std::path::Path;
+use std::time::Instant;
+
+use rand::SeedableRng;
+use rand_pcg::Pcg64Mcg;
+
+use super::integrand::column;
+use super::result::ComponentAccumulator;
+use super::{
+    check_dim, evaluate, report, Accumulator, Integrand, IntegrationResult, Integrator, Method,
+    Progress,
+};
+use crate::error::{Error, Result};
+use crate::flow::mixture::{self, MixtureBatch};
+use crate::flow::{Density, Flow, FlowConfig};
+use crate::train::Trainer;
+
+mod config;
+
+pub use config::{NisConfig, NisConfigBuilder};
+
+/// A flow-based integrator: it trains its flow, then estimates with it (again and again, or after
+/// saving). It owns the flow, the optimiser's state and the random streams, so a second
+/// [`Integrator::integrate`] trains further from where the first stopped.
+pub struct NisIntegrator {
+    config: NisConfig,
+    trainer: Trainer,
+    /// Evaluations spent training so far (over all calls, and before saving).
+    trained_evals: u64,
+    /// Whether this object has set the learning-rate schedule (its first training does).
+    scheduled: bool,
+    streams: Streams,
+    progress: Option<Box<dyn Progress>>,
+}
+
+/// The random streams, one per use, so that training more does not shift the estimate's points.
+struct Streams {
+    train: Pcg64Mcg,
+    estimate: Pcg64Mcg,
+    unweight: Pcg64Mcg,
+}
+
+impl Streams {
+    fn new(seed: u64) -> Streams {
+        Streams {
+            train: Pcg64Mcg::seed_from_u64(seed ^ 0x7261_696e),
+            estimate: Pcg64Mcg::seed_from_u64(seed ^ 0x6573_7469),
+            unweight: Pcg64Mcg::seed_from_u64(seed ^ 0x756e_7765),
+        }
+    }
+}
+
+impl NisIntegrator {
+    /// A new (untrained: uniform) integrator in `dim` dimensions.
+    pub fn new(dim: usize, config: NisConfig) -> Result<NisIntegrator> {
+        config.validate()?;
+        let flow = Flow::new(FlowConfig {
+            dim,
+            ..config.flow.clone()
+        })?;
+        let trainer = Trainer::new(flow, config.loss, config.adam)?;
+        Ok(NisIntegrator {
+            streams: Streams::new(config.seed),
+            config,
+            trainer,
+            trained_evals: 0,
+            scheduled: false,
+            progress: None,
+        })
+    }
+
+    /// The flow.
+    pub fn flow(&self) -> &Flow {
+        self.trainer.flow()
+    }
+
+    /// Its settings.
+    pub fn config(&self) -> &NisConfig {
+        &self.config
+    }
+
+    /// Evaluations spent training so far, over all calls (and before saving, for a loaded one).
+    pub fn trained_evals(&self) -> u64 {
+        self.trained_evals
+    }
+
+    /// Restarts the random streams from `seed` (e.g. to estimate with a loaded integrator under
+    /// another seed than the one it was trained with).
+    pub fn set_seed(&mut self, seed: u64) {
+        self.config.seed = seed;
+        self.streams = Streams::new(seed);
+    }
+
+    /// The adaptive phase: `evals` more evaluations in batches, one training step (or
+    /// `steps_per_batch`) per batch. The first training of a new integrator sets the schedule —
+    /// the learning rate decays over its steps to `learning_rate_end` of its start, and an
+    /// untrained flow anneals its target from |f|^`anneal_from` — later ones continue Adam as it
+    /// stands on the plain target.
+    pub fn train(&mut self, f: &dyn Integrand, evals: u64) -> Result<()> {
+        let dim = self.flow().dim();
+        check_dim(f, dim)?;
+        let k = f.components();
+        self.config.train_on.check(k)?;
+        let batch = self.config.batch;
+        let steps = (evals / batch as u64) as usize;
+        if !self.scheduled {
+            let decay = self
+                .config
+                .learning_rate_end
+                .powf(1.0 / steps.max(1) as f32);
+            self.trainer
+                .set_learning_rate_decay(decay * self.config.adam.decay)?;
+            self.scheduled = true;
+        }
+        let anneal = self.trained_evals == 0 && steps > 1;
+        let mut done = 0;
+        for step in 0..steps {
+            let beta = if anneal {
+                let t = (2.0 * step as f64 / steps as f64).min(1.0);
+                self.config.anneal_from + t * (1.0 - self.config.anneal_from)
+            } else {
+                1.0
+            };
+            self.trainer.set_temperature(beta);
+            let (b, x64) = draw(
+                self.trainer.flow(),
+                self.config.uniform_fraction,
+                batch,
+                &mut self.streams.train,
+                true,
+            )?;
+            let fx = evaluate(f, &x64, dim)?;
+            let target = self.config.train_on.target(&fx, k);
+            self.trained_evals += batch as u64;
+            done += batch as u64;
+            let n_f = b.density_part.len();
+            // Skip the step when the flow's share saw nothing: there is no direction to learn.
+            if target[..n_f].iter().any(|v| *v != 0.0) {
+                self.trainer
+                    .step_on_policy(&b.density_part, &target[..n_f])?;
+                for _ in 1..self.config.steps_per_batch {
+                    self.trainer.step(
+                        &b.density_part.x,
+                        None,
+                        &target[..n_f],
+                        &b.density_part.log_q,
+                    )?;
+                }
+            }
+            report(&mut self.progress, done, evals, "nis: training");
+        }
+        Ok(())
+    }
+
+    /// The final phase alone: the flow frozen, `evals` evaluations in `final_iterations`
+    /// iterations. For a trained or loaded integrator; the result counts only these evaluations.
+    pub fn estimate(&mut self, f: &dyn Integrand, evals: u64) -> Result<IntegrationResult> {
+        self.final_phase(f, evals, 0, Instant::now())
+    }
+
+    /// The final phase, after `trained` evaluations of training in the same call (for the
+    /// evaluation count and the progress) that started at `started`.
+    fn final_phase(
+        &mut self,
+        f: &dyn Integrand,
+        evals: u64,
+        trained: u64,
+        started: Instant,
+    ) -> Result<IntegrationResult> {
+        let dim = self.flow().dim();
+        check_dim(f, dim)?;
+        let k = f.components();
+        let iters = self.config.final_iterations.clamp(1, evals.max(1) as usize);
+        let mut acc = Accumulator::default();
+        let mut comps = ComponentAccumulator::new(k);
+        let mut done = 0u64;
+        for it in 0..iters {
+            let n = ((evals * (it as u64 + 1)) / iters as u64 - done).max(2) as usize;
+            // Draw in pieces of bounded memory, pooled into one iteration.
+            let mut w = Vec::with_capacity(n * k);
+            while w.len() < n * k {
+                let m = (n - w.len() / k).min(1 << 16);
+                let (flow, lambda) = (self.trainer.flow(), self.config.uniform_fraction);
+                w.extend(weights(flow, lambda, f, m, &mut self.streams.estimate)?.1);
+            }
+            acc.add_weights(&column(&w, k, 0));
+            if k > 1 {
+                comps.add_weights(&w);
+            }
+            done += n as u64;
+            report(
+                &mut self.progress,
+                trained + done,
+                trained + evals,
+                "nis: estimating",
+            );
+        }
+        let mut r = acc.finish(trained + done, started, Vec::new());
+        if k > 1 {
+            r.components = Some(comps.finish());
+        }
+        Ok(r)
+    }
+
+    /// `n` points of the frozen sampler and the weights of the target the flow learns
+    /// ([`NisConfig::train_on`]), drawn from `rng`.
+    pub(crate) fn target_weights(
+        &self,
+        f: &dyn Integrand,
+        n: usize,
+        rng: &mut Pcg64Mcg,
+    ) -> Result<(Vec<f64>, Vec<f64>)> {
+        check_dim(f, self.flow().dim())?;
+        let k = f.components();
+        self.config.train_on.check(k)?;
+        let (x, w) = weights(self.flow(), self.config.uniform_fraction, f, n, rng)?;
+        Ok((x, self.config.train_on.target(&w, k)))
+    }
+
+    /// Takes the unweighting stream out (put it back with [`NisIntegrator::put_unweight_rng`]).
+    pub(crate) fn take_unweight_rng(&mut self) -> Pcg64Mcg {
+        std::mem::replace(&mut self.streams.unweight, Pcg64Mcg::new(0))
+    }
+
+    /// Puts the unweighting stream back.
+    pub(crate) fn put_unweight_rng(&mut self, rng: Pcg64Mcg) {
+        self.streams.unweight = rng;
+    }
+
+    /// Reports progress to the observer, if any.
+    pub(crate) fn report(&mut self, done: u64, total: u64, status: &str) {
+        report(&mut self.progress, done, total, status);
+    }
+
+    /// Saves the trained flow with the integrator's settings beside it (atomically).
+    pub fn save(&self, path: &Path) -> Result<()> {
+        let mut meta = HashMap::new();
+        meta.insert(
+            "nis_integrator".into(),
+            serde_json::to_string(&self.config).expect("serialisable"),
+        );
+        meta.insert("trained_evals".into(), self.trained_evals.to_string());
+        crate::io::save_with(self.flow(), path, &meta)
+    }
+
+    /// Loads an integrator saved by [`NisIntegrator::save`]: its flow and settings (the seed they
+    /// were trained with included; see [`NisIntegrator::set_seed`]). The optimiser's state is not
+    /// saved: training a loaded integrator further starts Adam afresh.
+    pub fn load(path: &Path) -> Result<NisIntegrator> {
+        let (flow, meta) = crate::io::load_with(path)?;
+        let bad = |reason: &str| Error::Model {
+            path: path.to_path_buf(),
+            reason: reason.into(),
+        };
+        let config: NisConfig = serde_json::from_str(
+            meta.get("nis_integrator")
+                .ok_or_else(|| bad("not an integrator file (no settings)"))?,
+        )
+        .map_err(|e| bad(&format!("integrator settings: {e}")))?;
+        let trained_evals = meta
+            .get("trained_evals")
+            .and_then(|s| s.parse().ok())
+            .unwrap_or(0);
+        let trainer = Trainer::new(flow, config.loss, config.adam)?;
+        Ok(NisIntegrator {
+            streams: Streams::new(config.seed),
+            config,
+            trainer,
+            trained_evals,
+            scheduled: false,
+            progress: None,
+        })
+    }
+}
+
+impl Integrator for NisIntegrator {
+    fn method(&self) -> Method {
+        Method::Nis
+    }
+
+    fn dim(&self) -> usize {
+        self.flow().dim()
+    }
+
+    fn set_progress(&mut self, progress: Option<Box<dyn Progress>>) {
+        self.progress = progress;
+    }
+
+    /// Trains on `train_fraction` of `evals` (whole batches), then estimates with the rest.
+    fn integrate(&mut self, f: &dyn Integrand, evals: u64) -> Result<IntegrationResult> {
+        let started = Instant::now();
+        let batch = self.config.batch as u64;
+        let train = ((evals as f64 * self.config.train_fraction) as u64 / batch) * batch;
+        self.train(f, train)?;
+        self.final_phase(f, evals - train, train, started)
+    }
+
+    fn save(&self, path: &Path) -> Result<()> {
+        NisIntegrator::save(self, path)
+    }
+}
+
+/// `n` points of the defensive mixture of `flow` with a share `lambda` of uniform ones, with the
+/// points also as f64 for the integrand.
+fn draw(
+    flow: &Flow,
+    lambda: f64,
+    n: usize,
+    rng: &mut Pcg64Mcg,
+    for_training: bool,
+) -> Result<(MixtureBatch, Vec<f64>)> {
+    let b = mixture::draw(flow, lambda, n, rng, for_training)?;
+    let x64 = b.x.iter().map(|&v| v as f64).collect();
+    Ok((b, x64))
+}
+
+/// `n` points of the frozen mixture and their weights f/q_mix (`n × k`, row-major).
+fn weights(
+    flow: &Flow,
+    lambda: f64,
+    f: &dyn Integrand,
+    n: usize,
+    rng: &mut Pcg64Mcg,
+) -> Result<(Vec<f64>, Vec<f64>)> {
+    let k = f.components();
+    let (b, x64) = draw(flow, lambda, n, rng, false)?;
+    let fx = evaluate(f, &x64, flow.dim())?;
+    let w = fx
+        .chunks_exact(k)
+        .zip(&b.log_q_mix)
+        .flat_map(|(v, l)| {
+            let inv_q = (-l).exp();
+            v.iter().map(move |v| v * inv_q)
+        })
+        .collect();
+    Ok((x64, w))
+}
