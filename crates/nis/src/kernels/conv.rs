@@ -133,7 +133,12 @@ pub fn backward_weights(
 ) {
     im2col(x, s, col);
     let k = TAPS * s.c_in;
-    dense::backward_weights_block(col, g_out, g_w, s.pixels(), k, s.c_out, 0, k, accumulate);
+    let shape = dense::Shape {
+        n: s.pixels(),
+        i: k,
+        o: s.c_out,
+    };
+    dense::backward_weights_block(col, g_out, g_w, shape, 0..k, accumulate);
     let mut sums = vec![0.0; s.c_out];
     elementwise::column_sums(&g_out[..s.pixels() * s.c_out], s.c_out, 0, &mut sums);
     for (g, v) in g_b.iter_mut().zip(&sums) {

@@ -75,21 +75,28 @@ pub fn backward_input(g_out: &[f32], w: &[f32], g_x: &mut [f32], n: usize, i: us
     }
 }
 
-/// `g_w[r0..r0+m, :] (+)= x[:, r0..r0+m]ᵀ · g_out` over `n` rows, for the block of rows
-/// `r0..r0+m` of the `i×o` weight gradient; adds to the block when `accumulate`, else overwrites.
-/// One block is one work item that walks the batch's chunks in order, so weight gradients do not
-/// depend on how blocks are scheduled.
+/// A dense layer's shape at a batch: `n` rows of `i` inputs and `o` outputs.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Shape {
+    pub n: usize,
+    pub i: usize,
+    pub o: usize,
+}
+
+/// `g_w[rows, :] (+)= x[:, rows]ᵀ · g_out` over the `n` rows of `shape`, for the block `rows` of
+/// the `i×o` weight gradient; adds to the block when `accumulate`, else overwrites. One block is
+/// one work item that walks the batch's chunks in order, so weight gradients do not depend on how
+/// blocks are scheduled.
 pub fn backward_weights_block(
     x: &[f32],
     g_out: &[f32],
     g_w_block: &mut [f32],
-    n: usize,
-    i: usize,
-    o: usize,
-    r0: usize,
-    m: usize,
+    shape: Shape,
+    rows: std::ops::Range<usize>,
     accumulate: bool,
 ) {
+    let Shape { n, i, o } = shape;
+    let (r0, m) = (rows.start, rows.len());
     assert!(x.len() >= n * i && g_out.len() >= n * o && g_w_block.len() == m * o && r0 + m <= i);
     if n == 0 {
         if !accumulate {
@@ -184,20 +191,12 @@ pub(crate) mod tests {
             let mut gw = vec![0.0; i * o];
             let (lo, hi) = gw.split_at_mut(split * o);
             // Two row blocks, the second accumulated over two halves of the batch.
-            backward_weights_block(&x, &g, lo, n, i, o, 0, split, false);
+            backward_weights_block(&x, &g, lo, Shape { n, i, o }, 0..split, false);
             let h = n / 2;
-            backward_weights_block(&x, &g, hi, h, i, o, split, i - split, false);
-            backward_weights_block(
-                &x[h * i..],
-                &g[h * o..],
-                hi,
-                n - h,
-                i,
-                o,
-                split,
-                i - split,
-                true,
-            );
+            let upper = Shape { n: h, i, o };
+            backward_weights_block(&x, &g, hi, upper, split..i, false);
+            let lower = Shape { n: n - h, i, o };
+            backward_weights_block(&x[h * i..], &g[h * o..], hi, lower, split..i, true);
             assert!(gw.iter().zip(&want).all(|(a, b)| (a - b).abs() < 1e-3));
         }
     }

@@ -134,20 +134,27 @@ pub fn column_sums(m: &[f32], o: usize, c0: usize, out: &mut [f32]) {
     }
 }
 
-/// One Adam update (Kingma & Ba 2014, Algorithm 1) of `p` with gradient `g`, moments `m` and `v`;
-/// `lr_t` already includes the bias corrections: lr·√(1 − β₂ᵗ)/(1 − β₁ᵗ).
+/// The scalars of one Adam update: `lr_t` already includes the bias corrections,
+/// lr·√(1 − β₂ᵗ)/(1 − β₁ᵗ); the gradient is multiplied by `grad_scale` (clipping) first.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct AdamStep {
+    pub lr_t: f32,
+    pub beta1: f32,
+    pub beta2: f32,
+    pub eps: f32,
+    pub grad_scale: f32,
+}
+
+/// One Adam update (Kingma & Ba 2014, Algorithm 1) of `p` with gradient `g`, moments `m` and `v`.
 #[multiversion(targets = "simd")]
-pub fn adam(
-    p: &mut [f32],
-    g: &[f32],
-    m: &mut [f32],
-    v: &mut [f32],
-    lr_t: f32,
-    beta1: f32,
-    beta2: f32,
-    eps: f32,
-    grad_scale: f32,
-) {
+pub fn adam(p: &mut [f32], g: &[f32], m: &mut [f32], v: &mut [f32], step: AdamStep) {
+    let AdamStep {
+        lr_t,
+        beta1,
+        beta2,
+        eps,
+        grad_scale,
+    } = step;
     for i in 0..p.len() {
         let gi = g[i] * grad_scale;
         m[i] = beta1 * m[i] + (1.0 - beta1) * gi;

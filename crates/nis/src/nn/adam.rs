@@ -131,17 +131,14 @@ impl Adam {
         let t = self.step as i32;
         let c = &self.config;
         let lr_t = lr * (1.0 - c.beta2.powi(t)).sqrt() / (1.0 - c.beta1.powi(t));
-        elementwise::adam(
-            params,
-            grad,
-            &mut self.m,
-            &mut self.v,
+        let step = elementwise::AdamStep {
             lr_t,
-            c.beta1,
-            c.beta2,
-            c.eps,
-            scale,
-        );
+            beta1: c.beta1,
+            beta2: c.beta2,
+            eps: c.eps,
+            grad_scale: scale,
+        };
+        elementwise::adam(params, grad, &mut self.m, &mut self.v, step);
         Ok(norm)
     }
 }

@@ -111,15 +111,13 @@ impl Mlp {
                             let r0 = blk * weight_block_rows(i);
                             let m = g_w.len() / o.max(1);
                             for (c, tape) in tapes.iter().enumerate() {
+                                let shape = dense::Shape { n: tape.rows, i, o };
                                 dense::backward_weights_block(
                                     &tape.acts[j],
                                     &g_ref[c],
                                     g_w,
-                                    tape.rows,
-                                    i,
-                                    o,
-                                    r0,
-                                    m,
+                                    shape,
+                                    r0..r0 + m,
                                     c > 0,
                                 );
                             }

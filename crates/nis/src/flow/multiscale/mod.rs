@@ -178,12 +178,19 @@ impl MsCoupling {
     }
 }
 
-/// The tensors the couplings act on: (h, w, c, idx, mask) per coupling, data-to-latent order.
-fn architecture(
-    width: usize,
-    height: usize,
-    scales: usize,
-) -> Vec<(usize, usize, usize, Vec<usize>, Mask)> {
+/// The tensor one coupling acts on: `h × w × c` entries at flat image positions `idx` (in
+/// (y, x, channel) order), and which half of it the coupling leaves alone.
+#[derive(Clone, Debug, PartialEq)]
+struct Tensor {
+    h: usize,
+    w: usize,
+    c: usize,
+    idx: Vec<usize>,
+    mask: Mask,
+}
+
+/// The tensors the couplings act on, in data-to-latent order.
+fn architecture(width: usize, height: usize, scales: usize) -> Vec<Tensor> {
     let (mut h, mut w, mut c) = (height, width, 1);
     let mut idx: Vec<usize> = (0..h * w).collect();
     let mut layers = Vec::new();
@@ -191,7 +198,13 @@ fn architecture(
     loop {
         let last = s == scales || h % 2 == 1 || w % 2 == 1;
         for i in 0..if last { 4 } else { 3 } {
-            layers.push((h, w, c, idx.clone(), Mask::Checkerboard { parity: i % 2 }));
+            layers.push(Tensor {
+                h,
+                w,
+                c,
+                idx: idx.clone(),
+                mask: Mask::Checkerboard { parity: i % 2 },
+            });
         }
         if last {
             return layers;
@@ -211,15 +224,15 @@ fn architecture(
             }
         }
         for i in 0..3 {
-            layers.push((
-                h2,
-                w2,
-                c2,
-                sq.clone(),
-                Mask::Channel {
+            layers.push(Tensor {
+                h: h2,
+                w: w2,
+                c: c2,
+                idx: sq.clone(),
+                mask: Mask::Channel {
                     a_first: i % 2 == 0,
                 },
-            ));
+            });
         }
         let keep = c2 / 2;
         idx = (0..h2 * w2)
@@ -278,7 +291,7 @@ impl MultiScale {
         let np = transform.param_count();
         let mut offset = 0;
         let mut couplings = Vec::new();
-        for (h, w, c, idx, mask) in architecture(width, height, scales) {
+        for Tensor { h, w, c, idx, mask } in architecture(width, height, scales) {
             let (c_in, c_out) = match mask {
                 Mask::Checkerboard { .. } => (c + 1, c * np),
                 Mask::Channel { .. } => (c / 2, c / 2 * np),

@@ -61,7 +61,14 @@ fn squeezes_and_factoring_out_are_index_maps_over_every_pixel() {
         assert_eq!(layers.len(), 16);
         let mut seen: Vec<(usize, usize, usize)> = Vec::new();
         let mut transformed = vec![false; w * h];
-        for (lh, lw, c, idx, mask) in &layers {
+        for Tensor {
+            h: lh,
+            w: lw,
+            c,
+            idx,
+            mask,
+        } in &layers
+        {
             if seen.last() != Some(&(*lh, *lw, *c)) {
                 seen.push((*lh, *lw, *c));
             }
