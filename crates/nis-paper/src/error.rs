@@ -9,6 +9,9 @@ pub enum Error {
     /// An error of the `nis` library (flows, training, files).
     #[error(transparent)]
     Nis(#[from] nis::Error),
+    /// An error of the path tracer (scenes, images, guides).
+    #[error(transparent)]
+    Render(#[from] nis_render::Error),
     /// A setting that describes no valid experiment.
     #[error("invalid configuration: {0}")]
     Config(String),

@@ -4,12 +4,16 @@
 //! show bars and a test can run them silently.
 //!
 //! - [`flow`]: flow throughput against bare gemm and PyTorch (`docs/BENCHMARKS.md`).
+//! - [`integrate`]: the integration suite with every method at one budget (`docs/BENCHMARKS.md`).
 //! - [`fit_image`]: the paper's Figure 3, couplings on 2-D image targets (`docs/REPRODUCTION.md`).
 //! - [`density`]: the paper's Figure 4, PQ against affine couplings on real digits.
+//! - [`guiding`]: the paper's Figure 5, path guiding against a reference at equal samples and time.
 
 pub mod density;
 pub mod fit_image;
 pub mod flow;
+pub mod guiding;
+pub mod integrate;
 
 use std::time::Instant;
 
