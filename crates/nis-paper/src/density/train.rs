@@ -27,6 +27,12 @@ use nis::nn::{Adam, AdamConfig};
 use nis::train::descend;
 
 const FORMAT: &str = "nis-density/1";
+/// Each epoch's stream is seeded from (seed, epoch) through this odd multiplier (2⁶⁴/φ, Knuth's
+/// multiplicative hash), so neighbouring seeds do not give overlapping epoch streams.
+const EPOCH_SEED_MULTIPLIER: u64 = 0x9e37_79b9_7f4a_7c15;
+/// The fixed seed of the evaluation's dequantisation noise: every evaluation sees the same noise,
+/// so successive numbers differ only through the model.
+const EVALUATION_SEED: u64 = 0x5eed_e7a1;
 /// File names inside a training directory: the checkpoint and the per-epoch history (JSON).
 pub const CHECKPOINT: &str = "checkpoint.safetensors";
 pub const HISTORY: &str = "history.json";
@@ -165,7 +171,7 @@ impl Session {
         let mut rng = Pcg64Mcg::seed_from_u64(
             self.config
                 .seed
-                .wrapping_mul(0x9e37_79b9_7f4a_7c15)
+                .wrapping_mul(EPOCH_SEED_MULTIPLIER)
                 .wrapping_add(self.epoch as u64),
         );
         let mut order: Vec<usize> = (0..n).collect();
@@ -325,7 +331,7 @@ fn mean_nll(log_q: &[f64]) -> Result<f64> {
 
 /// Bits/dim of `model` on `images` with dequantisation noise from a fixed seed.
 pub fn evaluate(model: &dyn Bijection, images: &Images) -> Result<f64> {
-    let mut rng = Pcg64Mcg::seed_from_u64(0x5eed_e7a1);
+    let mut rng = Pcg64Mcg::seed_from_u64(EVALUATION_SEED);
     let idx: Vec<usize> = (0..images.len()).collect();
     let mut sum = 0.0;
     for chunk in idx.chunks(EVAL_ROWS) {

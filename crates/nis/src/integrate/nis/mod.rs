@@ -44,6 +44,12 @@ pub struct NisIntegrator {
     progress: Option<Box<dyn Progress>>,
 }
 
+/// Salts of the three random streams drawn from one seed: distinct, so the streams are
+/// independent ("rain", "esti", "unwe" in ASCII).
+const TRAIN_SEED_SALT: u64 = 0x7261_696e;
+const ESTIMATE_SEED_SALT: u64 = 0x6573_7469;
+const UNWEIGHT_SEED_SALT: u64 = 0x756e_7765;
+
 /// The random streams, one per use, so that training more does not shift the estimate's points.
 struct Streams {
     train: Pcg64Mcg,
@@ -54,9 +60,9 @@ struct Streams {
 impl Streams {
     fn new(seed: u64) -> Streams {
         Streams {
-            train: Pcg64Mcg::seed_from_u64(seed ^ 0x7261_696e),
-            estimate: Pcg64Mcg::seed_from_u64(seed ^ 0x6573_7469),
-            unweight: Pcg64Mcg::seed_from_u64(seed ^ 0x756e_7765),
+            train: Pcg64Mcg::seed_from_u64(seed ^ TRAIN_SEED_SALT),
+            estimate: Pcg64Mcg::seed_from_u64(seed ^ ESTIMATE_SEED_SALT),
+            unweight: Pcg64Mcg::seed_from_u64(seed ^ UNWEIGHT_SEED_SALT),
         }
     }
 }
