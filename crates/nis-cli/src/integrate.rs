@@ -110,6 +110,16 @@ impl IntegrateArgs {
     }
 }
 
+/// A progress observer that moves `pb`.
+fn shows_on(pb: &ProgressBar) -> impl FnMut(u64, u64, &str) + Send + 'static {
+    let pb = pb.clone();
+    move |done: u64, total: u64, msg: &str| {
+        pb.set_length(total.max(1));
+        pb.set_position(done);
+        pb.set_message(msg.to_string());
+    }
+}
+
 fn bar(label: &str) -> ProgressBar {
     ProgressBar::new(1)
         .with_style(
@@ -137,14 +147,7 @@ pub fn run_method(
     args: &IntegrateArgs,
 ) -> Result<IntegrationResult, Error> {
     let pb = bar(method.name());
-    let progress = {
-        let pb = pb.clone();
-        move |done: u64, total: u64, msg: &str| {
-            pb.set_length(total.max(1));
-            pb.set_position(done);
-            pb.set_message(msg.to_string());
-        }
-    };
+    let progress = shows_on(&pb);
     let r = match (&args.load, method) {
         (Some(path), Method::Nis) => {
             let mut nis = NisIntegrator::load(path)?;
@@ -275,14 +278,7 @@ pub struct SampleArgs {
 pub fn sample(args: &SampleArgs) -> Result<(), Error> {
     let f = integrands::by_name(&args.name, args.dim)?;
     let pb = bar("sample");
-    let progress = {
-        let pb = pb.clone();
-        move |done: u64, total: u64, msg: &str| {
-            pb.set_length(total.max(1));
-            pb.set_position(done);
-            pb.set_message(msg.to_string());
-        }
-    };
+    let progress = shows_on(&pb);
     let mut nis = match &args.load {
         Some(path) => {
             let mut nis = NisIntegrator::load(path)?;
