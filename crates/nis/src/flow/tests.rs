@@ -354,6 +354,58 @@ fn stale_tapes_and_bad_weights_are_errors() {
     assert!(flow.backward(s.tape.as_ref().unwrap(), &[0.1; 9]).is_err());
     flow.params_mut()[0] += 1.0;
     assert!(flow.backward(s.tape.as_ref().unwrap(), &[0.1; 10]).is_err());
+    // A tape belongs to the density that recorded it: not to a clone changed since, nor to
+    // another flow of the same shape, nor to another kind of density.
+    let mut rng = Pcg64Mcg::seed_from_u64(2);
+    let s = flow.sample_for_training(10, None, &mut rng).unwrap();
+    let tape = s.tape.as_ref().unwrap();
+    assert!(flow.backward(tape, &[0.1; 10]).is_ok());
+    let twin = random_flow(2, TransformKind::Quadratic { bins: 4 }, 0, 0.1);
+    assert!(matches!(
+        twin.backward(tape, &[0.1; 10]),
+        Err(Error::Config(_))
+    ));
+    let ms = crate::flow::multiscale::MultiScale::new(crate::flow::multiscale::MultiScaleConfig {
+        width: 2,
+        height: 2,
+        transform: TransformKind::Affine,
+        scales: 0,
+        features: 2,
+        blocks: 0,
+        seed: 0,
+    })
+    .unwrap();
+    let x = [0.5f32; 4 * 10];
+    let other = ms.log_density_for_training(&x, None).unwrap().tape;
+    assert!(matches!(
+        flow.backward(&other, &[0.1; 10]),
+        Err(Error::Config(_))
+    ));
+}
+
+#[test]
+fn a_trainer_trains_any_density_the_defensive_mixture_included() {
+    // The mixture's gradient is that of its own log-likelihood, so maximum likelihood on points
+    // bunched near (0.2, 0.2) raises its density there.
+    let flow = random_flow(2, TransformKind::Quadratic { bins: 8 }, 0, 0.0);
+    let mix = crate::flow::mixture::DefensiveMixture::new(flow, 0.1).unwrap();
+    let mut trainer =
+        crate::train::Trainer::new(mix, crate::loss::Loss::Nll, Default::default()).unwrap();
+    let mut rng = Pcg64Mcg::seed_from_u64(4);
+    let data: Vec<f32> = (0..2 * 512)
+        .map(|_| (0.2 + 0.05 * (rng.random::<f32>() - 0.5)).clamp(0.0, 1.0))
+        .collect();
+    let before = trainer.flow().log_density(&data, None).unwrap()[0];
+    for _ in 0..40 {
+        trainer.step(&data, None, &[], &[0.0; 512]).unwrap();
+    }
+    let after = trainer.flow().log_density(&data, None).unwrap()[0];
+    assert!(before.abs() < 1e-6, "the untrained mixture is uniform");
+    // The mixture's density is at most λ + (1 − λ)·q; a rise of ln 2 needs q ≥ 2.1 there.
+    assert!(
+        after > std::f64::consts::LN_2,
+        "ln q_mix went from {before} to {after}"
+    );
 }
 
 fn run_threads<T: Send>(threads: usize, f: impl FnOnce() -> T + Send) -> T {
