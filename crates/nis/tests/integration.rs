@@ -448,6 +448,26 @@ fn methods_are_built_by_name() {
     ));
 }
 
+#[test]
+fn budgets_too_small_for_an_error_bar_are_errors_and_the_smallest_allowed_one_runs() {
+    // Every final iteration needs two evaluations; NIS trains first (budget 100: 40 training
+    // evaluations round down to no batch, so all 100 estimate), VEGAS+ needs two per hypercube.
+    let f = |x: &[f64]| 1.0 + x[0];
+    for method in Method::ALL {
+        for evals in [0, 1, 10, 19] {
+            let mut integ = integrator(method, 2, &Settings::default()).unwrap();
+            match integ.integrate(&f, evals) {
+                Err(Error::Config(m)) => assert!(m.contains("at least"), "{m}"),
+                other => panic!("{method} with {evals} evaluations: {other:?}"),
+            }
+        }
+        let mut integ = integrator(method, 2, &Settings::default()).unwrap();
+        let r = integ.integrate(&f, 100).unwrap();
+        assert!(r.n_eval <= 100 && r.std_err > 0.0, "{method}: {r:?}");
+        assert!((r.value - 1.5).abs() < 5.0 * r.std_err, "{method}: {r:?}");
+    }
+}
+
 /// [camel, camel·x₀, 1] on [0, 1]²: a total, a first moment and the volume, with integrals E,
 /// E/2 (the camel is symmetric under x → 1 − x) and 1.
 fn camel_moments(camel: &integrands::Builtin) -> impl Integrand + '_ {

@@ -42,6 +42,19 @@ impl<F: FnMut(u64, u64, &str) + Send> Progress for F {
     }
 }
 
+/// Rejects a budget below `min` evaluations: an estimate needs at least two evaluations in every
+/// iteration of its final phase (one gives no error bar), so smaller budgets are an error rather
+/// than an estimate with a meaningless "± 0" or a silently larger spend.
+fn check_budget(method: Method, evals: u64, min: u64, why: &str) -> Result<()> {
+    if evals < min {
+        return Err(Error::Config(format!(
+            "{} needs at least {min} evaluations ({why}), got {evals}",
+            method.label()
+        )));
+    }
+    Ok(())
+}
+
 /// Sends a report to the observer, if there is one.
 fn report(progress: &mut Option<Box<dyn Progress>>, done: u64, total: u64, status: &str) {
     if let Some(p) = progress {

@@ -8,8 +8,8 @@ use serde::{Deserialize, Serialize};
 
 use super::result::ComponentAccumulator;
 use super::{
-    check_dim, evaluate, integrand::column, report, Accumulator, Integrand, IntegrationResult,
-    Integrator, Method, Progress,
+    check_budget, check_dim, evaluate, integrand::column, report, Accumulator, Integrand,
+    IntegrationResult, Integrator, Method, Progress,
 };
 use crate::error::{Error, Result};
 
@@ -121,7 +121,13 @@ impl Integrator for PlainMc {
         check_dim(f, dim)?;
         let k = f.components();
         let started = Instant::now();
-        let iterations = self.config.iterations.clamp(1, evals.max(1) as usize);
+        let iterations = self.config.iterations;
+        check_budget(
+            Method::Uniform,
+            evals,
+            2 * iterations as u64,
+            "two per iteration",
+        )?;
         let mut acc = Accumulator::default();
         let mut comps = ComponentAccumulator::new(k);
         let mut done = 0;

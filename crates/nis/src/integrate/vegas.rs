@@ -18,8 +18,8 @@ use serde::{Deserialize, Serialize};
 
 use super::result::ComponentAccumulator;
 use super::{
-    check_dim, evaluate, report, Accumulator, Integrand, IntegrationResult, Integrator, Method,
-    Progress, TrainOn,
+    check_budget, check_dim, evaluate, report, Accumulator, Integrand, IntegrationResult,
+    Integrator, Method, Progress, TrainOn,
 };
 use crate::error::{Error, Result};
 
@@ -355,6 +355,12 @@ impl Integrator for Vegas {
             self.config.beta,
         );
         let plan = self.plan(evals);
+        check_budget(
+            Method::Vegas,
+            evals,
+            (plan.iterations * 2 * min_per_cube) as u64,
+            "two per hypercube of every iteration",
+        )?;
         let started = Instant::now();
         let (strata, cubes, per_iter) = (plan.strata, plan.cubes, plan.per_iter);
         let map = self

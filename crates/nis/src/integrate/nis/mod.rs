@@ -18,8 +18,8 @@ use rand_pcg::Pcg64Mcg;
 use super::integrand::column;
 use super::result::ComponentAccumulator;
 use super::{
-    check_dim, evaluate, report, Accumulator, Integrand, IntegrationResult, Integrator, Method,
-    Progress,
+    check_budget, check_dim, evaluate, report, Accumulator, Integrand, IntegrationResult,
+    Integrator, Method, Progress,
 };
 use crate::error::{Error, Result};
 use crate::flow::mixture::{self, MixtureBatch};
@@ -187,7 +187,13 @@ impl NisIntegrator {
         let dim = self.flow().dim();
         check_dim(f, dim)?;
         let k = f.components();
-        let iters = self.config.final_iterations.clamp(1, evals.max(1) as usize);
+        let iters = self.config.final_iterations;
+        check_budget(
+            Method::Nis,
+            evals,
+            2 * iters as u64,
+            "two per iteration of the final phase, after training",
+        )?;
         let mut acc = Accumulator::default();
         let mut comps = ComponentAccumulator::new(k);
         let mut done = 0u64;
