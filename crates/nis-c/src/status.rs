@@ -142,3 +142,18 @@ pub unsafe extern "C" fn nis_last_error_copy(buffer: *mut c_char, capacity: usiz
 pub extern "C" fn nis_last_callback_status() -> c_int {
     LAST_CALLBACK_STATUS.with(|s| s.get())
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_panic_becomes_a_status_and_a_message() {
+        let code = guard(|| panic!("boom"));
+        assert_eq!(code, NIS_ERR_PANIC);
+        let message = unsafe { std::ffi::CStr::from_ptr(nis_last_error_message()) };
+        assert!(message.to_str().unwrap().contains("boom"));
+        assert_eq!(guard(|| Ok(())), NIS_OK);
+        assert_eq!(guard(|| Err(Failure::null("x"))), NIS_ERR_NULL_POINTER);
+    }
+}
