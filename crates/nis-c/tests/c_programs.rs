@@ -16,14 +16,21 @@ fn crate_dir() -> &'static Path {
     Path::new(env!("CARGO_MANIFEST_DIR"))
 }
 
+/// The static library cargo built with this test: in `deps/` (where rustc writes it) or uplifted
+/// beside it, whichever is newer (cargo does not uplift again a file deleted after a fresh build).
 fn static_lib() -> PathBuf {
-    let lib = lib_dir().join("libnis_c.a");
-    assert!(
-        lib.exists(),
-        "{} is missing: cargo builds it with the tests (crate-type staticlib)",
-        lib.display()
-    );
-    lib
+    let dir = lib_dir();
+    [dir.join("libnis_c.a"), dir.join("deps/libnis_c.a")]
+        .into_iter()
+        .filter_map(|p| Some((std::fs::metadata(&p).ok()?.modified().ok()?, p)))
+        .max()
+        .map(|(_, p)| p)
+        .unwrap_or_else(|| {
+            panic!(
+                "no libnis_c.a in {}: cargo builds it with the tests (crate-type staticlib)",
+                dir.display()
+            )
+        })
 }
 
 fn on_path(tool: &str) -> bool {

@@ -30,6 +30,8 @@ contains
             / (2 * pi * sigma**2)**(0.5d0 * dim)
     end do
     busy = .false.
+    ! This integrand takes no user data: a pointer given anyway is a caller's mistake, reported
+    ! as a non-zero status (the call then fails with NIS_ERR_CALLBACK).
     gauss = 0
     if (c_associated(user)) gauss = 1
   end function gauss
