@@ -1,0 +1,362 @@
+//! The C ABI called from Rust: results bit-identical to the library's for the same config and
+//! seed, the callback's threading contract, samples, save/load, and error codes.
+
+use std::ffi::{c_int, c_void, CStr, CString};
+use std::sync::atomic::{AtomicUsize, Ordering};
+
+use nis::integrate::nis::NisIntegrator;
+use nis::integrate::{integrator, Integrator, Method, Settings, VectorFn};
+use nis_c::*;
+
+/// The integrand of these tests: a Gaussian bump off the centre, f(x) = exp(-|x - 0.3|²/0.02).
+fn bump(p: &[f64]) -> f64 {
+    (-p.iter().map(|v| (v - 0.3) * (v - 0.3)).sum::<f64>() / 0.02).exp()
+}
+
+unsafe extern "C" fn bump_c(
+    x: *const f64,
+    n: usize,
+    dim: usize,
+    out: *mut f64,
+    _user: *mut c_void,
+) -> c_int {
+    let x = unsafe { std::slice::from_raw_parts(x, n * dim) };
+    let out = unsafe { std::slice::from_raw_parts_mut(out, n) };
+    for (o, p) in out.iter_mut().zip(x.chunks_exact(dim)) {
+        *o = bump(p);
+    }
+    0
+}
+
+/// Two components: the bump and x₀ times it.
+fn pair(p: &[f64], out: &mut [f64]) {
+    out[0] = bump(p);
+    out[1] = p[0] * out[0];
+}
+
+unsafe extern "C" fn pair_c(
+    x: *const f64,
+    n: usize,
+    dim: usize,
+    out: *mut f64,
+    _user: *mut c_void,
+) -> c_int {
+    let x = unsafe { std::slice::from_raw_parts(x, n * dim) };
+    let out = unsafe { std::slice::from_raw_parts_mut(out, 2 * n) };
+    for (o, p) in out.chunks_exact_mut(2).zip(x.chunks_exact(dim)) {
+        pair(p, o);
+    }
+    0
+}
+
+/// Counts the callback's calls in flight; records the most at once and the largest batch.
+#[derive(Default)]
+struct Overlap {
+    in_flight: AtomicUsize,
+    most: AtomicUsize,
+    calls: AtomicUsize,
+    largest_batch: AtomicUsize,
+}
+
+unsafe extern "C" fn watched_c(
+    x: *const f64,
+    n: usize,
+    dim: usize,
+    out: *mut f64,
+    user: *mut c_void,
+) -> c_int {
+    let w = unsafe { &*(user as *const Overlap) };
+    let now = w.in_flight.fetch_add(1, Ordering::SeqCst) + 1;
+    w.most.fetch_max(now, Ordering::SeqCst);
+    w.calls.fetch_add(1, Ordering::SeqCst);
+    w.largest_batch.fetch_max(n, Ordering::SeqCst);
+    // Long enough for another thread to come in, were it allowed.
+    std::thread::sleep(std::time::Duration::from_micros(200));
+    let status = unsafe { bump_c(x, n, dim, out, user) };
+    w.in_flight.fetch_sub(1, Ordering::SeqCst);
+    status
+}
+
+/// A handle made from `json`, which must be accepted.
+fn create(json: &str) -> *mut nis_integrator {
+    let json = CString::new(json).unwrap();
+    let mut integ = std::ptr::null_mut();
+    assert_eq!(
+        unsafe { nis_create(json.as_ptr(), &mut integ) },
+        NIS_OK,
+        "{}",
+        last_error()
+    );
+    integ
+}
+
+fn last_error() -> String {
+    unsafe { CStr::from_ptr(nis_last_error_message()) }
+        .to_string_lossy()
+        .into_owned()
+}
+
+/// Same bits, NaN included.
+fn same(a: f64, b: f64) -> bool {
+    a.to_bits() == b.to_bits()
+}
+
+fn settings(json: &str) -> Settings {
+    serde_json::from_str(json).unwrap()
+}
+
+#[test]
+fn results_are_bit_identical_to_the_library_for_every_method() {
+    let sections = r#"{"nis": {"batch": 512, "final_iterations": 4}, "vegas": {"iterations": 5}}"#;
+    for method in Method::ALL {
+        let json = format!(
+            r#"{{"method": "{method}", "dim": 3, "seed": 11, "nis": {{"batch": 512, "final_iterations": 4}}, "vegas": {{"iterations": 5}}}}"#
+        );
+        let integ = create(&json);
+        let mut rust = integrator(method, 3, &settings(sections).seed(11)).unwrap();
+        // Two calls: the second continues the adapted state on both sides.
+        for evals in [20_000, 30_000] {
+            let mut c = nis_result::default();
+            let status =
+                unsafe { nis_integrate(integ, Some(bump_c), std::ptr::null_mut(), evals, &mut c) };
+            assert_eq!(status, NIS_OK, "{method}: {}", last_error());
+            let r = rust.integrate(&bump, evals).unwrap();
+            assert!(
+                same(c.value, r.value) && same(c.std_err, r.std_err),
+                "{method}: {c:?} vs {r:?}"
+            );
+            assert!(same(c.chi2_per_dof, r.chi2_per_dof) && c.n_eval == r.n_eval);
+            assert!(same(c.rel_var_per_eval, r.rel_var_per_eval));
+            assert!(same(c.unweighting_efficiency, r.unweighting_efficiency));
+            assert_eq!(c.components, 1);
+            assert!(c.seconds > 0.0);
+        }
+        unsafe { nis_free(integ) };
+    }
+}
+
+#[test]
+fn vector_results_are_bit_identical_with_their_covariance() {
+    for (method, components_in_config) in [(Method::Nis, true), (Method::Vegas, false)] {
+        let k_field = if components_in_config {
+            r#", "components": 2"#
+        } else {
+            ""
+        };
+        let json = format!(
+            r#"{{"method": "{method}", "dim": 2, "seed": 5, "train_on": "sum_abs"{k_field}, "nis": {{"batch": 256}}}}"#
+        );
+        let integ = create(&json);
+        let mut c = nis_result::default();
+        let status = unsafe {
+            if components_in_config {
+                nis_integrate(integ, Some(pair_c), std::ptr::null_mut(), 10_000, &mut c)
+            } else {
+                nis_integrate_vector(integ, Some(pair_c), std::ptr::null_mut(), 2, 10_000, &mut c)
+            }
+        };
+        assert_eq!(status, NIS_OK, "{}", last_error());
+        assert_eq!(c.components, 2);
+        let s = settings(r#"{"nis": {"batch": 256}}"#)
+            .seed(5)
+            .train_on(nis::integrate::TrainOn::SumAbs);
+        let r = integrator(method, 2, &s)
+            .unwrap()
+            .integrate(&VectorFn::new(2, pair), 10_000)
+            .unwrap();
+        let e = r.estimates();
+        let (mut mean, mut err, mut cov) = ([0.0; 2], [0.0; 2], [0.0; 4]);
+        let status = unsafe {
+            nis_result_estimates(
+                integ,
+                mean.as_mut_ptr(),
+                err.as_mut_ptr(),
+                cov.as_mut_ptr(),
+                2,
+            )
+        };
+        assert_eq!(status, NIS_OK);
+        assert_eq!(
+            (mean.to_vec(), err.to_vec(), cov.to_vec()),
+            (e.mean, e.std_err, e.cov)
+        );
+        assert!(same(c.value, r.value));
+        unsafe { nis_free(integ) };
+    }
+}
+
+#[test]
+fn the_callback_is_never_entered_twice_at_once_by_default() {
+    for method in Method::ALL {
+        let integ = create(&format!(r#"{{"method": "{method}", "dim": 2, "seed": 1}}"#));
+        let watch = Overlap::default();
+        let user = &watch as *const Overlap as *mut c_void;
+        let status =
+            unsafe { nis_integrate(integ, Some(watched_c), user, 30_000, std::ptr::null_mut()) };
+        assert_eq!(status, NIS_OK, "{}", last_error());
+        assert_eq!(
+            watch.most.load(Ordering::SeqCst),
+            1,
+            "{method}: calls overlapped"
+        );
+        assert!(watch.calls.load(Ordering::SeqCst) > 1);
+        unsafe { nis_free(integ) };
+    }
+}
+
+#[test]
+fn concurrent_callbacks_get_chunks_and_change_no_bit() {
+    let base =
+        r#""method": "nis", "dim": 2, "seed": 3, "nis": {"batch": 4096, "final_iterations": 2}"#;
+    let serial = create(&format!("{{{base}}}"));
+    let concurrent = create(&format!(r#"{{{base}, "concurrent_callback": true}}"#));
+    let watch = Overlap::default();
+    let user = &watch as *const Overlap as *mut c_void;
+    let (mut a, mut b) = (nis_result::default(), nis_result::default());
+    unsafe {
+        assert_eq!(
+            nis_integrate(serial, Some(bump_c), std::ptr::null_mut(), 40_000, &mut a),
+            NIS_OK
+        );
+        assert_eq!(
+            nis_integrate(concurrent, Some(watched_c), user, 40_000, &mut b),
+            NIS_OK
+        );
+        nis_free(serial);
+        nis_free(concurrent);
+    }
+    assert!(watch.largest_batch.load(Ordering::SeqCst) <= NIS_CONCURRENT_CHUNK);
+    assert!(same(a.value, b.value) && same(a.std_err, b.std_err));
+}
+
+#[test]
+fn samples_unweighted_points_and_saved_integrators_match_the_library() {
+    let json = r#"{"method": "nis", "dim": 2, "seed": 8, "nis": {"batch": 512}}"#;
+    let integ = create(json);
+    let mut rust =
+        NisIntegrator::new(2, settings(r#"{"nis": {"batch": 512}}"#).seed(8).nis).unwrap();
+    let null = std::ptr::null_mut();
+    assert_eq!(
+        unsafe { nis_integrate(integ, Some(bump_c), null, 20_000, null.cast()) },
+        NIS_OK
+    );
+    rust.integrate(&bump, 20_000).unwrap();
+
+    // Unweighted points: the same bits as the library's from the same state.
+    let n = 300;
+    let (mut x, mut w) = (vec![0.0; 2 * n], vec![0.0; n]);
+    let status = unsafe {
+        nis_unweighted(
+            integ,
+            Some(bump_c),
+            null,
+            n,
+            1e-3,
+            x.as_mut_ptr(),
+            w.as_mut_ptr(),
+        )
+    };
+    assert_eq!(status, NIS_OK, "{}", last_error());
+    let u = rust.unweighted(&bump, n, 1e-3).unwrap();
+    assert_eq!((x, w), (u.points, u.weights));
+
+    // Weighted samples: points in the cube with their density, weights f/q.
+    let (mut x, mut pdf) = (vec![0.0; 2 * n], vec![0.0; n]);
+    assert_eq!(
+        unsafe { nis_sample(integ, n, x.as_mut_ptr(), pdf.as_mut_ptr()) },
+        NIS_OK
+    );
+    assert!(x.iter().all(|v| (0.0..=1.0).contains(v)) && pdf.iter().all(|q| *q > 0.0));
+    let (mut x2, mut w2) = (vec![0.0; 2 * n], vec![0.0; n]);
+    assert_eq!(unsafe { nis_set_seed(integ, 8) }, NIS_OK);
+    assert_eq!(
+        unsafe { nis_sample(integ, n, x.as_mut_ptr(), pdf.as_mut_ptr()) },
+        NIS_OK
+    );
+    assert_eq!(unsafe { nis_set_seed(integ, 8) }, NIS_OK);
+    let status = unsafe {
+        nis_sample_weighted(
+            integ,
+            Some(bump_c),
+            null,
+            n,
+            x2.as_mut_ptr(),
+            w2.as_mut_ptr(),
+        )
+    };
+    assert_eq!(status, NIS_OK);
+    assert_eq!(x, x2, "the same stream gives the same points");
+    for ((p, q), w) in x.chunks(2).zip(&pdf).zip(&w2) {
+        assert!((w - bump(p) / q).abs() <= 1e-12 * w.abs());
+    }
+    // The mean weight estimates the integral, ∫ = (π·0.02)·Φ-cut ≈ 0.0628 in 2-d.
+    let mean = w2.iter().sum::<f64>() / n as f64;
+    assert!((mean / 0.0628 - 1.0).abs() < 0.2, "mean weight {mean}");
+
+    // Save, load on both sides, estimate again: the same bits.
+    let dir = std::env::temp_dir().join(format!("nis-c-abi-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let path = dir.join("bump.safetensors");
+    let cpath = CString::new(path.to_str().unwrap()).unwrap();
+    assert_eq!(
+        unsafe { nis_save(integ, cpath.as_ptr()) },
+        NIS_OK,
+        "{}",
+        last_error()
+    );
+    let mut loaded = std::ptr::null_mut();
+    assert_eq!(
+        unsafe { nis_load(cpath.as_ptr(), &mut loaded) },
+        NIS_OK,
+        "{}",
+        last_error()
+    );
+    assert_eq!(unsafe { nis_dim(loaded) }, 2);
+    let mut c = nis_result::default();
+    assert_eq!(
+        unsafe { nis_integrate(loaded, Some(bump_c), null, 10_000, &mut c) },
+        NIS_OK
+    );
+    let r = NisIntegrator::load(&path)
+        .unwrap()
+        .integrate(&bump, 10_000)
+        .unwrap();
+    assert!(same(c.value, r.value) && same(c.std_err, r.std_err));
+    unsafe {
+        nis_free(loaded);
+        nis_free(integ);
+    }
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+#[test]
+fn a_failing_callback_reports_its_status_and_keeps_the_last_result() {
+    unsafe extern "C" fn refuse(
+        _: *const f64,
+        _: usize,
+        _: usize,
+        _: *mut f64,
+        _: *mut c_void,
+    ) -> c_int {
+        -42
+    }
+    let integ = create(r#"{"method": "vegas", "dim": 2}"#);
+    let null = std::ptr::null_mut();
+    unsafe {
+        assert_eq!(
+            nis_integrate(integ, Some(bump_c), null, 5_000, null.cast()),
+            NIS_OK
+        );
+        assert_eq!(
+            nis_integrate(integ, Some(refuse), null, 5_000, null.cast()),
+            NIS_ERR_CALLBACK
+        );
+        assert_eq!(nis_last_callback_status(), -42);
+        assert!(last_error().contains("-42"), "{}", last_error());
+        let mut mean = 0.0;
+        let status = nis_result_estimates(integ, &mut mean, null.cast(), null.cast(), 1);
+        assert_eq!(status, NIS_OK);
+        assert!(mean > 0.0);
+        nis_free(integ);
+    }
+}
