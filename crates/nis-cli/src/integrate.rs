@@ -7,7 +7,8 @@ use indicatif::{ProgressBar, ProgressStyle};
 use nis::flow::Density;
 use nis::integrands::{self, Builtin, SUITE};
 use nis::integrate::{
-    nis::NisConfig, nis::NisIntegrator, IntegrationResult, Integrator, Method, Settings,
+    disagreements, nis::NisConfig, nis::NisIntegrator, IntegrationResult, Integrator, Method,
+    Settings, DISAGREEMENT_SIGMAS,
 };
 use nis::loss::Loss;
 use nis::TransformKind;
@@ -199,40 +200,75 @@ pub fn run(args: &IntegrateArgs) -> Result<(), Error> {
     let f = integrands::by_name(&args.name, args.dim)?;
     let methods = match args.method {
         Some(m) => vec![m],
-        None if args.json => vec![Method::Nis],
         None => Method::ALL.to_vec(),
     };
-    if args.json {
+    let integrand = format!("{} (d = {})", f.name, f.dim);
+    if args.json && args.method.is_some() {
         let r = run_method(&f, methods[0], args)?;
         let mut v = serde_json::to_value(&r)?;
         v["exact"] = serde_json::json!(f.exact);
-        v["integrand"] = serde_json::json!(format!("{} (d = {})", f.name, f.dim));
+        v["integrand"] = serde_json::json!(integrand);
         println!("{}", serde_json::to_string(&v)?);
         for w in &r.warnings {
             eprintln!("warning: {w}");
         }
         return Ok(());
     }
-    println!(
-        "{} in {} dimensions: exact {:.7e}{}  ({})",
-        f.name,
-        f.dim,
-        f.exact,
-        if f.exact_err > 0.0 {
-            format!(" ± {:.1e}", f.exact_err)
-        } else {
-            String::new()
-        },
-        f.source
-    );
-    println!("{HEADER}");
+    if !args.json {
+        println!(
+            "{} in {} dimensions: exact {:.7e}{}  ({})",
+            f.name,
+            f.dim,
+            f.exact,
+            if f.exact_err > 0.0 {
+                format!(" ± {:.1e}", f.exact_err)
+            } else {
+                String::new()
+            },
+            f.source
+        );
+        println!("{HEADER}");
+    }
+    let mut results = Vec::new();
     for m in methods {
         let r = run_method(&f, m, args)?;
-        let label = m.label();
-        println!("{}", row(label, &r, f.exact));
-        for w in &r.warnings {
-            eprintln!("warning ({label}): {w}");
+        if !args.json {
+            println!("{}", row(m.label(), &r, f.exact));
+            for w in &r.warnings {
+                eprintln!("warning ({}): {w}", m.label());
+            }
         }
+        results.push((m, r));
+    }
+    let labelled: Vec<(&str, &IntegrationResult)> =
+        results.iter().map(|(m, r)| (m.label(), r)).collect();
+    let disagree = disagreements(&labelled, DISAGREEMENT_SIGMAS);
+    // Each method's own warnings, then the disagreements between methods.
+    let warnings: Vec<String> = results
+        .iter()
+        .flat_map(|(m, r)| {
+            r.warnings
+                .iter()
+                .map(move |w| format!("{}: {w}", m.label()))
+        })
+        .chain(disagree.iter().cloned())
+        .collect();
+    if args.json {
+        let mut by_method = serde_json::Map::new();
+        for (m, r) in &results {
+            by_method.insert(m.name().to_string(), serde_json::to_value(r)?);
+        }
+        let v = serde_json::json!({
+            "integrand": integrand,
+            "exact": f.exact,
+            "results": by_method,
+            "warnings": warnings,
+        });
+        println!("{}", serde_json::to_string(&v)?);
+        return Ok(());
+    }
+    for w in &disagree {
+        println!("{w}");
     }
     Ok(())
 }

@@ -27,7 +27,10 @@ use serde::{Deserialize, Serialize};
 use crate::error::{Error, Result};
 
 pub use integrand::{check_dim, evaluate, Integrand, TrainOn, VectorFn};
-pub use result::{Accumulator, ComponentEstimates, IntegrationResult, Iteration};
+pub use result::{
+    disagreements, Accumulator, ComponentEstimates, IntegrationResult, Iteration,
+    DISAGREEMENT_SIGMAS,
+};
 
 /// Receives progress reports: evaluations done so far in the current call, evaluations planned
 /// for it, and a short status. Closures `FnMut(u64, u64, &str) + Send` are observers.

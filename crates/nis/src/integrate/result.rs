@@ -6,7 +6,7 @@ use std::time::Instant;
 use serde::{Deserialize, Serialize};
 
 /// The outcome of an integration, the same for every method.
-#[derive(Clone, Debug, Serialize, Deserialize)]
+#[derive(Clone, Debug, Default, Serialize, Deserialize)]
 pub struct IntegrationResult {
     /// The estimate of ∫ f.
     pub value: f64,
@@ -33,6 +33,45 @@ pub struct IntegrationResult {
     /// [`IntegrationResult::estimates`] for a view that covers both).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub components: Option<ComponentEstimates>,
+}
+
+/// Combined standard errors by which two estimates of one integral may differ before
+/// [`disagreements`] reports them: at 5σ an honest pair disagrees once in ~1.7 million.
+pub const DISAGREEMENT_SIGMAS: f64 = 5.0;
+
+/// The pairs of `results` (labelled estimates of the same integral) that differ by more than
+/// `sigmas` combined standard errors, |a − b| > sigmas·√(σ_a² + σ_b²), each as a sentence: one of
+/// the two has missed part of the integrand, or its error bar is too small.
+///
+/// ```
+/// use nis::integrate::{disagreements, IntegrationResult};
+/// let r = |value: f64, std_err: f64| IntegrationResult { value, std_err, ..Default::default() };
+/// let (a, b, c) = (r(1.0, 0.01), r(1.02, 0.01), r(0.5, 0.001));
+/// let found = disagreements(&[("nis", &a), ("vegas+", &b), ("uniform", &c)], 5.0);
+/// assert_eq!(found.len(), 2); // c disagrees with both; a and b agree (1.4σ)
+/// assert!(found[0].contains("nis") && found[0].contains("uniform"));
+/// ```
+pub fn disagreements(results: &[(&str, &IntegrationResult)], sigmas: f64) -> Vec<String> {
+    let mut out = Vec::new();
+    for (i, (la, a)) in results.iter().enumerate() {
+        for (lb, b) in &results[i + 1..] {
+            let combined = a.std_err.hypot(b.std_err);
+            let apart = (a.value - b.value).abs();
+            if apart > sigmas * combined || (combined == 0.0 && apart > 0.0) {
+                out.push(format!(
+                    "{la} ({:.6e} ± {:.1e}) and {lb} ({:.6e} ± {:.1e}) disagree by {:.1} combined \
+                     standard errors: one of them has missed part of the integrand or \
+                     underestimates its error",
+                    a.value,
+                    a.std_err,
+                    b.value,
+                    b.std_err,
+                    apart / combined
+                ));
+            }
+        }
+    }
+    out
 }
 
 impl IntegrationResult {

@@ -1,0 +1,66 @@
+//! `nis integrate` end to end: every method side by side in one JSON object with a warnings
+//! array, one method alone, and budgets too small for an error bar.
+
+use std::process::Command;
+
+fn nis(args: &[&str]) -> std::process::Output {
+    Command::new(env!("CARGO_BIN_EXE_nis"))
+        .args(args)
+        .output()
+        .unwrap()
+}
+
+#[test]
+fn json_without_a_method_holds_every_method_and_the_warnings() {
+    let out = nis(&[
+        "integrate",
+        "gauss",
+        "--dim",
+        "2",
+        "--evals",
+        "20000",
+        "--json",
+    ]);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    let exact = v["exact"].as_f64().unwrap();
+    for method in ["nis", "vegas", "uniform"] {
+        let r = &v["results"][method];
+        let (value, err) = (r["value"].as_f64().unwrap(), r["std_err"].as_f64().unwrap());
+        assert!(
+            (value - exact).abs() < 5.0 * err,
+            "{method}: {value} ± {err}"
+        );
+        assert_eq!(r["n_eval"].as_u64(), Some(20000));
+    }
+    assert!(v["warnings"].is_array());
+    // With a method, one result object as before.
+    let out = nis(&[
+        "integrate",
+        "gauss",
+        "--evals",
+        "20000",
+        "--method",
+        "vegas",
+        "--json",
+    ]);
+    let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    assert!(v["value"].is_f64() && v.get("results").is_none());
+}
+
+#[test]
+fn a_budget_too_small_for_an_error_bar_is_an_error() {
+    for method in ["nis", "vegas", "uniform"] {
+        let out = nis(&["integrate", "camel", "--evals", "0", "--method", method]);
+        assert!(!out.status.success());
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert!(
+            err.contains("needs at least") && !err.contains("panicked"),
+            "{err}"
+        );
+    }
+}
