@@ -418,7 +418,13 @@ impl Integrator for Vegas {
                 }
             }
             let fx = evaluate(f, &x, dim)?;
-            let target = train_on.target(&fx, k);
+            // The sampler adapts to f itself unless told otherwise: then no copy, no second pass.
+            let adapts_to_f = k == 1 && train_on == TrainOn::Component(0);
+            let target = if adapts_to_f {
+                Vec::new()
+            } else {
+                train_on.target(&fx, k)
+            };
             n_eval += total as u64;
             // Per hypercube: mean and variance of f·J; the estimate Σ_h V_h·mean_h.
             let volume = 1.0 / cubes as f64;
@@ -435,7 +441,13 @@ impl Integrator for Vegas {
                     w_eff.push(v * volume * total as f64 / nh as f64);
                 }
                 // The map and the strata adapt to the target (component 0 of a scalar: f).
-                let (_, t_var, tj) = cube_stats((start..start + nh).map(|i| target[i] * jacs[i]));
+                let (t_var, tj) = if adapts_to_f {
+                    (var, fj)
+                } else {
+                    let (_, t_var, tj) =
+                        cube_stats((start..start + nh).map(|i| target[i] * jacs[i]));
+                    (t_var, tj)
+                };
                 for (kk, v) in tj.iter().enumerate() {
                     // ∫(fJ)² dy from this cube's samples: each stands for V_h/n_h of y-space.
                     let contrib = v * v * volume / nh as f64;
