@@ -607,3 +607,25 @@ fn component_covariance_matches_the_spread_of_independent_runs() {
         }
     }
 }
+
+#[test]
+fn weighted_samples_estimate_the_integral_without_shifting_later_estimates() {
+    // f = 2x₀ on [0, 1]², ∫ f = 1.
+    let f = |x: &[f64]| 2.0 * x[0];
+    let (_, mut a) = nis_integrate(&f, 2, &small_nis(), 40_000, 4).unwrap();
+    let (_, mut b) = nis_integrate(&f, 2, &small_nis(), 40_000, 4).unwrap();
+    let n = 20_000;
+    let (x, w) = a.weighted(&f, n).unwrap();
+    assert_eq!((x.len(), w.len()), (2 * n, n));
+    assert!(x.iter().all(|v| (0.0..=1.0).contains(v)));
+    let mean = w.iter().sum::<f64>() / n as f64;
+    let var = w.iter().map(|v| (v - mean).powi(2)).sum::<f64>() / (n - 1) as f64;
+    assert!(
+        (mean - 1.0).abs() < 5.0 * (var / n as f64).sqrt(),
+        "mean {mean}"
+    );
+    // Weighted draws use their own stream: the next estimate is the one without them.
+    let ra = a.estimate(&f, 10_000).unwrap();
+    let rb = b.estimate(&f, 10_000).unwrap();
+    assert_eq!(ra.value.to_bits(), rb.value.to_bits());
+}

@@ -225,6 +225,15 @@ impl NisIntegrator {
         Ok(r)
     }
 
+    /// `n` weighted points of the frozen sampler (the defensive mixture): the points (`n × d`,
+    /// row-major) and their weights f/q (`n × k`, row-major), whose mean estimates ∫ f. Drawn
+    /// from the stream that [`NisIntegrator::unweighted`] continues, so estimates are not shifted.
+    pub fn weighted(&mut self, f: &dyn Integrand, n: usize) -> Result<(Vec<f64>, Vec<f64>)> {
+        check_dim(f, self.flow().dim())?;
+        let (flow, lambda) = (self.trainer.flow(), self.config.uniform_fraction);
+        weights(flow, lambda, f, n, &mut self.streams.unweight)
+    }
+
     /// `n` points of the frozen sampler and the weights of the target the flow learns
     /// ([`NisConfig::train_on`]), drawn from `rng`.
     pub(crate) fn target_weights(

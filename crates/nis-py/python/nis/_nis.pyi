@@ -1,0 +1,218 @@
+"""Type stubs of the compiled module ``nis._nis`` (re-exported by ``nis``)."""
+
+import os
+from typing import Callable, List, Optional, Tuple, Union
+
+import numpy as np
+import numpy.typing as npt
+
+__version__: str
+
+PathLike = Union[str, "os.PathLike[str]"]
+Points = npt.ArrayLike
+"""An (n, dim) array-like of float64 points in [0, 1]^dim."""
+IntegrandFn = Callable[[npt.NDArray[np.float64]], npt.ArrayLike]
+"""f((n, dim) float64 array) -> (n,) values, or (n, k) for a vector integrand."""
+
+class IntegrandError(ValueError):
+    """The integrand returned NaN or ±inf; ``point`` holds the point, ``value`` the value."""
+
+    point: npt.NDArray[np.float64]
+    value: float
+
+class ModelError(ValueError):
+    """A model file that cannot be read back as what it claims to be."""
+
+class IntegrationResult:
+    """The outcome of an integration, like a ``vegas`` result; ``str(r)`` is a summary."""
+
+    @property
+    def mean(self) -> Union[float, npt.NDArray[np.float64]]:
+        """The estimate of ∫ f (an array of k for a vector integrand)."""
+    @property
+    def sdev(self) -> Union[float, npt.NDArray[np.float64]]:
+        """Its standard error (an array of k for a vector integrand)."""
+    @property
+    def cov(self) -> Union[float, npt.NDArray[np.float64]]:
+        """Covariance of the estimates: k × k for a vector integrand, sdev² for a scalar."""
+    @property
+    def chi2_dof(self) -> float:
+        """χ² per degree of freedom of the final phase's iterations."""
+    @property
+    def n_eval(self) -> int:
+        """All evaluations of the integrand in the call, training included."""
+    @property
+    def rel_var_per_eval(self) -> float:
+        """Var(f/q)/F² per evaluation of the final phase."""
+    @property
+    def unweighting_efficiency(self) -> float:
+        """mean(|w|)/max(|w|) of the final phase's weights."""
+    @property
+    def seconds(self) -> float:
+        """Wall time of the call."""
+    @property
+    def warnings(self) -> List[str]:
+        """What the user should know (e.g. a large χ²/dof)."""
+    @property
+    def iterations(self) -> List[Tuple[float, float, int]]:
+        """The final phase's iterations: (estimate, variance, evaluations)."""
+    def summary(self) -> str:
+        """The readable summary, ``str(r)``."""
+
+class Integrator:
+    """A Monte Carlo integrator over [0, 1]^dim that owns its adapted state, like
+    ``vegas.Integrator``. ``method``: "nis", "vegas" or "uniform"; keywords of another method
+    than the chosen one raise ValueError. ``threads``: run in a rayon pool of that size.
+
+    NIS: ``coupling`` ("pq", "pl", "rq", "affine"), ``bins``, ``layers`` (coupling layers),
+    ``hidden_layers``, ``hidden_width``, ``blob_bins``, ``loss`` ("kl", "chi2"), ``batch``,
+    ``steps_per_batch``, ``train_fraction``, ``learning_rate``, ``learning_rate_end``,
+    ``uniform_fraction``, ``anneal_from``, ``final_iterations``.
+    VEGAS+: ``increments``, ``alpha``, ``beta``, ``iterations``, ``warmup``, ``min_per_cube``.
+    Plain MC: ``iterations``. NIS and VEGAS+: ``train_on`` (component index or "sum_abs").
+    """
+
+    def __init__(
+        self,
+        dim: int,
+        method: str = "nis",
+        *,
+        seed: int = 0,
+        coupling: Optional[str] = None,
+        bins: Optional[int] = None,
+        layers: Optional[int] = None,
+        hidden_layers: Optional[int] = None,
+        hidden_width: Optional[int] = None,
+        blob_bins: Optional[int] = None,
+        loss: Optional[str] = None,
+        batch: Optional[int] = None,
+        steps_per_batch: Optional[int] = None,
+        train_fraction: Optional[float] = None,
+        learning_rate: Optional[float] = None,
+        learning_rate_end: Optional[float] = None,
+        uniform_fraction: Optional[float] = None,
+        anneal_from: Optional[float] = None,
+        final_iterations: Optional[int] = None,
+        increments: Optional[int] = None,
+        alpha: Optional[float] = None,
+        beta: Optional[float] = None,
+        iterations: Optional[int] = None,
+        warmup: Optional[int] = None,
+        min_per_cube: Optional[int] = None,
+        train_on: Optional[Union[int, str]] = None,
+        threads: Optional[int] = None,
+    ) -> None: ...
+    def __call__(self, f: IntegrandFn, evals: int = 1_000_000) -> IntegrationResult:
+        """Adapts on a share of ``evals`` evaluations of ``f`` (continuing earlier calls),
+        then estimates ∫ f with the rest. ``f`` is called on whole (n, dim) batches; its
+        exceptions propagate unchanged; NaN/inf raise ``IntegrandError``."""
+    def train(self, f: IntegrandFn, evals: int) -> None:
+        """NIS only: trains on ``evals`` more evaluations without estimating."""
+    def estimate(self, f: IntegrandFn, evals: int = 1_000_000) -> IntegrationResult:
+        """NIS only: estimates with the flow frozen (e.g. after ``load``)."""
+    def sample(
+        self, f: IntegrandFn, n: int
+    ) -> Tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]]:
+        """NIS only: ``(x, w)``, n weighted points and their weights f/q."""
+    def unweighted(
+        self, f: IntegrandFn, n: int, overweight: float = 1e-3
+    ) -> Tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]]:
+        """NIS only: ``(x, w)``, n unweighted points of |f| and their residual weights
+        sign(f)·max(1, |w|/w_max)."""
+    def save(self, path: PathLike) -> None:
+        """NIS only: saves the trained integrator (safetensors, as ``nis integrate --save``)."""
+    @staticmethod
+    def load(path: PathLike, *, threads: Optional[int] = None) -> "Integrator":
+        """Loads an integrator saved by ``save`` or the CLI."""
+    @property
+    def method(self) -> str: ...
+    @property
+    def dim(self) -> int: ...
+    @property
+    def threads(self) -> Optional[int]: ...
+    @property
+    def flow(self) -> "Flow":
+        """NIS only: a copy of the trained flow."""
+    @property
+    def trained_evals(self) -> int:
+        """NIS only: evaluations spent training so far."""
+
+class Flow:
+    """A coupling flow on [0, 1]^dim with a uniform latent, as a distribution (zuko /
+    torch.distributions conventions). A new flow is the uniform density."""
+
+    def __init__(
+        self,
+        dim: int,
+        coupling: str = "pq",
+        bins: int = 16,
+        layers: Optional[int] = None,
+        context_dim: int = 0,
+        *,
+        hidden_layers: int = 2,
+        hidden_width: int = 32,
+        blob_bins: int = 16,
+        seed: int = 0,
+    ) -> None: ...
+    def sample(
+        self, n: int, context: Optional[npt.ArrayLike] = None
+    ) -> Tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]]:
+        """``(x, log_q)``: n points of shape (n, dim) and their log-density."""
+    def log_prob(
+        self, x: Points, context: Optional[npt.ArrayLike] = None
+    ) -> npt.NDArray[np.float64]:
+        """ln q(x) of each row of x."""
+    def fit(
+        self,
+        data: Points,
+        *,
+        epochs: int = 10,
+        batch: int = 256,
+        learning_rate: float = 1e-3,
+        context: Optional[npt.ArrayLike] = None,
+    ) -> List[float]:
+        """Maximum likelihood on data in [0, 1]^dim; returns each epoch's mean NLL (nats)."""
+    def fit_integrand(
+        self,
+        f: IntegrandFn,
+        *,
+        evals: int = 100_000,
+        loss: str = "kl",
+        batch: int = 1024,
+        learning_rate: float = 5e-3,
+    ) -> List[float]:
+        """Learns |f|/∫|f| on-policy (loss "kl" or "chi2"); returns each batch's Var(f/q)/F²."""
+    def save(self, path: PathLike) -> None:
+        """Saves as a safetensors model file (``nis::io``, as the CLI writes)."""
+    @staticmethod
+    def load(path: PathLike, *, seed: int = 0) -> "Flow":
+        """Loads a flow saved by ``save``, ``Integrator.save`` or the CLI."""
+    @property
+    def dim(self) -> int: ...
+    @property
+    def context_dim(self) -> int: ...
+    @property
+    def param_count(self) -> int: ...
+    @property
+    def config(self) -> str:
+        """The flow's configuration as JSON."""
+
+class Builtin:
+    """A built-in integrand of the suite with its exact integral (see ``nis.integrands``)."""
+
+    def __init__(self, name: str, dim: Optional[int] = None) -> None: ...
+    def __call__(self, x: Points) -> npt.NDArray[np.float64]:
+        """f at each row of the (n, dim) array x."""
+    @property
+    def name(self) -> str: ...
+    @property
+    def dim(self) -> int: ...
+    @property
+    def exact(self) -> float: ...
+    @property
+    def exact_err(self) -> float: ...
+    @property
+    def source(self) -> str: ...
+
+def suite() -> List[Tuple[str, List[int], str]]:
+    """The suite: (name, benchmark dimensions, description) per member."""
