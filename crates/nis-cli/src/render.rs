@@ -149,7 +149,7 @@ pub fn run_render(args: &RenderArgs) -> Result<(), Box<dyn std::error::Error>> {
     if let Some(path) = &args.export_xml {
         let xml = nis_render::scenes::xml(&args.scene)
             .ok_or_else(|| format!("'{}' is not a built-in scene", args.scene))?;
-        std::fs::write(path, xml)?;
+        nis::io::write_atomic(path, xml.as_bytes())?;
         eprintln!("wrote {}", path.display());
         return Ok(());
     }
