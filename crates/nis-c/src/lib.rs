@@ -474,7 +474,13 @@ fn draw(integ: &mut nis_integrator, n: usize) -> Outcome<(Vec<f64>, Vec<f64>)> {
     let nis = integ.method.nis()?;
     product(n, nis.dim(), "n * dim")?;
     let lambda = nis.config().uniform_fraction;
-    let b = mixture::draw(nis.flow(), lambda, n, &mut integ.sample_rng, false)?;
+    let b = mixture::draw(
+        nis.flow(),
+        lambda,
+        n,
+        &mut integ.sample_rng,
+        mixture::Record::Nothing,
+    )?;
     Ok((b.x.iter().map(|&v| v as f64).collect(), b.log_q_mix))
 }
 

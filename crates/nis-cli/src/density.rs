@@ -163,10 +163,7 @@ fn train_with_bar(
     max_seconds: Option<f64>,
     out: &Path,
 ) -> nis_paper::Result<()> {
-    std::fs::create_dir_all(out).map_err(|source| nis_paper::Error::Io {
-        path: out.to_path_buf(),
-        source,
-    })?;
+    nis_paper::report::create_dir(out)?;
     let label = format!(
         "{} {}",
         session.config().dataset.name(),

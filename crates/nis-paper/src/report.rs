@@ -43,14 +43,23 @@ pub fn write_section(path: &Path, key: &str, title: &str, body: &str) -> Result<
         (Some(a), Some(b)) if a < b => format!("{}{section}{}", &old[..a], &old[b + end.len()..]),
         _ => format!("{}\n{section}\n", old.trim_end()),
     };
+    write_file(path, new.as_bytes())
+}
+
+/// Creates `dir` and its parents.
+pub fn create_dir(dir: &Path) -> Result<()> {
+    std::fs::create_dir_all(dir).map_err(|source| Error::Io {
+        path: dir.to_path_buf(),
+        source,
+    })
+}
+
+/// Writes `bytes` to `path` atomically, creating its directory.
+pub fn write_file(path: &Path, bytes: &[u8]) -> Result<()> {
     if let Some(dir) = path.parent() {
-        std::fs::create_dir_all(dir).map_err(|source| Error::Io {
-            path: dir.to_path_buf(),
-            source,
-        })?;
+        create_dir(dir)?;
     }
-    nis::io::write_atomic(path, new.as_bytes())?;
-    Ok(())
+    Ok(nis::io::write_atomic(path, bytes)?)
 }
 
 /// `path` relative to the directory of the Markdown file `docs`, for links inside it.

@@ -7,12 +7,11 @@ use std::path::{Path, PathBuf};
 
 use nis::TransformKind;
 
-use super::write_file;
 use crate::data::{Dataset, Images};
 use crate::density::figure::{self, default_scale, manifold_png};
 use crate::density::{Arch, DensityConfig, EpochStats, Session};
 use crate::error::{Error, Result};
-use crate::report;
+use crate::report::{self, write_file};
 
 /// Settings of the benchmark.
 #[derive(Clone, Debug)]

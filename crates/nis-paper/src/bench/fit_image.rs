@@ -8,11 +8,10 @@ use std::path::PathBuf;
 use nis::flow::FlowConfig;
 use nis::TransformKind;
 
-use super::write_file;
 use crate::error::Result;
 use crate::image::figure::{self, MontageRow};
 use crate::image::{Builtin, Fit, FitConfig, FitSummary, Grid, Target};
-use crate::report;
+use crate::report::{self, write_file};
 
 /// Settings of the benchmark.
 #[derive(Clone, Debug)]

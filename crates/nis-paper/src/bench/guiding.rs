@@ -2,7 +2,7 @@
 //! at equal samples per pixel and at equal time, as in the paper's Figure 5: MAPE and relMSE,
 //! montages of central crops with error maps, a table in `docs/REPRODUCTION.md`.
 
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 
 use nis_render::compare::{compare, error_map, ImageErrors};
 use nis_render::film::Image;
@@ -13,7 +13,7 @@ use nis_render::render::{Budget, RenderOptions, RenderOutput, Schedule};
 use nis_render::scene::Scene;
 
 use crate::error::{Error, Result};
-use crate::report;
+use crate::report::{self, create_dir};
 
 /// Salt of the reference renders' seed: the reference must not share its random streams with
 /// the renders it judges (equal streams would correlate their errors).
@@ -52,13 +52,6 @@ pub type Render<'a> =
 pub struct Io<'a> {
     pub render: &'a mut Render<'a>,
     pub log: &'a mut dyn FnMut(&str),
-}
-
-fn create_dir(dir: &Path) -> Result<()> {
-    std::fs::create_dir_all(dir).map_err(|source| Error::Io {
-        path: dir.to_path_buf(),
-        source,
-    })
 }
 
 /// One method's result in one comparison.

@@ -30,14 +30,3 @@ pub fn time(reps: usize, mut f: impl FnMut()) -> f64 {
     t.sort_by(f64::total_cmp);
     t[reps / 2]
 }
-
-/// Writes `bytes` to `path` atomically, creating its directory.
-pub(crate) fn write_file(path: &std::path::Path, bytes: &[u8]) -> crate::Result<()> {
-    if let Some(dir) = path.parent() {
-        std::fs::create_dir_all(dir).map_err(|source| crate::Error::Io {
-            path: dir.to_path_buf(),
-            source,
-        })?;
-    }
-    Ok(nis::io::write_atomic(path, bytes)?)
-}

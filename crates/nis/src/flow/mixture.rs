@@ -43,16 +43,36 @@ pub struct MixtureBatch {
     pub log_q_mix: Vec<f64>,
     /// The first `density_part.len()` points, with ln q (not q_mix) and q's tape.
     pub density_part: Samples,
-    /// ln q of the uniform points (the rest of `x`), with q's tape when drawn for training.
-    pub uniform_part: Evaluated,
+    /// ln q of the uniform points (the rest of `x`).
+    pub uniform_log_q: Vec<f64>,
+    /// q's tape of the uniform points, when asked for ([`Record::Both`]).
+    pub uniform_tape: Option<Tape>,
 }
 
-/// What the mixture's training pass recorded: q's tapes of both parts and each point's
-/// ∂ln q_mix/∂ln q = (1 − λ)·q/q_mix.
+/// Which of q's passes a [`draw`] keeps tapes of.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Record {
+    /// None: sampling only.
+    Nothing,
+    /// q's own share (the on-policy step of a trainer of q, which sees only q's points).
+    DensityShare,
+    /// Both shares (the mixture's own gradient).
+    Both,
+}
+
+/// What the mixture's training pass recorded: q's tapes of consecutive row ranges and each
+/// point's ∂ln q_mix/∂ln q = (1 − λ)·q/q_mix.
 struct MixtureTape {
-    density_tape: Tape,
-    uniform_tape: Tape,
+    parts: Vec<Tape>,
     dlog: Vec<f32>,
+}
+
+/// ∂ln q_mix/∂ln q = (1 − λ)·q/q_mix for each pair (ln q, ln q_mix).
+fn dlog<'a>(lambda: f64, log_q: impl Iterator<Item = &'a f64>, log_q_mix: &[f64]) -> Vec<f32> {
+    log_q
+        .zip(log_q_mix)
+        .map(|(lq, lm)| ((1.0 - lambda) * (lq - lm).exp()) as f32)
+        .collect()
 }
 
 /// The mixture's own tapes carry no version: the inner density's tapes inside them do, and its
@@ -70,44 +90,42 @@ pub fn mix_log_density(lambda: f64, log_q: f64) -> f64 {
 }
 
 /// Draws `n` points of λ·uniform + (1 − λ)·`density`: q's share first (from `rng`), then the
-/// uniform points. `record` keeps q's tapes of both parts (for training).
+/// uniform points; `record` says which of q's passes keep their tapes.
 pub fn draw(
     density: &(impl Density + ?Sized),
     lambda: f64,
     n: usize,
     rng: &mut dyn RngCore,
-    record: bool,
+    record: Record,
 ) -> Result<MixtureBatch> {
     let dim = density.dim();
     let n_u = uniform_count(lambda, n);
     let n_q = n - n_u;
-    let density_part = if record {
-        density.sample_for_training(n_q, None, rng)?
-    } else {
+    let density_part = if record == Record::Nothing {
         density.sample(n_q, None, rng)?
+    } else {
+        density.sample_for_training(n_q, None, rng)?
     };
     let mut x = density_part.x.clone();
     x.extend((0..n_u * dim).map(|_| rng.random::<f32>()));
-    let uniform_part = if record {
-        density.log_density_for_training(&x[n_q * dim..], None)?
+    let (uniform_log_q, uniform_tape) = if record == Record::Both {
+        let e = density.log_density_for_training(&x[n_q * dim..], None)?;
+        (e.log_q, Some(e.tape))
     } else {
-        let log_q = density.log_density(&x[n_q * dim..], None)?;
-        Evaluated {
-            tape: Tape::new(0, log_q.len(), ()),
-            log_q,
-        }
+        (density.log_density(&x[n_q * dim..], None)?, None)
     };
     let log_q_mix = density_part
         .log_q
         .iter()
-        .chain(&uniform_part.log_q)
+        .chain(&uniform_log_q)
         .map(|&l| mix_log_density(lambda, l))
         .collect();
     Ok(MixtureBatch {
         x,
         log_q_mix,
         density_part,
-        uniform_part,
+        uniform_log_q,
+        uniform_tape,
     })
 }
 
@@ -133,30 +151,28 @@ impl<D: Density> DefensiveMixture<D> {
     }
 
     fn samples(&self, n: usize, rng: &mut dyn RngCore, record: bool) -> Result<Samples> {
-        let b = draw(&self.density, self.lambda, n, rng, record)?;
-        let tape = record.then(|| self.tape(&b));
+        let how = if record {
+            Record::Both
+        } else {
+            Record::Nothing
+        };
+        let b = draw(&self.density, self.lambda, n, rng, how)?;
+        let tape = match (b.density_part.tape, b.uniform_tape) {
+            (Some(q_share), Some(uniform_share)) => {
+                let log_q = b.density_part.log_q.iter().chain(&b.uniform_log_q);
+                let records = MixtureTape {
+                    parts: vec![q_share, uniform_share],
+                    dlog: dlog(self.lambda, log_q, &b.log_q_mix),
+                };
+                Some(Tape::new(MIXTURE_TAPE, b.log_q_mix.len(), records))
+            }
+            _ => None,
+        };
         Ok(Samples {
             x: b.x,
             log_q: b.log_q_mix,
             tape,
         })
-    }
-
-    fn tape(&self, b: &MixtureBatch) -> Tape {
-        let dlog = b
-            .density_part
-            .log_q
-            .iter()
-            .chain(&b.uniform_part.log_q)
-            .zip(&b.log_q_mix)
-            .map(|(lq, lm)| ((1.0 - self.lambda) * (lq - lm).exp()) as f32)
-            .collect::<Vec<f32>>();
-        let records = MixtureTape {
-            density_tape: b.density_part.tape.clone().expect("recorded"),
-            uniform_tape: b.uniform_part.tape.clone(),
-            dlog,
-        };
-        Tape::new(MIXTURE_TAPE, b.log_q_mix.len(), records)
     }
 }
 
@@ -195,16 +211,9 @@ impl<D: Density> Density for DefensiveMixture<D> {
             .iter()
             .map(|&l| mix_log_density(self.lambda, l))
             .collect();
-        let dlog = e
-            .log_q
-            .iter()
-            .zip(&log_q)
-            .map(|(lq, lm)| ((1.0 - self.lambda) * (lq - lm).exp()) as f32)
-            .collect();
         let records = MixtureTape {
-            density_tape: Tape::new(0, 0, ()),
-            uniform_tape: e.tape,
-            dlog,
+            dlog: dlog(self.lambda, e.log_q.iter(), &log_q),
+            parts: vec![e.tape],
         };
         Ok(Evaluated {
             tape: Tape::new(MIXTURE_TAPE, log_q.len(), records),
@@ -225,14 +234,19 @@ impl<D: Density> Density for DefensiveMixture<D> {
     fn backward(&self, tape: &Tape, weights: &[f32]) -> Result<Vec<f32>> {
         let t: &MixtureTape = tape.records(MIXTURE_TAPE, weights.len())?;
         let w: Vec<f32> = weights.iter().zip(&t.dlog).map(|(w, d)| w * d).collect();
-        let n_q = t.density_tape.rows();
         let mut grads = vec![0.0f32; self.density.param_count()];
-        for (part, w) in [(&t.density_tape, &w[..n_q]), (&t.uniform_tape, &w[n_q..])] {
-            if part.rows() > 0 {
-                for (g, p) in grads.iter_mut().zip(self.density.backward(part, w)?) {
+        let mut start = 0;
+        for part in &t.parts {
+            let rows = start..start + part.rows();
+            if !rows.is_empty() {
+                for (g, p) in grads
+                    .iter_mut()
+                    .zip(self.density.backward(part, &w[rows.clone()])?)
+                {
                     *g += p;
                 }
             }
+            start = rows.end;
         }
         Ok(grads)
     }

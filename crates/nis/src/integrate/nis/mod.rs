@@ -341,7 +341,13 @@ fn draw(
     rng: &mut Pcg64Mcg,
     for_training: bool,
 ) -> Result<(MixtureBatch, Vec<f64>)> {
-    let b = mixture::draw(flow, lambda, n, rng, for_training)?;
+    // Training sees q's share only (on-policy), so only its pass keeps a tape.
+    let record = if for_training {
+        mixture::Record::DensityShare
+    } else {
+        mixture::Record::Nothing
+    };
+    let b = mixture::draw(flow, lambda, n, rng, record)?;
     let x64 = b.x.iter().map(|&v| v as f64).collect();
     Ok((b, x64))
 }
