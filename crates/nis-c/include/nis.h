@@ -140,6 +140,15 @@ typedef struct nis_result {
    * Components of the integrand (1: scalar).
    */
   size_t components;
+  /**
+   * PSIS's Pareto k̂ of the final phase's weights: above 0.7 the error bar cannot be trusted
+   * (NaN when it cannot be fitted).
+   */
+  double pareto_k;
+  /**
+   * Effective sample size (Σ|w|)²/Σw² of the final phase's weights.
+   */
+  double ess;
 } nis_result;
 
 #ifdef __cplusplus

@@ -133,6 +133,11 @@ pub struct nis_result {
     pub seconds: f64,
     /// Components of the integrand (1: scalar).
     pub components: usize,
+    /// PSIS's Pareto k̂ of the final phase's weights: above 0.7 the error bar cannot be trusted
+    /// (NaN when it cannot be fitted).
+    pub pareto_k: f64,
+    /// Effective sample size (Σ|w|)²/Σw² of the final phase's weights.
+    pub ess: f64,
 }
 
 impl From<&IntegrationResult> for nis_result {
@@ -146,6 +151,8 @@ impl From<&IntegrationResult> for nis_result {
             unweighting_efficiency: r.unweighting_efficiency,
             seconds: r.seconds,
             components: r.components.as_ref().map_or(1, |c| c.mean.len()),
+            pareto_k: r.pareto_k,
+            ess: r.ess,
         }
     }
 }

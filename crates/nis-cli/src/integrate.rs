@@ -182,19 +182,20 @@ pub fn run_method(
 /// A table row for one method.
 pub fn row(label: &str, r: &IntegrationResult, exact: f64) -> String {
     format!(
-        "{label:<8} {:>14.7e} ± {:<10.3e} {:>7.2} {:>12.4e} {:>8.2} {:>9} {:>7.4} {:>8.2}",
+        "{label:<8} {:>14.7e} ± {:<10.3e} {:>7.2} {:>12.4e} {:>8.2} {:>6.2} {:>9} {:>7.4} {:>8.2}",
         r.value,
         r.std_err,
         (r.value - exact) / r.std_err,
         r.rel_var_per_eval,
         r.chi2_per_dof,
+        r.pareto_k,
         r.n_eval,
         r.unweighting_efficiency,
         r.seconds
     )
 }
 
-pub const HEADER: &str = "method            value ± std_err          pull  rel.var/eval  χ²/dof    n_eval  unw.eff  seconds";
+pub const HEADER: &str = "method            value ± std_err          pull  rel.var/eval  χ²/dof     k̂    n_eval  unw.eff  seconds";
 
 pub fn run(args: &IntegrateArgs) -> Result<(), Error> {
     let f = integrands::by_name(&args.name, args.dim)?;

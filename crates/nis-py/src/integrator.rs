@@ -529,7 +529,8 @@ fn parse_train_on(v: &Bound<'_, PyAny>) -> PyResult<TrainOn> {
 
 /// The outcome of an integration, like a `vegas` result: `mean`, `sdev` (floats for a scalar
 /// integrand, arrays for a vector one, with `cov`), `chi2_dof`, `n_eval`, `rel_var_per_eval`,
-/// `unweighting_efficiency`, `seconds`; `str(r)` is a readable summary.
+/// `unweighting_efficiency`, the reliability figures `pareto_k`, `ess`, `var_rel_err`, `seconds`;
+/// `str(r)` is a readable summary.
 #[pyclass(module = "nis", name = "IntegrationResult", frozen)]
 pub(crate) struct PyIntegrationResult {
     r: IntegrationResult,
@@ -596,6 +597,25 @@ impl PyIntegrationResult {
     #[getter]
     fn unweighting_efficiency(&self) -> f64 {
         self.r.unweighting_efficiency
+    }
+
+    /// PSIS's Pareto k̂ of the final phase's weights: above 0.7 the error bar cannot be trusted
+    /// (NaN when it cannot be fitted).
+    #[getter]
+    fn pareto_k(&self) -> f64 {
+        self.r.pareto_k
+    }
+
+    /// Effective sample size (Σ|w|)²/Σw² of the final phase's weights.
+    #[getter]
+    fn ess(&self) -> f64 {
+        self.r.ess
+    }
+
+    /// Relative error of the variance estimate behind `sdev`.
+    #[getter]
+    fn var_rel_err(&self) -> f64 {
+        self.r.var_rel_err
     }
 
     /// Wall time of the call in seconds.

@@ -21,6 +21,7 @@ module nis
      integer(c_int64_t) :: n_eval
      real(c_double) :: rel_var_per_eval, unweighting_efficiency, seconds
      integer(c_size_t) :: components
+     real(c_double) :: pareto_k, ess
   end type nis_result
 
   public :: nis_integrand, nis_version, nis_create, nis_load, nis_free, nis_dim, nis_set_seed, &

@@ -48,6 +48,16 @@ class IntegrationResult:
     def unweighting_efficiency(self) -> float:
         """mean(|w|)/max(|w|) of the final phase's weights."""
     @property
+    def pareto_k(self) -> float:
+        """PSIS's Pareto k̂ of the final phase's weights: above 0.7 the error bar cannot be
+        trusted (NaN when it cannot be fitted)."""
+    @property
+    def ess(self) -> float:
+        """Effective sample size (Σ|w|)²/Σw² of the final phase's weights."""
+    @property
+    def var_rel_err(self) -> float:
+        """Relative error of the variance estimate behind ``sdev``."""
+    @property
     def seconds(self) -> float:
         """Wall time of the call."""
     @property

@@ -161,7 +161,14 @@ impl TrainOn {
 pub fn evaluate(f: &dyn Integrand, x: &[f64], dim: usize) -> Result<Vec<f64>> {
     let k = f.components();
     let mut out = vec![0.0; x.len() / dim * k];
-    f.eval_batch(x, dim, &mut out)?;
+    // A panicking integrand ends the call with an error, like a failing one: the integrator's
+    // state is untouched by a batch it never got back.
+    std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
+        f.eval_batch(x, dim, &mut out)
+    }))
+    .map_err(|payload| Error::IntegrandFailed {
+        message: format!("it panicked: {}", panic_message(payload.as_ref())),
+    })??;
     if let Some(i) = out.iter().position(|v| !v.is_finite()) {
         let p = i / k;
         return Err(Error::Integrand {
@@ -174,6 +181,15 @@ pub fn evaluate(f: &dyn Integrand, x: &[f64], dim: usize) -> Result<Vec<f64>> {
 
 /// Checks an integrand's declared dimension against the one asked for, and that it has at least
 /// one component.
+/// The message a panic carried (`&str` or `String` payloads; others have none to show).
+fn panic_message(payload: &(dyn std::any::Any + Send)) -> &str {
+    payload
+        .downcast_ref::<&str>()
+        .copied()
+        .or_else(|| payload.downcast_ref::<String>().map(String::as_str))
+        .unwrap_or("(no message)")
+}
+
 pub fn check_dim(f: &dyn Integrand, dim: usize) -> Result<()> {
     if dim == 0 {
         return Err(Error::Config("dimension must be at least 1".into()));

@@ -12,6 +12,7 @@
 //! unbiased mean of i.i.d. (or stratified) weights, and its error bar is the honest standard
 //! error of that mean. The final phase is split into iterations whose spread gives χ²/dof.
 
+pub mod diagnostics;
 mod integrand;
 pub mod nis;
 mod result;
@@ -26,6 +27,7 @@ use serde::{Deserialize, Serialize};
 
 use crate::error::{Error, Result};
 
+pub use diagnostics::{Reliability, PARETO_K_LIMIT};
 pub use integrand::{check_dim, evaluate, Integrand, TrainOn, VectorFn};
 pub use result::{
     disagreements, Accumulator, ComponentEstimates, IntegrationResult, Iteration,

@@ -5,6 +5,9 @@ use std::time::Instant;
 
 use serde::{Deserialize, Serialize};
 
+use super::diagnostics::WeightTail;
+use crate::error::{Error, Result};
+
 /// The outcome of an integration, the same for every method.
 #[derive(Clone, Debug, Default, Serialize, Deserialize)]
 pub struct IntegrationResult {
@@ -20,6 +23,17 @@ pub struct IntegrationResult {
     pub rel_var_per_eval: f64,
     /// Unweighting efficiency mean(|w|)/max(|w|) of the final phase's weights.
     pub unweighting_efficiency: f64,
+    /// PSIS's Pareto k̂ of the final phase's |w| tail: above [`PARETO_K_LIMIT`](super::PARETO_K_LIMIT) the error bar
+    /// cannot be trusted (`NaN`, `null` in JSON, when it cannot be fitted). See
+    /// [`diagnostics`](super::diagnostics).
+    #[serde(default)]
+    pub pareto_k: f64,
+    /// Effective sample size (Σ|w|)²/Σw² of the final phase's weights.
+    #[serde(default)]
+    pub ess: f64,
+    /// Relative error of the variance estimate behind `std_err` (√Var(s²)/s²).
+    #[serde(default)]
+    pub var_rel_err: f64,
     /// Wall time.
     pub seconds: f64,
     /// Things the user should know (not part of the JSON summary).
@@ -110,10 +124,13 @@ impl std::fmt::Display for IntegrationResult {
         }
         write!(
             f,
-            "result {:.8e} ± {:.3e}   χ²/dof {:.2}   n_eval {}   rel.var/eval {:.3e}   unw.eff {:.4}   {:.2} s",
+            "result {:.8e} ± {:.3e}   χ²/dof {:.2}   k̂ {:.2}   ESS {:.3e}   n_eval {}   \
+             rel.var/eval {:.3e}   unw.eff {:.4}   {:.2} s",
             self.value,
             self.std_err,
             self.chi2_per_dof,
+            self.pareto_k,
+            self.ess,
             self.n_eval,
             self.rel_var_per_eval,
             self.unweighting_efficiency,
@@ -150,19 +167,33 @@ pub struct Iteration {
     pub evals: u64,
 }
 
-/// Accumulates the final phase: weights per iteration, pooled in order.
-#[derive(Clone, Debug, Default)]
+/// Accumulates the final phase: weights per iteration, pooled in order, and the reliability
+/// figures of all its weights.
+#[derive(Clone, Debug)]
 pub struct Accumulator {
     /// The iterations so far.
     pub iterations: Vec<Iteration>,
     max_abs_w: f64,
     sum_abs_w: f64,
     n: u64,
+    tail: WeightTail,
 }
 
 impl Accumulator {
-    /// Adds one iteration of i.i.d. weights w_i = f_i/q_i.
-    pub fn add_weights(&mut self, w: &[f64]) {
+    /// For a final phase of about `planned` evaluations in all (sizes the PSIS tail it keeps).
+    pub fn new(planned: u64) -> Accumulator {
+        Accumulator {
+            iterations: Vec::new(),
+            max_abs_w: 0.0,
+            sum_abs_w: 0.0,
+            n: 0,
+            tail: WeightTail::new(planned),
+        }
+    }
+
+    /// Adds one iteration of i.i.d. weights w_i = f_i/q_i; an error when their variance does
+    /// not fit in an f64 (see [`Accumulator::add_iteration`]).
+    pub fn add_weights(&mut self, w: &[f64]) -> Result<()> {
         let n = w.len() as f64;
         let mean = w.iter().sum::<f64>() / n;
         let var = if w.len() > 1 {
@@ -170,12 +201,20 @@ impl Accumulator {
         } else {
             0.0
         };
-        self.add_iteration(mean, var, w);
+        self.add_iteration(mean, var, w)
     }
 
     /// Adds one iteration with its own estimate and variance (e.g. stratified), and the weights
-    /// (scaled so that their mean estimates the integral) for the unweighting efficiency.
-    pub fn add_iteration(&mut self, estimate: f64, variance: f64, w: &[f64]) {
+    /// (scaled so that their mean estimates the integral) for the unweighting efficiency and the
+    /// reliability figures. An error when the estimate or its variance is not finite.
+    pub fn add_iteration(&mut self, estimate: f64, variance: f64, w: &[f64]) -> Result<()> {
+        // Weights whose squares leave f64's normal range make variances that overflow, or
+        // underflow to a false "± 0", whoever computed them.
+        let max = w.iter().fold(0.0f64, |m, v| m.max(v.abs()));
+        if !estimate.is_finite() || !variance.is_finite() || (max > 0.0 && !(max * max).is_normal())
+        {
+            return Err(unrepresentable(max));
+        }
         self.iterations.push(Iteration {
             estimate,
             variance,
@@ -186,6 +225,8 @@ impl Accumulator {
             self.sum_abs_w += v.abs();
         }
         self.n += w.len() as u64;
+        self.tail.add(w);
+        Ok(())
     }
 
     /// The final result. Iterations have (nearly) equal sizes, so their evaluation-weighted mean
@@ -232,6 +273,7 @@ impl Accumulator {
         };
         let mut warnings = warnings;
         let zero = self.max_abs_w == 0.0;
+        let reliability = self.tail.reliability();
         if zero {
             warnings.push(
                 "the integrand was zero at every sampled point: the estimate is 0 ± 0, which \
@@ -243,6 +285,9 @@ impl Accumulator {
                 "χ²/dof = {chi2:.2} between iterations: the weights are heavy-tailed or the \
                  sampler misses part of the integrand; the error bar may be too small"
             ));
+        }
+        if let Some(w) = reliability.warning() {
+            warnings.push(w);
         }
         IntegrationResult {
             value,
@@ -259,12 +304,24 @@ impl Accumulator {
             } else {
                 self.sum_abs_w / self.n as f64 / self.max_abs_w
             },
+            pareto_k: reliability.pareto_k,
+            ess: reliability.ess,
+            var_rel_err: reliability.var_rel_err,
             seconds: started.elapsed().as_secs_f64(),
             warnings,
             iterations: self.iterations.clone(),
             components: None,
         }
     }
+}
+
+/// The error for weights whose variance does not fit in an f64.
+fn unrepresentable(max_abs_w: f64) -> Error {
+    Error::Config(format!(
+        "the weights f/q reach {max_abs_w:.3e}: the variance of their mean does not fit in an \
+         f64 (squares beyond ~10^±308), so no error bar can be given; multiply the integrand by \
+         a constant that brings its values nearer 1"
+    ))
 }
 
 /// Accumulates the final phase of a vector-valued integrand: per iteration the mean vector and
@@ -351,10 +408,10 @@ mod tests {
         let started = Instant::now();
         let mut sum = 0.0;
         for _ in 0..200 {
-            let mut acc = Accumulator::default();
+            let mut acc = Accumulator::new(10_000);
             for _ in 0..10 {
                 let w: Vec<f64> = (0..1000).map(|_| rng.random::<f64>()).collect();
-                acc.add_weights(&w);
+                acc.add_weights(&w).unwrap();
             }
             let r = acc.finish(10_000, started, Vec::new());
             assert!((r.value - 0.5).abs() < 5.0 * r.std_err);

@@ -128,14 +128,14 @@ impl Integrator for PlainMc {
             2 * iterations as u64,
             "two per iteration",
         )?;
-        let mut acc = Accumulator::default();
+        let mut acc = Accumulator::new(evals);
         let mut comps = ComponentAccumulator::new(k);
         let mut done = 0;
         for it in 0..iterations {
             let n = (evals * (it as u64 + 1) / iterations as u64 - done).max(1) as usize;
             let x: Vec<f64> = (0..n * dim).map(|_| self.rng.random::<f64>()).collect();
             let w = evaluate(f, &x, dim)?;
-            acc.add_weights(&column(&w, k, 0));
+            acc.add_weights(&column(&w, k, 0))?;
             if k > 1 {
                 comps.add_weights(&w);
             }

@@ -373,7 +373,7 @@ impl Integrator for Vegas {
         }
         let sigma = &mut self.sigma;
         let rng = &mut self.rng;
-        let mut acc = Accumulator::default();
+        let mut acc = Accumulator::new((per_iter * plan.iterations) as u64);
         let mut comps = ComponentAccumulator::new(k);
         let mut n_eval = 0u64;
         let (mut y, mut x, mut inc) = (vec![0.0; dim], Vec::new(), vec![0usize; dim]);
@@ -471,7 +471,7 @@ impl Integrator for Vegas {
                 sigma.fill(1.0);
             }
             if it >= plan.warmup {
-                acc.add_iteration(estimate, variance, &w_eff);
+                acc.add_iteration(estimate, variance, &w_eff)?;
                 if k > 1 {
                     comps.add_iteration(mean_k, cov_k, total as u64);
                 }

@@ -194,7 +194,7 @@ impl NisIntegrator {
             2 * iters as u64,
             "two per iteration of the final phase, after training",
         )?;
-        let mut acc = Accumulator::default();
+        let mut acc = Accumulator::new(evals);
         let mut comps = ComponentAccumulator::new(k);
         let mut done = 0u64;
         for it in 0..iters {
@@ -206,7 +206,7 @@ impl NisIntegrator {
                 let (flow, lambda) = (self.trainer.flow(), self.config.uniform_fraction);
                 w.extend(weights(flow, lambda, f, m, &mut self.streams.estimate)?.1);
             }
-            acc.add_weights(&column(&w, k, 0));
+            acc.add_weights(&column(&w, k, 0))?;
             if k > 1 {
                 comps.add_weights(&w);
             }

@@ -1,0 +1,355 @@
+//! Whether an error bar can be trusted, read off the weights that made it.
+//!
+//! The standard error of a Monte Carlo estimate is the sample standard deviation of its weights
+//! w = f/q over √n. When the weights are heavy-tailed (the sampler puts too little mass where |f|
+//! is large), that sample deviation is itself dominated by a few weights and is usually too small:
+//! the estimate is unbiased, yet single runs land tens of error bars away from the truth while
+//! χ²/dof between iterations looks fine (each iteration misses the same rare large weights). Three
+//! figures, each computed in bounded memory while the weights stream past:
+//!
+//! - **Pareto k̂** (Vehtari, Simpson, Gelman, Yao, Gabry, "Pareto smoothed importance sampling"):
+//!   the shape of a generalized Pareto distribution fitted to the M = ⌈min(n/5, 3√n)⌉ largest |w|
+//!   above the (M+1)-th largest, by Zhang and Stephens' estimator with PSIS's weak prior. The
+//!   weights have a finite variance only if the true k < 1/2; above [`PARETO_K_LIMIT`] the central
+//!   limit theorem has not taken hold at any practical n and the error bar is not to be trusted.
+//!   Kept: a min-heap of the M + 1 largest |w| (M grows as √n: 30 000 values at n = 10⁸).
+//! - **Effective sample size** (Σ|w|)²/Σw²: the number of equally weighted samples that would
+//!   carry as much information; a small ESS/n says a few weights carry the estimate.
+//! - **Relative error of the variance estimate**, √Var(s²)/s² ≈ √((m₄/s⁴ − (n−3)/(n−1))/n) from
+//!   the streamed central moments: how far the error bar itself may be off (its own error is
+//!   about half of that).
+
+use std::cmp::Reverse;
+use std::collections::BinaryHeap;
+
+/// PSIS's limit on k̂: above it the error bar of an importance-sampling estimate cannot be
+/// trusted (the PSIS paper's practical threshold; `nis bench coverage` measures how it sorts our
+/// runs, docs/ROBUSTNESS.md).
+pub const PARETO_K_LIMIT: f64 = 0.7;
+
+/// The fewest tail weights k̂ is fitted to; with fewer (n < 25) it is not reported.
+const MIN_TAIL: usize = 5;
+
+/// The number of tail weights PSIS fits to for `n` weights: ⌈min(n/5, 3√n)⌉.
+pub fn tail_len(n: u64) -> usize {
+    let n = n as f64;
+    (0.2 * n).min(3.0 * n.sqrt()).ceil() as usize
+}
+
+/// The shape k̂ of a generalized Pareto distribution fitted to exceedances `x` (non-negative,
+/// sorted ascending, not all zero) by Zhang and Stephens' (2009) empirical-Bayes estimator, with
+/// the weakly informative prior PSIS puts on it (10 pseudo-observations at k = 1/2).
+/// `None` when there are too few exceedances or they are all equal.
+pub fn gpd_shape(x: &[f64]) -> Option<f64> {
+    let n = x.len();
+    if n < MIN_TAIL || x[n - 1] <= 0.0 || x[0] == x[n - 1] {
+        return None;
+    }
+    let nf = n as f64;
+    // Candidate values of θ = −k/σ on a grid that Zhang and Stephens derive from the largest
+    // exceedance and the first quartile; each weighted by its profile likelihood.
+    let m = 30 + (nf.sqrt() as usize);
+    let quartile = x[((nf / 4.0 + 0.5) as usize).max(1) - 1].max(f64::MIN_POSITIVE);
+    let theta: Vec<f64> = (1..=m)
+        .map(|j| 1.0 / x[n - 1] + (1.0 - (m as f64 / (j as f64 - 0.5)).sqrt()) / (3.0 * quartile))
+        .collect();
+    let shape_at = |t: f64| x.iter().map(|&v| (-t * v).ln_1p()).sum::<f64>() / nf;
+    let log_lik: Vec<f64> = theta
+        .iter()
+        .map(|&t| {
+            let k = shape_at(t);
+            nf * ((-t / k).ln() - k - 1.0)
+        })
+        .collect();
+    // Posterior weights 1/Σ_j exp(ℓ_j − ℓ_i), robust to the scale of ℓ; a NaN ℓ (θ = 0 exactly)
+    // gets no weight.
+    let weights: Vec<f64> = log_lik
+        .iter()
+        .map(|&li| {
+            let s: f64 = log_lik.iter().map(|&lj| (lj - li).exp()).sum();
+            if s.is_finite() && s > 0.0 {
+                1.0 / s
+            } else {
+                0.0
+            }
+        })
+        .collect();
+    let total: f64 = weights.iter().sum();
+    if total.is_nan() || total <= 0.0 {
+        return None;
+    }
+    let theta_hat = theta.iter().zip(&weights).map(|(t, w)| t * w).sum::<f64>() / total;
+    let k = shape_at(theta_hat);
+    // PSIS's prior: shrink towards 1/2 as if 10 more observations had it.
+    let k = (nf * k + 10.0 * 0.5) / (nf + 10.0);
+    k.is_finite().then_some(k)
+}
+
+/// The reliability figures of one result's weights (see the module documentation).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Reliability {
+    /// PSIS's k̂ of the |w| tail (`NaN` when it cannot be fitted: fewer than 25 weights, or a
+    /// tail of equal weights).
+    pub pareto_k: f64,
+    /// (Σ|w|)²/Σw².
+    pub ess: f64,
+    /// √Var(s²)/s², the relative error of the variance estimate (`NaN` for fewer than 4 weights
+    /// or zero variance).
+    pub var_rel_err: f64,
+}
+
+impl Reliability {
+    /// A sentence for the user when the error bar cannot be trusted, else `None`.
+    pub fn warning(&self) -> Option<String> {
+        (self.pareto_k > PARETO_K_LIMIT).then(|| {
+            format!(
+                "the weights f/q are heavy-tailed (Pareto k̂ = {:.2} > {PARETO_K_LIMIT}, \
+                 effective sample size {:.0}): the error bar cannot be trusted and is probably \
+                 too small; adapt longer or use more evaluations",
+                self.pareto_k, self.ess
+            )
+        })
+    }
+}
+
+/// Streams weights into the figures of [`Reliability`] in memory that does not grow with n
+/// beyond the PSIS tail (⌈3√n⌉ + 1 values for the planned n).
+#[derive(Clone, Debug)]
+pub struct WeightTail {
+    capacity: usize,
+    /// The largest |w| so far (as f64 bits: for non-negative floats the bit order is the numeric
+    /// order), smallest on top.
+    heap: BinaryHeap<Reverse<u64>>,
+    n: u64,
+    sum_abs: f64,
+    sum_sq: f64,
+    /// Mean and central moment sums M₂, M₃, M₄ of w, merged batch by batch (Pébay's formulas).
+    mean: f64,
+    m2: f64,
+    m3: f64,
+    m4: f64,
+}
+
+impl WeightTail {
+    /// For about `planned` weights in all: keeps the PSIS tail of that many, plus the cutoff.
+    pub fn new(planned: u64) -> WeightTail {
+        WeightTail {
+            capacity: tail_len(planned.max(1)) + 1,
+            heap: BinaryHeap::new(),
+            n: 0,
+            sum_abs: 0.0,
+            sum_sq: 0.0,
+            mean: 0.0,
+            m2: 0.0,
+            m3: 0.0,
+            m4: 0.0,
+        }
+    }
+
+    /// Adds a batch of weights.
+    pub fn add(&mut self, w: &[f64]) {
+        if w.is_empty() {
+            return;
+        }
+        for &v in w {
+            let a = v.abs();
+            self.sum_abs += a;
+            self.sum_sq += a * a;
+            let bits = a.to_bits();
+            if self.heap.len() < self.capacity {
+                self.heap.push(Reverse(bits));
+            } else if self.heap.peek().is_some_and(|Reverse(low)| bits > *low) {
+                self.heap.pop();
+                self.heap.push(Reverse(bits));
+            }
+        }
+        // The batch's own central moments, two-pass, then merged into the running ones.
+        let nb = w.len() as f64;
+        let mb = w.iter().sum::<f64>() / nb;
+        let (mut b2, mut b3, mut b4) = (0.0, 0.0, 0.0);
+        for &v in w {
+            let d = v - mb;
+            let d2 = d * d;
+            b2 += d2;
+            b3 += d2 * d;
+            b4 += d2 * d2;
+        }
+        let na = self.n as f64;
+        let n = na + nb;
+        let delta = mb - self.mean;
+        let (d2, d3, d4) = (delta * delta, delta.powi(3), delta.powi(4));
+        self.m4 += b4
+            + d4 * na * nb * (na * na - na * nb + nb * nb) / n.powi(3)
+            + 6.0 * d2 * (na * na * b2 + nb * nb * self.m2) / (n * n)
+            + 4.0 * delta * (na * b3 - nb * self.m3) / n;
+        self.m3 +=
+            b3 + d3 * na * nb * (na - nb) / (n * n) + 3.0 * delta * (na * b2 - nb * self.m2) / n;
+        self.m2 += b2 + d2 * na * nb / n;
+        self.mean += delta * nb / n;
+        self.n += w.len() as u64;
+    }
+
+    /// The figures for the weights so far.
+    pub fn reliability(&self) -> Reliability {
+        let n = self.n;
+        let nf = n as f64;
+        // The PSIS tail of the weights seen: the M largest above the (M+1)-th.
+        let mut top: Vec<f64> = self
+            .heap
+            .iter()
+            .map(|Reverse(b)| f64::from_bits(*b))
+            .collect();
+        top.sort_by(f64::total_cmp);
+        let m = tail_len(n).min(top.len().saturating_sub(1));
+        let pareto_k = if n >= 25 && m >= MIN_TAIL {
+            let tail = &top[top.len() - m - 1..];
+            let cutoff = tail[0];
+            let x: Vec<f64> = tail[1..].iter().map(|v| v - cutoff).collect();
+            gpd_shape(&x).unwrap_or(f64::NAN)
+        } else {
+            f64::NAN
+        };
+        let ess = if self.sum_sq > 0.0 {
+            self.sum_abs * self.sum_abs / self.sum_sq
+        } else {
+            0.0
+        };
+        let var_rel_err = if n >= 4 && self.m2 > 0.0 {
+            // s² = M₂/(n−1); the fourth central moment m₄ = M₄/n, the second σ² ≈ M₂/n.
+            let s2 = self.m2 / nf;
+            let kurt = self.m4 / nf / (s2 * s2);
+            ((kurt - (nf - 3.0) / (nf - 1.0)).max(0.0) / nf).sqrt()
+        } else {
+            f64::NAN
+        };
+        Reliability {
+            pareto_k,
+            ess,
+            var_rel_err,
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use rand::{Rng, SeedableRng};
+
+    fn rng(seed: u64) -> rand_pcg::Pcg64Mcg {
+        rand_pcg::Pcg64Mcg::seed_from_u64(seed)
+    }
+
+    #[test]
+    fn k_hat_recovers_the_tail_index_of_pareto_weights() {
+        // w = U^(−ξ) has a Pareto tail with shape ξ. With n = 10⁵ weights PSIS fits M = 949 of
+        // them; the estimator's standard deviation is about (1 + ξ)/√M ≈ 0.04–0.06, and the
+        // prior moves k̂ by at most 10/(M + 10)·|ξ − 1/2| < 0.01: 4σ + that bias allowed.
+        for (seed, xi) in [(1u64, 0.2f64), (2, 0.5), (3, 0.8), (4, 1.2)] {
+            let mut r = rng(seed);
+            let n = 100_000u64;
+            let mut tail = WeightTail::new(n);
+            let w: Vec<f64> = (0..n)
+                .map(|_| (1.0 - r.random::<f64>()).powf(-xi))
+                .collect();
+            for chunk in w.chunks(7_777) {
+                tail.add(chunk);
+            }
+            let k = tail.reliability().pareto_k;
+            let sd = (1.0 + xi) / (tail_len(n) as f64).sqrt();
+            assert!((k - xi).abs() < 4.0 * sd + 0.01, "ξ = {xi}: k̂ = {k}");
+        }
+    }
+
+    #[test]
+    fn bounded_weights_have_a_negative_k_hat_and_no_warning() {
+        // Uniform weights: the exceedances over a high cutoff are uniform, a GPD with k = −1.
+        let mut r = rng(5);
+        let mut tail = WeightTail::new(50_000);
+        let w: Vec<f64> = (0..50_000).map(|_| r.random::<f64>()).collect();
+        tail.add(&w);
+        let rel = tail.reliability();
+        assert!(rel.pareto_k < 0.0, "k̂ = {}", rel.pareto_k);
+        assert!(rel.warning().is_none());
+        // ESS of uniform weights: n·E[w]²/E[w²] = n·(1/4)/(1/3) = 0.75 n, to within 3% here.
+        assert!((rel.ess / 50_000.0 - 0.75).abs() < 0.02, "ESS {}", rel.ess);
+    }
+
+    #[test]
+    fn streaming_moments_match_a_two_pass_computation_on_uneven_batches() {
+        let mut r = rng(6);
+        let w: Vec<f64> = (0..10_001)
+            .map(|_| (-r.random::<f64>().ln()).powi(2) - 1.0)
+            .collect();
+        let mut tail = WeightTail::new(w.len() as u64);
+        let mut start = 0;
+        for len in [1, 2, 3, 500, 4_000, 5_495] {
+            tail.add(&w[start..start + len]);
+            start += len;
+        }
+        assert_eq!(start, w.len());
+        let n = w.len() as f64;
+        let mean = w.iter().sum::<f64>() / n;
+        let m2: f64 = w.iter().map(|v| (v - mean).powi(2)).sum();
+        let m4: f64 = w.iter().map(|v| (v - mean).powi(4)).sum();
+        assert!((tail.mean - mean).abs() < 1e-12 * mean.abs().max(1.0));
+        assert!((tail.m2 / m2 - 1.0).abs() < 1e-10);
+        assert!((tail.m4 / m4 - 1.0).abs() < 1e-10);
+        // The relative error of s² for exponential-squared weights is large but finite.
+        let rel = tail.reliability().var_rel_err;
+        let s2 = m2 / n;
+        let expected = ((m4 / n / (s2 * s2) - (n - 3.0) / (n - 1.0)) / n).sqrt();
+        assert!((rel / expected - 1.0).abs() < 1e-9);
+    }
+
+    #[test]
+    fn the_variance_error_estimate_matches_the_spread_of_variance_estimates() {
+        // 400 samples of s² from n = 500 exponential weights: the spread of s²/σ² over the
+        // samples against the reported relative error (its own sampling error is ~10% here,
+        // and the spread over 400 samples is good to 1/√800 ≈ 3.5%): within 25%.
+        let mut r = rng(7);
+        let (n, reps) = (500, 400);
+        let mut s2s = Vec::new();
+        let mut reported = 0.0;
+        for _ in 0..reps {
+            let w: Vec<f64> = (0..n).map(|_| -r.random::<f64>().ln()).collect();
+            let mut tail = WeightTail::new(n as u64);
+            tail.add(&w);
+            reported += tail.reliability().var_rel_err / reps as f64;
+            let mean = w.iter().sum::<f64>() / n as f64;
+            s2s.push(w.iter().map(|v| (v - mean).powi(2)).sum::<f64>() / (n - 1) as f64);
+        }
+        // σ² = 1 for Exp(1).
+        let spread = (s2s.iter().map(|s| (s - 1.0).powi(2)).sum::<f64>() / reps as f64).sqrt();
+        assert!(
+            (reported / spread - 1.0).abs() < 0.25,
+            "{reported} vs {spread}"
+        );
+    }
+
+    #[test]
+    fn too_few_or_equal_weights_give_no_k_hat() {
+        let mut t = WeightTail::new(10);
+        t.add(&[1.0; 10]);
+        assert!(t.reliability().pareto_k.is_nan());
+        let mut t = WeightTail::new(1_000);
+        t.add(&[2.5; 1_000]);
+        let rel = t.reliability();
+        assert!(rel.pareto_k.is_nan() && rel.warning().is_none());
+        assert_eq!(rel.ess, 1_000.0);
+        assert!(rel.var_rel_err.is_nan());
+        let empty = WeightTail::new(100).reliability();
+        assert!(empty.pareto_k.is_nan() && empty.ess == 0.0);
+    }
+
+    #[test]
+    fn the_heap_keeps_only_the_psis_tail() {
+        let mut t = WeightTail::new(1_000_000);
+        let mut r = rng(8);
+        for _ in 0..100 {
+            let w: Vec<f64> = (0..10_000).map(|_| r.random::<f64>()).collect();
+            t.add(&w);
+        }
+        assert_eq!(t.heap.len(), tail_len(1_000_000) + 1);
+        assert_eq!(tail_len(1_000_000), 3_000);
+    }
+}
