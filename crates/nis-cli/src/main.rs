@@ -89,6 +89,11 @@ enum BenchCommand {
         #[arg(long, default_value = "docs/BENCHMARKS.md")]
         docs: PathBuf,
     },
+    /// Are the error bars honest? Suite integrands × NIS-KL, NIS-χ², VEGAS+ and plain MC at
+    /// 2·10⁴ evaluations × 200 seeds and 2·10⁵ × 50: coverage, pulls, χ²/dof and the Pareto-k̂
+    /// flag, into docs/ROBUSTNESS.md (cells cached: an interrupted run resumes).
+    /// Example: nis bench coverage --small-only
+    Coverage(bench::BenchCoverageArgs),
     /// The paper's Figure 3: affine L=2 and L=16 against PL-32, PQ-32 and RQ-32 with L=2 on
     /// every built-in 2-D target; writes a montage and a table to docs/REPRODUCTION.md.
     /// Example: nis bench fit-image --steps 400
@@ -120,6 +125,7 @@ fn main() -> ExitCode {
         Command::Bench(BenchCommand::Integrate { evals, only, docs }) => {
             bench::run_integrate(evals, only.as_deref(), &docs)
         }
+        Command::Bench(BenchCommand::Coverage(args)) => bench::run_coverage(&args),
         Command::FitImage(args) => fit_image::run(&args),
         Command::Bench(BenchCommand::FitImage(args)) => fit_image::run_bench(&args),
         Command::Bench(BenchCommand::Guiding(args)) => guiding::run_bench(&args),

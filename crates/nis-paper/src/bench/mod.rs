@@ -3,12 +3,14 @@
 //! long-running step (a fit, a training run) or a line logger as closures, so the command line can
 //! show bars and a test can run them silently.
 //!
+//! - [`coverage`]: error bars against exact values over many seeds (`docs/ROBUSTNESS.md`).
 //! - [`flow`]: flow throughput against bare gemm and PyTorch (`docs/BENCHMARKS.md`).
 //! - [`integrate`]: the integration suite with every method at one budget (`docs/BENCHMARKS.md`).
 //! - [`fit_image`]: the paper's Figure 3, couplings on 2-D image targets (`docs/REPRODUCTION.md`).
 //! - [`density`]: the paper's Figure 4, PQ against affine couplings on real digits.
 //! - [`guiding`]: the paper's Figure 5, path guiding against a reference at equal samples and time.
 
+pub mod coverage;
 pub mod density;
 pub mod fit_image;
 pub mod flow;

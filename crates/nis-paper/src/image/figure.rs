@@ -43,7 +43,7 @@ const SERIES: [RGBColor; 6] = [
 ];
 
 /// Whether a font is registered with plotters (done once, on first use).
-fn has_font() -> bool {
+pub(crate) fn has_font() -> bool {
     static FONT: OnceLock<bool> = OnceLock::new();
     *FONT.get_or_init(|| {
         let env = std::env::var("NIS_FONT").ok();
@@ -61,7 +61,7 @@ fn has_font() -> bool {
     })
 }
 
-fn figure_error(e: impl std::fmt::Display) -> Error {
+pub(crate) fn figure_error(e: impl std::fmt::Display) -> Error {
     Error::Figure(e.to_string())
 }
 

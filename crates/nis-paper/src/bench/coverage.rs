@@ -1,0 +1,593 @@
+//! `nis bench coverage`: are the error bars honest? For suite integrands × methods (NIS-KL,
+//! NIS-χ², VEGAS+, plain MC) at a small and a moderate budget, many seeds each: the fraction of
+//! runs whose 1σ and 2σ intervals cover the exact value, the mean and worst pull, the mean χ²/dof,
+//! and how well the reliability diagnostic (PSIS's Pareto k̂, [`nis::integrate::diagnostics`])
+//! sorts the runs: how many of those more than 4σ off it flags, and whether the unflagged ones
+//! cover at their nominal rate. Every cell is cached as JSON as soon as it is done, so an
+//! interrupted run resumes where it stopped. Writes a section of `docs/ROBUSTNESS.md` and a plot.
+
+use std::path::{Path, PathBuf};
+
+use nis::integrands::{self, Builtin, SUITE};
+use nis::integrate::{integrator, Method, Settings, PARETO_K_LIMIT};
+use nis::loss::Loss;
+use plotters::prelude::*;
+use rayon::prelude::*;
+use serde::{Deserialize, Serialize};
+
+use crate::error::{Error, Result};
+use crate::image::figure::{figure_error, has_font, png_bytes};
+use crate::report;
+
+/// A budget and how many seeds run at it.
+#[derive(Clone, Copy, Debug)]
+pub struct Budget {
+    /// Evaluations per run, adaptation included.
+    pub evals: u64,
+    /// Seeds 0..seeds.
+    pub seeds: u64,
+}
+
+/// The issue's two budgets: ~2·10⁴ evaluations × 200 seeds and ~2·10⁵ × 50.
+pub const BUDGETS: [Budget; 2] = [
+    Budget {
+        evals: 20_000,
+        seeds: 200,
+    },
+    Budget {
+        evals: 200_000,
+        seeds: 50,
+    },
+];
+
+/// The cells of the default run: one or two dimensions of each kind of integrand — smooth and
+/// separable, sharp peaks, non-separable shapes, discontinuities, a sign change — chosen so the
+/// run fits in about 30 minutes on 2 cores; `--full` runs every suite entry in every dimension.
+pub const DEFAULT_CELLS: &[(&str, usize)] = &[
+    ("camel", 4),
+    ("camel-sharp", 2),
+    ("gauss-sharp", 4),
+    ("annulus", 2),
+    ("corner-peak", 4),
+    ("oscillatory", 2),
+];
+
+/// The methods, as the table names them.
+pub const METHODS: [&str; 4] = ["NIS-KL", "NIS-χ²", "VEGAS+", "MC"];
+
+/// What to run and where to write.
+pub struct Options {
+    /// Every suite integrand in every dimension instead of [`DEFAULT_CELLS`].
+    pub full: bool,
+    /// Only this integrand (all its dimensions in the chosen set).
+    pub only: Option<String>,
+    /// Only the first budget (small).
+    pub small_only: bool,
+    /// Directory of the per-cell JSON cache.
+    pub cache: PathBuf,
+    /// The Markdown file the section goes into.
+    pub docs: PathBuf,
+}
+
+/// One run's outcome.
+#[derive(Clone, Debug, Serialize, Deserialize)]
+pub struct Run {
+    /// The seed.
+    pub seed: u64,
+    /// Estimate and its standard error.
+    pub value: f64,
+    /// Standard error.
+    pub std_err: f64,
+    /// χ²/dof between the final iterations (`None` where undefined).
+    pub chi2: Option<f64>,
+    /// Pareto k̂ (`None` where it cannot be fitted).
+    pub pareto_k: Option<f64>,
+    /// Effective sample size.
+    pub ess: f64,
+    /// Wall seconds.
+    pub seconds: f64,
+}
+
+/// One cell: an integrand, a method and a budget, all its seeds.
+#[derive(Clone, Debug, Serialize, Deserialize)]
+pub struct Cell {
+    /// Integrand name.
+    pub integrand: String,
+    /// Dimension.
+    pub dim: usize,
+    /// Method label (one of [`METHODS`]).
+    pub method: String,
+    /// Evaluations per run.
+    pub evals: u64,
+    /// The exact value and its uncertainty.
+    pub exact: f64,
+    /// Uncertainty of `exact` (0 when exact).
+    pub exact_err: f64,
+    /// The runs that gave a result.
+    pub runs: Vec<Run>,
+    /// The runs that ended with an error: (seed, message).
+    pub errors: Vec<(u64, String)>,
+}
+
+/// The statistics of a set of runs.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct Stats {
+    /// Runs.
+    pub n: usize,
+    /// Fractions whose 1σ and 2σ intervals cover the exact value.
+    pub cover1: f64,
+    /// See `cover1`.
+    pub cover2: f64,
+    /// Mean pull (value − exact)/σ.
+    pub mean_pull: f64,
+    /// The pull largest in magnitude.
+    pub worst_pull: f64,
+    /// Mean χ²/dof over the runs where it is defined.
+    pub mean_chi2: f64,
+    /// Fraction flagged by k̂ > [`PARETO_K_LIMIT`].
+    pub flagged: f64,
+    /// Median k̂ over the runs where it is defined.
+    pub median_k: f64,
+}
+
+impl Cell {
+    /// The pull of a run, with the exact value's own uncertainty folded in.
+    pub fn pull(&self, r: &Run) -> f64 {
+        (r.value - self.exact) / r.std_err.hypot(self.exact_err)
+    }
+
+    /// The statistics of its runs.
+    pub fn stats(&self) -> Stats {
+        stats(self.runs.iter().map(|r| (self.pull(r), r)))
+    }
+}
+
+/// Statistics of (pull, run) pairs.
+fn stats<'a>(runs: impl Iterator<Item = (f64, &'a Run)>) -> Stats {
+    let mut s = Stats::default();
+    let (mut chi2_sum, mut chi2_n) = (0.0, 0usize);
+    let mut ks = Vec::new();
+    for (p, r) in runs {
+        ks.extend(r.pareto_k);
+        s.n += 1;
+        s.cover1 += (p.abs() <= 1.0) as u8 as f64;
+        s.cover2 += (p.abs() <= 2.0) as u8 as f64;
+        s.mean_pull += p;
+        if p.abs() > s.worst_pull.abs() || s.worst_pull.is_nan() {
+            s.worst_pull = p;
+        }
+        if let Some(c) = r.chi2.filter(|c| c.is_finite()) {
+            chi2_sum += c;
+            chi2_n += 1;
+        }
+        s.flagged += r.pareto_k.is_some_and(|k| k > PARETO_K_LIMIT) as u8 as f64;
+    }
+    let n = s.n.max(1) as f64;
+    s.cover1 /= n;
+    s.cover2 /= n;
+    s.mean_pull /= n;
+    s.flagged /= n;
+    ks.sort_by(f64::total_cmp);
+    s.median_k = ks.get(ks.len() / 2).copied().unwrap_or(f64::NAN);
+    s.mean_chi2 = if chi2_n > 0 {
+        chi2_sum / chi2_n as f64
+    } else {
+        f64::NAN
+    };
+    s
+}
+
+/// The settings of a method by its label.
+fn settings(method: &str, seed: u64) -> (Method, Settings) {
+    let mut s = Settings::default().seed(seed);
+    let m = match method {
+        "NIS-KL" => Method::Nis,
+        "NIS-χ²" => {
+            s.nis.loss = Loss::ChiSquare;
+            Method::Nis
+        }
+        "VEGAS+" => Method::Vegas,
+        _ => Method::Uniform,
+    };
+    (m, s)
+}
+
+/// Runs one cell: every seed of `budget`, in parallel (each run is deterministic by its seed).
+pub fn run_cell(f: &Builtin, method: &str, budget: Budget) -> Cell {
+    let outcomes: Vec<(u64, nis::Result<nis::integrate::IntegrationResult>)> = (0..budget.seeds)
+        .into_par_iter()
+        .map(|seed| {
+            let (m, s) = settings(method, seed);
+            (
+                seed,
+                integrator(m, f.dim, &s).and_then(|mut i| i.integrate(f, budget.evals)),
+            )
+        })
+        .collect();
+    let mut cell = Cell {
+        integrand: f.name.clone(),
+        dim: f.dim,
+        method: method.into(),
+        evals: budget.evals,
+        exact: f.exact,
+        exact_err: f.exact_err,
+        runs: Vec::new(),
+        errors: Vec::new(),
+    };
+    for (seed, o) in outcomes {
+        match o {
+            Ok(r) => cell.runs.push(Run {
+                seed,
+                value: r.value,
+                std_err: r.std_err,
+                chi2: r.chi2_per_dof.is_finite().then_some(r.chi2_per_dof),
+                pareto_k: r.pareto_k.is_finite().then_some(r.pareto_k),
+                ess: r.ess,
+                seconds: r.seconds,
+            }),
+            Err(e) => cell.errors.push((seed, e.to_string())),
+        }
+    }
+    cell
+}
+
+/// The cache file of a cell.
+fn cache_path(dir: &Path, name: &str, dim: usize, method: &str, budget: Budget) -> PathBuf {
+    let method = method.replace("χ²", "chi2").to_lowercase();
+    dir.join(format!(
+        "{name}-d{dim}-{method}-{}-{}.json",
+        budget.evals, budget.seeds
+    ))
+}
+
+/// Every (integrand, dimension) of the run.
+fn cells(o: &Options) -> Vec<(String, usize)> {
+    let all: Vec<(String, usize)> = if o.full {
+        SUITE
+            .iter()
+            .flat_map(|e| e.dims.iter().map(|&d| (e.name.to_string(), d)))
+            .collect()
+    } else {
+        DEFAULT_CELLS
+            .iter()
+            .map(|&(n, d)| (n.to_string(), d))
+            .collect()
+    };
+    all.into_iter()
+        .filter(|(n, _)| o.only.as_deref().is_none_or(|only| only == n))
+        .collect()
+}
+
+/// Runs (or reads from the cache) every cell, reporting each with `log` (cells done, cells in
+/// all, a line); writes the section "coverage" of `o.docs` and its plot beside it, and returns
+/// the Markdown.
+pub fn run(o: &Options, log: &mut dyn FnMut(usize, usize, &str)) -> Result<String> {
+    report::create_dir(&o.cache)?;
+    let budgets: &[Budget] = if o.small_only {
+        &BUDGETS[..1]
+    } else {
+        &BUDGETS
+    };
+    let list = cells(o);
+    if list.is_empty() {
+        return Err(Error::Config(format!(
+            "no suite integrand named {:?}",
+            o.only.as_deref().unwrap_or("")
+        )));
+    }
+    let mut done = Vec::new();
+    let total = budgets.len() * list.len() * METHODS.len();
+    for &budget in budgets {
+        for (name, dim) in &list {
+            let f = integrands::by_name(name, Some(*dim))?;
+            for method in METHODS {
+                let path = cache_path(&o.cache, name, *dim, method, budget);
+                let cached = std::fs::read(&path)
+                    .ok()
+                    .and_then(|b| serde_json::from_slice::<Cell>(&b).ok());
+                let cell = match cached {
+                    Some(c) => c,
+                    None => {
+                        let c = run_cell(&f, method, budget);
+                        let json =
+                            serde_json::to_vec(&c).map_err(|e| Error::Config(e.to_string()))?;
+                        report::write_file(&path, &json)?;
+                        c
+                    }
+                };
+                let s = cell.stats();
+                log(
+                    done.len() + 1,
+                    total,
+                    &format!(
+                    "{name} d{dim} {method:<7} {:>7} evals: 2σ cover {:.3}, worst pull {:+.1}, \
+                     k̂-flagged {:.2}, {} errors",
+                    budget.evals,
+                    s.cover2,
+                    s.worst_pull,
+                    s.flagged,
+                    cell.errors.len()
+                    ),
+                );
+                done.push(cell);
+            }
+        }
+    }
+    let md = markdown(&done, budgets);
+    let figure = o
+        .docs
+        .parent()
+        .unwrap_or(Path::new("."))
+        .join("img/coverage.png");
+    report::create_dir(figure.parent().unwrap_or(Path::new(".")))?;
+    report::write_file(&figure, &png_bytes(&plot(&done, budgets)?)?)?;
+    let body = format!(
+        "{md}\n![2σ coverage per cell and method]({})\n",
+        report::relative_to(&o.docs, &figure)
+    );
+    report::write_section(&o.docs, "coverage", "Coverage of the error bars", &body)?;
+    Ok(body)
+}
+
+/// The binomial band: the fraction of `n` runs that cover at nominal rate `p` lies within
+/// p ± 2√(p(1−p)/n) with ~95% probability.
+pub fn band(p: f64, n: usize) -> (f64, f64) {
+    let h = 2.0 * (p * (1.0 - p) / n.max(1) as f64).sqrt();
+    (p - h, p + h)
+}
+
+const NOMINAL2: f64 = 0.954_499_736_103_641_6;
+
+fn markdown(cells: &[Cell], budgets: &[Budget]) -> String {
+    let mut md = String::from(
+        "`nis bench coverage` (default cells; `--full` for the whole suite). Per cell: the \
+         fraction of seeds whose 1σ and 2σ intervals cover the exact value (nominal 0.683 and \
+         0.954), the mean and the worst pull (value − exact)/σ, the mean χ²/dof between the \
+         final phase's iterations, and the fraction of runs whose Pareto k̂ exceeds 0.7 (the \
+         result then warns that its error bar cannot be trusted). Cells whose 2σ coverage lies \
+         below the binomial 95% band are in bold.\n\n",
+    );
+    for &b in budgets {
+        let (lo2, _) = band(NOMINAL2, b.seeds as usize);
+        md.push_str(&format!(
+            "### {} evaluations, {} seeds (2σ band {:.3}–1)\n\n\
+             | integrand | method | 1σ | 2σ | mean pull | worst pull | χ²/dof | median k̂ | k̂ > 0.7 | errors |\n\
+             |---|---|---|---|---|---|---|---|---|---|\n",
+            b.evals, b.seeds, lo2
+        ));
+        for c in cells.iter().filter(|c| c.evals == b.evals) {
+            let s = c.stats();
+            let cover2 = if s.cover2 < lo2 {
+                format!("**{:.3}**", s.cover2)
+            } else {
+                format!("{:.3}", s.cover2)
+            };
+            md.push_str(&format!(
+                "| {} d{} | {} | {:.3} | {} | {:+.2} | {:+.1} | {:.2} | {:.2} | {:.2} | {} |\n",
+                c.integrand,
+                c.dim,
+                c.method,
+                s.cover1,
+                cover2,
+                s.mean_pull,
+                s.worst_pull,
+                s.mean_chi2,
+                s.median_k,
+                s.flagged,
+                c.errors.len()
+            ));
+        }
+        md.push('\n');
+    }
+    md.push_str(&diagnostic_summary(cells, budgets));
+    md
+}
+
+/// How the k̂ flag sorts the runs, per budget and method, at the limit and two lower thresholds.
+fn diagnostic_summary(cells: &[Cell], budgets: &[Budget]) -> String {
+    let mut md = String::from(
+        "### The reliability flag\n\n\
+         Over all cells of a budget and method: the runs more than 4σ off, how many of them k̂ \
+         flags (at the limit 0.7, and at 0.5 for comparison), and the 2σ coverage of the runs \
+         it does not flag, against the binomial 95% band for their number.\n\n\
+         | budget | method | runs | beyond 4σ | flagged at 0.7 | flagged at 0.5 | unflagged 2σ (0.7) | band | unflagged 2σ (0.5) |\n\
+         |---|---|---|---|---|---|---|---|---|\n",
+    );
+    for &b in budgets {
+        for method in METHODS {
+            let runs: Vec<(f64, &Run)> = cells
+                .iter()
+                .filter(|c| c.evals == b.evals && c.method == method)
+                .flat_map(|c| c.runs.iter().map(move |r| (c.pull(r), r)))
+                .collect();
+            if runs.is_empty() {
+                continue;
+            }
+            let flagged_at = |r: &Run, t: f64| r.pareto_k.is_some_and(|k| k > t);
+            let far: Vec<&(f64, &Run)> = runs.iter().filter(|(p, _)| p.abs() > 4.0).collect();
+            let caught = |t: f64| far.iter().filter(|(_, r)| flagged_at(r, t)).count();
+            let unflagged = |t: f64| {
+                let kept: Vec<f64> = runs
+                    .iter()
+                    .filter(|(_, r)| !flagged_at(r, t))
+                    .map(|(p, _)| *p)
+                    .collect();
+                let cover = kept.iter().filter(|p| p.abs() <= 2.0).count() as f64
+                    / kept.len().max(1) as f64;
+                (cover, kept.len())
+            };
+            let (c7, n7) = unflagged(PARETO_K_LIMIT);
+            let (c5, _) = unflagged(0.5);
+            let (lo, hi) = band(NOMINAL2, n7);
+            md.push_str(&format!(
+                "| {} | {method} | {} | {} | {} | {} | {c7:.3} | {lo:.3}–{:.3} | {c5:.3} |\n",
+                b.evals,
+                runs.len(),
+                far.len(),
+                caught(PARETO_K_LIMIT),
+                caught(0.5),
+                hi.min(1.0)
+            ));
+        }
+    }
+    md
+}
+
+/// 2σ coverage per cell, one panel per budget, one colour per method, the nominal rate and its
+/// binomial band as lines.
+fn plot(cells: &[Cell], budgets: &[Budget]) -> Result<image::RgbImage> {
+    const W: u32 = 1100;
+    const H: u32 = 460;
+    const COLOURS: [RGBColor; 4] = [
+        RGBColor(31, 119, 180),
+        RGBColor(255, 127, 14),
+        RGBColor(44, 160, 44),
+        RGBColor(127, 127, 127),
+    ];
+    let mut buffer = vec![255u8; (W * H * 3) as usize];
+    {
+        let root = BitMapBackend::with_buffer(&mut buffer, (W, H)).into_drawing_area();
+        root.fill(&WHITE).map_err(figure_error)?;
+        let panels = root.split_evenly((1, budgets.len()));
+        for (panel, b) in panels.iter().zip(budgets) {
+            let here: Vec<&Cell> = cells.iter().filter(|c| c.evals == b.evals).collect();
+            let n_int = here.len() / METHODS.len();
+            let bottom = here
+                .iter()
+                .map(|c| c.stats().cover2)
+                .fold(0.8f64, f64::min)
+                .max(0.0)
+                - 0.02;
+            let mut builder = ChartBuilder::on(panel);
+            builder.margin(12);
+            if has_font() {
+                builder
+                    .caption(
+                        format!("2σ coverage, {} evals × {} seeds", b.evals, b.seeds),
+                        ("sans-serif", 16),
+                    )
+                    .x_label_area_size(30)
+                    .y_label_area_size(50);
+            }
+            let mut chart = builder
+                .build_cartesian_2d(-0.5f64..n_int as f64 - 0.5, bottom..1.0f64)
+                .map_err(figure_error)?;
+            let mut mesh = chart.configure_mesh();
+            if has_font() {
+                mesh.x_desc("cell (integrand, dimension)");
+            } else {
+                mesh.x_labels(0).y_labels(0);
+            }
+            mesh.draw().map_err(figure_error)?;
+            let (lo, hi) = band(NOMINAL2, b.seeds as usize);
+            for (y, style) in [
+                (NOMINAL2, BLACK.stroke_width(2)),
+                (lo, BLACK.mix(0.4).stroke_width(1)),
+                (hi.min(1.0), BLACK.mix(0.4).stroke_width(1)),
+            ] {
+                chart
+                    .draw_series(LineSeries::new([(-0.5, y), (n_int as f64 - 0.5, y)], style))
+                    .map_err(figure_error)?;
+            }
+            for (k, method) in METHODS.iter().enumerate() {
+                let colour = COLOURS[k];
+                let points: Vec<(f64, f64)> = here
+                    .iter()
+                    .filter(|c| c.method == *method)
+                    .enumerate()
+                    .map(|(i, c)| (i as f64 + (k as f64 - 1.5) * 0.12, c.stats().cover2))
+                    .collect();
+                let s = chart
+                    .draw_series(points.iter().map(|&p| Circle::new(p, 4, colour.filled())))
+                    .map_err(figure_error)?;
+                if has_font() {
+                    s.label(*method)
+                        .legend(move |(x, y)| Circle::new((x + 6, y), 4, colour.filled()));
+                }
+            }
+            if has_font() {
+                chart
+                    .configure_series_labels()
+                    .position(SeriesLabelPosition::LowerLeft)
+                    .background_style(WHITE.mix(0.8))
+                    .border_style(BLACK)
+                    .label_font(("sans-serif", 13))
+                    .draw()
+                    .map_err(figure_error)?;
+            }
+        }
+        root.present().map_err(figure_error)?;
+    }
+    image::RgbImage::from_raw(W, H, buffer).ok_or_else(|| figure_error("plot buffer size"))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn run_of(value: f64, std_err: f64, k: Option<f64>) -> Run {
+        Run {
+            seed: 0,
+            value,
+            std_err,
+            chi2: Some(1.0),
+            pareto_k: k,
+            ess: 1.0,
+            seconds: 0.0,
+        }
+    }
+
+    #[test]
+    fn stats_count_coverage_pulls_and_flags() {
+        let cell = Cell {
+            integrand: "x".into(),
+            dim: 2,
+            method: "MC".into(),
+            evals: 10,
+            exact: 1.0,
+            exact_err: 0.0,
+            runs: vec![
+                run_of(1.5, 1.0, Some(0.1)),  // pull 0.5
+                run_of(2.5, 1.0, Some(0.9)),  // pull 1.5, flagged
+                run_of(-4.0, 1.0, Some(0.2)), // pull −5
+                run_of(1.0, 1.0, None),       // pull 0
+            ],
+            errors: vec![],
+        };
+        let s = cell.stats();
+        assert_eq!((s.n, s.cover1, s.cover2), (4, 0.5, 0.75));
+        assert_eq!(s.worst_pull, -5.0);
+        assert_eq!(s.mean_pull, (0.5 + 1.5 - 5.0 + 0.0) / 4.0);
+        assert_eq!(s.flagged, 0.25);
+        let (lo, hi) = band(0.5, 100);
+        assert!((lo - 0.4).abs() < 1e-12 && (hi - 0.6).abs() < 1e-12);
+    }
+
+    #[test]
+    fn a_cell_runs_resumes_from_its_cache_and_writes_the_section() {
+        let dir = std::env::temp_dir().join(format!("nis-coverage-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&dir);
+        let f = integrands::by_name("camel", Some(2)).unwrap();
+        let budget = Budget {
+            evals: 4_000,
+            seeds: 6,
+        };
+        let cell = run_cell(&f, "VEGAS+", budget);
+        assert_eq!(cell.runs.len(), 6);
+        // Seeds are independent of the parallel schedule: a second run is identical.
+        let again = run_cell(&f, "VEGAS+", budget);
+        assert_eq!(
+            cell.runs.iter().map(|r| r.value).collect::<Vec<_>>(),
+            again.runs.iter().map(|r| r.value).collect::<Vec<_>>()
+        );
+        // A cached cell is read back instead of run.
+        let path = cache_path(&dir, "camel", 2, "VEGAS+", budget);
+        std::fs::create_dir_all(&dir).unwrap();
+        std::fs::write(&path, serde_json::to_vec(&cell).unwrap()).unwrap();
+        let back: Cell = serde_json::from_slice(&std::fs::read(&path).unwrap()).unwrap();
+        assert_eq!(back.runs.len(), 6);
+        let md = markdown(&[back], &[budget]);
+        assert!(md.contains("| camel d2 | VEGAS+ |"));
+        let _ = std::fs::remove_dir_all(&dir);
+    }
+}
