@@ -390,6 +390,8 @@ impl Integrator for Vegas {
 
 /// The fastest fall of the variance per iteration (smallest ratio) the shares extrapolate.
 const MAX_FALL: f64 = 0.25;
+/// Iterations the trend of the variance is fitted over.
+const TREND_SPAN: usize = 5;
 
 /// The share a_i of the next result iteration in the final estimate Σ a_i·I_i, from the
 /// variances of the iterations before it only, so E[a_i·I_i] = E[a_i]·I and the estimate is
@@ -398,16 +400,32 @@ const MAX_FALL: f64 = 0.25;
 /// The package weighs iterations by their inverse variances, which matters because the map keeps
 /// improving: on gauss-sharp d = 8 the variance falls ×0.75 per iteration, 15-fold over the
 /// result iterations, and equal shares are 6× worse than inverse-variance ones. Here the fall is
-/// extrapolated: with ρ the ratio per iteration over the last two steps (clamped to
+/// extrapolated: with ρ the ratio per iteration fitted to the last few (clamped to
 /// [`MAX_FALL`], 1) the `left` iterations are expected to have variances ∝ ρ^m, so inverse-variance
 /// shares of what remains give this one c = 1/Σ_{m<left} ρ^(−m).
 fn next_share(remaining: f64, left: usize, history: &[f64]) -> f64 {
     if left <= 1 {
         return remaining;
     }
-    let n = history.len();
-    let rho = if n >= 3 && history[n - 3] > 0.0 && history[n - 1] > 0.0 {
-        (history[n - 1] / history[n - 3]).sqrt()
+    // ρ from the least-squares slope of ln σ² over the last (up to) five iterations: the ratio of
+    // two noisy variances would let one heavy-tailed iteration reset the trend.
+    let recent: Vec<(f64, f64)> = history
+        .iter()
+        .rev()
+        .take(TREND_SPAN)
+        .enumerate()
+        .filter(|(_, v)| **v > 0.0 && v.is_finite())
+        .map(|(j, v)| (-(j as f64), v.ln()))
+        .collect();
+    let rho = if recent.len() >= 3 {
+        let m = recent.len() as f64;
+        let (mx, my) = recent
+            .iter()
+            .fold((0.0, 0.0), |(a, b), (x, y)| (a + x / m, b + y / m));
+        let (sxy, sxx) = recent.iter().fold((0.0, 0.0), |(a, b), (x, y)| {
+            (a + (x - mx) * (y - my), b + (x - mx) * (x - mx))
+        });
+        (sxy / sxx).exp()
     } else {
         1.0
     };
