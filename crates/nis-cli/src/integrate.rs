@@ -274,6 +274,49 @@ pub fn run(args: &IntegrateArgs) -> Result<(), Error> {
     Ok(())
 }
 
+#[derive(clap::Args)]
+pub struct EvalArgs {
+    /// Built-in integrand (see `nis list`).
+    pub name: String,
+    /// Dimension (default: the integrand's smallest).
+    #[arg(long)]
+    pub dim: Option<usize>,
+}
+
+/// `nis eval`: reads frames (u64 n, then n·dim f64 points, little-endian) from stdin and answers
+/// each with the n values; n = 0 or the end of input stops.
+pub fn eval(args: &EvalArgs) -> Result<(), Error> {
+    use std::io::{Read, Write};
+    let f = integrands::by_name(&args.name, args.dim)?;
+    let dim = f.dim;
+    let (mut input, mut output) = (std::io::stdin().lock(), std::io::stdout().lock());
+    let (mut head, mut bytes, mut x, mut values) = ([0u8; 8], Vec::new(), Vec::new(), Vec::new());
+    loop {
+        match input.read_exact(&mut head) {
+            Err(e) if e.kind() == std::io::ErrorKind::UnexpectedEof => return Ok(()),
+            r => r?,
+        }
+        let n = u64::from_le_bytes(head) as usize;
+        if n == 0 {
+            return Ok(());
+        }
+        bytes.resize(n * dim * 8, 0);
+        input.read_exact(&mut bytes)?;
+        x.clear();
+        x.extend(
+            bytes
+                .chunks_exact(8)
+                .map(|b| f64::from_le_bytes(b.try_into().expect("8 bytes"))),
+        );
+        values.resize(n, 0.0);
+        nis::integrate::Integrand::eval_batch(&f, &x, dim, &mut values)?;
+        bytes.clear();
+        bytes.extend(values.iter().flat_map(|v: &f64| v.to_le_bytes()));
+        output.write_all(&bytes)?;
+        output.flush()?;
+    }
+}
+
 /// `nis list`.
 pub fn list() {
     println!("{:<14} {:<14} description", "name", "dimensions");

@@ -34,6 +34,12 @@ enum Command {
     Integrate(integrate::IntegrateArgs),
     /// List the built-in integrands.
     List,
+    /// Serve values of a built-in integrand over stdin/stdout, for baselines in other languages
+    /// (scripts/bench-vegas.sh): frames of a little-endian u64 n and n×dim f64 points in, n f64
+    /// values out; n = 0 ends.
+    ///
+    /// Example: nis eval camel-sharp --dim 8
+    Eval(integrate::EvalArgs),
     /// Write unweighted samples of a built-in integrand (CSV or binary).
     ///
     /// Example: nis sample camel --dim 2 --n 10000 --out camel.csv
@@ -117,6 +123,7 @@ fn main() -> ExitCode {
             integrate::list();
             Ok(())
         }
+        Command::Eval(args) => integrate::eval(&args),
         Command::Render(args) => render::run_render(&args),
         Command::Compare(args) => render::run_compare(&args),
         Command::Bench(BenchCommand::Flow { batch, torch, docs }) => {

@@ -274,7 +274,9 @@ fn results_are_bit_identical_to_the_recorded_ones() {
     let gauss = integrands::by_name("gauss", Some(2)).unwrap();
     let expected = [
         (Method::Nis, "0.9985264702903238", "0.0008658039878684403"),
-        (Method::Vegas, "0.999350167143816", "0.00014123508475074996"),
+        // VEGAS+ re-recorded when it took the `vegas` package's stratification and map
+        // adaptation and the shares of its iterations (was 0.999350167143816 ± 0.000141235…).
+        (Method::Vegas, "0.9991300887314856", "0.0001732057132195463"),
         (
             Method::Uniform,
             "0.9975623516355743",

@@ -1,6 +1,8 @@
 //! The built-in test suite: integrands on [0, 1]^d with exact values, each with its source
-//! (`../shared/INTEGRANDS.md` lists them; every value is re-derived in the tests below).
+//! (docs/INTEGRANDS.md lists them with the derivations; every value is re-derived in the tests
+//! below and in `correlated`'s).
 
+mod correlated;
 mod physics;
 
 use std::f64::consts::PI;
@@ -124,6 +126,21 @@ pub const SUITE: &[SuiteEntry] = &[
         name: "product",
         dims: &[2, 4, 8, 16],
         description: "Π 2x_i (MadNIS documentation)",
+    },
+    SuiteEntry {
+        name: "gauss-diagonal",
+        dims: &[2, 4, 8],
+        description: "Gaussian at the centre elongated along the diagonal (non-separable)",
+    },
+    SuiteEntry {
+        name: "peaks",
+        dims: &[2, 4, 8],
+        description: "four Gaussian peaks, α = 0.05, at scattered off-diagonal centres",
+    },
+    SuiteEntry {
+        name: "ridge",
+        dims: &[2, 4, 8],
+        description: "a peak on a thin curved ridge x_i = g_i(x₁) (non-separable)",
     },
 ];
 
@@ -349,6 +366,14 @@ pub fn by_name(name: &str, dim: Option<usize>) -> Result<Builtin> {
             source: "MadNIS documentation; Π 2x_i integrates to 1",
             f: Box::new(|x| x.iter().map(|v| 2.0 * v).product()),
         },
+        "gauss-diagonal" | "peaks" | "ridge" if d < 2 => {
+            return Err(Error::Config(format!(
+                "{name} is defined for 2 to 64 dimensions, not {d}"
+            )));
+        }
+        "gauss-diagonal" => correlated::gauss_diagonal(d),
+        "peaks" => correlated::peaks(d),
+        "ridge" => correlated::ridge(d),
         _ => unreachable!("every suite entry is built above"),
     };
     b.name = name.to_string();

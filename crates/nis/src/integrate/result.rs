@@ -237,39 +237,100 @@ impl Accumulator {
         started: Instant,
         warnings: Vec<String>,
     ) -> IntegrationResult {
+        self.finish_with(None, n_eval, started, warnings)
+    }
+
+    /// The final result as Σ a_i·estimate_i with the given shares a_i (one per iteration, summing
+    /// to one). Unbiased when each a_i was fixed before iteration i's points were drawn; the
+    /// variance Σ a_i²·variance_i is then unbiased too (the iterations' errors are martingale
+    /// differences). χ² uses each iteration's own variance, as the shares expect them to differ.
+    pub fn finish_weighted(
+        &self,
+        shares: &[f64],
+        n_eval: u64,
+        started: Instant,
+        warnings: Vec<String>,
+    ) -> IntegrationResult {
+        assert_eq!(
+            shares.len(),
+            self.iterations.len(),
+            "one share per iteration"
+        );
+        self.finish_with(Some(shares), n_eval, started, warnings)
+    }
+
+    /// With `shares` None, the evaluation-weighted pooled mean.
+    fn finish_with(
+        &self,
+        shares: Option<&[f64]>,
+        n_eval: u64,
+        started: Instant,
+        warnings: Vec<String>,
+    ) -> IntegrationResult {
         let total: f64 = self.iterations.iter().map(|i| i.evals as f64).sum();
-        let value = self
-            .iterations
-            .iter()
-            .map(|i| i.estimate * i.evals as f64)
-            .sum::<f64>()
-            / total;
-        let var: f64 = self
-            .iterations
-            .iter()
-            .map(|i| i.variance * (i.evals as f64 / total).powi(2))
-            .sum();
-        // χ² of the iteration estimates around their mean, against the variance an iteration of
-        // its size has by the pooled estimate (iterations are of nearly equal size). Dividing by
-        // each iteration's own variance estimate instead pulls χ² far below 1 for heavy-tailed
-        // weights, whose large deviations come with large variance estimates.
+        let own_variances = shares.is_some();
+        let (value, var) = match shares {
+            Some(a) => (
+                self.iterations
+                    .iter()
+                    .zip(a)
+                    .map(|(i, a)| i.estimate * a)
+                    .sum::<f64>(),
+                self.iterations
+                    .iter()
+                    .zip(a)
+                    .map(|(i, a)| i.variance * a * a)
+                    .sum::<f64>(),
+            ),
+            None => (
+                self.iterations
+                    .iter()
+                    .map(|i| i.estimate * i.evals as f64)
+                    .sum::<f64>()
+                    / total,
+                self.iterations
+                    .iter()
+                    .map(|i| i.variance * (i.evals as f64 / total).powi(2))
+                    .sum::<f64>(),
+            ),
+        };
         let k = self.iterations.len();
-        // Per-evaluation variance of each iteration (variance of its mean × its size), averaged
-        // over the iterations weighted by their sizes.
-        let mean_var_per_eval = self
-            .iterations
-            .iter()
-            .map(|i| i.variance * (i.evals as f64).powi(2))
-            .sum::<f64>()
-            / total;
-        let chi2 = if k > 1 && mean_var_per_eval > 0.0 {
-            self.iterations
-                .iter()
-                .map(|i| (i.estimate - value).powi(2) * i.evals as f64 / mean_var_per_eval)
-                .sum::<f64>()
-                / (k - 1) as f64
-        } else {
+        let chi2 = if k < 2 {
             f64::NAN
+        } else if own_variances {
+            if self.iterations.iter().all(|i| i.variance > 0.0) {
+                self.iterations
+                    .iter()
+                    .map(|i| (i.estimate - value).powi(2) / i.variance)
+                    .sum::<f64>()
+                    / (k - 1) as f64
+            } else {
+                f64::NAN
+            }
+        } else {
+            // χ² of the iteration estimates around their mean, against the variance an
+            // iteration of its size has by the pooled estimate (iterations are of nearly equal
+            // size). Dividing by each iteration's own variance estimate instead pulls χ² far
+            // below 1 for heavy-tailed weights, whose large deviations come with large variance
+            // estimates.
+            //
+            // Per-evaluation variance of each iteration (variance of its mean × its size),
+            // averaged over the iterations weighted by their sizes.
+            let mean_var_per_eval = self
+                .iterations
+                .iter()
+                .map(|i| i.variance * (i.evals as f64).powi(2))
+                .sum::<f64>()
+                / total;
+            if mean_var_per_eval > 0.0 {
+                self.iterations
+                    .iter()
+                    .map(|i| (i.estimate - value).powi(2) * i.evals as f64 / mean_var_per_eval)
+                    .sum::<f64>()
+                    / (k - 1) as f64
+            } else {
+                f64::NAN
+            }
         };
         let mut warnings = warnings;
         let zero = self.max_abs_w == 0.0;
@@ -390,6 +451,23 @@ impl ComponentAccumulator {
             }
         }
         mean.iter_mut().for_each(|m| *m /= total);
+        let std_err = (0..k).map(|j| cov[j * k + j].sqrt()).collect();
+        ComponentEstimates { mean, std_err, cov }
+    }
+
+    /// Σ a_i·mean_i and Σ a_i²·Cov_i with the given shares (see [`Accumulator::finish_weighted`]).
+    pub(crate) fn finish_weighted(&self, shares: &[f64]) -> ComponentEstimates {
+        let k = self.k;
+        let mut mean = vec![0.0; k];
+        let mut cov = vec![0.0; k * k];
+        for ((m, c, _), share) in self.iterations.iter().zip(shares) {
+            for j in 0..k {
+                mean[j] += m[j] * share;
+            }
+            for (a, b) in cov.iter_mut().zip(c) {
+                *a += b * share.powi(2);
+            }
+        }
         let std_err = (0..k).map(|j| cov[j * k + j].sqrt()).collect();
         ComponentEstimates { mean, std_err, cov }
     }

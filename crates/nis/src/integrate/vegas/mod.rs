@@ -1,14 +1,22 @@
-//! VEGAS+ (Lepage 1978; Lepage 2021, "Adaptive multidimensional integration: VEGAS enhanced"): a
-//! separable importance map — per dimension a piecewise-linear map y ↦ x with `increments` bins
-//! whose widths adapt so each carries an equal share of ∫(f·J)² — combined with stratified
-//! sampling in y over `strata^d` hypercubes whose sample counts adapt as n_h ∝ σ_h^β.
+//! VEGAS+ (Lepage 1978; Lepage 2021, "Adaptive multidimensional integration: VEGAS enhanced",
+//! arXiv:2009.05112): a separable importance map ([`map`]) combined with adaptive stratified
+//! sampling in y over hypercubes ([`strata`]), both adapted after every iteration as G. P.
+//! Lepage's `vegas` package adapts them (its defaults: α = 0.5, β = 0.75, a quarter of the points
+//! spread evenly, increments and strata from the points per iteration; docs/BENCHMARKS.md compares
+//! the two on the suite).
 //!
-//! Departure from the `vegas` package, and why: the map and the stratification adapt after every
-//! iteration, but the first `warmup` iterations only teach them, and the estimate pools the
-//! remaining ones with *equal* weights (all iterations have the same number of points). Each
-//! iteration is unbiased given the map it used, so this pooled mean is unbiased and its variance
-//! is the sum of theirs. The package instead averages iterations with inverse-variance weights,
-//! which is biased when the variances are estimated from the same samples.
+//! Departure from the package, and why: the first `warmup` iterations only teach the map and the
+//! strata, and the estimate pools the remaining ones with *equal* weights (all iterations have
+//! the same number of points). Each iteration is unbiased given the map it used, so this pooled
+//! mean is unbiased and its variance is the sum of theirs. The package instead averages
+//! iterations with inverse-variance weights, which is biased when the variances are estimated
+//! from the same samples: an iteration whose points happened to miss part of the integrand has
+//! both a low estimate and a low variance, and weighs more. Equal weights, though, waste the later
+//! iterations of a still-improving map, so the result iterations here get shares fixed before
+//! their points are drawn, from the trend of the earlier variances ([`next_share`]).
+
+mod map;
+mod strata;
 
 use std::time::Instant;
 
@@ -22,6 +30,8 @@ use super::{
     Integrator, Method, Progress, TrainOn,
 };
 use crate::error::{Error, Result};
+use map::Map;
+use strata::Strata;
 
 /// VEGAS+ settings (the map and stratification defaults follow the `vegas` package: 1000
 /// increments, α = 0.5, β = 0.75).
@@ -34,10 +44,8 @@ pub struct VegasConfig {
     pub alpha: f64,
     /// Damping of the stratification's adaptation (0: equal counts).
     pub beta: f64,
-    /// Iterations in all (0: by dimension — 10 for d ≤ 2, 40 for d ≤ 4, 80 above — but with at
-    /// least 20 000 points each and at least 5 iterations). Few large
-    /// iterations stratify finely, which low dimensions need; many small ones adapt the map more
-    /// often, which high dimensions need (measured on the suite at 2·10⁶ evaluations).
+    /// Iterations in all (0: 20, a quarter of them warm-up, as the package's documentation runs
+    /// it, but fewer when that would leave under 4000 points per iteration, and at least 5).
     pub iterations: usize,
     /// Of those, the first ones whose estimates are discarded (0 with `iterations` 0: a quarter).
     pub warmup: usize,
@@ -147,110 +155,15 @@ impl VegasConfigBuilder {
     }
 }
 
-/// The separable map: per dimension, `increments + 1` edges from 0 to 1.
-#[derive(Clone, Debug)]
-struct Map {
-    dim: usize,
-    n: usize,
-    edges: Vec<f64>,
-}
-
-impl Map {
-    fn new(dim: usize, n: usize) -> Map {
-        let edges = (0..dim)
-            .flat_map(|_| (0..=n).map(move |i| i as f64 / n as f64))
-            .collect();
-        Map { dim, n, edges }
-    }
-
-    /// x(y) and the Jacobian dx/dy, plus each coordinate's increment index.
-    fn apply(&self, y: &[f64], x: &mut [f64], inc: &mut [usize]) -> f64 {
-        let mut jac = 1.0;
-        for d in 0..self.dim {
-            let t = y[d] * self.n as f64;
-            let i = (t as usize).min(self.n - 1);
-            let e = &self.edges[d * (self.n + 1)..];
-            let w = e[i + 1] - e[i];
-            x[d] = e[i] + (t - i as f64) * w;
-            inc[d] = i;
-            jac *= self.n as f64 * w;
-        }
-        jac
-    }
-
-    /// Moves the edges so each increment carries an equal share of the smoothed, compressed
-    /// Σ(f·J)² in `acc` (per dimension, per increment).
-    fn adapt(&mut self, acc: &[f64], alpha: f64) {
-        let n = self.n;
-        for d in 0..self.dim {
-            let a = &acc[d * n..(d + 1) * n];
-            // Smooth with the neighbours.
-            let mut s: Vec<f64> = (0..n)
-                .map(|i| {
-                    let lo = if i > 0 { a[i - 1] } else { a[i] };
-                    let hi = if i + 1 < n { a[i + 1] } else { a[i] };
-                    if n == 1 {
-                        a[i]
-                    } else if i == 0 || i + 1 == n {
-                        (a[i] + if i == 0 { hi } else { lo }) / 2.0
-                    } else {
-                        (lo + a[i] + hi) / 3.0
-                    }
-                })
-                .collect();
-            let sum: f64 = s.iter().sum();
-            if sum <= 0.0 || !sum.is_finite() {
-                continue;
-            }
-            // Compress: ((1 − r)/ln(1/r))^α with r the share, so no increment dominates.
-            for v in s.iter_mut() {
-                let r = *v / sum;
-                *v = if r <= 0.0 {
-                    0.0
-                } else if r >= 1.0 {
-                    1.0
-                } else {
-                    ((1.0 - r) / (-r.ln())).powf(alpha)
-                };
-            }
-            let total: f64 = s.iter().sum();
-            if total <= 0.0 {
-                continue;
-            }
-            let per = total / n as f64;
-            let old: Vec<f64> = self.edges[d * (n + 1)..(d + 1) * (n + 1)].to_vec();
-            let new = &mut self.edges[d * (n + 1)..(d + 1) * (n + 1)];
-            let (mut i, mut acc_s) = (0usize, 0.0f64);
-            for k in 1..n {
-                let target = per * k as f64;
-                while i < n && acc_s + s[i] < target {
-                    acc_s += s[i];
-                    i += 1;
-                }
-                let i = i.min(n - 1);
-                let frac = if s[i] > 0.0 {
-                    (target - acc_s) / s[i]
-                } else {
-                    0.0
-                };
-                new[k] = old[i] + frac.clamp(0.0, 1.0) * (old[i + 1] - old[i]);
-            }
-            new[0] = 0.0;
-            new[n] = 1.0;
-        }
-    }
-}
-
-/// The VEGAS+ integrator: its map, its stratification's σ_h estimates and its random stream
-/// persist between calls, so a second [`Integrator::integrate`] continues adapting them.
+/// The VEGAS+ integrator: its map, its stratification's weights and its random stream persist
+/// between calls, so a second [`Integrator::integrate`] continues adapting them.
 pub struct Vegas {
     config: VegasConfig,
     dim: usize,
     /// Built by the first call (its increments are capped by that call's budget).
     map: Option<Map>,
-    /// Damped σ_h estimates driving the allocation, one per hypercube (reset when a call's
-    /// budget gives another number of hypercubes).
-    sigma: Vec<f64>,
+    /// The hypercubes and their weights (replaced when a call's budget gives other hypercubes).
+    strata: Option<Strata>,
     rng: Pcg64Mcg,
     progress: Option<Box<dyn Progress>>,
 }
@@ -260,9 +173,11 @@ struct Plan {
     iterations: usize,
     warmup: usize,
     increments: usize,
+    /// Points of an iteration; the first `extra` iterations get one more, so a call makes
+    /// exactly its budget of evaluations.
     per_iter: usize,
-    strata: usize,
-    cubes: usize,
+    extra: usize,
+    strata: Strata,
 }
 
 impl Vegas {
@@ -277,7 +192,7 @@ impl Vegas {
             config,
             dim,
             map: None,
-            sigma: Vec::new(),
+            strata: None,
             progress: None,
         })
     }
@@ -288,18 +203,12 @@ impl Vegas {
     }
 
     fn plan(&self, evals: u64) -> Plan {
-        let dim = self.dim;
         let mut c = self.config.clone();
         if c.iterations == 0 {
-            let by_dim: u64 = match dim {
-                0..=2 => 10,
-                3..=4 => 40,
-                _ => 80,
-            };
-            // Small budgets: no fewer than 20 000 points per iteration (5 iterations at least);
-            // maps and strata adapted from a few hundred points are noise, and their weights
-            // heavy-tailed enough to under-cover.
-            c.iterations = by_dim.min((evals / 20_000).max(5)) as usize;
+            // As the package's documentation runs it: a few iterations that only adapt, then
+            // those that make the estimate, ITERATIONS in all, each of at least MIN_PER_ITER
+            // points (maps and strata adapted from a few hundred points are noise).
+            c.iterations = (ITERATIONS as u64).min((evals / MIN_PER_ITER).max(5)) as usize;
             c.warmup = c.iterations.div_ceil(4);
         }
         // Increments each need several points per iteration to be adapted from.
@@ -307,26 +216,23 @@ impl Vegas {
             .increments
             .min((evals as usize / c.iterations / 10).max(1));
         let per_iter = (evals / c.iterations as u64).max(c.min_per_cube as u64 * 2) as usize;
-        // Strata per dimension: as many hypercubes as leave min_per_cube points each.
-        let strata = (((per_iter / c.min_per_cube) as f64)
-            .powf(1.0 / dim as f64)
-            .floor() as usize)
-            .max(1);
-        let cubes = strata
-            .checked_pow(dim as u32)
-            .filter(|&n| n <= per_iter)
-            .unwrap_or(1);
-        let strata = if cubes == 1 { 1 } else { strata };
+        let extra = evals.saturating_sub((per_iter * c.iterations) as u64) as usize;
         Plan {
             iterations: c.iterations,
             warmup: c.warmup,
             increments,
             per_iter,
-            strata,
-            cubes,
+            extra: extra.min(c.iterations),
+            strata: Strata::plan(self.dim, per_iter, c.min_per_cube),
         }
     }
 }
+
+/// Iterations of a call by default (a quarter of them warm-up), as in the `vegas` package's
+/// documented use (`integ(f, nitn=…)` to adapt, then again for the result).
+const ITERATIONS: usize = 20;
+/// Fewest points per iteration when the number of iterations is chosen by the budget.
+const MIN_PER_ITER: u64 = 4000;
 
 impl Integrator for Vegas {
     fn method(&self) -> Method {
@@ -355,6 +261,8 @@ impl Integrator for Vegas {
             self.config.beta,
         );
         let plan = self.plan(evals);
+        let per_iter = plan.per_iter;
+        // Every hypercube gets min_per_cube points; the plan leaves room for them.
         check_budget(
             Method::Vegas,
             evals,
@@ -362,43 +270,30 @@ impl Integrator for Vegas {
             "two per hypercube of every iteration",
         )?;
         let started = Instant::now();
-        let (strata, cubes, per_iter) = (plan.strata, plan.cubes, plan.per_iter);
         let map = self
             .map
             .get_or_insert_with(|| Map::new(dim, plan.increments));
-        let increments = map.n;
-        if self.sigma.len() != cubes {
-            // Start equal.
-            self.sigma = vec![1.0f64; cubes];
+        if !self
+            .strata
+            .as_ref()
+            .is_some_and(|s| s.same_cubes(&plan.strata))
+        {
+            self.strata = Some(plan.strata);
         }
-        let sigma = &mut self.sigma;
+        let strata = self.strata.as_mut().expect("set above");
+        let cubes = strata.cubes;
+        let volume = 1.0 / cubes as f64;
         let rng = &mut self.rng;
-        let mut acc = Accumulator::new((per_iter * plan.iterations) as u64);
+        let mut acc = Accumulator::new((per_iter * (plan.iterations - plan.warmup)) as u64);
         let mut comps = ComponentAccumulator::new(k);
         let mut n_eval = 0u64;
         let (mut y, mut x, mut inc) = (vec![0.0; dim], Vec::new(), vec![0usize; dim]);
+        let mut corner = vec![0usize; dim];
+        let mut contribution_var = vec![0.0; cubes];
+        // Every iteration's variance (warm-up included) and the result iterations' shares.
+        let (mut history, mut shares, mut remaining) = (Vec::new(), Vec::new(), 1.0);
         for it in 0..plan.iterations {
-            // Allocate points to hypercubes ∝ σ_h^β, at least min_per_cube each.
-            let weights: Vec<f64> = sigma.iter().map(|s| s.powf(beta)).collect();
-            let wsum: f64 = weights.iter().sum();
-            let spare = per_iter.saturating_sub(cubes * min_per_cube) as f64;
-            // Cumulative rounding hands out exactly the spare points.
-            let mut cum = 0.0;
-            let mut given = 0usize;
-            let counts: Vec<usize> = weights
-                .iter()
-                .map(|w| {
-                    cum += if wsum > 0.0 {
-                        spare * w / wsum
-                    } else {
-                        spare / cubes as f64
-                    };
-                    let upto = cum.round() as usize;
-                    let extra = upto.saturating_sub(given);
-                    given += extra;
-                    min_per_cube + extra
-                })
-                .collect();
+            let counts = strata.allocate(per_iter + usize::from(it < plan.extra), min_per_cube);
             let total: usize = counts.iter().sum();
             x.clear();
             x.reserve(total * dim);
@@ -406,11 +301,10 @@ impl Integrator for Vegas {
             let mut incs = Vec::with_capacity(total * dim);
             let mut point = vec![0.0; dim];
             for (h, &nh) in counts.iter().enumerate() {
+                strata.corner(h, &mut corner);
                 for _ in 0..nh {
-                    let mut kk = h;
-                    for yd in y.iter_mut() {
-                        *yd = ((kk % strata) as f64 + rng.random::<f64>()) / strata as f64;
-                        kk /= strata;
+                    for ((yd, &c), &s) in y.iter_mut().zip(&corner).zip(&strata.per_axis) {
+                        *yd = (c as f64 + rng.random::<f64>()) / s as f64;
                     }
                     jacs.push(map.apply(&y, &mut point, &mut inc));
                     x.extend_from_slice(&point);
@@ -427,10 +321,8 @@ impl Integrator for Vegas {
             };
             n_eval += total as u64;
             // Per hypercube: mean and variance of f·J; the estimate Σ_h V_h·mean_h.
-            let volume = 1.0 / cubes as f64;
             let (mut estimate, mut variance) = (0.0, 0.0);
             let (mut mean_k, mut cov_k) = (vec![0.0; k], vec![0.0; k * k]);
-            let mut grid_acc = vec![0.0; dim * increments];
             let mut w_eff = Vec::with_capacity(total);
             let mut start = 0;
             for (h, &nh) in counts.iter().enumerate() {
@@ -449,13 +341,10 @@ impl Integrator for Vegas {
                     (t_var, tj)
                 };
                 for (kk, v) in tj.iter().enumerate() {
-                    // ∫(fJ)² dy from this cube's samples: each stands for V_h/n_h of y-space.
-                    let contrib = v * v * volume / nh as f64;
-                    for d in 0..dim {
-                        grid_acc[d * increments + incs[(start + kk) * dim + d]] += contrib;
-                    }
+                    let i = start + kk;
+                    map.add_training(&incs[i * dim..(i + 1) * dim], (v * volume).powi(2));
                 }
-                sigma[h] = 0.5 * sigma[h] + 0.5 * (volume * t_var.sqrt());
+                contribution_var[h] = volume * volume * t_var / nh as f64;
                 if k > 1 {
                     add_cube_components(
                         &fx[start * k..(start + nh) * k],
@@ -467,16 +356,19 @@ impl Integrator for Vegas {
                 }
                 start += nh;
             }
-            if sigma.iter().all(|s| *s == 0.0) {
-                sigma.fill(1.0);
-            }
             if it >= plan.warmup {
+                // The share was fixed by the history before this iteration's points.
+                let share = next_share(remaining, plan.iterations - it, &history);
+                remaining -= share;
+                shares.push(share);
                 acc.add_iteration(estimate, variance, &w_eff)?;
                 if k > 1 {
                     comps.add_iteration(mean_k, cov_k, total as u64);
                 }
             }
-            map.adapt(&grid_acc, alpha);
+            history.push(variance);
+            strata.adapt(&contribution_var, beta);
+            map.adapt(alpha);
             report(
                 &mut self.progress,
                 n_eval,
@@ -488,12 +380,62 @@ impl Integrator for Vegas {
                 },
             );
         }
-        let mut r = acc.finish(n_eval, started, Vec::new());
+        let mut r = acc.finish_weighted(&shares, n_eval, started, Vec::new());
         if k > 1 {
-            r.components = Some(comps.finish());
+            r.components = Some(comps.finish_weighted(&shares));
         }
         Ok(r)
     }
+}
+
+/// The fastest fall of the variance per iteration (smallest ratio) the shares extrapolate.
+const MAX_FALL: f64 = 0.25;
+/// Iterations the trend of the variance is fitted over.
+const TREND_SPAN: usize = 5;
+
+/// The share a_i of the next result iteration in the final estimate Σ a_i·I_i, from the
+/// variances of the iterations before it only, so E[a_i·I_i] = E[a_i]·I and the estimate is
+/// unbiased; the shares add up to exactly one (the last takes what is `remaining`).
+///
+/// The package weighs iterations by their inverse variances, which matters because the map keeps
+/// improving: on gauss-sharp d = 8 the variance falls ×0.75 per iteration, 15-fold over the
+/// result iterations, and equal shares are 6× worse than inverse-variance ones. Here the fall is
+/// extrapolated: with ρ the ratio per iteration fitted to the last few (clamped to
+/// [`MAX_FALL`], 1) the `left` iterations are expected to have variances ∝ ρ^m, so inverse-variance
+/// shares of what remains give this one c = 1/Σ_{m<left} ρ^(−m).
+fn next_share(remaining: f64, left: usize, history: &[f64]) -> f64 {
+    if left <= 1 {
+        return remaining;
+    }
+    // ρ from the least-squares slope of ln σ² over the last (up to) five iterations: the ratio of
+    // two noisy variances would let one heavy-tailed iteration reset the trend.
+    let recent: Vec<(f64, f64)> = history
+        .iter()
+        .rev()
+        .take(TREND_SPAN)
+        .enumerate()
+        .filter(|(_, v)| **v > 0.0 && v.is_finite())
+        .map(|(j, v)| (-(j as f64), v.ln()))
+        .collect();
+    let rho = if recent.len() >= 3 {
+        let m = recent.len() as f64;
+        let (mx, my) = recent
+            .iter()
+            .fold((0.0, 0.0), |(a, b), (x, y)| (a + x / m, b + y / m));
+        let (sxy, sxx) = recent.iter().fold((0.0, 0.0), |(a, b), (x, y)| {
+            (a + (x - mx) * (y - my), b + (x - mx) * (x - mx))
+        });
+        (sxy / sxx).exp()
+    } else {
+        1.0
+    };
+    let rho = if rho.is_finite() {
+        rho.clamp(MAX_FALL, 1.0)
+    } else {
+        1.0
+    };
+    let sum: f64 = (0..left).map(|m| rho.powi(-(m as i32))).sum();
+    remaining / sum
 }
 
 /// Mean and sample variance of one hypercube's values f·J, and the values.
@@ -574,6 +516,37 @@ mod tests {
             assert!(matches!(bad.build(), Err(Error::Config(_))));
         }
         assert!(Vegas::new(0, VegasConfig::default()).is_err());
+    }
+
+    #[test]
+    fn shares_add_up_to_one_and_follow_a_falling_variance() {
+        // Constant variances: equal shares.
+        let (mut remaining, mut shares) = (1.0, Vec::new());
+        for left in (1..=5).rev() {
+            let a = next_share(remaining, left, &[2.0; 6]);
+            remaining -= a;
+            shares.push(a);
+        }
+        assert!(shares.iter().all(|a| (a - 0.2).abs() < 1e-12), "{shares:?}");
+        assert!(remaining.abs() < 1e-15);
+        // Variances falling ×0.5 per iteration: each share twice the one before, as
+        // inverse-variance weights would be.
+        let mut history: Vec<f64> = (0..4).map(|i| 0.5f64.powi(i)).collect();
+        let (mut remaining, mut shares) = (1.0, Vec::new());
+        for left in (1..=4).rev() {
+            let a = next_share(remaining, left, &history);
+            remaining -= a;
+            shares.push(a);
+            history.push(history.last().unwrap() * 0.5);
+        }
+        for w in shares.windows(2) {
+            assert!((w[1] / w[0] - 2.0).abs() < 1e-9, "{shares:?}");
+        }
+        assert!((shares.iter().sum::<f64>() - 1.0).abs() < 1e-15);
+        // Growing, zero or non-finite variances: equal shares of what remains.
+        for h in [[1.0, 2.0, 4.0], [0.0, 0.0, 0.0], [1.0, 1.0, f64::INFINITY]] {
+            assert!((next_share(0.6, 3, &h) - 0.2).abs() < 1e-12);
+        }
     }
 
     #[test]

@@ -1,0 +1,13 @@
+#!/usr/bin/env bash
+# Our VEGAS+ against the `vegas` package (its own venv under target/bench-py/vegas, made on
+# first use) on every suite integrand, 3 seeds, 10^6 evaluations each; writes its section of
+# docs/BENCHMARKS.md (between <!-- vegas:start --> and <!-- vegas:end -->).
+#
+#   scripts/bench-vegas.sh [--evals 1000000] [--seeds 3] [--only camel-sharp peaks]
+set -euo pipefail
+cd "$(dirname "$0")/.."
+venv=target/bench-py/vegas
+cargo build --release -p nis-cli
+[ -x "$venv/bin/python" ] || python3 -m venv "$venv"
+"$venv/bin/python" -m pip install -q --disable-pip-version-check numpy vegas
+"$venv/bin/python" scripts/bench-vegas.py --cli target/release/nis "$@"
