@@ -102,7 +102,13 @@ fn a_constant_integrand_is_estimated_exactly_or_within_its_error_bar() {
             assert_eq!((r.value, r.std_err), (3.0, 0.0));
             assert!(r.pareto_k.is_nan() && r.warnings.is_empty(), "{r:?}");
         } else {
-            assert!(pull(&r, 3.0).abs() < 5.0, "{m:?}: {r:?}");
+            // VEGAS+'s map Jacobians round, so its weights differ at the 1e-15 level and so do
+            // its estimate and error bar; error bars do not cover floating-point rounding.
+            assert!(
+                (r.value - 3.0).abs() < 5.0 * r.std_err + 3.0 * 1e-13,
+                "{m:?}: {r:?}"
+            );
+            assert!(r.warnings.is_empty(), "{m:?}: {r:?}");
         }
     }
 }

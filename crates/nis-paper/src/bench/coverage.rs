@@ -41,8 +41,9 @@ pub const BUDGETS: [Budget; 2] = [
 ];
 
 /// The cells of the default run: one or two dimensions of each kind of integrand — smooth and
-/// separable, sharp peaks, non-separable shapes, discontinuities, a sign change — chosen so the
-/// run fits in about 30 minutes on 2 cores; `--full` runs every suite entry in every dimension.
+/// separable, sharp peaks, non-separable shapes (scattered peaks, a curved ridge),
+/// discontinuities, a sign change — chosen so the run fits in about 30 minutes on 2 cores;
+/// `--full` runs every suite entry in every dimension.
 pub const DEFAULT_CELLS: &[(&str, usize)] = &[
     ("camel", 4),
     ("camel-sharp", 2),
@@ -50,6 +51,8 @@ pub const DEFAULT_CELLS: &[(&str, usize)] = &[
     ("annulus", 2),
     ("corner-peak", 4),
     ("oscillatory", 2),
+    ("peaks", 4),
+    ("ridge", 4),
 ];
 
 /// The methods, as the table names them.

@@ -334,14 +334,20 @@ impl Accumulator {
         };
         let mut warnings = warnings;
         let zero = self.max_abs_w == 0.0;
-        let reliability = self.tail.reliability();
+        let mut reliability = self.tail.reliability();
+        // Weights equal up to floating-point rounding (a constant integrand under a sampler
+        // whose Jacobians round): their spread is noise, neither a tail nor a χ² to warn about.
+        let rounding = var.sqrt() <= ROUNDING * value.abs();
+        if rounding {
+            reliability.pareto_k = f64::NAN;
+        }
         if zero {
             warnings.push(
                 "the integrand was zero at every sampled point: the estimate is 0 ± 0, which \
                  only says that no sample found where it is not zero"
                     .into(),
             );
-        } else if chi2 > 3.0 {
+        } else if chi2 > 3.0 && !rounding {
             warnings.push(format!(
                 "χ²/dof = {chi2:.2} between iterations: the weights are heavy-tailed or the \
                  sampler misses part of the integrand; the error bar may be too small"
@@ -375,6 +381,9 @@ impl Accumulator {
         }
     }
 }
+
+/// A relative standard error below which the weights differ only by rounding.
+const ROUNDING: f64 = 1e-12;
 
 /// The error for weights whose variance does not fit in an f64.
 fn unrepresentable(max_abs_w: f64) -> Error {
