@@ -88,8 +88,14 @@ pub struct RenderOutput {
 /// Side of the square tiles that threads take one at a time.
 pub const TILE_SIZE: u32 = 16;
 
-/// Paths a wave traces together, at least (whole tiles are never split).
+/// Paths a wave traces together, at least (whole tiles are never split across waves; a tile's
+/// samples are, once one tile alone has more paths than this).
 pub const WAVE_PATHS: usize = 4096;
+
+/// Samples per pixel a wave traces at most: a pass of more spp runs as consecutive slices of
+/// this many, so the paths in flight (rays, random streams, radiance) and with them the memory
+/// stay bounded whatever the sample count.
+const WAVE_SPP: u32 = (WAVE_PATHS / (TILE_SIZE * TILE_SIZE) as usize) as u32;
 
 /// Waves rendered in parallel before their guide statistics are merged, in wave order.
 const WAVES_PER_GROUP: usize = 16;
@@ -281,10 +287,22 @@ impl Renderer<'_> {
                 (0..w.div_ceil(TILE_SIZE)).map(move |tx| (tx * TILE_SIZE, ty * TILE_SIZE))
             })
             .collect();
-        let count = samples.len();
-        let tile_paths = (TILE_SIZE * TILE_SIZE) as usize * count;
-        let tiles_per_wave = WAVE_PATHS.div_ceil(tile_paths.max(1)).max(1);
-        let waves: Vec<&[(u32, u32)]> = tiles.chunks(tiles_per_wave).collect();
+        // Sample slices of at most WAVE_SPP, each cut into waves of whole tiles.
+        let slices: Vec<Range<u32>> = samples
+            .clone()
+            .step_by(WAVE_SPP as usize)
+            .map(|s| s..(s + WAVE_SPP).min(samples.end))
+            .collect();
+        let waves: Vec<(Range<u32>, &[(u32, u32)])> = slices
+            .iter()
+            .flat_map(|slice| {
+                let tile_paths = (TILE_SIZE * TILE_SIZE) as usize * slice.len();
+                let tiles_per_wave = WAVE_PATHS.div_ceil(tile_paths.max(1)).max(1);
+                tiles
+                    .chunks(tiles_per_wave)
+                    .map(move |wave| (slice.clone(), wave))
+            })
+            .collect();
         let done = AtomicU64::new(0);
         let n_waves = waves.len() as f64;
         let learn = learn && guide.wants_records();
@@ -293,8 +311,8 @@ impl Renderer<'_> {
         for group in waves.chunks(WAVES_PER_GROUP) {
             let results: Vec<WaveResult<G::Statistics>> = group
                 .par_iter()
-                .map(|wave| {
-                    let result = self.wave(shared, wave, samples.clone(), learn);
+                .map(|(slice, wave)| {
+                    let result = self.wave(shared, wave, slice.clone(), learn);
                     let d = done.fetch_add(1, Ordering::Relaxed) + 1;
                     progress(d as f64 / n_waves);
                     result

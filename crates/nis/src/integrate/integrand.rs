@@ -192,11 +192,3 @@ pub fn check_dim(f: &dyn Integrand, dim: usize) -> Result<()> {
         _ => Ok(()),
     }
 }
-
-/// Column `j` of an `n × k` row-major block.
-pub(crate) fn column(v: &[f64], k: usize, j: usize) -> Vec<f64> {
-    if k == 1 {
-        return v.to_vec();
-    }
-    v.iter().skip(j).step_by(k).copied().collect()
-}
