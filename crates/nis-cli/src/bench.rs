@@ -71,13 +71,18 @@ pub fn run_memory(args: &BenchMemoryArgs) -> Result<(), Box<dyn std::error::Erro
     let md = memory::run(&program, &cases, docs, &mut |c, m| match m {
         None => pb.set_message(format!("{} {}", c.args[0], c.budget)),
         Some(m) => {
-            pb.println(format!(
+            let line = format!(
                 "{:<60} {:>12}  {:>8.1} MiB  {:>7.1} s",
                 c.args[..c.args.len().min(6)].join(" "),
                 c.budget,
                 m.peak_rss as f64 / (1024.0 * 1024.0),
                 m.seconds
-            ));
+            );
+            if pb.is_hidden() {
+                eprintln!("{line}");
+            } else {
+                pb.println(line);
+            }
             pb.inc(1);
         }
     })?;
