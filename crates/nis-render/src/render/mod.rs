@@ -268,7 +268,8 @@ impl Renderer<'_> {
     /// Add the samples `samples` of every pixel to `sums`; with `learn`, a guide that wants
     /// records learns from the pass's paths once it is done.
     ///
-    /// Tiles are grouped into waves of at least [`WAVE_PATHS`] paths that the integrator traces
+    /// The samples are cut into slices of at most `WAVE_SPP` per pixel, and each slice's tiles
+    /// into waves of at least [`WAVE_PATHS`] paths that the integrator traces
     /// bounce by bounce (so a guide sees large batches); waves run in parallel, a group of them
     /// at a time, and accumulate their records into guide statistics of their own, which are
     /// merged in wave order, so training does not depend on the thread count.
