@@ -161,6 +161,12 @@ struct Renderer<'a> {
     stats: PathStats,
 }
 
+/// The paths a wave traces: these samples of every pixel of these tiles.
+struct Wave<'a> {
+    samples: Range<u32>,
+    tiles: &'a [(u32, u32)],
+}
+
 /// What one wave of paths produced.
 struct WaveResult<S> {
     /// Pixel index and the sums of its samples.
@@ -294,14 +300,15 @@ impl Renderer<'_> {
             .step_by(WAVE_SPP as usize)
             .map(|s| s..(s + WAVE_SPP).min(samples.end))
             .collect();
-        let waves: Vec<(Range<u32>, &[(u32, u32)])> = slices
+        let waves: Vec<Wave> = slices
             .iter()
             .flat_map(|slice| {
                 let tile_paths = (TILE_SIZE * TILE_SIZE) as usize * slice.len();
                 let tiles_per_wave = WAVE_PATHS.div_ceil(tile_paths.max(1)).max(1);
-                tiles
-                    .chunks(tiles_per_wave)
-                    .map(move |wave| (slice.clone(), wave))
+                tiles.chunks(tiles_per_wave).map(move |tiles| Wave {
+                    samples: slice.clone(),
+                    tiles,
+                })
             })
             .collect();
         let done = AtomicU64::new(0);
@@ -312,8 +319,8 @@ impl Renderer<'_> {
         for group in waves.chunks(WAVES_PER_GROUP) {
             let results: Vec<WaveResult<G::Statistics>> = group
                 .par_iter()
-                .map(|(slice, wave)| {
-                    let result = self.wave(shared, wave, slice.clone(), learn);
+                .map(|wave| {
+                    let result = self.wave(shared, wave.tiles, wave.samples.clone(), learn);
                     let d = done.fetch_add(1, Ordering::Relaxed) + 1;
                     progress(d as f64 / n_waves);
                     result
