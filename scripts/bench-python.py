@@ -232,8 +232,13 @@ def driver(args):
             text = text[: text.index(start)] + block + text[text.index(end) + len(end):]
         else:
             text = text.rstrip() + "\n\n" + block + "\n"
-        with open(args.out, "w", encoding="utf-8") as fh:
+        # Atomically, like every writer of nis: a temporary file beside it, then a rename.
+        tmp = f"{os.path.join(os.path.dirname(args.out) or '.', '.' + os.path.basename(args.out))}.{os.getpid()}.tmp"
+        with open(tmp, "w", encoding="utf-8") as fh:
             fh.write(text)
+            fh.flush()
+            os.fsync(fh.fileno())
+        os.replace(tmp, args.out)
 
 
 def main():

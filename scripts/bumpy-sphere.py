@@ -9,6 +9,7 @@ docs/BENCHMARKS.md and docs/REPRODUCTION.md were compared.
 """
 
 import math
+import os
 import sys
 from pathlib import Path
 
@@ -16,7 +17,9 @@ ROOT = Path(__file__).resolve().parent.parent
 out = Path(sys.argv[1]) if len(sys.argv) > 1 else ROOT / "out"
 out.mkdir(parents=True, exist_ok=True)
 nu, nv = 700, 350
-with open(out / "bumpy.obj", "w") as f:
+# Written to temporary files and renamed into place (atomically, like every writer of nis).
+tmp_obj = out / f".bumpy.obj.{os.getpid()}.tmp"
+with open(tmp_obj, "w") as f:
     for j in range(nv + 1):
         th = math.pi * j / nv
         for i in range(nu):
@@ -38,5 +41,8 @@ scene = scene.replace("</scene>", """    <shape type="obj">
         <ref id="white"/>
     </shape>
 </scene>""")
-(out / "bumpy.xml").write_text(scene)
+os.replace(tmp_obj, out / "bumpy.obj")
+tmp_xml = out / f".bumpy.xml.{os.getpid()}.tmp"
+tmp_xml.write_text(scene)
+os.replace(tmp_xml, out / "bumpy.xml")
 print(f"wrote {out / 'bumpy.obj'} ({2 * nu * nv} triangles) and {out / 'bumpy.xml'}")

@@ -197,7 +197,10 @@ def main():
 
     text = "\n".join(report) + "\n"
     name = "benchmark.md" if args.bench_only else "summary.md"
-    (args.out / name).write_text(text)
+    # Atomically, like every writer of nis: a temporary file beside it, then a rename.
+    tmp = args.out / f".{name}.{os.getpid()}.tmp"
+    tmp.write_text(text)
+    os.replace(tmp, args.out / name)
     print(f"\nwrote {args.out / name}")
 
 

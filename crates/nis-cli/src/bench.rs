@@ -1,6 +1,6 @@
-//! `nis bench flow`, `nis bench integrate` and `nis bench coverage`: the drivers are
-//! `nis_paper::bench::{flow, integrate, coverage}`; results go to stdout and to sections of
-//! `docs/BENCHMARKS.md` (coverage: `docs/ROBUSTNESS.md`).
+//! `nis bench flow`, `nis bench integrate`, `nis bench memory` and `nis bench coverage`: the
+//! drivers are `nis_paper::bench::{flow, integrate, memory, coverage}`; results go to stdout and
+//! to sections of `docs/BENCHMARKS.md` (coverage: `docs/ROBUSTNESS.md`).
 
 use std::path::{Path, PathBuf};
 
@@ -62,6 +62,74 @@ pub fn run_coverage(a: &BenchCoverageArgs) -> Result<(), Box<dyn std::error::Err
         pb.set_length(total as u64);
         pb.set_position(done as u64);
         pb.println(line);
+    })?;
+    pb.finish_and_clear();
+    println!("{md}");
+    Ok(())
+}
+
+/// Arguments of `nis bench memory`.
+#[derive(clap::Args)]
+pub struct BenchMemoryArgs {
+    /// Drop the largest budget of each workload (10^8 evaluations, 1024 and 256 spp).
+    #[arg(long)]
+    quick: bool,
+    /// Only the cases whose workload or budget contains this text (e.g. "render", "1e7").
+    #[arg(long)]
+    only: Option<String>,
+    /// The `nis` binary to measure (default: this one), e.g. an older build to compare.
+    #[arg(long)]
+    program: Option<PathBuf>,
+    /// Markdown file the results go to (not written with --only or --program).
+    #[arg(long, default_value = "docs/BENCHMARKS.md")]
+    docs: PathBuf,
+}
+
+/// `nis bench memory`: peak RSS per case, each in a fresh child process.
+pub fn run_memory(args: &BenchMemoryArgs) -> Result<(), Box<dyn std::error::Error>> {
+    use nis_paper::bench::memory;
+    let program = match &args.program {
+        Some(p) => p.clone(),
+        None => std::env::current_exe()?,
+    };
+    let cases: Vec<memory::Case> = memory::cases(args.quick)
+        .into_iter()
+        .filter(|c| {
+            args.only.as_deref().is_none_or(|o| {
+                let o = o.to_lowercase();
+                c.workload.to_lowercase().contains(&o)
+                    || c.budget.to_lowercase().contains(&o)
+                    || c.args.join(" ").contains(&o)
+            })
+        })
+        .collect();
+    if cases.is_empty() {
+        return Err("--only matches no case".into());
+    }
+    let pb = ProgressBar::new(cases.len() as u64).with_style(
+        ProgressStyle::with_template("memory [{elapsed_precise}] {bar:20} {pos}/{len} {msg}")
+            .expect("a valid template"),
+    );
+    pb.enable_steady_tick(std::time::Duration::from_millis(500));
+    // A partial run (a subset, another binary) must not replace the recorded table.
+    let docs = (args.only.is_none() && args.program.is_none()).then_some(args.docs.as_path());
+    let md = memory::run(&program, &cases, docs, &mut |c, m| match m {
+        None => pb.set_message(format!("{} {}", c.args[0], c.budget)),
+        Some(m) => {
+            let line = format!(
+                "{:<60} {:>12}  {:>8.1} MiB  {:>7.1} s",
+                c.args[..c.args.len().min(6)].join(" "),
+                c.budget,
+                m.peak_rss as f64 / (1024.0 * 1024.0),
+                m.seconds
+            );
+            if pb.is_hidden() {
+                eprintln!("{line}");
+            } else {
+                pb.println(line);
+            }
+            pb.inc(1);
+        }
     })?;
     pb.finish_and_clear();
     println!("{md}");

@@ -6,6 +6,7 @@ use clap::builder::{PossibleValuesParser, TypedValueParser};
 use indicatif::{ProgressBar, ProgressStyle};
 use nis::flow::Density;
 use nis::integrands::{self, Builtin, SUITE};
+use nis::integrate::unweight::{SampleFormat, SampleWriter};
 use nis::integrate::{
     disagreements, nis::NisConfig, nis::NisIntegrator, IntegrationResult, Integrator, Method,
     Settings, DISAGREEMENT_SIGMAS,
@@ -377,15 +378,20 @@ pub fn sample(args: &SampleArgs) -> Result<(), Error> {
     if args.load.is_none() {
         nis.train(&f, args.evals)?;
     }
-    let u = nis.unweighted(&f, args.n, args.overweight)?;
+    // Streamed to the file as accepted: memory does not grow with --n.
+    let mut out = SampleWriter::create(
+        &args.out,
+        SampleFormat::for_path(&args.out),
+        f.dim,
+        args.n as u64,
+    )?;
+    let mut over = 0usize;
+    let u = nis.unweighted_each(&f, args.n, args.overweight, &mut |p, w| {
+        over += usize::from(w.abs() > 1.0);
+        out.push(p, w)
+    })?;
+    out.finish()?;
     pb.finish_and_clear();
-    let bytes = if args.out.extension().is_some_and(|e| e == "csv") {
-        u.to_csv().into_bytes()
-    } else {
-        u.to_binary()
-    };
-    nis::io::write_atomic(&args.out, &bytes)?;
-    let over = u.weights.iter().filter(|w| w.abs() > 1.0).count();
     println!(
         "{} unweighted points of {} (d = {}) written to {}: efficiency {:.4}, robust maximum \
          weight {:.4e}, {} points carry a residual weight > 1 ({:.2e} of the weight mass)",

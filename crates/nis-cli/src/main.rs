@@ -112,6 +112,11 @@ enum BenchCommand {
     /// on the real digits and MNIST; writes a table and PNGs to docs/REPRODUCTION.md.
     /// Example: nis bench density --minutes-digits 2 --minutes-mnist 4
     Density(density::BenchDensityArgs),
+    /// Peak memory (RSS) and wall time against the budget, each case in a fresh process: NIS
+    /// on camel d4 at 10^6, 10^7, 10^8 evaluations, the Cornell box at 256² with 64, 256, 1024
+    /// spp (path tracing) and 16, 64 spp (NIS-KL guiding). The full run takes ~30 minutes on
+    /// two cores. Example: nis bench memory --quick
+    Memory(bench::BenchMemoryArgs),
 }
 
 fn main() -> ExitCode {
@@ -138,6 +143,7 @@ fn main() -> ExitCode {
         Command::Bench(BenchCommand::Guiding(args)) => guiding::run_bench(&args),
         Command::Density(cmd) => density::run(&cmd),
         Command::Bench(BenchCommand::Density(args)) => density::run_bench(&args),
+        Command::Bench(BenchCommand::Memory(args)) => bench::run_memory(&args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

@@ -1,11 +1,17 @@
 //! Images: a linear RGB pixel buffer, written as full-float OpenEXR or as a tonemapped PNG,
 //! and read back from EXR.
 //!
-//! Files are written atomically: to a temporary file in the destination's directory, which is
-//! then renamed over the destination, so a crash never leaves a half-written image behind.
+//! Files are written atomically (`nis::io::AtomicFile`): to a temporary file in the destination's
+//! directory, which is then renamed over the destination, so a crash never leaves a half-written
+//! image behind.
 //! The PNG tonemap is a clamp to `[0, 1]` followed by the sRGB transfer curve (IEC 61966-2-1).
 
-use std::path::{Path, PathBuf};
+use std::path::Path;
+
+use exr::prelude::{SpecificChannels, Vec2, WritableImage};
+use image::codecs::png::PngEncoder;
+use image::ImageEncoder;
+use nis::io::AtomicFile;
 
 use crate::geometry::Rgb;
 use crate::Error;
@@ -49,12 +55,13 @@ impl Image {
     /// Write as OpenEXR with 32-bit float RGB channels.
     pub fn write_exr(&self, path: &Path) -> Result<(), Error> {
         let w = self.width as usize;
-        atomic_write(path, |tmp| {
-            exr::prelude::write_rgb_file(tmp, w, self.height as usize, |x, y| {
-                let p = self.pixels[y * w + x];
-                (p.x, p.y, p.z)
-            })
-            .map_err(|e| e.to_string())
+        let channels = SpecificChannels::rgb(|pos: Vec2<usize>| {
+            let p = self.pixels[pos.y() * w + pos.x()];
+            (p.x, p.y, p.z)
+        });
+        let image = exr::prelude::Image::from_channels((w, self.height as usize), channels);
+        write_atomically(path, |file| {
+            image.write().to_buffered(file).map_err(|e| e.to_string())
         })
     }
 
@@ -66,16 +73,15 @@ impl Image {
             .flat_map(|p| p.to_array())
             .map(|c| (srgb_encode(c) * 255.0 + 0.5) as u8)
             .collect();
-        atomic_write(path, |tmp| {
-            image::save_buffer_with_format(
-                tmp,
-                &bytes,
-                self.width,
-                self.height,
-                image::ExtendedColorType::Rgb8,
-                image::ImageFormat::Png,
-            )
-            .map_err(|e| e.to_string())
+        write_atomically(path, |file| {
+            PngEncoder::new(file)
+                .write_image(
+                    &bytes,
+                    self.width,
+                    self.height,
+                    image::ExtendedColorType::Rgb8,
+                )
+                .map_err(|e| e.to_string())
         })
     }
 
@@ -127,29 +133,18 @@ pub fn srgb_encode(c: f32) -> f32 {
     }
 }
 
-/// Run `write` on a temporary path next to `path`, then rename it over `path`.
-fn atomic_write(path: &Path, write: impl FnOnce(&Path) -> Result<(), String>) -> Result<(), Error> {
+/// Run `write` on a [`AtomicFile`] for `path` and commit it (see `nis::io::atomic`).
+fn write_atomically(
+    path: &Path,
+    write: impl FnOnce(&mut AtomicFile) -> Result<(), String>,
+) -> Result<(), Error> {
     let err = |message: String| Error::Image {
         path: path.display().to_string(),
         message,
     };
-    let dir = match path.parent() {
-        Some(d) if !d.as_os_str().is_empty() => d.to_path_buf(),
-        _ => PathBuf::from("."),
-    };
-    let name = path
-        .file_name()
-        .ok_or_else(|| err("not a file path".into()))?
-        .to_string_lossy();
-    let tmp = dir.join(format!(".{name}.{}.tmp", std::process::id()));
-    if let Err(e) = write(&tmp) {
-        let _ = std::fs::remove_file(&tmp);
-        return Err(err(e));
-    }
-    std::fs::rename(&tmp, path).map_err(|e| {
-        let _ = std::fs::remove_file(&tmp);
-        err(e.to_string())
-    })
+    let mut file = AtomicFile::create(path).map_err(|e| err(e.to_string()))?;
+    write(&mut file).map_err(err)?;
+    file.commit().map_err(|e| err(e.to_string()))
 }
 
 #[cfg(test)]

@@ -6,7 +6,7 @@ use glam::{Vec2, Vec3};
 use nis_render::bvh::Aabb;
 use nis_render::geometry::Rgb;
 use nis_render::guiding::gmm::{Gmm, GmmConfig};
-use nis_render::guiding::neural::{NisGuide, NisGuideConfig};
+use nis_render::guiding::neural::{NisGuide, NisGuideConfig, PassSamples};
 use nis_render::guiding::ppg::{Ppg, PpgConfig};
 use nis_render::guiding::{cylindrical_to_dir, dir_to_cylindrical};
 use nis_render::guiding::{Guide, GuideRecord, GuideVertex, NoGuide, PdfQuery, SampleQuery};
@@ -63,7 +63,7 @@ fn trained_guide(iterations: usize, records: usize) -> NisGuide {
                 }
             })
             .collect();
-        let mut samples = Vec::new();
+        let mut samples = PassSamples::default();
         guide.accumulate(&batch, &mut samples);
         guide.update(samples);
     }

@@ -9,6 +9,7 @@
 //! - [`fit_image`]: the paper's Figure 3, couplings on 2-D image targets (`docs/REPRODUCTION.md`).
 //! - [`density`]: the paper's Figure 4, PQ against affine couplings on real digits.
 //! - [`guiding`]: the paper's Figure 5, path guiding against a reference at equal samples and time.
+//! - [`memory`]: peak RSS of integration and rendering against the budget (`docs/BENCHMARKS.md`).
 
 pub mod coverage;
 pub mod density;
@@ -16,6 +17,7 @@ pub mod fit_image;
 pub mod flow;
 pub mod guiding;
 pub mod integrate;
+pub mod memory;
 
 use std::time::Instant;
 

@@ -134,6 +134,35 @@ fn resume_from_checkpoint_continues_exactly() {
 }
 
 #[test]
+fn resume_inside_an_epoch_continues_exactly() {
+    // A time budget of 1 ns stops the run after exactly one step (the first step always runs,
+    // and takes longer than that); the checkpoint then sits inside epoch 0.
+    let dir = std::env::temp_dir().join(format!("nis-density-mid-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let path = dir.join("ckpt.safetensors");
+    let train = toy_images(300, 4, 4, 17, 7);
+    let valid = toy_images(50, 4, 4, 17, 8);
+    let c = config(4, 4, TransformKind::Quadratic { bins: 4 });
+    let mut straight = Session::new(c.clone()).unwrap();
+    straight
+        .run(&train, &valid, 2, None, None, &mut |_| {})
+        .unwrap();
+    let mut first = Session::new(c).unwrap();
+    first
+        .run(&train, &valid, 2, Some(1e-9), Some(&path), &mut |_| {})
+        .unwrap();
+    assert_eq!((first.epoch(), first.steps()), (0, 1));
+    let mut resumed = Session::load(&path).unwrap();
+    assert_eq!((resumed.epoch(), resumed.steps()), (0, 1));
+    resumed
+        .run(&train, &valid, 2, None, Some(&path), &mut |_| {})
+        .unwrap();
+    assert_eq!(resumed.steps(), straight.steps());
+    assert_eq!(resumed.model().params(), straight.model().params());
+    std::fs::remove_dir_all(&dir).ok();
+}
+
+#[test]
 fn training_is_identical_on_one_and_two_threads() {
     // Batches of 1100 rows span three parallel chunks of the flow.
     let train = toy_images(2200, 3, 2, 17, 9);

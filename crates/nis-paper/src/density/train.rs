@@ -3,7 +3,9 @@
 //!
 //! Every epoch visits the training images in an order drawn from (seed, epoch), dequantising them
 //! with fresh noise from the same stream, so a resumed run takes exactly the steps the
-//! uninterrupted one would have taken. A step is the shared [`descend`] with weights 1/n: the
+//! uninterrupted one would have taken. A run stopped inside an epoch (by its time budget) records
+//! how many of the epoch's batches it took; its resumption replays the epoch's stream up to
+//! there (the noise of the skipped batches is drawn and dropped) and goes on with the next one. A step is the shared [`descend`] with weights 1/n: the
 //! gradient of the mean negative log-likelihood, then [`Adam`]. Evaluation uses fixed noise, so
 //! successive numbers differ only through the model.
 
@@ -90,6 +92,8 @@ pub struct Session {
     adam: Adam,
     /// Completed epochs.
     epoch: usize,
+    /// Batches of the current epoch already taken (non-zero after a time budget stopped it).
+    epoch_step: usize,
     /// Training seconds so far.
     seconds: f64,
     history: Vec<EpochStats>,
@@ -99,6 +103,9 @@ pub struct Session {
 #[derive(Serialize, Deserialize)]
 struct State {
     epoch: usize,
+    /// Absent from checkpoints written before runs could resume inside an epoch.
+    #[serde(default)]
+    epoch_step: usize,
     adam_steps: u64,
     seconds: f64,
     history: Vec<EpochStats>,
@@ -119,6 +126,7 @@ impl Session {
             model,
             adam,
             epoch: 0,
+            epoch_step: 0,
             seconds: 0.0,
             history: Vec::new(),
         })
@@ -158,8 +166,9 @@ impl Session {
         evaluate(&*self.model, images)
     }
 
-    /// One epoch over `train`; stops early once the training time reaches `max_seconds`.
-    /// Returns the fraction of the epoch done (1 unless stopped).
+    /// One epoch over `train` (the rest of it, when an earlier call stopped inside it); stops
+    /// early once the training time reaches `max_seconds`. Returns the fraction of the epoch
+    /// done (1 unless stopped).
     pub fn train_epoch(
         &mut self,
         train: &Images,
@@ -178,8 +187,13 @@ impl Session {
         order.shuffle(&mut rng);
         let batches: Vec<&[usize]> = order.chunks(self.config.batch).collect();
         let (dim, levels) = (train.dim(), train.levels);
-        for (b, idx) in batches.iter().enumerate() {
+        for idx in &batches[..self.epoch_step.min(batches.len())] {
+            // Batches taken before a stop: advance the stream past their noise.
+            dequantize(train, idx, &mut rng);
+        }
+        for (b, idx) in batches.iter().enumerate().skip(self.epoch_step) {
             if max_seconds.is_some_and(|m| self.seconds >= m) {
+                self.epoch_step = b;
                 return Ok(b as f64 / batches.len() as f64);
             }
             let start = Instant::now();
@@ -192,6 +206,7 @@ impl Session {
             on_step(b + 1, batches.len(), bits_per_dim(mean_nll, dim, levels));
         }
         self.epoch += 1;
+        self.epoch_step = 0;
         Ok(1.0)
     }
 
@@ -275,6 +290,7 @@ impl Session {
         }
         let state = State {
             epoch: self.epoch,
+            epoch_step: self.epoch_step,
             adam_steps: self.adam.steps(),
             seconds: self.seconds,
             history: self.history.clone(),
@@ -384,6 +400,7 @@ fn from_bytes(bytes: &[u8]) -> std::result::Result<Session, String> {
     session.adam = Adam::from_state(adam_config(&session.config), m, v, state.adam_steps)
         .map_err(|e| e.to_string())?;
     session.epoch = state.epoch;
+    session.epoch_step = state.epoch_step;
     session.seconds = state.seconds;
     session.history = state.history;
     Ok(session)

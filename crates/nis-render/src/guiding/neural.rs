@@ -30,6 +30,8 @@
 //! The integrator traces thousands of paths as one wavefront ([`Guide::batch_paths`]), so
 //! every query below runs the networks on large batches.
 
+use std::collections::VecDeque;
+
 use glam::{Vec2, Vec3};
 use nis::flow::{Bijection, Density, Flow, FlowConfig};
 use nis::kernels::elementwise::one_blob;
@@ -43,8 +45,8 @@ use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
 use super::{
-    cylindrical_to_dir, dir_to_cylindrical, Guide, GuideRecord, GuideSample, GuideVertex, PdfQuery,
-    SampleQuery,
+    cylindrical_to_dir, dir_to_cylindrical, Guide, GuideRecord, GuideSample, GuideStatistics,
+    GuideVertex, PdfQuery, SampleQuery,
 };
 use crate::bvh::Aabb;
 use crate::geometry::luminance;
@@ -152,6 +154,39 @@ pub struct Sample {
     pdf: f32,
     /// The BSDF's density of the direction.
     bsdf_pdf: f32,
+}
+
+/// The records of a training pass, in the order they were made, of which only the newest `cap`
+/// are kept: the replay buffer would keep no more of them (see `NisGuide::train`), so a pass of
+/// any number of paths holds at most a buffer's worth of records. `seen` counts them all (it
+/// sets the number of steps), so training is the same as with every record kept.
+#[derive(Debug, Default)]
+pub struct PassSamples {
+    samples: VecDeque<Sample>,
+    seen: usize,
+    /// The replay buffer's size; `None` until the guide has accumulated into these statistics.
+    cap: Option<usize>,
+}
+
+impl PassSamples {
+    fn trim(&mut self) {
+        if let Some(cap) = self.cap {
+            let excess = self.samples.len().saturating_sub(cap);
+            self.samples.drain(..excess);
+        }
+    }
+}
+
+impl GuideStatistics for PassSamples {
+    fn merge(&mut self, later: Self) {
+        self.cap = match (self.cap, later.cap) {
+            (Some(a), Some(b)) => Some(a.min(b)),
+            (a, b) => a.or(b),
+        };
+        self.seen += later.seen;
+        self.samples.extend(later.samples);
+        self.trim();
+    }
 }
 
 /// What one training phase did.
@@ -383,10 +418,10 @@ impl NisGuide {
     }
 
     /// Train on the records of the pass that just ended (the `iteration`-th training phase).
-    fn train(&mut self, new: Vec<Sample>, iteration: usize) {
+    fn train(&mut self, new: PassSamples, iteration: usize) {
         let start = std::time::Instant::now();
-        let new_records = new.len();
-        self.buffer.extend(new);
+        let new_records = new.seen;
+        self.buffer.extend(new.samples);
         if self.buffer.len() > self.config.buffer {
             let excess = self.buffer.len() - self.config.buffer;
             self.buffer.drain(..excess);
@@ -427,7 +462,7 @@ impl Guide for NisGuide {
     /// The one-blob encoded context of every vertex, `rows × 7·bins`, computed once and shared
     /// by the selection network and the flow's sampling and density queries.
     type Prepared = Vec<f32>;
-    type Statistics = Vec<Sample>;
+    type Statistics = PassSamples;
 
     fn prepare(&self, vertices: &[GuideVertex], context: &mut Vec<f32>) {
         *context = self.vertex_context(vertices);
@@ -498,8 +533,9 @@ impl Guide for NisGuide {
         self.training
     }
 
-    fn accumulate(&self, records: &[GuideRecord], samples: &mut Vec<Sample>) {
-        samples.extend(records.iter().filter_map(|r| {
+    fn accumulate(&self, records: &[GuideRecord], pass: &mut PassSamples) {
+        let before = pass.samples.len();
+        pass.samples.extend(records.iter().filter_map(|r| {
             let f = luminance(r.radiance * r.bsdf_cos);
             (f > 0.0 && f.is_finite() && r.pdf > 0.0).then(|| Sample {
                 context: self.context_scalars(&r.vertex),
@@ -509,9 +545,12 @@ impl Guide for NisGuide {
                 bsdf_pdf: r.bsdf_pdf,
             })
         }));
+        pass.seen += pass.samples.len() - before;
+        pass.cap = Some(self.config.buffer);
+        pass.trim();
     }
 
-    fn update(&mut self, samples: Vec<Sample>) {
+    fn update(&mut self, samples: PassSamples) {
         if self.training {
             // Phases are counted by the guide itself: the `k`-th update draws its batches from
             // the `k`-th stream.

@@ -88,8 +88,14 @@ pub struct RenderOutput {
 /// Side of the square tiles that threads take one at a time.
 pub const TILE_SIZE: u32 = 16;
 
-/// Paths a wave traces together, at least (whole tiles are never split).
+/// Paths a wave traces together, at least (whole tiles are never split across waves; a tile's
+/// samples are, once one tile alone has more paths than this).
 pub const WAVE_PATHS: usize = 4096;
+
+/// Samples per pixel a wave traces at most: a pass of more spp runs as consecutive slices of
+/// this many, so the paths in flight (rays, random streams, radiance) and with them the memory
+/// stay bounded whatever the sample count.
+const WAVE_SPP: u32 = (WAVE_PATHS / (TILE_SIZE * TILE_SIZE) as usize) as u32;
 
 /// Waves rendered in parallel before their guide statistics are merged, in wave order.
 const WAVES_PER_GROUP: usize = 16;
@@ -153,6 +159,12 @@ struct Renderer<'a> {
     options: &'a RenderOptions,
     start: Instant,
     stats: PathStats,
+}
+
+/// The paths a wave traces: these samples of every pixel of these tiles.
+struct Wave<'a> {
+    samples: Range<u32>,
+    tiles: &'a [(u32, u32)],
 }
 
 /// What one wave of paths produced.
@@ -262,7 +274,8 @@ impl Renderer<'_> {
     /// Add the samples `samples` of every pixel to `sums`; with `learn`, a guide that wants
     /// records learns from the pass's paths once it is done.
     ///
-    /// Tiles are grouped into waves of at least [`WAVE_PATHS`] paths that the integrator traces
+    /// The samples are cut into slices of at most `WAVE_SPP` per pixel, and each slice's tiles
+    /// into waves of at least [`WAVE_PATHS`] paths that the integrator traces
     /// bounce by bounce (so a guide sees large batches); waves run in parallel, a group of them
     /// at a time, and accumulate their records into guide statistics of their own, which are
     /// merged in wave order, so training does not depend on the thread count.
@@ -281,10 +294,23 @@ impl Renderer<'_> {
                 (0..w.div_ceil(TILE_SIZE)).map(move |tx| (tx * TILE_SIZE, ty * TILE_SIZE))
             })
             .collect();
-        let count = samples.len();
-        let tile_paths = (TILE_SIZE * TILE_SIZE) as usize * count;
-        let tiles_per_wave = WAVE_PATHS.div_ceil(tile_paths.max(1)).max(1);
-        let waves: Vec<&[(u32, u32)]> = tiles.chunks(tiles_per_wave).collect();
+        // Sample slices of at most WAVE_SPP, each cut into waves of whole tiles.
+        let slices: Vec<Range<u32>> = samples
+            .clone()
+            .step_by(WAVE_SPP as usize)
+            .map(|s| s..(s + WAVE_SPP).min(samples.end))
+            .collect();
+        let waves: Vec<Wave> = slices
+            .iter()
+            .flat_map(|slice| {
+                let tile_paths = (TILE_SIZE * TILE_SIZE) as usize * slice.len();
+                let tiles_per_wave = WAVE_PATHS.div_ceil(tile_paths.max(1)).max(1);
+                tiles.chunks(tiles_per_wave).map(move |tiles| Wave {
+                    samples: slice.clone(),
+                    tiles,
+                })
+            })
+            .collect();
         let done = AtomicU64::new(0);
         let n_waves = waves.len() as f64;
         let learn = learn && guide.wants_records();
@@ -294,7 +320,7 @@ impl Renderer<'_> {
             let results: Vec<WaveResult<G::Statistics>> = group
                 .par_iter()
                 .map(|wave| {
-                    let result = self.wave(shared, wave, samples.clone(), learn);
+                    let result = self.wave(shared, wave.tiles, wave.samples.clone(), learn);
                     let d = done.fetch_add(1, Ordering::Relaxed) + 1;
                     progress(d as f64 / n_waves);
                     result

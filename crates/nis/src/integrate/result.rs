@@ -194,27 +194,44 @@ impl Accumulator {
     /// Adds one iteration of i.i.d. weights w_i = f_i/q_i; an error when their variance does
     /// not fit in an f64 (see [`Accumulator::add_iteration`]).
     pub fn add_weights(&mut self, w: &[f64]) -> Result<()> {
-        let n = w.len() as f64;
-        let mean = w.iter().sum::<f64>() / n;
-        let var = if w.len() > 1 {
-            w.iter().map(|v| (v - mean).powi(2)).sum::<f64>() / (n - 1.0) / n
-        } else {
-            0.0
-        };
-        self.add_iteration(mean, var, w)
+        let mut m = Moments::new(1);
+        m.add(w);
+        self.observe(w);
+        self.add_moments(&m)
+    }
+
+    /// Feeds a chunk of an iteration's weights (component 0) to the reliability figures: with
+    /// [`Accumulator::add_moments`] for iterations that arrive in chunks.
+    pub fn observe(&mut self, w: &[f64]) {
+        self.tail.add(w);
+    }
+
+    /// Adds one iteration of i.i.d. weights that arrived in chunks (component 0 of
+    /// [`Moments`]; each chunk also [`observe`](Accumulator::observe)d): an iteration of any
+    /// size in the memory of one chunk. An error when its variance does not fit in an f64.
+    pub fn add_moments(&mut self, m: &Moments) -> Result<()> {
+        let (mean, cov) = m.mean_and_cov_of_mean();
+        check_representable(mean[0], cov[0], m.max_abs_w)?;
+        self.iterations.push(Iteration {
+            estimate: mean[0],
+            variance: cov[0],
+            evals: m.n,
+        });
+        self.max_abs_w = self.max_abs_w.max(m.max_abs_w);
+        self.sum_abs_w += m.sum_abs_w;
+        self.n += m.n;
+        Ok(())
     }
 
     /// Adds one iteration with its own estimate and variance (e.g. stratified), and the weights
     /// (scaled so that their mean estimates the integral) for the unweighting efficiency and the
     /// reliability figures. An error when the estimate or its variance is not finite.
     pub fn add_iteration(&mut self, estimate: f64, variance: f64, w: &[f64]) -> Result<()> {
-        // Weights whose squares leave f64's normal range make variances that overflow, or
-        // underflow to a false "± 0", whoever computed them.
-        let max = w.iter().fold(0.0f64, |m, v| m.max(v.abs()));
-        if !estimate.is_finite() || !variance.is_finite() || (max > 0.0 && !(max * max).is_normal())
-        {
-            return Err(unrepresentable(max));
-        }
+        check_representable(
+            estimate,
+            variance,
+            w.iter().fold(0.0f64, |m, v| m.max(v.abs())),
+        )?;
         self.iterations.push(Iteration {
             estimate,
             variance,
@@ -385,13 +402,111 @@ impl Accumulator {
 /// A relative standard error below which the weights differ only by rounding.
 const ROUNDING: f64 = 1e-12;
 
-/// The error for weights whose variance does not fit in an f64.
-fn unrepresentable(max_abs_w: f64) -> Error {
-    Error::Config(format!(
+/// An error when an iteration's estimate or variance is not finite, or its largest weight's square
+/// leaves f64's normal range: such weights make variances that overflow, or underflow to a false
+/// "± 0", whoever computed them.
+fn check_representable(estimate: f64, variance: f64, max_abs_w: f64) -> Result<()> {
+    let square = max_abs_w * max_abs_w;
+    if estimate.is_finite() && variance.is_finite() && (max_abs_w == 0.0 || square.is_normal()) {
+        return Ok(());
+    }
+    Err(Error::Config(format!(
         "the weights f/q reach {max_abs_w:.3e}: the variance of their mean does not fit in an \
          f64 (squares beyond ~10^±308), so no error bar can be given; multiply the integrand by \
          a constant that brings its values nearer 1"
-    ))
+    )))
+}
+
+/// The moments of one iteration's i.i.d. weight vectors (`k` components), added chunk by chunk:
+/// each chunk's mean and co-moments by two passes, merged into the running ones with the
+/// pairwise update of Chan, Golub and LeVeque (1979), which keeps the accuracy of two passes
+/// without holding the iteration. A single chunk gives the two-pass numbers exactly.
+#[derive(Clone, Debug)]
+pub struct Moments {
+    k: usize,
+    n: u64,
+    mean: Vec<f64>,
+    /// Σ (w_i − mean)(w_j − mean) over the weights so far, `k × k`.
+    comoment: Vec<f64>,
+    /// Σ |w| and max |w| of component 0 (for the unweighting efficiency).
+    sum_abs_w: f64,
+    max_abs_w: f64,
+}
+
+impl Moments {
+    /// No weights yet, `k` components per weight.
+    pub fn new(k: usize) -> Moments {
+        Moments {
+            k,
+            n: 0,
+            mean: vec![0.0; k],
+            comoment: vec![0.0; k * k],
+            sum_abs_w: 0.0,
+            max_abs_w: 0.0,
+        }
+    }
+
+    /// Weights so far.
+    pub fn n(&self) -> u64 {
+        self.n
+    }
+
+    /// Adds a chunk of weight vectors (`m × k`, row-major).
+    pub fn add(&mut self, w: &[f64]) {
+        let k = self.k;
+        let m = w.len() / k;
+        if m == 0 {
+            return;
+        }
+        let mf = m as f64;
+        let mut mean = vec![0.0; k];
+        for row in w.chunks_exact(k) {
+            for (a, v) in mean.iter_mut().zip(row) {
+                *a += v;
+            }
+        }
+        mean.iter_mut().for_each(|a| *a /= mf);
+        let mut comoment = vec![0.0; k * k];
+        for row in w.chunks_exact(k) {
+            for i in 0..k {
+                let di = row[i] - mean[i];
+                for j in 0..k {
+                    comoment[i * k + j] += di * (row[j] - mean[j]);
+                }
+            }
+        }
+        for row in w.chunks_exact(k) {
+            self.sum_abs_w += row[0].abs();
+            self.max_abs_w = self.max_abs_w.max(row[0].abs());
+        }
+        if self.n == 0 {
+            (self.mean, self.comoment, self.n) = (mean, comoment, m as u64);
+            return;
+        }
+        let (na, nb) = (self.n as f64, mf);
+        let n = na + nb;
+        let delta: Vec<f64> = mean.iter().zip(&self.mean).map(|(b, a)| b - a).collect();
+        for i in 0..k {
+            for j in 0..k {
+                self.comoment[i * k + j] += comoment[i * k + j] + delta[i] * delta[j] * na * nb / n;
+            }
+        }
+        for (a, d) in self.mean.iter_mut().zip(&delta) {
+            *a += d * nb / n;
+        }
+        self.n += m as u64;
+    }
+
+    /// The mean and the covariance of the mean (`k × k`; zero for fewer than two weights).
+    pub fn mean_and_cov_of_mean(&self) -> (Vec<f64>, Vec<f64>) {
+        let n = self.n as f64;
+        let cov = if self.n > 1 {
+            self.comoment.iter().map(|c| c / (n - 1.0) / n).collect()
+        } else {
+            vec![0.0; self.k * self.k]
+        };
+        (self.mean.clone(), cov)
+    }
 }
 
 /// Accumulates the final phase of a vector-valued integrand: per iteration the mean vector and
@@ -412,31 +527,10 @@ impl ComponentAccumulator {
         }
     }
 
-    /// Adds one iteration of i.i.d. weight vectors (`n × k`, row-major).
-    pub(crate) fn add_weights(&mut self, w: &[f64]) {
-        let k = self.k;
-        let n = w.len() / k;
-        let nf = n as f64;
-        let mut mean = vec![0.0; k];
-        for row in w.chunks_exact(k) {
-            for (m, v) in mean.iter_mut().zip(row) {
-                *m += v;
-            }
-        }
-        mean.iter_mut().for_each(|m| *m /= nf);
-        let mut cov = vec![0.0; k * k];
-        if n > 1 {
-            for row in w.chunks_exact(k) {
-                for i in 0..k {
-                    let di = row[i] - mean[i];
-                    for j in 0..k {
-                        cov[i * k + j] += di * (row[j] - mean[j]);
-                    }
-                }
-            }
-            cov.iter_mut().for_each(|c| *c = *c / (nf - 1.0) / nf);
-        }
-        self.iterations.push((mean, cov, n as u64));
+    /// Adds one iteration of weight vectors that arrived in chunks.
+    pub(crate) fn add_moments(&mut self, m: &Moments) {
+        let (mean, cov) = m.mean_and_cov_of_mean();
+        self.iterations.push((mean, cov, m.n));
     }
 
     /// Adds one iteration with its own estimate and covariance (e.g. stratified).
@@ -486,6 +580,42 @@ impl ComponentAccumulator {
 mod tests {
     use super::*;
     use rand::{Rng, SeedableRng};
+
+    #[test]
+    fn chunked_moments_equal_the_two_pass_ones() {
+        // Weights with a large offset and a spread of 1e-3: a one-pass sum of squares would lose
+        // about half the digits here; the merged two-pass moments keep them.
+        let mut rng = rand_pcg::Pcg64Mcg::seed_from_u64(11);
+        let k = 2;
+        let w: Vec<f64> = (0..3001 * k)
+            .map(|i| 1e4 * (1 + i % k) as f64 + 1e-3 * rng.random::<f64>())
+            .collect();
+        let mut whole = Moments::new(k);
+        whole.add(&w);
+        for chunk in [1, 7, 1000, 4096] {
+            let mut parts = Moments::new(k);
+            for c in w.chunks(chunk * k) {
+                parts.add(c);
+            }
+            let ((m1, c1), (m2, c2)) = (whole.mean_and_cov_of_mean(), parts.mean_and_cov_of_mean());
+            assert_eq!(parts.n(), 3001);
+            for (a, b) in m1.iter().zip(&m2) {
+                assert!(
+                    (a - b).abs() <= 1e-12 * a.abs(),
+                    "chunk {chunk}: mean {a} vs {b}"
+                );
+            }
+            for (a, b) in c1.iter().zip(&c2) {
+                assert!(
+                    (a - b).abs() <= 1e-8 * c1[0].abs(),
+                    "chunk {chunk}: cov {a} vs {b}"
+                );
+            }
+        }
+        // The variance of the mean of the uniform spread: (1e-3)²/12/n, to 10% (n = 3001).
+        let var = whole.mean_and_cov_of_mean().1[0];
+        assert!((var / (1e-6 / 12.0 / 3001.0) - 1.0).abs() < 0.1, "{var}");
+    }
 
     #[test]
     fn chi2_per_dof_of_iid_iterations_averages_one() {

@@ -6,12 +6,16 @@ use rand::{Rng, SeedableRng};
 use rand_pcg::Pcg64Mcg;
 use serde::{Deserialize, Serialize};
 
-use super::result::ComponentAccumulator;
+use super::integrand::column;
+use super::result::{ComponentAccumulator, Moments};
 use super::{
-    check_budget, check_dim, evaluate, integrand::column, report, Accumulator, Integrand,
-    IntegrationResult, Integrator, Method, Progress,
+    check_budget, check_dim, evaluate, report, Accumulator, Integrand, IntegrationResult,
+    Integrator, Method, Progress,
 };
 use crate::error::{Error, Result};
+
+/// Points drawn and evaluated at once: an iteration's memory, whatever the budget.
+const CHUNK: usize = 1 << 16;
 
 /// Settings of plain Monte Carlo.
 #[derive(Clone, Debug, PartialEq, Eq, Serialize, Deserialize)]
@@ -133,11 +137,18 @@ impl Integrator for PlainMc {
         let mut done = 0;
         for it in 0..iterations {
             let n = (evals * (it as u64 + 1) / iterations as u64 - done).max(1) as usize;
-            let x: Vec<f64> = (0..n * dim).map(|_| self.rng.random::<f64>()).collect();
-            let w = evaluate(f, &x, dim)?;
-            acc.add_weights(&column(&w, k, 0))?;
+            // In chunks, so that memory does not grow with the budget.
+            let mut moments = Moments::new(k);
+            while moments.n() < n as u64 {
+                let m = (n - moments.n() as usize).min(CHUNK);
+                let x: Vec<f64> = (0..m * dim).map(|_| self.rng.random::<f64>()).collect();
+                let w = evaluate(f, &x, dim)?;
+                acc.observe(&column(&w, k, 0));
+                moments.add(&w);
+            }
+            acc.add_moments(&moments)?;
             if k > 1 {
-                comps.add_weights(&w);
+                comps.add_moments(&moments);
             }
             done += n as u64;
             report(&mut self.progress, done, evals, "uniform");

@@ -7,6 +7,9 @@
 //! calibration batch. Accepted points whose |w| exceeds w_max keep the excess as a weight
 //! |w|/w_max > 1, so the sample stays exact as a weighted sample and is unweighted up to that share.
 
+use std::io::Write;
+use std::path::Path;
+
 use rand::Rng;
 use rand_pcg::Pcg64Mcg;
 
@@ -14,6 +17,7 @@ use super::nis::NisIntegrator;
 use super::Integrand;
 use crate::error::{Error, Result};
 use crate::flow::Density;
+use crate::io::AtomicFile;
 
 /// Unweighted points with their (rare) residual weights.
 #[derive(Clone, Debug)]
@@ -32,6 +36,17 @@ pub struct Unweighted {
     pub overweight: f64,
 }
 
+/// How a draw of unweighted points went (the points themselves went to a sink).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct UnweightStats {
+    /// The robust maximum weight.
+    pub w_max: f64,
+    /// Accepted / proposed.
+    pub efficiency: f64,
+    /// Share of Σ|w| above w_max in the calibration batch.
+    pub overweight: f64,
+}
+
 impl NisIntegrator {
     /// Draws `n` unweighted points of the target the flow learned (|f| of a scalar integrand)
     /// from this trained integrator, continuing its unweighting stream. `overweight` is the
@@ -42,8 +57,35 @@ impl NisIntegrator {
         n: usize,
         overweight: f64,
     ) -> Result<Unweighted> {
+        let dim = self.flow().dim();
+        let (mut points, mut weights) = (Vec::with_capacity(n * dim), Vec::with_capacity(n));
+        let stats = self.unweighted_each(f, n, overweight, &mut |p, w| {
+            points.extend_from_slice(p);
+            weights.push(w);
+            Ok(())
+        })?;
+        Ok(Unweighted {
+            dim,
+            points,
+            weights,
+            w_max: stats.w_max,
+            efficiency: stats.efficiency,
+            overweight: stats.overweight,
+        })
+    }
+
+    /// The same points as [`NisIntegrator::unweighted`], handed one by one (point, residual
+    /// weight) to `sink` as they are accepted, in bounded memory: for writing 10⁸ points to a
+    /// file with a [`SampleWriter`]. An error of the sink stops the draw and is returned.
+    pub fn unweighted_each(
+        &mut self,
+        f: &dyn Integrand,
+        n: usize,
+        overweight: f64,
+        sink: &mut dyn FnMut(&[f64], f64) -> Result<()>,
+    ) -> Result<UnweightStats> {
         let mut rng = self.take_unweight_rng();
-        let u = unweighted_from(self, f, n, overweight, &mut rng);
+        let u = unweighted_from(self, f, n, overweight, &mut rng, sink);
         self.put_unweight_rng(rng);
         u
     }
@@ -55,7 +97,8 @@ fn unweighted_from(
     n: usize,
     overweight: f64,
     rng: &mut Pcg64Mcg,
-) -> Result<Unweighted> {
+    sink: &mut dyn FnMut(&[f64], f64) -> Result<()>,
+) -> Result<UnweightStats> {
     if !(0.0..0.5).contains(&overweight) {
         return Err(Error::Config(format!(
             "overweight share must be in [0, 0.5), got {overweight}"
@@ -86,29 +129,24 @@ fn unweighted_from(
         w_max = a[k];
     }
     let over = a.iter().map(|v| (v - w_max).max(0.0)).sum::<f64>() / total;
-    let (mut points, mut weights) = (Vec::with_capacity(n * dim), Vec::with_capacity(n));
-    let mut proposed = 0usize;
-    while weights.len() < n {
+    let (mut accepted, mut proposed) = (0usize, 0usize);
+    while accepted < n {
         let (x, w) = nis.target_weights(f, batch, rng)?;
         proposed += w.len();
         for (p, &wi) in x.chunks_exact(dim).zip(&w) {
-            if weights.len() < n && rng.random::<f64>() * w_max < wi.abs() {
-                points.extend_from_slice(p);
-                weights.push(wi.signum() * (wi.abs() / w_max).max(1.0));
+            if accepted < n && rng.random::<f64>() * w_max < wi.abs() {
+                sink(p, wi.signum() * (wi.abs() / w_max).max(1.0))?;
+                accepted += 1;
             }
         }
-        nis.report(weights.len() as u64, n as u64, "unweighting");
+        nis.report(accepted as u64, n as u64, "unweighting");
         if proposed > 1000 * n.max(1000) {
             return Err(Error::Config(format!(
-                "unweighting efficiency below 1e-3 ({} of {proposed} accepted): train longer",
-                weights.len()
+                "unweighting efficiency below 1e-3 ({accepted} of {proposed} accepted): train longer"
             )));
         }
     }
-    Ok(Unweighted {
-        dim,
-        points,
-        weights,
+    Ok(UnweightStats {
         w_max,
         efficiency: n as f64 / proposed as f64,
         overweight: over,
@@ -118,29 +156,153 @@ fn unweighted_from(
 impl Unweighted {
     /// CSV: a header `x0,…,x{d−1},weight`, one point per line.
     pub fn to_csv(&self) -> String {
-        let mut s: String = (0..self.dim).map(|i| format!("x{i},")).collect();
-        s.push_str("weight\n");
-        for (p, w) in self.points.chunks_exact(self.dim).zip(&self.weights) {
-            for v in p {
-                s.push_str(&format!("{v:.17e},"));
-            }
-            s.push_str(&format!("{w}\n"));
-        }
-        s
+        let bytes = self.encode(SampleFormat::Csv);
+        String::from_utf8(bytes).expect("CSV is ASCII")
     }
 
     /// Binary: the magic `NISSMPL1`, dimension (u32 LE), count (u64 LE), then per point its
     /// `dim` coordinates and its weight as f64 LE.
     pub fn to_binary(&self) -> Vec<u8> {
-        let mut b = b"NISSMPL1".to_vec();
-        b.extend((self.dim as u32).to_le_bytes());
-        b.extend((self.weights.len() as u64).to_le_bytes());
-        for (p, w) in self.points.chunks_exact(self.dim).zip(&self.weights) {
-            for v in p.iter().chain(std::iter::once(w)) {
-                b.extend(v.to_le_bytes());
-            }
+        self.encode(SampleFormat::Binary)
+    }
+
+    fn encode(&self, format: SampleFormat) -> Vec<u8> {
+        let mut b = Vec::new();
+        let n = self.weights.len() as u64;
+        format
+            .write_header(&mut b, self.dim, n)
+            .expect("a Vec takes every write");
+        for (p, &w) in self.points.chunks_exact(self.dim).zip(&self.weights) {
+            format
+                .write_point(&mut b, p, w)
+                .expect("a Vec takes every write");
         }
         b
+    }
+}
+
+/// The file formats of unweighted points (see [`Unweighted::to_csv`], [`Unweighted::to_binary`]).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum SampleFormat {
+    Csv,
+    Binary,
+}
+
+impl SampleFormat {
+    /// CSV for a `.csv` path, the binary format for anything else.
+    pub fn for_path(path: &Path) -> SampleFormat {
+        if path.extension().is_some_and(|e| e == "csv") {
+            SampleFormat::Csv
+        } else {
+            SampleFormat::Binary
+        }
+    }
+
+    fn write_header(self, out: &mut impl Write, dim: usize, n: u64) -> std::io::Result<()> {
+        match self {
+            SampleFormat::Csv => {
+                for i in 0..dim {
+                    write!(out, "x{i},")?;
+                }
+                out.write_all(b"weight\n")
+            }
+            SampleFormat::Binary => {
+                out.write_all(b"NISSMPL1")?;
+                out.write_all(&(dim as u32).to_le_bytes())?;
+                out.write_all(&n.to_le_bytes())
+            }
+        }
+    }
+
+    fn write_point(self, out: &mut impl Write, point: &[f64], weight: f64) -> std::io::Result<()> {
+        match self {
+            SampleFormat::Csv => {
+                for v in point {
+                    write!(out, "{v:.17e},")?;
+                }
+                writeln!(out, "{weight}")
+            }
+            SampleFormat::Binary => {
+                for v in point.iter().chain(std::iter::once(&weight)) {
+                    out.write_all(&v.to_le_bytes())?;
+                }
+                Ok(())
+            }
+        }
+    }
+}
+
+/// Writes `n` unweighted points to a file as they come, atomically: the file appears, complete,
+/// only at [`SampleWriter::finish`]; dropped before, it leaves no file and no temporary behind.
+///
+/// ```
+/// use nis::integrate::unweight::{SampleFormat, SampleWriter};
+/// let path = std::env::temp_dir().join(format!("nis-doc-samples-{}.csv", std::process::id()));
+/// let mut out = SampleWriter::create(&path, SampleFormat::for_path(&path), 2, 1)?;
+/// out.push(&[0.25, 0.5], 1.0)?;
+/// out.finish()?;
+/// assert_eq!(std::fs::read_to_string(&path)?.lines().count(), 2);
+/// # std::fs::remove_file(&path)?;
+/// # Ok::<(), Box<dyn std::error::Error>>(())
+/// ```
+pub struct SampleWriter {
+    file: AtomicFile,
+    format: SampleFormat,
+    dim: usize,
+    expected: u64,
+    written: u64,
+}
+
+impl SampleWriter {
+    /// Starts a file for `n` points of dimension `dim` (the binary header records `n`).
+    pub fn create(path: &Path, format: SampleFormat, dim: usize, n: u64) -> Result<SampleWriter> {
+        let mut file = AtomicFile::create(path)?;
+        format
+            .write_header(&mut file, dim, n)
+            .map_err(|e| io_error(path, e))?;
+        Ok(SampleWriter {
+            file,
+            format,
+            dim,
+            expected: n,
+            written: 0,
+        })
+    }
+
+    /// Appends one point and its residual weight.
+    pub fn push(&mut self, point: &[f64], weight: f64) -> Result<()> {
+        if point.len() != self.dim || self.written == self.expected {
+            return Err(Error::Config(format!(
+                "sample file for {} points of dimension {}: got point {} of dimension {}",
+                self.expected,
+                self.dim,
+                self.written + 1,
+                point.len()
+            )));
+        }
+        self.written += 1;
+        let path = self.file.path().to_path_buf();
+        self.format
+            .write_point(&mut self.file, point, weight)
+            .map_err(|e| io_error(&path, e))
+    }
+
+    /// Installs the file, once all `n` points are in.
+    pub fn finish(self) -> Result<()> {
+        if self.written != self.expected {
+            return Err(Error::Config(format!(
+                "sample file for {} points: only {} were written",
+                self.expected, self.written
+            )));
+        }
+        self.file.commit()
+    }
+}
+
+fn io_error(path: &Path, source: std::io::Error) -> Error {
+    Error::Io {
+        path: path.to_path_buf(),
+        source,
     }
 }
 
@@ -173,5 +335,39 @@ mod tests {
         let bin = u.to_binary();
         assert_eq!(bin.len(), 8 + 4 + 8 + n * 3 * 8);
         assert!(nis.unweighted(&f, 10, 0.7).is_err());
+    }
+
+    #[test]
+    fn streamed_sample_files_equal_the_collected_ones() {
+        let f = |x: &[f64]| 1.0 + x[0] * x[1];
+        let config = NisConfig::builder().batch(1024).seed(3).build().unwrap();
+        let mut a = NisIntegrator::new(2, config.clone()).unwrap();
+        a.integrate(&f, 20_000).unwrap();
+        let mut b = NisIntegrator::new(2, config).unwrap();
+        b.integrate(&f, 20_000).unwrap();
+        let n = 3000;
+        let u = a.unweighted(&f, n, 1e-3).unwrap();
+        let dir = std::env::temp_dir().join(format!("nis-unweight-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        for (name, expected) in [("s.csv", u.to_csv().into_bytes()), ("s.bin", u.to_binary())] {
+            let path = dir.join(name);
+            let mut out =
+                SampleWriter::create(&path, SampleFormat::for_path(&path), 2, n as u64).unwrap();
+            let stats = b
+                .unweighted_each(&f, n, 1e-3, &mut |p, w| out.push(p, w))
+                .unwrap();
+            out.finish().unwrap();
+            assert_eq!(stats.w_max, u.w_max);
+            assert_eq!(std::fs::read(&path).unwrap(), expected, "{name}");
+            b.set_seed(3);
+        }
+        // A writer given the wrong number of points installs nothing.
+        let path = dir.join("short.csv");
+        let mut out = SampleWriter::create(&path, SampleFormat::Csv, 2, 2).unwrap();
+        out.push(&[0.5, 0.5], 1.0).unwrap();
+        assert!(out.push(&[0.5], 1.0).is_err());
+        assert!(out.finish().is_err());
+        assert_eq!(std::fs::read_dir(&dir).unwrap().count(), 2);
+        std::fs::remove_dir_all(&dir).unwrap();
     }
 }

@@ -16,7 +16,7 @@ use rand::SeedableRng;
 use rand_pcg::Pcg64Mcg;
 
 use super::integrand::column;
-use super::result::ComponentAccumulator;
+use super::result::{ComponentAccumulator, Moments};
 use super::{
     check_budget, check_dim, evaluate, report, Accumulator, Integrand, IntegrationResult,
     Integrator, Method, Progress,
@@ -49,6 +49,8 @@ pub struct NisIntegrator {
 const TRAIN_SEED_SALT: u64 = 0x7261_696e;
 const ESTIMATE_SEED_SALT: u64 = 0x6573_7469;
 const UNWEIGHT_SEED_SALT: u64 = 0x756e_7765;
+/// Points per piece of a final-phase iteration: its memory, whatever the budget.
+const ESTIMATE_CHUNK: usize = 1 << 16;
 
 /// The random streams, one per use, so that training more does not shift the estimate's points.
 struct Streams {
@@ -199,16 +201,19 @@ impl NisIntegrator {
         let mut done = 0u64;
         for it in 0..iters {
             let n = ((evals * (it as u64 + 1)) / iters as u64 - done).max(2) as usize;
-            // Draw in pieces of bounded memory, pooled into one iteration.
-            let mut w = Vec::with_capacity(n * k);
-            while w.len() < n * k {
-                let m = (n - w.len() / k).min(1 << 16);
+            // Draw in pieces of bounded memory, pooled into one iteration: memory does not
+            // grow with the budget.
+            let mut moments = Moments::new(k);
+            while moments.n() < n as u64 {
+                let m = (n - moments.n() as usize).min(ESTIMATE_CHUNK);
                 let (flow, lambda) = (self.trainer.flow(), self.config.uniform_fraction);
-                w.extend(weights(flow, lambda, f, m, &mut self.streams.estimate)?.1);
+                let w = weights(flow, lambda, f, m, &mut self.streams.estimate)?.1;
+                acc.observe(&column(&w, k, 0));
+                moments.add(&w);
             }
-            acc.add_weights(&column(&w, k, 0))?;
+            acc.add_moments(&moments)?;
             if k > 1 {
-                comps.add_weights(&w);
+                comps.add_moments(&moments);
             }
             done += n as u64;
             report(

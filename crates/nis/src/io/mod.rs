@@ -5,10 +5,12 @@
 //! and in the header's metadata the [`FlowConfig`] as JSON, a format tag and an FNV-1a checksum of
 //! the weights, so a truncated, corrupted or mismatched file is an error, never a wrong flow.
 //! Callers may store their own metadata beside it (the integrator keeps its settings there).
+//!
+//! Every file the project writes goes through [`atomic`]: a temporary file beside the target,
+//! renamed over it once complete.
 
 use std::collections::HashMap;
 use std::fs;
-use std::io::Write;
 use std::path::{Path, PathBuf};
 
 use safetensors::tensor::{Dtype, SafeTensors, TensorView};
@@ -16,34 +18,10 @@ use safetensors::tensor::{Dtype, SafeTensors, TensorView};
 use crate::error::{Error, Result};
 use crate::flow::{Density, Flow, FlowConfig};
 
-const FORMAT: &str = "nis-flow/1";
+pub mod atomic;
+pub use atomic::{remove_stale_temps, write_atomic, AtomicFile};
 
-/// Writes `bytes` to `path` atomically: to a temporary file beside it, flushed to disk, then
-/// renamed over `path`. A crash leaves either the old file or the new one, never half of one.
-pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<()> {
-    let io_err = |source| Error::Io {
-        path: path.to_path_buf(),
-        source,
-    };
-    let name = path
-        .file_name()
-        .ok_or_else(|| io_err(std::io::Error::other("not a file path")))?;
-    let tmp = path.with_file_name(format!(
-        ".{}.{}.tmp",
-        name.to_string_lossy(),
-        std::process::id()
-    ));
-    let result = (|| {
-        let mut f = fs::File::create(&tmp)?;
-        f.write_all(bytes)?;
-        f.sync_all()?;
-        fs::rename(&tmp, path)
-    })();
-    if result.is_err() {
-        let _ = fs::remove_file(&tmp);
-    }
-    result.map_err(io_err)
-}
+const FORMAT: &str = "nis-flow/1";
 
 /// FNV-1a, 64 bit: detects corrupted weights (not an adversary).
 pub fn fnv1a(h: u64, bytes: &[u8]) -> u64 {
