@@ -133,7 +133,7 @@ pub struct nis_result {
     pub seconds: f64,
     /// Components of the integrand (1: scalar).
     pub components: usize,
-    /// PSIS's Pareto k̂ of the final phase's weights: above 0.7 the error bar cannot be trusted
+    /// PSIS's Pareto k̂ of the final phase's weights: above 0.5 the error bar cannot be trusted
     /// (NaN when it cannot be fitted).
     pub pareto_k: f64,
     /// Effective sample size (Σ|w|)²/Σw² of the final phase's weights.

@@ -599,7 +599,7 @@ impl PyIntegrationResult {
         self.r.unweighting_efficiency
     }
 
-    /// PSIS's Pareto k̂ of the final phase's weights: above 0.7 the error bar cannot be trusted
+    /// PSIS's Pareto k̂ of the final phase's weights: above 0.5 the error bar cannot be trusted
     /// (NaN when it cannot be fitted).
     #[getter]
     fn pareto_k(&self) -> f64 {

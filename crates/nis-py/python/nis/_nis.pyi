@@ -49,7 +49,7 @@ class IntegrationResult:
         """mean(|w|)/max(|w|) of the final phase's weights."""
     @property
     def pareto_k(self) -> float:
-        """PSIS's Pareto k̂ of the final phase's weights: above 0.7 the error bar cannot be
+        """PSIS's Pareto k̂ of the final phase's weights: above 0.5 the error bar cannot be
         trusted (NaN when it cannot be fitted)."""
     @property
     def ess(self) -> float:
