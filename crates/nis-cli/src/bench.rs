@@ -160,7 +160,7 @@ pub struct BenchTimeToPrecisionArgs {
     /// Synthetic cost per point in wall µs (calibrated on this machine, the same on both sides).
     #[arg(long, default_value_t = 0.0)]
     cost_us: f64,
-    /// Markdown file the results go to (plots in time-to-precision/ beside it).
+    /// Markdown file the results go to (plots in img/ beside it).
     #[arg(long, default_value = "docs/BENCHMARKS.md")]
     docs: PathBuf,
 }
@@ -232,7 +232,12 @@ pub fn run_time_to_precision(
         pb.set_length(p.total as u64);
         pb.set_position(p.done as u64);
         if p.finished {
-            pb.println(p.message);
+            // Without a terminal the bar is hidden: keep the lines as a log.
+            if pb.is_hidden() {
+                eprintln!("{}", p.message);
+            } else {
+                pb.println(p.message);
+            }
         } else {
             pb.set_message(p.message.to_string());
         }

@@ -65,7 +65,7 @@ fn a_tiny_race_has_a_ladder_per_method_and_seed_and_writes_its_section_and_plot(
     let written = std::fs::read_to_string(&docs).unwrap();
     assert!(written.contains("<!-- time-to-precision:start -->"));
     assert!(written.contains("<!-- time-to-precision:end -->"));
-    let png = std::fs::read(dir.join("time-to-precision/camel-d2.png")).unwrap();
+    let png = std::fs::read(dir.join("img/time-to-precision-camel-d2.png")).unwrap();
     assert_eq!(&png[1..4], b"PNG");
     std::fs::remove_dir_all(&dir).unwrap();
 }

@@ -117,7 +117,7 @@ pub struct Options {
     pub cost_us: f64,
     /// The `nis` binary that serves the integrand to the Python side (`nis eval`).
     pub cli: Option<PathBuf>,
-    /// Markdown file the section goes to, with the plots in `time-to-precision/` beside it;
+    /// Markdown file the section goes to, with the plots in `img/` beside it;
     /// `None` writes nothing.
     pub docs: Option<PathBuf>,
 }
@@ -323,14 +323,11 @@ pub fn run(
     let load = (load_start, load_average());
     let mut md = table(o, &cells, load, versions.as_ref());
     if let Some(docs) = &o.docs {
-        let dir = docs
-            .parent()
-            .unwrap_or(Path::new(""))
-            .join("time-to-precision");
+        let dir = docs.parent().unwrap_or(Path::new("")).join("img");
         md.push_str("\nRelative error against wall time, every run (circles: honest, crosses: |pull| ≥ 4; dashed: the targets):\n\n");
         for c in &cells {
             let file = dir.join(format!(
-                "{}-d{}{}.png",
+                "time-to-precision-{}-d{}{}.png",
                 c.name,
                 c.dim,
                 cost_suffix(o.cost_us)
@@ -426,8 +423,8 @@ fn table(
     );
     if o.cost_us > 0.0 {
         md.push_str(&format!(
-            "Synthetic cost: each point also spins on dependent arithmetic, calibrated to {} µs \
-             of wall time per point on this machine (`nis eval --spins` serves the same code to \
+            "Synthetic cost: each point also spins on dependent arithmetic, calibrated to add {} \
+             µs of wall time per point on this machine (`nis eval --spins` serves the same code to \
              Python). Measured wall µs per point of a batch, with the cost:\n\n\
              | integrand | d | spins | ours (in process) | `vegas-py` (through the pipe) |\n\
              |---|---:|---:|---:|---:|\n",
@@ -471,5 +468,18 @@ fn table(
          with other builds, so these times are noisy.\n",
         load.0, load.1
     ));
+    let full = Options::default();
+    if o.cells != full.cells
+        || o.contenders != full.contenders
+        || o.targets != full.targets
+        || o.seeds != full.seeds
+        || o.cap != full.cap
+    {
+        md.push_str(
+            "\nThis is a partial run (fewer cells, methods, targets or seeds, or a lower cap than \
+             the defaults). The full tables are `nis bench time-to-precision` and `nis bench \
+             time-to-precision --cost-us 10` (hours each; run them on a quiet machine).\n",
+        );
+    }
     md
 }
