@@ -15,10 +15,11 @@ import math
 import os
 import platform
 import statistics
-import struct
 import subprocess
 import sys
 import time
+
+from nis_served import Served
 
 
 def suite(cli, only):
@@ -40,32 +41,6 @@ def ours(cli, name, dim, evals, seed):
     wall = time.perf_counter() - t
     r = json.loads(out)
     return dict(value=r["value"], sdev=r["std_err"], n=r["n_eval"], exact=r["exact"], wall=wall)
-
-
-class Served:
-    """A built-in integrand evaluated by `nis eval` behind a pipe, as a vegas batch integrand."""
-
-    def __init__(self, cli, name, dim):
-        import numpy as np
-        self.np, self.dim = np, dim
-        self.proc = subprocess.Popen([cli, "eval", name, "--dim", str(dim)],
-                                     stdin=subprocess.PIPE, stdout=subprocess.PIPE)
-        self.calls = 0
-
-    def __call__(self, x):
-        np = self.np
-        x = np.ascontiguousarray(x, dtype="<f8")
-        n = x.shape[0]
-        self.proc.stdin.write(struct.pack("<Q", n) + x.tobytes())
-        self.proc.stdin.flush()
-        buf = self.proc.stdout.read(8 * n)
-        self.calls += n
-        return np.frombuffer(buf, dtype="<f8").copy()
-
-    def close(self):
-        self.proc.stdin.write(struct.pack("<Q", 0))
-        self.proc.stdin.close()
-        self.proc.wait()
 
 
 def package(cli, name, dim, evals, seed):

@@ -6,8 +6,6 @@
 #   scripts/bench-vegas.sh [--evals 1000000] [--seeds 3] [--only camel-sharp peaks]
 set -euo pipefail
 cd "$(dirname "$0")/.."
-venv=target/bench-py/vegas
 cargo build --release -p nis-cli
-[ -x "$venv/bin/python" ] || python3 -m venv "$venv"
-"$venv/bin/python" -m pip install -q --disable-pip-version-check numpy vegas
-"$venv/bin/python" scripts/bench-vegas.py --cli target/release/nis "$@"
+python=$(scripts/vegas-venv.sh)
+"$python" scripts/bench-vegas.py --cli target/release/nis "$@"

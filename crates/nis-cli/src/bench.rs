@@ -1,6 +1,7 @@
-//! `nis bench flow`, `nis bench integrate`, `nis bench memory` and `nis bench coverage`: the
-//! drivers are `nis_paper::bench::{flow, integrate, memory, coverage}`; results go to stdout and
-//! to sections of `docs/BENCHMARKS.md` (coverage: `docs/ROBUSTNESS.md`).
+//! `nis bench flow`, `nis bench integrate`, `nis bench memory`, `nis bench coverage` and `nis
+//! bench time-to-precision`: the drivers are `nis_paper::bench::{flow, integrate, memory,
+//! coverage, time_to_precision}`; results go to stdout and to sections of `docs/BENCHMARKS.md`
+//! (coverage: `docs/ROBUSTNESS.md`).
 
 use std::path::{Path, PathBuf};
 
@@ -129,6 +130,116 @@ pub fn run_memory(args: &BenchMemoryArgs) -> Result<(), Box<dyn std::error::Erro
                 pb.println(line);
             }
             pb.inc(1);
+        }
+    })?;
+    pb.finish_and_clear();
+    println!("{md}");
+    Ok(())
+}
+
+/// Arguments of `nis bench time-to-precision`.
+#[derive(clap::Args)]
+pub struct BenchTimeToPrecisionArgs {
+    /// Only these cells, as NAME:D (e.g. camel-sharp:8) or NAME (its default dimensions);
+    /// default: camel and camel-sharp d = 4, 8, 16, gauss d = 16, gauss-diagonal, peaks and
+    /// ridge d = 4.
+    #[arg(long, num_args = 1.., value_delimiter = ',')]
+    only: Vec<String>,
+    /// Methods, from nis, vegas+, mc, vegas-py.
+    #[arg(long, num_args = 1.., value_delimiter = ',', default_value = "nis,vegas+,mc,vegas-py")]
+    methods: Vec<String>,
+    /// Target relative errors.
+    #[arg(long, num_args = 1.., value_delimiter = ',', default_value = "1e-3,1e-4")]
+    targets: Vec<f64>,
+    /// Seeds per (method, integrand): 1..=SEEDS, the median reported.
+    #[arg(long, default_value_t = 3)]
+    seeds: u64,
+    /// Wall-time cap of one ladder (method, integrand, seed), in seconds.
+    #[arg(long, default_value_t = 300.0)]
+    cap: f64,
+    /// Synthetic cost per point in wall µs (calibrated on this machine, the same on both sides).
+    #[arg(long, default_value_t = 0.0)]
+    cost_us: f64,
+    /// Markdown file the results go to (plots in img/ beside it).
+    #[arg(long, default_value = "docs/BENCHMARKS.md")]
+    docs: PathBuf,
+}
+
+/// The cells `--only` names: NAME:D, or NAME in the dimensions of the default cells that have it
+/// (else its suite dimensions).
+fn ttp_cells(only: &[String]) -> Result<Vec<(String, usize)>, Box<dyn std::error::Error>> {
+    use nis_paper::bench::time_to_precision::DEFAULT_CELLS;
+    if only.is_empty() {
+        return Ok(DEFAULT_CELLS
+            .iter()
+            .map(|&(n, d)| (n.to_string(), d))
+            .collect());
+    }
+    let mut cells = Vec::new();
+    for item in only {
+        match item.split_once(':') {
+            Some((name, d)) => cells.push((name.to_string(), d.parse()?)),
+            None => {
+                let defaults: Vec<usize> = DEFAULT_CELLS
+                    .iter()
+                    .filter(|c| c.0 == item)
+                    .map(|c| c.1)
+                    .collect();
+                let dims = if defaults.is_empty() {
+                    nis::integrands::SUITE
+                        .iter()
+                        .find(|e| e.name == item)
+                        .ok_or_else(|| format!("unknown integrand {item:?} (see nis list)"))?
+                        .dims
+                        .to_vec()
+                } else {
+                    defaults
+                };
+                cells.extend(dims.into_iter().map(|d| (item.clone(), d)));
+            }
+        }
+    }
+    Ok(cells)
+}
+
+/// `nis bench time-to-precision`: a bar over the ladders, a line per finished ladder.
+pub fn run_time_to_precision(
+    a: &BenchTimeToPrecisionArgs,
+) -> Result<(), Box<dyn std::error::Error>> {
+    use nis_paper::bench::time_to_precision as ttp;
+    let contenders = a
+        .methods
+        .iter()
+        .map(|m| m.parse())
+        .collect::<Result<Vec<ttp::Contender>, _>>()?;
+    let options = ttp::Options {
+        cells: ttp_cells(&a.only)?,
+        contenders,
+        targets: a.targets.clone(),
+        seeds: a.seeds,
+        cap: a.cap,
+        cost_us: a.cost_us,
+        cli: Some(std::env::current_exe()?),
+        docs: Some(a.docs.clone()),
+    };
+    let pb = ProgressBar::new(0);
+    pb.set_style(
+        ProgressStyle::with_template("{bar:30} {pos}/{len} ladders  {elapsed_precise}  {msg}")
+            .expect("a valid template"),
+    );
+    pb.enable_steady_tick(std::time::Duration::from_millis(500));
+    let (_, md) = ttp::run(&options, &mut |p| {
+        pb.set_length(p.total as u64);
+        pb.set_position(p.done as u64);
+        if p.finished {
+            // Without a terminal the bar is hidden: keep the lines as a log.
+            if pb.is_hidden() {
+                eprintln!("{}", p.message);
+            } else {
+                pb.println(p.message);
+            }
+        } else {
+            pb.set_message(p.message.to_string());
         }
     })?;
     pb.finish_and_clear();

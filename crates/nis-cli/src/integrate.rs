@@ -282,14 +282,19 @@ pub struct EvalArgs {
     /// Dimension (default: the integrand's smallest).
     #[arg(long)]
     pub dim: Option<usize>,
+    /// Synthetic cost: iterations of dependent arithmetic added per point (the same code as
+    /// `nis bench time-to-precision --cost-us` adds to our integrators).
+    #[arg(long, default_value_t = 0)]
+    pub spins: u64,
 }
 
 /// `nis eval`: reads frames (u64 n, then n·dim f64 points, little-endian) from stdin and answers
 /// each with the n values; n = 0 or the end of input stops.
 pub fn eval(args: &EvalArgs) -> Result<(), Error> {
     use std::io::{Read, Write};
-    let f = integrands::by_name(&args.name, args.dim)?;
-    let dim = f.dim;
+    let plain = integrands::by_name(&args.name, args.dim)?;
+    let dim = plain.dim;
+    let f = nis_paper::bench::time_to_precision::cost::SyntheticCost::new(&plain, args.spins);
     let (mut input, mut output) = (std::io::stdin().lock(), std::io::stdout().lock());
     let (mut head, mut bytes, mut x, mut values) = ([0u8; 8], Vec::new(), Vec::new(), Vec::new());
     loop {

@@ -117,6 +117,12 @@ enum BenchCommand {
     /// spp (path tracing) and 16, 64 spp (NIS-KL guiding). The full run takes ~30 minutes on
     /// two cores. Example: nis bench memory --quick
     Memory(bench::BenchMemoryArgs),
+    /// Wall time of NIS, our VEGAS+, plain MC and the Python `vegas` package (installed into its
+    /// own venv on first use) to reach relative errors 1e-3 and 1e-4 with an honest answer: fresh
+    /// runs at budgets doubling from 10⁴, 3 seeds, median, each ladder capped; a table into
+    /// docs/BENCHMARKS.md and a plot per integrand. The full run takes hours: run it on a quiet
+    /// machine. Example: nis bench time-to-precision --only camel-sharp:8 --targets 1e-3 --cap 60 --seeds 1
+    TimeToPrecision(bench::BenchTimeToPrecisionArgs),
 }
 
 fn main() -> ExitCode {
@@ -144,6 +150,7 @@ fn main() -> ExitCode {
         Command::Density(cmd) => density::run(&cmd),
         Command::Bench(BenchCommand::Density(args)) => density::run_bench(&args),
         Command::Bench(BenchCommand::Memory(args)) => bench::run_memory(&args),
+        Command::Bench(BenchCommand::TimeToPrecision(args)) => bench::run_time_to_precision(&args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

@@ -64,3 +64,29 @@ fn a_budget_too_small_for_an_error_bar_is_an_error() {
         );
     }
 }
+
+/// `nis eval` with and without a synthetic cost: the same values, bit for bit.
+#[test]
+fn eval_serves_the_same_values_with_a_synthetic_cost() {
+    use std::io::Write;
+    let points: Vec<f64> = (0..3 * 4).map(|i| (i as f64 * 0.37).fract()).collect();
+    let mut frame = 3u64.to_le_bytes().to_vec();
+    frame.extend(points.iter().flat_map(|v| v.to_le_bytes()));
+    frame.extend(0u64.to_le_bytes());
+    let serve = |extra: &[&str]| {
+        let mut child = Command::new(env!("CARGO_BIN_EXE_nis"))
+            .args(["eval", "camel-sharp", "--dim", "4"])
+            .args(extra)
+            .stdin(std::process::Stdio::piped())
+            .stdout(std::process::Stdio::piped())
+            .spawn()
+            .unwrap();
+        child.stdin.take().unwrap().write_all(&frame).unwrap();
+        let out = child.wait_with_output().unwrap();
+        assert!(out.status.success());
+        out.stdout
+    };
+    let plain = serve(&[]);
+    assert_eq!(plain.len(), 3 * 8);
+    assert_eq!(serve(&["--spins", "5000"]), plain);
+}

@@ -10,6 +10,8 @@
 //! - [`density`]: the paper's Figure 4, PQ against affine couplings on real digits.
 //! - [`guiding`]: the paper's Figure 5, path guiding against a reference at equal samples and time.
 //! - [`memory`]: peak RSS of integration and rendering against the budget (`docs/BENCHMARKS.md`).
+//! - [`time_to_precision`]: wall time of NIS, VEGAS+, plain MC and the `vegas` package to a target
+//!   relative error with an honest answer (`docs/BENCHMARKS.md`).
 
 pub mod coverage;
 pub mod density;
@@ -18,6 +20,7 @@ pub mod flow;
 pub mod guiding;
 pub mod integrate;
 pub mod memory;
+pub mod time_to_precision;
 
 use std::time::Instant;
 

@@ -1,0 +1,485 @@
+//! `nis bench time-to-precision`: how long each method takes to reach a relative error with an
+//! honest answer, on the cheap built-in integrands and with a synthetic cost per point.
+//!
+//! For each integrand, method (NIS, our VEGAS+, plain MC, the Python `vegas` package) and seed, a
+//! ladder of fresh runs at budgets doubling from 10⁴ ([`ladder`]); the time to a target is the
+//! wall time of the first run whose relative error is below it with |pull| < 4, the median over
+//! seeds, or "> cap" with the error reached. Writes a table into a section of
+//! `docs/BENCHMARKS.md` and a plot of relative error against wall time per integrand.
+
+pub mod cost;
+pub mod ladder;
+mod plot;
+pub mod vegas_package;
+
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+use nis::integrate::{integrator, Integrand, Method, Settings};
+
+use self::cost::SyntheticCost;
+use self::ladder::{Outcome, Run};
+use crate::error::{Error, Result};
+use crate::report;
+
+/// The default cells: the camel families where NIS should win, a wide Gaussian, and the
+/// non-separable integrands (VEGAS+'s weak spot).
+pub const DEFAULT_CELLS: &[(&str, usize)] = &[
+    ("camel", 4),
+    ("camel", 8),
+    ("camel", 16),
+    ("camel-sharp", 4),
+    ("camel-sharp", 8),
+    ("camel-sharp", 16),
+    ("gauss", 16),
+    ("gauss-diagonal", 4),
+    ("peaks", 4),
+    ("ridge", 4),
+];
+
+/// The default targets of relative error.
+pub const DEFAULT_TARGETS: [f64; 2] = [1e-3, 1e-4];
+
+/// Points of the calibration batch on the Python side.
+const PYTHON_CALIBRATION_POINTS: usize = 1 << 15;
+
+/// A method in the race.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Contender {
+    /// Our NIS integrator with its defaults.
+    Nis,
+    /// Our VEGAS+ with its defaults.
+    Vegas,
+    /// Plain Monte Carlo.
+    Uniform,
+    /// The Python `vegas` package, as its documentation runs it.
+    VegasPackage,
+}
+
+impl Contender {
+    /// Every contender, in table order.
+    pub const ALL: [Contender; 4] = [
+        Contender::Nis,
+        Contender::Vegas,
+        Contender::Uniform,
+        Contender::VegasPackage,
+    ];
+
+    /// The name `--methods` reads and the table shows.
+    pub fn name(self) -> &'static str {
+        match self {
+            Contender::Nis => "nis",
+            Contender::Vegas => "vegas+",
+            Contender::Uniform => "mc",
+            Contender::VegasPackage => "vegas-py",
+        }
+    }
+
+    /// Our library's method, if it is one of ours.
+    fn method(self) -> Option<Method> {
+        match self {
+            Contender::Nis => Some(Method::Nis),
+            Contender::Vegas => Some(Method::Vegas),
+            Contender::Uniform => Some(Method::Uniform),
+            Contender::VegasPackage => None,
+        }
+    }
+}
+
+impl std::str::FromStr for Contender {
+    type Err = Error;
+    fn from_str(s: &str) -> Result<Contender> {
+        Contender::ALL
+            .into_iter()
+            .find(|c| c.name() == s)
+            .ok_or_else(|| {
+                Error::Config(format!(
+                    "unknown method {s:?}: expected nis, vegas+, mc or vegas-py"
+                ))
+            })
+    }
+}
+
+/// What to run.
+#[derive(Clone, Debug)]
+pub struct Options {
+    /// (integrand, dimension) cells.
+    pub cells: Vec<(String, usize)>,
+    /// The methods.
+    pub contenders: Vec<Contender>,
+    /// Target relative errors.
+    pub targets: Vec<f64>,
+    /// Seeds 1..=seeds.
+    pub seeds: u64,
+    /// Wall-time cap of one ladder (one method, integrand and seed), seconds.
+    pub cap: f64,
+    /// Synthetic cost added per point, wall µs (0: the cheap integrand).
+    pub cost_us: f64,
+    /// The `nis` binary that serves the integrand to the Python side (`nis eval`).
+    pub cli: Option<PathBuf>,
+    /// Markdown file the section goes to, with the plots in `img/` beside it;
+    /// `None` writes nothing.
+    pub docs: Option<PathBuf>,
+}
+
+impl Default for Options {
+    fn default() -> Options {
+        Options {
+            cells: DEFAULT_CELLS
+                .iter()
+                .map(|&(n, d)| (n.to_string(), d))
+                .collect(),
+            contenders: Contender::ALL.to_vec(),
+            targets: DEFAULT_TARGETS.to_vec(),
+            seeds: 3,
+            cap: 300.0,
+            cost_us: 0.0,
+            cli: None,
+            docs: None,
+        }
+    }
+}
+
+impl Options {
+    fn check(&self) -> Result<()> {
+        let bad = |m: String| Err(Error::Config(m));
+        if self.cells.is_empty() || self.contenders.is_empty() || self.targets.is_empty() {
+            return bad("time-to-precision: no cell, method or target to run".into());
+        }
+        if self.seeds == 0 {
+            return bad("time-to-precision: --seeds must be at least 1".into());
+        }
+        if !(self.cap.is_finite() && self.cap > 0.0) {
+            return bad(format!(
+                "time-to-precision: cap {} s is not positive",
+                self.cap
+            ));
+        }
+        if !(self.cost_us.is_finite() && self.cost_us >= 0.0) {
+            return bad(format!(
+                "time-to-precision: cost {} µs is negative",
+                self.cost_us
+            ));
+        }
+        if let Some(t) = self.targets.iter().find(|t| !(t.is_finite() && **t > 0.0)) {
+            return bad(format!("time-to-precision: target {t} is not positive"));
+        }
+        if self.contenders.contains(&Contender::VegasPackage) && self.cli.is_none() {
+            return bad("time-to-precision: the vegas package needs the nis binary".into());
+        }
+        Ok(())
+    }
+}
+
+/// The runs of one method and seed on one cell.
+#[derive(Clone, Debug)]
+pub struct Ladder {
+    pub contender: Contender,
+    pub seed: u64,
+    pub runs: Vec<Run>,
+}
+
+/// The measured cost per point of one cell's integrand, on both sides.
+#[derive(Clone, Debug)]
+pub struct CostReport {
+    /// Spins per point (see [`cost`]).
+    pub spins: u64,
+    /// Wall µs per point in process, with the cost.
+    pub ours_us: f64,
+    /// Wall µs per point through `nis eval` from Python, with the cost.
+    pub python_us: Option<f64>,
+}
+
+/// Everything measured on one (integrand, dimension).
+#[derive(Clone, Debug)]
+pub struct CellResult {
+    pub name: String,
+    pub dim: usize,
+    pub exact: f64,
+    pub ladders: Vec<Ladder>,
+    pub cost: CostReport,
+}
+
+impl CellResult {
+    /// The median outcome of `contender` for `target` (None if it did not run).
+    pub fn median(&self, contender: Contender, target: f64, cap: f64) -> Option<Outcome> {
+        let outcomes: Vec<Outcome> = self
+            .ladders
+            .iter()
+            .filter(|l| l.contender == contender)
+            .map(|l| ladder::outcome(&l.runs, target, self.exact, cap))
+            .collect();
+        ladder::median(&outcomes)
+    }
+}
+
+/// Where a run is, for progress bars: `done` of `total` ladders finished; `message` says what
+/// just ran, and `finished` whether it ended a ladder (a line worth keeping).
+pub struct Progress<'a> {
+    pub done: usize,
+    pub total: usize,
+    pub message: &'a str,
+    pub finished: bool,
+}
+
+/// Runs the race; writes the section and the plots when `o.docs` is set; returns the cells and
+/// the Markdown.
+pub fn run(
+    o: &Options,
+    progress: &mut dyn FnMut(Progress<'_>),
+) -> Result<(Vec<CellResult>, String)> {
+    o.check()?;
+    let python = if o.contenders.contains(&Contender::VegasPackage) {
+        Some(vegas_package::python()?)
+    } else {
+        None
+    };
+    let total = o.cells.len() * o.contenders.len() * o.seeds as usize;
+    let mut done = 0;
+    let mut cells = Vec::new();
+    let mut versions = None;
+    let load_start = load_average();
+    for (name, dim) in &o.cells {
+        let f = nis::integrands::by_name(name, Some(*dim))?;
+        let spins = cost::calibrate(&f, f.dim, o.cost_us)?;
+        let costly = SyntheticCost::new(&f, spins);
+        let mut cost = CostReport {
+            spins,
+            ours_us: cost::micros_per_point(&costly, f.dim)?,
+            python_us: None,
+        };
+        let mut ladders = Vec::new();
+        for &contender in &o.contenders {
+            let mut package = match (&python, &o.cli) {
+                (Some(py), Some(cli)) if contender == Contender::VegasPackage => {
+                    let mut p = vegas_package::VegasPackage::start(py, cli, name, f.dim, spins)?;
+                    let c = p.calibrate(PYTHON_CALIBRATION_POINTS)?;
+                    cost.python_us = Some(c.us_per_point);
+                    versions = Some((c.vegas, c.python));
+                    Some(p)
+                }
+                _ => None,
+            };
+            let mut outcomes = vec![Vec::new(); o.targets.len()];
+            for seed in 1..=o.seeds {
+                if !ladder::worth_more_seeds(&outcomes, o.seeds as usize) {
+                    done += 1;
+                    continue;
+                }
+                let runs = ladder::ladder(&o.targets, f.exact, o.cap, |evals| {
+                    let r = match (contender.method(), package.as_mut()) {
+                        (Some(method), _) => ours(method, &costly, f.dim, seed, evals),
+                        (None, Some(p)) => p.run(seed, evals),
+                        (None, None) => Err(Error::Config("no vegas package".into())),
+                    }?;
+                    progress(Progress {
+                        done,
+                        total,
+                        message: &format!(
+                            "{name} d={dim} {} seed {seed}: {evals} evals, rel. err {:.2e}, {:.1} s",
+                            contender.name(),
+                            r.rel_err(),
+                            r.seconds
+                        ),
+                        finished: false,
+                    });
+                    Ok::<Run, Error>(r)
+                })?;
+                for (t, out) in o.targets.iter().zip(&mut outcomes) {
+                    out.push(ladder::outcome(&runs, *t, f.exact, o.cap));
+                }
+                done += 1;
+                let line = format!(
+                    "{name:<14} d={dim:<2} {:<8} seed {seed}: {}",
+                    contender.name(),
+                    o.targets
+                        .iter()
+                        .zip(&outcomes)
+                        .map(|(t, out)| format!("{t:.0e}: {}", cell_text(out.last(), o.cap)))
+                        .collect::<Vec<_>>()
+                        .join(", ")
+                );
+                progress(Progress {
+                    done,
+                    total,
+                    message: &line,
+                    finished: true,
+                });
+                ladders.push(Ladder {
+                    contender,
+                    seed,
+                    runs,
+                });
+            }
+        }
+        cells.push(CellResult {
+            name: name.clone(),
+            dim: f.dim,
+            exact: f.exact,
+            ladders,
+            cost,
+        });
+    }
+    let load = (load_start, load_average());
+    let mut md = table(o, &cells, load, versions.as_ref());
+    if let Some(docs) = &o.docs {
+        let dir = docs.parent().unwrap_or(Path::new("")).join("img");
+        md.push_str("\nRelative error against wall time, every run (circles: honest, crosses: |pull| ≥ 4; dashed: the targets):\n\n");
+        for c in &cells {
+            let file = dir.join(format!(
+                "time-to-precision-{}-d{}{}.png",
+                c.name,
+                c.dim,
+                cost_suffix(o.cost_us)
+            ));
+            report::write_file(&file, &plot::png(c, &o.targets)?)?;
+            md.push_str(&format!(
+                "![{} d={}]({})\n",
+                c.name,
+                c.dim,
+                report::relative_to(docs, &file)
+            ));
+        }
+        let (key, title) = if o.cost_us > 0.0 {
+            (
+                "time-to-precision-cost",
+                format!("Time to precision with a synthetic cost of {} µs per point (`nis bench time-to-precision --cost-us {}`)", o.cost_us, o.cost_us),
+            )
+        } else {
+            (
+                "time-to-precision",
+                "Time to precision (`nis bench time-to-precision`)".to_string(),
+            )
+        };
+        report::write_section(docs, key, &title, &md)?;
+    }
+    Ok((cells, md))
+}
+
+/// One fresh run of our `method`, timed around building the integrator and integrating.
+fn ours(method: Method, f: &dyn Integrand, dim: usize, seed: u64, evals: u64) -> Result<Run> {
+    let start = Instant::now();
+    let r = integrator(method, dim, &Settings::default().seed(seed))?.integrate(f, evals)?;
+    Ok(Run {
+        evals,
+        seconds: start.elapsed().as_secs_f64(),
+        value: r.value,
+        std_err: r.std_err,
+    })
+}
+
+fn cost_suffix(cost_us: f64) -> String {
+    if cost_us > 0.0 {
+        format!("-cost{cost_us}us")
+    } else {
+        String::new()
+    }
+}
+
+/// The 1-minute load average (how busy the machine was), NaN where unknown.
+fn load_average() -> f64 {
+    std::fs::read_to_string("/proc/loadavg")
+        .ok()
+        .and_then(|s| s.split_whitespace().next()?.parse().ok())
+        .unwrap_or(f64::NAN)
+}
+
+/// "1.6 s (1.3e6)" for a reached target, "> 300 s (2.1e-3)" for a capped one, "—" for none.
+pub fn cell_text(o: Option<&Outcome>, cap: f64) -> String {
+    match o {
+        None => "—".into(),
+        Some(Outcome::Reached { seconds, evals }) => {
+            format!("{seconds:.2} s ({:.1e})", *evals as f64)
+        }
+        Some(Outcome::Capped { rel_err }) if rel_err.is_finite() => {
+            format!("> {cap} s ({rel_err:.1e})")
+        }
+        Some(Outcome::Capped { .. }) => format!("> {cap} s (no honest run)"),
+    }
+}
+
+fn table(
+    o: &Options,
+    cells: &[CellResult],
+    load: (f64, f64),
+    versions: Option<&(String, String)>,
+) -> String {
+    let mut md = format!(
+        "Fresh runs at budgets doubling from 10⁴ evaluations, seeds 1–{}; a method reaches a \
+         target relative error std_err/|value| with the first run below it whose pull \
+         |value − exact|/σ is under 4. Cells: the wall time of that run (median over seeds; a \
+         seed that does not reach it counts as slowest) and, in brackets, its evaluations \
+         (training included). Each ladder (method, integrand, seed) is capped at {} s of wall \
+         time: a run that would take it past the cap is not started, and the cell reads \
+         \"> {} s\" with the smallest honest relative error reached. Methods: `nis`, `vegas+` \
+         and `mc` are ours with their defaults (timed in process, building the integrator \
+         included); `vegas-py` is the Python `vegas` package{} as its documentation runs it (5 \
+         adapting iterations discarded, then 15 for the result, N/20 points each), integrating \
+         the same integrand served by `nis eval` over a pipe, timed around its two calls.\n\n",
+        o.seeds,
+        o.cap,
+        o.cap,
+        versions.map_or(String::new(), |(v, p)| format!(" {v} (Python {p})")),
+    );
+    if o.cost_us > 0.0 {
+        md.push_str(&format!(
+            "Synthetic cost: each point also spins on dependent arithmetic, calibrated to add {} \
+             µs of wall time per point on this machine (`nis eval --spins` serves the same code to \
+             Python). Measured wall µs per point of a batch, with the cost:\n\n\
+             | integrand | d | spins | ours (in process) | `vegas-py` (through the pipe) |\n\
+             |---|---:|---:|---:|---:|\n",
+            o.cost_us
+        ));
+        for c in cells {
+            md.push_str(&format!(
+                "| {} | {} | {} | {:.2} | {} |\n",
+                c.name,
+                c.dim,
+                c.cost.spins,
+                c.cost.ours_us,
+                c.cost.python_us.map_or("—".into(), |u| format!("{u:.2}"))
+            ));
+        }
+        md.push('\n');
+    }
+    md.push_str("| integrand | d | target |");
+    for c in &o.contenders {
+        md.push_str(&format!(" `{}` |", c.name()));
+    }
+    md.push_str("\n|---|---:|---:|");
+    for _ in &o.contenders {
+        md.push_str("---:|");
+    }
+    md.push('\n');
+    for c in cells {
+        for &t in &o.targets {
+            md.push_str(&format!("| {} | {} | {t:.0e} |", c.name, c.dim));
+            for &k in &o.contenders {
+                md.push_str(&format!(
+                    " {} |",
+                    cell_text(c.median(k, t, o.cap).as_ref(), o.cap)
+                ));
+            }
+            md.push('\n');
+        }
+    }
+    md.push_str(&format!(
+        "\n1-minute load average {:.1} at the start and {:.1} at the end: the machine is shared \
+         with other builds, so these times are noisy.\n",
+        load.0, load.1
+    ));
+    let full = Options::default();
+    if o.cells != full.cells
+        || o.contenders != full.contenders
+        || o.targets != full.targets
+        || o.seeds != full.seeds
+        || o.cap != full.cap
+    {
+        md.push_str(
+            "\nThis is a partial run (fewer cells, methods, targets or seeds, or a lower cap than \
+             the defaults). The full tables are `nis bench time-to-precision` and `nis bench \
+             time-to-precision --cost-us 10` (hours each; run them on a quiet machine).\n",
+        );
+    }
+    md
+}
