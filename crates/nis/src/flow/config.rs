@@ -9,6 +9,10 @@ use crate::transform::TransformKind;
 
 /// Largest dimension a flow accepts (a sanity bound against corrupt configs).
 pub const MAX_DIM: usize = 4096;
+/// Most parameters a flow may have (256 MiB of f32 weights; Adam keeps two more copies). A
+/// config read from a file or the command line is checked against it before anything is
+/// allocated, so a corrupt or hostile one is an error, not an attempt at terabytes.
+pub const MAX_PARAMS: usize = 1 << 26;
 
 /// Everything needed to build a flow, weights aside.
 ///
@@ -72,7 +76,50 @@ impl FlowConfig {
         }
     }
 
-    /// Rejects configurations that describe no valid flow.
+    /// The number of parameters of the flow this config builds, computed without building it;
+    /// `None` when it does not fit in a `usize`. Call after the bounds of [`FlowConfig::validate`]
+    /// on the dimension and the layer count hold (it walks the coupling layers).
+    pub fn param_count(&self) -> Option<usize> {
+        use crate::transform::Transform;
+        let np = self.transform.param_count();
+        let mlp = |inputs: usize, outputs: usize| -> Option<usize> {
+            let input = inputs
+                .checked_mul(self.blob_bins)?
+                .checked_add(self.context_dim)?;
+            let mut dims = std::iter::once(input)
+                .chain(std::iter::repeat_n(self.hidden_width, self.hidden_layers))
+                .chain(std::iter::once(outputs.checked_mul(np)?));
+            let mut prev = dims.next()?;
+            let mut total = 0usize;
+            for d in dims {
+                total = total.checked_add(prev.checked_add(1)?.checked_mul(d)?)?;
+                prev = d;
+            }
+            Some(total)
+        };
+        let layers = self.coupling_count();
+        if self.dim == 1 {
+            return mlp(0, 1)?.checked_mul(layers);
+        }
+        // The sizes of mask::partitions: pattern 2b holds the dimensions with bit b clear in A,
+        // pattern 2b + 1 is its complement.
+        let bits = (usize::BITS - (self.dim - 1).leading_zeros()) as usize;
+        let mut total = 0usize;
+        for l in 0..layers {
+            let (b, complement) = ((l % (2 * bits)) / 2, l % 2 == 1);
+            let clear = (0..self.dim).filter(|i| (i >> b) & 1 == 0).count();
+            let (a, bb) = if complement {
+                (self.dim - clear, clear)
+            } else {
+                (clear, self.dim - clear)
+            };
+            total = total.checked_add(mlp(a, bb)?)?;
+        }
+        Some(total)
+    }
+
+    /// Rejects configurations that describe no valid flow, or one with more than
+    /// [`MAX_PARAMS`] parameters.
     pub fn validate(&self) -> Result<()> {
         let bad = |m: String| Err(Error::Config(m));
         if self.dim == 0 || self.dim > MAX_DIM {
@@ -96,6 +143,56 @@ impl FlowConfig {
         if self.context_dim > 1 << 16 {
             return bad(format!("context dimension too large: {}", self.context_dim));
         }
-        self.transform.validate()
+        self.transform.validate()?;
+        match self.param_count() {
+            Some(n) if n <= MAX_PARAMS => Ok(()),
+            n => bad(format!(
+                "the flow would have {} parameters, more than the limit of {MAX_PARAMS}",
+                n.map_or("more than 2^64".to_string(), |n| n.to_string())
+            )),
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::flow::{Density, Flow};
+
+    #[test]
+    fn param_count_matches_the_built_flow() {
+        for dim in [1, 2, 3, 5, 8, 17] {
+            for (couplings, context_dim, transform) in [
+                (0, 0, TransformKind::Quadratic { bins: 4 }),
+                (3, 0, TransformKind::Affine),
+                (7, 5, TransformKind::RationalQuadratic { bins: 3 }),
+            ] {
+                let config = FlowConfig {
+                    dim,
+                    transform,
+                    couplings,
+                    hidden_layers: 2,
+                    hidden_width: 6,
+                    blob_bins: 3,
+                    context_dim,
+                    seed: 0,
+                };
+                let flow = Flow::new(config.clone()).unwrap();
+                assert_eq!(config.param_count(), Some(flow.param_count()), "{config:?}");
+            }
+        }
+    }
+
+    #[test]
+    fn a_config_too_large_to_allocate_is_rejected_before_building() {
+        // Every bound but the total holds: 64 layers of 65536² weights per coupling.
+        let config = FlowConfig {
+            dim: 4096,
+            hidden_layers: 64,
+            hidden_width: 1 << 16,
+            ..FlowConfig::default()
+        };
+        let e = Flow::new(config).unwrap_err().to_string();
+        assert!(e.contains("parameters"), "{e}");
     }
 }
