@@ -76,9 +76,8 @@ impl FlowConfig {
         }
     }
 
-    /// The number of parameters of the flow this config builds, computed without building it;
-    /// `None` when it does not fit in a `usize`. Call after the bounds of [`FlowConfig::validate`]
-    /// on the dimension and the layer count hold (it walks the coupling layers).
+    /// The number of parameters of the flow this config builds, computed without building it
+    /// and in O(log D) steps whatever the numbers; `None` when it does not fit in a `usize`.
     pub fn param_count(&self) -> Option<usize> {
         use crate::transform::Transform;
         let np = self.transform.param_count();
@@ -86,34 +85,39 @@ impl FlowConfig {
             let input = inputs
                 .checked_mul(self.blob_bins)?
                 .checked_add(self.context_dim)?;
-            let mut dims = std::iter::once(input)
-                .chain(std::iter::repeat_n(self.hidden_width, self.hidden_layers))
-                .chain(std::iter::once(outputs.checked_mul(np)?));
-            let mut prev = dims.next()?;
-            let mut total = 0usize;
-            for d in dims {
-                total = total.checked_add(prev.checked_add(1)?.checked_mul(d)?)?;
-                prev = d;
+            let hidden = self.hidden_width;
+            let output = outputs.checked_mul(np)?;
+            if self.hidden_layers == 0 {
+                return input.checked_add(1)?.checked_mul(output);
             }
-            Some(total)
+            let first = input.checked_add(1)?.checked_mul(hidden)?;
+            let middle = hidden
+                .checked_add(1)?
+                .checked_mul(hidden)?
+                .checked_mul(self.hidden_layers - 1)?;
+            let last = hidden.checked_add(1)?.checked_mul(output)?;
+            first.checked_add(middle)?.checked_add(last)
         };
         let layers = self.coupling_count();
-        if self.dim == 1 {
-            return mlp(0, 1)?.checked_mul(layers);
+        if self.dim <= 1 {
+            return mlp(0, self.dim)?.checked_mul(layers);
         }
-        // The sizes of mask::partitions: pattern 2b holds the dimensions with bit b clear in A,
-        // pattern 2b + 1 is its complement.
+        // The sizes of mask::partitions: pattern 2b puts the dimensions with bit b clear in A,
+        // pattern 2b + 1 is its complement; layer l uses pattern l mod 2⌈log₂ D⌉.
         let bits = (usize::BITS - (self.dim - 1).leading_zeros()) as usize;
+        let patterns = 2 * bits;
         let mut total = 0usize;
-        for l in 0..layers {
-            let (b, complement) = ((l % (2 * bits)) / 2, l % 2 == 1);
-            let clear = (0..self.dim).filter(|i| (i >> b) & 1 == 0).count();
-            let (a, bb) = if complement {
+        for p in 0..patterns.min(layers) {
+            let b = p / 2;
+            let period = 1usize << (b + 1);
+            let clear = (self.dim / period) * (period / 2) + (self.dim % period).min(period / 2);
+            let (a, bb) = if p % 2 == 1 {
                 (self.dim - clear, clear)
             } else {
                 (clear, self.dim - clear)
             };
-            total = total.checked_add(mlp(a, bb)?)?;
+            let uses = layers / patterns + usize::from(p < layers % patterns);
+            total = total.checked_add(mlp(a, bb)?.checked_mul(uses)?)?;
         }
         Some(total)
     }
@@ -161,17 +165,18 @@ mod tests {
 
     #[test]
     fn param_count_matches_the_built_flow() {
-        for dim in [1, 2, 3, 5, 8, 17] {
-            for (couplings, context_dim, transform) in [
-                (0, 0, TransformKind::Quadratic { bins: 4 }),
-                (3, 0, TransformKind::Affine),
-                (7, 5, TransformKind::RationalQuadratic { bins: 3 }),
+        for dim in [1, 2, 3, 5, 8, 17, 100] {
+            for (couplings, context_dim, transform, hidden_layers) in [
+                (0, 0, TransformKind::Quadratic { bins: 4 }, 2),
+                (3, 0, TransformKind::Affine, 0),
+                (7, 5, TransformKind::RationalQuadratic { bins: 3 }, 1),
+                (23, 0, TransformKind::Linear { bins: 2 }, 3),
             ] {
                 let config = FlowConfig {
                     dim,
                     transform,
                     couplings,
-                    hidden_layers: 2,
+                    hidden_layers,
                     hidden_width: 6,
                     blob_bins: 3,
                     context_dim,
@@ -194,5 +199,12 @@ mod tests {
         };
         let e = Flow::new(config).unwrap_err().to_string();
         assert!(e.contains("parameters"), "{e}");
+        // Counting is cheap whatever the numbers (it used to walk every coupling layer).
+        let absurd = FlowConfig {
+            dim: usize::MAX,
+            couplings: usize::MAX,
+            ..FlowConfig::default()
+        };
+        assert_eq!(absurd.param_count(), None);
     }
 }
