@@ -385,26 +385,6 @@ fn exr_images_mutated_and_forged() {
     let _ = std::fs::remove_dir_all(&dir);
 }
 
-/// JSON values of every kind, nested a little.
-fn json_value() -> impl Strategy<Value = serde_json::Value> {
-    let leaf = prop_oneof![
-        Just(serde_json::Value::Null),
-        any::<bool>().prop_map(serde_json::Value::from),
-        any::<i64>().prop_map(serde_json::Value::from),
-        any::<u64>().prop_map(serde_json::Value::from),
-        prop::sample::select(vec![0.0, -1.0, 1e12, 1e300, -0.0, 0.5, 1e-300])
-            .prop_map(serde_json::Value::from),
-        "[a-z_]{0,12}".prop_map(serde_json::Value::from),
-    ];
-    leaf.prop_recursive(3, 16, 4, |inner| {
-        prop_oneof![
-            prop::collection::vec(inner.clone(), 0..4).prop_map(serde_json::Value::from),
-            prop::collection::btree_map("[a-z_]{1,10}", inner, 0..4)
-                .prop_map(|m| serde_json::Value::Object(m.into_iter().collect())),
-        ]
-    })
-}
-
 /// Numbers that configs must reject or survive: zero, negative, huge, fractional.
 fn absurd_number() -> impl Strategy<Value = serde_json::Value> {
     prop::sample::select(vec![
@@ -435,7 +415,7 @@ fn guide_config() -> impl Strategy<Value = String> {
         .cloned()
         .collect();
     prop_oneof![
-        json_value().prop_map(|v| v.to_string()),
+        fuzz::json_value().prop_map(|v| v.to_string()),
         prop::collection::vec((prop::sample::select(keys), absurd_number()), 1..5).prop_map(
             move |fields| {
                 let mut v = defaults.clone();

@@ -128,26 +128,6 @@ fn model_files_truncated_flipped_and_forged() {
     let _ = std::fs::remove_dir_all(&dir);
 }
 
-/// JSON values of every kind, nested a little.
-fn json_value() -> impl Strategy<Value = serde_json::Value> {
-    let leaf = prop_oneof![
-        Just(serde_json::Value::Null),
-        any::<bool>().prop_map(serde_json::Value::from),
-        any::<i64>().prop_map(serde_json::Value::from),
-        any::<u64>().prop_map(serde_json::Value::from),
-        prop::sample::select(vec![0.0, -1.0, 1e12, 1e300, -0.0, 0.5, 1e-300])
-            .prop_map(serde_json::Value::from),
-        "[a-z_]{0,12}".prop_map(serde_json::Value::from),
-    ];
-    leaf.prop_recursive(3, 16, 4, |inner| {
-        prop_oneof![
-            prop::collection::vec(inner.clone(), 0..4).prop_map(serde_json::Value::from),
-            prop::collection::btree_map("[a-z_]{1,10}", inner, 0..4)
-                .prop_map(|m| serde_json::Value::Object(m.into_iter().collect())),
-        ]
-    })
-}
-
 /// Zero, negative, huge and fractional numbers, and values of the wrong type.
 fn absurd() -> impl Strategy<Value = serde_json::Value> {
     prop::sample::select(vec![
@@ -181,7 +161,7 @@ fn nis_config() -> impl Strategy<Value = String> {
         }
     }
     prop_oneof![
-        1 => json_value().prop_map(|v| v.to_string()),
+        1 => fuzz::json_value().prop_map(|v| v.to_string()),
         3 => prop::collection::vec((prop::sample::select(paths), absurd()), 1..5).prop_map(
             move |fields| {
                 let mut v = defaults.clone();
