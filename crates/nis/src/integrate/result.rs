@@ -5,6 +5,8 @@ use std::time::Instant;
 
 use serde::{Deserialize, Serialize};
 
+use crate::comm::Comm;
+
 /// The outcome of an integration, the same for every method.
 #[derive(Clone, Debug, Default, Serialize, Deserialize)]
 pub struct IntegrationResult {
@@ -163,29 +165,55 @@ pub struct Accumulator {
 impl Accumulator {
     /// Adds one iteration of i.i.d. weights w_i = f_i/q_i.
     pub fn add_weights(&mut self, w: &[f64]) {
-        let n = w.len() as f64;
-        let mean = w.iter().sum::<f64>() / n;
-        let var = if w.len() > 1 {
-            w.iter().map(|v| (v - mean).powi(2)).sum::<f64>() / (n - 1.0) / n
+        self.add_weights_across(&Comm::default(), w);
+    }
+
+    /// Adds one iteration of i.i.d. weights drawn by all ranks of `comm`, this rank's share
+    /// being `w` (possibly empty): the count, the sum and then the squared deviations from the
+    /// pooled mean are reduced over the ranks, so the iteration is the one all weights together
+    /// make. Every rank must call it together.
+    pub fn add_weights_across(&mut self, comm: &Comm, w: &[f64]) {
+        let mut sums = [w.len() as f64, w.iter().sum::<f64>()];
+        comm.sum_f64(&mut sums);
+        let [n, sum] = sums;
+        let mean = sum / n;
+        let var = if n > 1.0 {
+            comm.sum(w.iter().map(|v| (v - mean).powi(2)).sum::<f64>()) / (n - 1.0) / n
         } else {
             0.0
         };
-        self.add_iteration(mean, var, w);
+        self.add_iteration_across(comm, mean, var, n as u64, w);
     }
 
     /// Adds one iteration with its own estimate and variance (e.g. stratified), and the weights
     /// (scaled so that their mean estimates the integral) for the unweighting efficiency.
     pub fn add_iteration(&mut self, estimate: f64, variance: f64, w: &[f64]) {
+        self.add_iteration_across(&Comm::default(), estimate, variance, w.len() as u64, w);
+    }
+
+    /// [`Accumulator::add_iteration`] for an iteration of `evals` evaluations over all ranks of
+    /// `comm`, whose estimate and variance every rank knows already, this rank's weights being
+    /// `w`. Every rank must call it together.
+    pub fn add_iteration_across(
+        &mut self,
+        comm: &Comm,
+        estimate: f64,
+        variance: f64,
+        evals: u64,
+        w: &[f64],
+    ) {
         self.iterations.push(Iteration {
             estimate,
             variance,
-            evals: w.len() as u64,
+            evals,
         });
-        for v in w {
-            self.max_abs_w = self.max_abs_w.max(v.abs());
-            self.sum_abs_w += v.abs();
-        }
-        self.n += w.len() as u64;
+        let mut max = [w.iter().fold(self.max_abs_w, |m, v| m.max(v.abs()))];
+        comm.max_f64(&mut max);
+        self.max_abs_w = max[0];
+        // Rank 0 carries the running sum, so one process adds exactly as it always did.
+        let start = if comm.is_root() { self.sum_abs_w } else { 0.0 };
+        self.sum_abs_w = comm.sum(w.iter().fold(start, |s, v| s + v.abs()));
+        self.n += evals;
     }
 
     /// The final result. Iterations have (nearly) equal sizes, so their evaluation-weighted mean
@@ -286,16 +314,26 @@ impl ComponentAccumulator {
     }
 
     /// Adds one iteration of i.i.d. weight vectors (`n × k`, row-major).
+    #[cfg(test)]
     pub(crate) fn add_weights(&mut self, w: &[f64]) {
+        self.add_weights_across(&Comm::default(), w);
+    }
+
+    /// Adds one iteration of i.i.d. weight vectors (`n × k`, row-major) drawn by all ranks of
+    /// `comm`, this rank's share being `w`: sums, then the products of deviations from the pooled
+    /// means, are reduced over the ranks. Every rank must call it together.
+    pub(crate) fn add_weights_across(&mut self, comm: &Comm, w: &[f64]) {
         let k = self.k;
-        let n = w.len() / k;
-        let nf = n as f64;
-        let mut mean = vec![0.0; k];
+        let mut mean = vec![0.0; k + 1];
         for row in w.chunks_exact(k) {
             for (m, v) in mean.iter_mut().zip(row) {
                 *m += v;
             }
         }
+        mean[k] = (w.len() / k) as f64;
+        comm.sum_f64(&mut mean);
+        let nf = mean.pop().unwrap_or(0.0);
+        let n = nf as usize;
         mean.iter_mut().for_each(|m| *m /= nf);
         let mut cov = vec![0.0; k * k];
         if n > 1 {
@@ -307,6 +345,7 @@ impl ComponentAccumulator {
                     }
                 }
             }
+            comm.sum_f64(&mut cov);
             cov.iter_mut().for_each(|c| *c = *c / (nf - 1.0) / nf);
         }
         self.iterations.push((mean, cov, n as u64));

@@ -11,6 +11,7 @@ use super::{
     check_budget, check_dim, evaluate, integrand::column, report, Accumulator, Integrand,
     IntegrationResult, Integrator, Method, Progress,
 };
+use crate::comm::Comm;
 use crate::error::{Error, Result};
 
 /// Settings of plain Monte Carlo.
@@ -81,6 +82,7 @@ pub struct PlainMc {
     config: PlainMcConfig,
     dim: usize,
     rng: Pcg64Mcg,
+    comm: Comm,
     progress: Option<Box<dyn Progress>>,
 }
 
@@ -92,6 +94,7 @@ impl PlainMc {
             rng: Pcg64Mcg::seed_from_u64(config.seed),
             config,
             dim,
+            comm: Comm::default(),
             progress: None,
         })
     }
@@ -115,6 +118,11 @@ impl Integrator for PlainMc {
         self.progress = progress;
     }
 
+    fn set_comm(&mut self, comm: Comm) {
+        self.rng = Pcg64Mcg::seed_from_u64(comm.stream_seed(self.config.seed));
+        self.comm = comm;
+    }
+
     /// `evals` uniform points in `iterations` equal iterations.
     fn integrate(&mut self, f: &dyn Integrand, evals: u64) -> Result<IntegrationResult> {
         let dim = self.dim;
@@ -133,11 +141,13 @@ impl Integrator for PlainMc {
         let mut done = 0;
         for it in 0..iterations {
             let n = (evals * (it as u64 + 1) / iterations as u64 - done).max(1) as usize;
-            let x: Vec<f64> = (0..n * dim).map(|_| self.rng.random::<f64>()).collect();
-            let w = evaluate(f, &x, dim)?;
-            acc.add_weights(&column(&w, k, 0));
+            // This rank's share of the iteration.
+            let mine = self.comm.share(n as u64) as usize;
+            let x: Vec<f64> = (0..mine * dim).map(|_| self.rng.random::<f64>()).collect();
+            let w = self.comm.check(evaluate(f, &x, dim))?;
+            acc.add_weights_across(&self.comm, &column(&w, k, 0));
             if k > 1 {
-                comps.add_weights(&w);
+                comps.add_weights_across(&self.comm, &w);
             }
             done += n as u64;
             report(&mut self.progress, done, evals, "uniform");
