@@ -12,6 +12,7 @@ use std::path::PathBuf;
 use std::process::ExitCode;
 
 use clap::{Parser, Subcommand};
+use nis::comm::Comm;
 
 #[derive(Parser)]
 #[command(
@@ -103,16 +104,37 @@ enum BenchCommand {
     Density(density::BenchDensityArgs),
 }
 
+/// The processes of this run: MPI's world when built with the feature `mpi` (one rank when
+/// started without `mpirun`), else this process alone.
+fn comm() -> Result<Comm, nis::Error> {
+    #[cfg(feature = "mpi")]
+    return nis::comm::mpi::MpiComm::init();
+    #[cfg(not(feature = "mpi"))]
+    Ok(Comm::default())
+}
+
 fn main() -> ExitCode {
     let cli = Cli::parse();
+    let comm = match comm() {
+        Ok(comm) => comm,
+        Err(e) => {
+            eprintln!("error: {e}");
+            return ExitCode::FAILURE;
+        }
+    };
     let result = match cli.command {
-        Command::Integrate(args) => integrate::run(&args),
+        Command::Integrate(args) => integrate::run(&args, &comm),
+        Command::Render(args) => render::run_render(&args, &comm),
+        _ if comm.size() > 1 => Err(format!(
+            "only `nis integrate` and `nis render` run on several MPI ranks ({} here)",
+            comm.size()
+        )
+        .into()),
         Command::Sample(args) => integrate::sample(&args),
         Command::List => {
             integrate::list();
             Ok(())
         }
-        Command::Render(args) => render::run_render(&args),
         Command::Compare(args) => render::run_compare(&args),
         Command::Bench(BenchCommand::Flow { batch, torch, docs }) => {
             bench::run_flow(batch, torch, &docs)
@@ -128,6 +150,15 @@ fn main() -> ExitCode {
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,
+        Err(e) if comm.size() > 1 => {
+            // Every rank failed at the same batch (the library's failure flag) or this one alone
+            // did; rank 0 says why. Exiting without finalising MPI makes mpirun end the other
+            // ranks, should any still wait for this one.
+            if comm.is_root() {
+                eprintln!("error: {e}");
+            }
+            std::process::exit(1)
+        }
         Err(e) => {
             eprintln!("error: {e}");
             ExitCode::FAILURE

@@ -154,6 +154,26 @@ pub struct Sample {
     bsdf_pdf: f32,
 }
 
+impl super::Record for Sample {
+    const WORDS: usize = CONTEXT_SCALARS + 5;
+    fn write(&self, out: &mut Vec<f32>) {
+        out.extend_from_slice(&self.context);
+        out.extend_from_slice(&[self.x[0], self.x[1], self.f, self.pdf, self.bsdf_pdf]);
+    }
+    fn read(w: &[f32]) -> Self {
+        let c = CONTEXT_SCALARS;
+        let mut context = [0.0; CONTEXT_SCALARS];
+        context.copy_from_slice(&w[..c]);
+        Sample {
+            context,
+            x: [w[c], w[c + 1]],
+            f: w[c + 2],
+            pdf: w[c + 3],
+            bsdf_pdf: w[c + 4],
+        }
+    }
+}
+
 /// What one training phase did.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct TrainingStats {
