@@ -102,6 +102,28 @@ enum BenchCommand {
     /// on the real digits and MNIST; writes a table and PNGs to docs/REPRODUCTION.md.
     /// Example: nis bench density --minutes-digits 2 --minutes-mnist 4
     Density(density::BenchDensityArgs),
+    /// Strong scaling over MPI ranks (1 vs 2, one thread each) for a ~100 µs/point and a cheap
+    /// integrand, the communication of a training step, and the scaling model in
+    /// docs/SCALING.md. Starts mpirun with binaries built with the feature `mpi`
+    /// (scripts/bench-mpi.sh builds them and runs this).
+    /// Example: nis bench mpi --mpi-nis target/mpi/nis --mpi-example target/mpi/mpi_ranks
+    Mpi {
+        /// `nis` built with `--features mpi`.
+        #[arg(long)]
+        mpi_nis: PathBuf,
+        /// The library's `mpi_ranks` example built with `--features mpi`.
+        #[arg(long)]
+        mpi_example: PathBuf,
+        /// Runs per measurement (their median is reported).
+        #[arg(long, default_value_t = 3)]
+        runs: usize,
+        /// Markdown file the measurements go to.
+        #[arg(long, default_value = "docs/BENCHMARKS.md")]
+        docs: PathBuf,
+        /// Markdown file the scaling model goes to.
+        #[arg(long, default_value = "docs/SCALING.md")]
+        scaling: PathBuf,
+    },
 }
 
 /// The processes of this run: MPI's world when built with the feature `mpi` (one rank when
@@ -147,6 +169,13 @@ fn main() -> ExitCode {
         Command::Bench(BenchCommand::Guiding(args)) => guiding::run_bench(&args),
         Command::Density(cmd) => density::run(&cmd),
         Command::Bench(BenchCommand::Density(args)) => density::run_bench(&args),
+        Command::Bench(BenchCommand::Mpi {
+            mpi_nis,
+            mpi_example,
+            runs,
+            docs,
+            scaling,
+        }) => bench::run_mpi(&mpi_nis, &mpi_example, runs, &docs, &scaling),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

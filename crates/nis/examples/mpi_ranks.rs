@@ -6,6 +6,10 @@
 //!   rank's flow parameters, bit for bit, after every step; prints `identical after N steps`.
 //! - `mpirun -n 3 mpi_ranks fail RANK`: an integrand that fails on rank RANK only; every rank must
 //!   stop with an error, which rank 0 prints (exit status 1 on every rank).
+//! - `mpirun -n 2 mpi_ranks comm-time DIM`: the communication of one training step of the default
+//!   flow in DIM dimensions (the five one-number reductions of the failure flag, the skip test
+//!   and the weights' normalisation, then the sum of the gradient), timed over 200 steps; prints
+//!   one JSON line with the parameter count and the median and mean microseconds per step.
 
 use std::process::ExitCode;
 
@@ -80,12 +84,51 @@ fn run(comm: &Comm) -> Result<String> {
                 r.std_err
             ))
         }
+        Some("comm-time") => {
+            let dim = args.get(1).and_then(|d| d.parse().ok()).unwrap_or(4);
+            let integ = NisIntegrator::new(dim, NisConfig::default())?;
+            let mut grad = integ.flow().params().to_vec();
+            let mut times = Vec::new();
+            for _ in 0..220 {
+                let started = std::time::Instant::now();
+                comm.check(Ok(()))?;
+                comm.any(true);
+                comm.check(Ok(()))?;
+                let mut max = [1.0];
+                comm.max_f64(&mut max);
+                comm.sum(1.0);
+                comm.sum_f32(&mut grad);
+                times.push(started.elapsed().as_secs_f64() * 1e6);
+            }
+            let mut times = times.split_off(20); // warm-up
+            times.sort_by(f64::total_cmp);
+            let mean = times.iter().sum::<f64>() / times.len() as f64;
+            // Adam's update, which every rank repeats on the summed gradient.
+            let mut adam = nis::nn::Adam::new(Default::default(), grad.len())?;
+            let mut params = integ.flow().params().to_vec();
+            let mut adam_times: Vec<f64> = (0..200)
+                .map(|_| {
+                    let started = std::time::Instant::now();
+                    let _ = adam.step(&mut params, &grad);
+                    started.elapsed().as_secs_f64() * 1e6
+                })
+                .collect();
+            adam_times.sort_by(f64::total_cmp);
+            Ok(format!(
+                "{{\"ranks\": {}, \"params\": {}, \"median_us\": {:.2}, \"mean_us\": {:.2}, \"adam_us\": {:.2}}}",
+                comm.size(),
+                grad.len(),
+                times[times.len() / 2],
+                mean,
+                adam_times[100]
+            ))
+        }
         Some("fail") => {
             let r = integ.integrate(&f, 50_000)?;
             Ok(format!("no failure: {} ± {}", r.value, r.std_err))
         }
         _ => Err(Error::Config(
-            "usage: mpi_ranks checksums | mpi_ranks fail RANK".into(),
+            "usage: mpi_ranks checksums | mpi_ranks fail RANK | mpi_ranks comm-time DIM".into(),
         )),
     }
 }

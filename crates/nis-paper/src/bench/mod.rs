@@ -8,12 +8,14 @@
 //! - [`fit_image`]: the paper's Figure 3, couplings on 2-D image targets (`docs/REPRODUCTION.md`).
 //! - [`density`]: the paper's Figure 4, PQ against affine couplings on real digits.
 //! - [`guiding`]: the paper's Figure 5, path guiding against a reference at equal samples and time.
+//! - [`mpi`]: strong scaling over MPI ranks and the scaling model (`docs/SCALING.md`).
 
 pub mod density;
 pub mod fit_image;
 pub mod flow;
 pub mod guiding;
 pub mod integrate;
+pub mod mpi;
 
 use std::time::Instant;
 
