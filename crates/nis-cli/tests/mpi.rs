@@ -263,6 +263,26 @@ fn a_rank_that_dies_ends_mpirun_within_30_s_without_a_partial_file() {
 
 #[test]
 #[ignore = "needs MPI: scripts/test-mpi.sh"]
+fn guided_renders_are_one_image_per_seed_and_rank_count() {
+    // Every rank trains its guide on the records of all ranks, so they stay in step (a rank whose
+    // guide differed would sample other directions, and the two runs below would differ).
+    for guide in ["ppg", "nis-kl"] {
+        let runs: Vec<Vec<u8>> = (0..2)
+            .map(|run| {
+                let out = tmp(&format!("{guide}-{run}.exr"));
+                let mut args = vec!["render", "cornell-box", "--spp", "8", "--res", "24"];
+                args.extend_from_slice(&["--guide", guide, "--seed", "1"]);
+                args.extend_from_slice(&["--out", out.to_str().unwrap()]);
+                ok(mpirun(2, &env_path("NIS_MPI_BIN"), &args));
+                std::fs::read(&out).unwrap()
+            })
+            .collect();
+        assert!(runs[0] == runs[1], "{guide}: two runs on 2 ranks differ");
+    }
+}
+
+#[test]
+#[ignore = "needs MPI: scripts/test-mpi.sh"]
 fn a_plain_path_traced_image_is_bit_identical_to_one_process() {
     let single = tmp("single.exr");
     let mut c = Command::new(NIS);

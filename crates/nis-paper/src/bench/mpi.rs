@@ -36,11 +36,22 @@ fn median(mut v: Vec<f64>) -> f64 {
 
 /// `mpirun -n ranks program args…` with one thread per rank; its stdout as JSON.
 fn mpirun(ranks: usize, program: &Path, args: &[&str]) -> Result<Value> {
+    mpirun_threads(ranks, 1, program, args)
+}
+
+/// `mpirun -n ranks program args…` with `threads` threads per rank.
+fn mpirun_threads(ranks: usize, threads: usize, program: &Path, args: &[&str]) -> Result<Value> {
     let out = Command::new("mpirun")
-        .args(["--oversubscribe", "-n", &ranks.to_string()])
+        .args([
+            "--oversubscribe",
+            "--bind-to",
+            "none",
+            "-n",
+            &ranks.to_string(),
+        ])
         .arg(program)
         .args(args)
-        .env("RAYON_NUM_THREADS", "1")
+        .env("RAYON_NUM_THREADS", threads.to_string())
         .env("OMPI_ALLOW_RUN_AS_ROOT", "1")
         .env("OMPI_ALLOW_RUN_AS_ROOT_CONFIRM", "1")
         .output()
@@ -96,6 +107,7 @@ pub fn run(
     log: &mut dyn FnMut(&str),
 ) -> Result<String> {
     let runs = runs.max(1);
+    let load_before = load_average();
     // Cost per point of each integrand alone: plain MC on one rank (its sampling is negligible).
     let mut cost = Vec::new();
     for (name, evals) in [("costly", 20_000u64), ("camel", 4_000_000)] {
@@ -137,12 +149,47 @@ pub fn run(
             50.0 * speedup
         ));
     }
+    // The control: does this machine give a second core right now? Plain MC on one process with
+    // 1 and with 2 threads (no MPI involved).
+    let mut control = Vec::new();
+    for threads in [1, 2] {
+        let t: Vec<f64> = (0..runs)
+            .map(|_| {
+                let args = ["integrate", "costly", "--dim", "4", "--method", "uniform"];
+                let args = [&args[..], &["--evals", "20000", "--json"]].concat();
+                let v = mpirun_threads(1, threads, programs.nis, &args)?;
+                v["seconds"]
+                    .as_f64()
+                    .ok_or_else(|| Error::Config(format!("no seconds in {v}")))
+            })
+            .collect::<Result<_>>()?;
+        control.push(median(t));
+    }
+    log(&format!(
+        "control: plain MC on 1 and 2 threads: {control:.2?} s"
+    ));
+    table.push_str(&format!(
+        "| control: costly, plain MC, one process, 1 vs 2 threads | | 20000 | {:.2} | {:.2} | {:.2} | {:.0} % |\n",
+        control[0],
+        control[1],
+        control[0] / control[1],
+        50.0 * control[0] / control[1]
+    ));
     let comm: Vec<Value> = (0..runs)
         .map(|_| mpirun(2, programs.example, &["comm-time", "4"]))
         .collect::<Result<_>>()?;
     let field = |k: &str| median(comm.iter().filter_map(|v| v[k].as_f64()).collect());
     let (params, comm_us, adam_us) = (field("params"), field("median_us"), field("adam_us"));
     log(&format!("one step's communication on 2 ranks: {comm_us:.1} µs for {params} parameters, Adam {adam_us:.1} µs"));
+    let load = format!(
+        "Load average (1 min) of the machine before and after: {load_before} and {} — \
+         above 2, other processes competed for the 2 cores. The control row says how much of a second \
+         core there was to be had: where two threads of one process are not faster than one, the \
+         1-vs-2-rank comparison measures the contention, not the scaling (and waiting ranks, which \
+         Open MPI lets spin, take CPU from the computing one: on shared nodes set \
+         `OMPI_MCA_mpi_yield_when_idle=1`).",
+        load_average()
+    );
     let body = format!(
         "Strong scaling of `nis integrate NAME --dim 4 --method nis` (default flow and batch of \
          1024, 40 % training) under `mpirun -n 1` and `-n 2` with `RAYON_NUM_THREADS=1` (one \
@@ -153,7 +200,7 @@ pub fn run(
          `mpi_ranks comm-time 4`): median {comm_us:.1} µs; Adam's update, replicated on every \
          rank: {adam_us:.1} µs. What NIS itself costs per evaluation (sampling, training, \
          weights; from the cheap integrand): {:.2} µs. The model for clusters built on these \
-         numbers is in [SCALING.md](SCALING.md).\n",
+         numbers is in [SCALING.md](SCALING.md).\n\n{load}\n",
         4.0 * params,
         flow_per_point * 1e6
     );
@@ -161,6 +208,14 @@ pub fn run(
     let model = model(params, comm_us * 1e-6, adam_us * 1e-6, flow_per_point);
     write_section(scaling, "scaling-model", "The numbers", &model)?;
     Ok(format!("{body}\n{model}"))
+}
+
+/// The 1-minute load average, as /proc/loadavg has it.
+fn load_average() -> String {
+    std::fs::read_to_string("/proc/loadavg")
+        .ok()
+        .and_then(|s| s.split_whitespace().next().map(str::to_string))
+        .unwrap_or_else(|| "unknown".into())
 }
 
 /// Communication of one training step on `ranks` ranks of the assumed cluster: five one-number

@@ -292,7 +292,11 @@ impl Renderer<'_> {
             _ => 0.0,
         };
         let sum = self.comm.sum(mine);
-        (sum > 0.0).then(|| sum as u32 - 1)
+        if sum > 0.0 {
+            Some(sum as u32 - 1)
+        } else {
+            None
+        }
     }
 
     /// Whether `seconds` have passed since the start, by rank 0's clock (so that all ranks stop
