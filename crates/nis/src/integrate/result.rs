@@ -313,12 +313,6 @@ impl ComponentAccumulator {
         }
     }
 
-    /// Adds one iteration of i.i.d. weight vectors (`n × k`, row-major).
-    #[cfg(test)]
-    pub(crate) fn add_weights(&mut self, w: &[f64]) {
-        self.add_weights_across(&Comm::default(), w);
-    }
-
     /// Adds one iteration of i.i.d. weight vectors (`n × k`, row-major) drawn by all ranks of
     /// `comm`, this rank's share being `w`: sums, then the products of deviations from the pooled
     /// means, are reduced over the ranks. Every rank must call it together.
