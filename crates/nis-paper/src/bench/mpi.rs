@@ -237,16 +237,17 @@ fn model(params: f64, comm_2: f64, adam: f64, flow_per_point: f64) -> String {
     );
     for ranks in [64.0f64, 1_000.0, 10_000.0] {
         let overhead = adam + comm_seconds(ranks, params);
+        // The useful work is B/P points per rank, but the step waits for the ranks with ⌈B/P⌉.
         let eff = |batch: f64| {
-            let work = batch / ranks * per_point;
+            let (mean, most) = (batch / ranks, (batch / ranks).ceil());
             if batch < ranks {
                 f64::NAN
             } else {
-                work / (work + overhead)
+                mean * per_point / (most * per_point + overhead)
             }
         };
-        // work/(work + overhead) ≥ 0.8  ⇔  batch ≥ 4·P·overhead/t, and at least one point per rank.
-        let need = (4.0 * ranks * overhead / per_point).max(ranks).ceil();
+        // With m points on every rank: m·t/(m·t + overhead) ≥ 0.8 ⇔ m ≥ 4·overhead/t.
+        let need = ranks * (4.0 * overhead / per_point).max(1.0).ceil();
         let pct = |e: f64| {
             if e.is_nan() {
                 "— (batch < ranks)".to_string()
