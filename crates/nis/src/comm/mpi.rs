@@ -125,7 +125,10 @@ impl Communicator for MpiComm {
             let mut len = bytes.len() as u64;
             root.broadcast_into(&mut len);
             bytes.resize(len as usize, 0);
-            root.broadcast_into(&mut bytes[..]);
+            // Every rank knows the length now; Open MPI rejects a broadcast of an empty buffer.
+            if len > 0 {
+                root.broadcast_into(&mut bytes[..]);
+            }
         });
     }
 }
