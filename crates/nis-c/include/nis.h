@@ -141,7 +141,7 @@ typedef struct nis_result {
    */
   size_t components;
   /**
-   * PSIS's Pareto k̂ of the final phase's weights: above 0.7 the error bar cannot be trusted
+   * PSIS's Pareto k̂ of the final phase's weights: above 0.5 the error bar cannot be trusted
    * (NaN when it cannot be fitted).
    */
   double pareto_k;

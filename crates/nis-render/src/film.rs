@@ -101,8 +101,44 @@ impl Image {
         }
     }
 
-    /// Read the first RGB(A) layer of an OpenEXR file.
+    /// Read the first RGB(A) layer of an OpenEXR file. The size its header claims is checked
+    /// against the file's length before the pixels are allocated (see [`MAX_EXR_PIXELS_PER_BYTE`]).
     pub fn read_exr(path: &Path) -> Result<Image, Error> {
+        let error = |message: String| Error::Image {
+            path: path.display().to_string(),
+            message,
+        };
+        let file_len = std::fs::metadata(path)
+            .map_err(|e| error(e.to_string()))?
+            .len();
+        let meta =
+            exr::meta::MetaData::read_from_file(path, false).map_err(|e| error(e.to_string()))?;
+        let size = meta
+            .headers
+            .first()
+            .ok_or_else(|| error("the file has no layer".into()))?
+            .layer_size;
+        // The decoder reserves a block's claimed size before reading it; a header whose tiles
+        // or scan-line blocks dwarf the file (found by fuzzing: 1.7 GB for a 1 kB file) lies.
+        let max_block = MAX_EXR_BLOCK_BYTES.max(16 * file_len);
+        if let Some(h) = meta
+            .headers
+            .iter()
+            .find(|h| h.max_block_byte_size() as u64 > max_block)
+        {
+            return Err(error(format!(
+                "the header claims blocks of {} bytes, more than a file of {file_len} bytes can hold",
+                h.max_block_byte_size()
+            )));
+        }
+        let pixels = size.width() as u64 * size.height() as u64;
+        if pixels > MAX_EXR_PIXELS_PER_BYTE * file_len + (1 << 16) {
+            return Err(error(format!(
+                "the header claims {}×{} pixels, more than a file of {file_len} bytes can hold",
+                size.width(),
+                size.height()
+            )));
+        }
         let img = exr::prelude::read_first_rgba_layer_from_file(
             path,
             |res, _| Image::new(res.width() as u32, res.height() as u32),
@@ -118,6 +154,16 @@ impl Image {
         Ok(img.layer_data.channel_data.pixels)
     }
 }
+
+/// Most pixels per byte of file an EXR may decode to. No OpenEXR compression packs a pixel
+/// (at least 6 bytes: three half floats) into fewer than 1/172 bytes (deflate's limit is
+/// 1032:1), so a header claiming more lies, and is refused before anything is allocated.
+pub const MAX_EXR_PIXELS_PER_BYTE: u64 = 256;
+
+/// Largest uncompressed EXR block (a tile or a group of scan lines) accepted from any file
+/// (16 MiB: a 16-line block of a 65536-wide RGBA f32 image, a 1024² RGBA f32 tile); beyond it, a
+/// block may be as large as 16 times the file.
+pub const MAX_EXR_BLOCK_BYTES: u64 = 1 << 24;
 
 /// The sRGB transfer curve applied to a linear value clamped to `[0, 1]`.
 pub fn srgb_encode(c: f32) -> f32 {
@@ -150,6 +196,54 @@ fn write_atomically(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn an_exr_header_claiming_more_pixels_than_its_file_holds_is_refused() {
+        // Found by the fuzz tests: the pixels were allocated from the header's data window.
+        let dir = std::env::temp_dir().join(format!("nis-render-film-bomb-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let path = dir.join("bomb.exr");
+        Image::new(4, 4).write_exr(&path).unwrap();
+        let mut bytes = std::fs::read(&path).unwrap();
+        let key = b"dataWindow\0box2i\0";
+        let at = bytes.windows(key.len()).position(|w| w == key).unwrap() + key.len() + 4;
+        bytes[at + 8..at + 16].copy_from_slice(&[0xff, 0xff, 0x00, 0x00, 0xff, 0xff, 0x00, 0x00]);
+        std::fs::write(&path, &bytes).unwrap();
+        let e = Image::read_exr(&path).unwrap_err().to_string();
+        assert!(e.contains("more than a file of"), "{e}");
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
+
+    #[test]
+    fn an_exr_header_claiming_huge_tiles_is_refused() {
+        // Found by the fuzz tests: a tile size claiming 2^20 × 2^20 pixels made the decoder
+        // reserve a block of the size a chunk claimed (1.7 GB) before reading it.
+        use exr::prelude::*;
+        let dir =
+            std::env::temp_dir().join(format!("nis-render-film-tiles-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let path = dir.join("tiles.exr");
+        let encoding = Encoding {
+            compression: Compression::Uncompressed,
+            blocks: Blocks::Tiles(Vec2(2, 2)),
+            line_order: LineOrder::Increasing,
+        };
+        let channels = SpecificChannels::rgba(|_: Vec2<usize>| (0.5f32, 0.5f32, 0.5f32, 1.0f32));
+        let layer = Layer::new((4, 4), LayerAttributes::named("l"), encoding, channels);
+        exr::image::Image::from_layer(layer)
+            .write()
+            .to_file(&path)
+            .unwrap();
+        assert_eq!(super::Image::read_exr(&path).unwrap().pixels.len(), 16);
+        let mut bytes = std::fs::read(&path).unwrap();
+        let key = b"tiles\0tiledesc\0";
+        let at = bytes.windows(key.len()).position(|w| w == key).unwrap() + key.len() + 4;
+        bytes[at..at + 8].copy_from_slice(&[0, 0, 16, 0, 0, 0, 16, 0]);
+        std::fs::write(&path, &bytes).unwrap();
+        let e = super::Image::read_exr(&path).unwrap_err().to_string();
+        assert!(e.contains("claims blocks of"), "{e}");
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
 
     #[test]
     fn exr_round_trips_full_float() {

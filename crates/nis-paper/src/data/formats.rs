@@ -19,11 +19,20 @@ fn read_maybe_gzip(path: &Path) -> Result<Vec<u8>> {
     if !bytes.starts_with(&GZIP_MAGIC) {
         return Ok(bytes);
     }
+    gunzip(&bytes, MAX_DECOMPRESSED).map_err(|reason| malformed(path, reason))
+}
+
+/// A gzip stream's content, or why not; a stream that inflates past `limit` bytes is an error
+/// (never silently cut at the limit).
+fn gunzip(bytes: &[u8], limit: u64) -> std::result::Result<Vec<u8>, String> {
     let mut out = Vec::new();
-    flate2::read::GzDecoder::new(bytes.as_slice())
-        .take(MAX_DECOMPRESSED)
+    flate2::read::GzDecoder::new(bytes)
+        .take(limit + 1)
         .read_to_end(&mut out)
-        .map_err(|e| malformed(path, format!("not a complete gzip stream ({e})")))?;
+        .map_err(|e| format!("not a complete gzip stream ({e})"))?;
+    if out.len() as u64 > limit {
+        return Err(format!("decompresses to more than {limit} bytes"));
+    }
     Ok(out)
 }
 
@@ -176,4 +185,19 @@ pub fn read_idx_images(path: &Path) -> Result<Images> {
         levels: 256,
         pixels: bytes[16..].to_vec(),
     })
+}
+
+#[cfg(test)]
+mod limits {
+    use std::io::Write;
+
+    #[test]
+    fn a_gzip_stream_past_the_limit_is_an_error_not_a_truncated_file() {
+        let mut gz = flate2::write::GzEncoder::new(Vec::new(), flate2::Compression::fast());
+        gz.write_all(&[b'7'; 4096]).unwrap();
+        let gz = gz.finish().unwrap();
+        assert_eq!(super::gunzip(&gz, 4096).unwrap().len(), 4096);
+        let e = super::gunzip(&gz, 4095).unwrap_err();
+        assert!(e.contains("more than 4095"), "{e}");
+    }
 }

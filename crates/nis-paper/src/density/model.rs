@@ -85,18 +85,52 @@ impl ModelConfig {
 
     /// A new model of this shape: the identity map, q ≡ 1.
     pub fn build(&self) -> Result<Box<dyn Bijection>> {
+        self.validate()?;
         Ok(match self.arch {
             Arch::Mlp => Box::new(Flow::new(self.flow_config())?),
-            Arch::MultiScale => Box::new(MultiScale::new(MultiScaleConfig {
-                width: self.width,
-                height: self.height,
-                transform: self.transform,
-                scales: self.scales,
-                features: self.features,
-                blocks: self.blocks,
-                seed: self.seed,
-            })?),
+            Arch::MultiScale => Box::new(MultiScale::new(self.multiscale_config())?),
         })
+    }
+
+    /// Rejects shapes that describe no valid model or one too large to allocate (the flows'
+    /// own bounds), without building it.
+    pub fn validate(&self) -> Result<()> {
+        if self.width.checked_mul(self.height).is_none() {
+            return Err(Error::Config(format!(
+                "images of {}×{} pixels are implausible",
+                self.width, self.height
+            )));
+        }
+        match self.arch {
+            Arch::Mlp => self.flow_config().validate()?,
+            Arch::MultiScale => self.multiscale_config().validate()?,
+        }
+        Ok(())
+    }
+
+    /// The number of parameters of the model this shape builds, without building it (a
+    /// checkpoint's claim is checked against its file with it).
+    pub fn param_count(&self) -> Result<usize> {
+        self.validate()?;
+        Ok(match self.arch {
+            Arch::Mlp => self
+                .flow_config()
+                .param_count()
+                .expect("a validated flow's parameters are counted"),
+            Arch::MultiScale => self.multiscale_config().param_count(),
+        })
+    }
+
+    fn multiscale_config(&self) -> MultiScaleConfig {
+        MultiScaleConfig {
+            width: self.width,
+            height: self.height,
+            transform: self.transform,
+            scales: self.scales,
+            features: self.features,
+            blocks: self.blocks,
+            seed: self.seed,
+        }
     }
 
     /// MLP: the number of coupling layers the model has (`couplings`, or by default one pass of
@@ -107,7 +141,7 @@ impl ModelConfig {
 
     fn flow_config(&self) -> FlowConfig {
         FlowConfig {
-            dim: self.dim(),
+            dim: self.width.saturating_mul(self.height),
             transform: self.transform,
             couplings: self.couplings,
             hidden_layers: self.hidden_layers,

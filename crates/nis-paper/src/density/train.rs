@@ -367,6 +367,14 @@ fn from_bytes(bytes: &[u8]) -> std::result::Result<Session, String> {
         .map_err(|e| format!("config is not valid: {e}"))?;
     let state: State = serde_json::from_str(meta.get("state").ok_or("no state")?)
         .map_err(|e| format!("state is not valid: {e}"))?;
+    // The weights and both Adam moments must be in the file: check the claim before allocating.
+    let n = config.model.param_count().map_err(|e| e.to_string())?;
+    if n.checked_mul(3 * 4).is_none_or(|b| b > bytes.len()) {
+        return Err(format!(
+            "the config needs 3 × {n} f32 values, the file has {} bytes in all",
+            bytes.len()
+        ));
+    }
     let mut session = Session::new(config).map_err(|e| e.to_string())?;
     let tensors =
         SafeTensors::deserialize(bytes).map_err(|e| format!("truncated or corrupt ({e})"))?;

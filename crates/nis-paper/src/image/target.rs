@@ -12,6 +12,19 @@ use std::path::Path;
 use crate::error::{Error, Result};
 use crate::image::builtin::Builtin;
 
+/// Most pixels an image target may have (2048², far more than a 2-D density needs).
+pub const MAX_PIXELS: u64 = 1 << 22;
+
+/// The decoders' own limits, a second line behind [`MAX_PIXELS`]: no side beyond 16384 pixels
+/// and no decoder buffer beyond 64 MiB (a 2048² RGBA image at 16 bits is 32 MiB).
+fn decoder_limits() -> ::image::Limits {
+    let mut limits = ::image::Limits::default();
+    limits.max_image_width = Some(1 << 14);
+    limits.max_image_height = Some(1 << 14);
+    limits.max_alloc = Some(64 << 20);
+    limits
+}
+
 /// A non-negative raster on the unit square, read through bilinear interpolation.
 ///
 /// ```
@@ -80,7 +93,23 @@ impl Target {
         let bytes = std::fs::read(path).map_err(|e| image_error(format!("cannot read it: {e}")))?;
         let format = ::image::guess_format(&bytes)
             .map_err(|_| image_error("not a PNG or JPEG image".into()))?;
-        let decoded = ::image::load_from_memory_with_format(&bytes, format)
+        let reader = || {
+            let mut r = ::image::ImageReader::with_format(std::io::Cursor::new(&bytes), format);
+            r.limits(decoder_limits());
+            r
+        };
+        // The header's size is checked before any pixel is decoded: a tiny file may claim
+        // 100000×100000 pixels (a decompression bomb).
+        let (w, h) = reader()
+            .into_dimensions()
+            .map_err(|e| image_error(format!("cannot decode it: {e}")))?;
+        if w as u64 * h as u64 > MAX_PIXELS {
+            return Err(image_error(format!(
+                "{w}×{h} pixels is more than the {MAX_PIXELS} a target may have"
+            )));
+        }
+        let decoded = reader()
+            .decode()
             .map_err(|e| image_error(format!("cannot decode it: {e}")))?;
         let rgb = decoded.to_rgb32f();
         let (width, height) = (rgb.width() as usize, rgb.height() as usize);

@@ -116,6 +116,75 @@ pub struct NisGuideConfig {
     pub seed: u64,
 }
 
+impl NisGuideConfig {
+    /// Largest batch of records per training step.
+    pub const MAX_BATCH: usize = 1 << 20;
+    /// Most records the training buffer may keep.
+    pub const MAX_BUFFER: usize = 1 << 24;
+    /// Most Adam steps per training pass.
+    pub const MAX_STEPS: usize = 1 << 20;
+    /// Widest selection network.
+    pub const MAX_SELECTION_WIDTH: usize = 1 << 12;
+    /// Most one-blob bins per context scalar.
+    pub const MAX_CONTEXT_BINS: usize = 1024;
+
+    /// Rejects settings that describe no trainable guide, or one far too large to build (the
+    /// flow's own bounds are [`FlowConfig::validate`]'s).
+    pub fn validate(&self) -> nis::Result<()> {
+        let bad = |m: String| Err(nis::Error::Config(m));
+        if !(1..=Self::MAX_BATCH).contains(&self.batch)
+            || !(self.batch..=Self::MAX_BUFFER).contains(&self.buffer)
+        {
+            return bad(format!(
+                "the guide needs a batch of 1..={} records and a buffer at least as large and at most {}, got {} and {}",
+                Self::MAX_BATCH, Self::MAX_BUFFER, self.batch, self.buffer
+            ));
+        }
+        if !(0.0..0.5).contains(&self.min_selection)
+            || !(1..=Self::MAX_CONTEXT_BINS).contains(&self.context_bins)
+            || !(1..=Self::MAX_SELECTION_WIDTH).contains(&self.selection_width)
+        {
+            return bad(format!(
+                "minimum selection probability must be in [0, 0.5), context bins 1..={} and the selection width 1..={}, got {}, {} and {}",
+                Self::MAX_CONTEXT_BINS, Self::MAX_SELECTION_WIDTH, self.min_selection, self.context_bins, self.selection_width
+            ));
+        }
+        if self.min_steps > self.max_steps || self.max_steps > Self::MAX_STEPS {
+            return bad(format!(
+                "Adam steps per pass: need min_steps ≤ max_steps ≤ {}, got {} and {}",
+                Self::MAX_STEPS,
+                self.min_steps,
+                self.max_steps
+            ));
+        }
+        self.adam().validate()?;
+        self.flow_config().validate()
+    }
+
+    /// The flow over cylindrical direction coordinates, conditioned on the one-blob context.
+    fn flow_config(&self) -> FlowConfig {
+        FlowConfig {
+            dim: 2,
+            transform: self.transform,
+            couplings: self.couplings,
+            hidden_layers: self.hidden_layers,
+            hidden_width: self.hidden_width,
+            blob_bins: self.blob_bins,
+            context_dim: CONTEXT_SCALARS * self.context_bins,
+            seed: self.seed,
+        }
+    }
+
+    /// The optimiser of both networks.
+    fn adam(&self) -> AdamConfig {
+        AdamConfig {
+            learning_rate: self.learning_rate,
+            clip_norm: Some(10.0),
+            ..AdamConfig::default()
+        }
+    }
+}
+
 impl Default for NisGuideConfig {
     fn default() -> Self {
         NisGuideConfig {
@@ -275,34 +344,10 @@ fn sigmoid(z: f32) -> f32 {
 impl NisGuide {
     /// A new (uniform, untrained) guide for a scene inside `bounds`.
     pub fn new(bounds: Aabb, config: NisGuideConfig) -> nis::Result<NisGuide> {
-        if !(config.batch > 0 && config.buffer >= config.batch) {
-            return Err(nis::Error::Config(format!(
-                "the guide needs a batch of at least 1 and a buffer at least as large, got {} and {}",
-                config.batch, config.buffer
-            )));
-        }
-        if !(0.0..0.5).contains(&config.min_selection) || config.context_bins == 0 {
-            return Err(nis::Error::Config(format!(
-                "minimum selection probability must be in [0, 0.5) and context bins positive, got {} and {}",
-                config.min_selection, config.context_bins
-            )));
-        }
+        config.validate()?;
         let context_dim = CONTEXT_SCALARS * config.context_bins;
-        let flow = Flow::new(FlowConfig {
-            dim: 2,
-            transform: config.transform,
-            couplings: config.couplings,
-            hidden_layers: config.hidden_layers,
-            hidden_width: config.hidden_width,
-            blob_bins: config.blob_bins,
-            context_dim,
-            seed: config.seed,
-        })?;
-        let adam = AdamConfig {
-            learning_rate: config.learning_rate,
-            clip_norm: Some(10.0),
-            ..AdamConfig::default()
-        };
+        let flow = Flow::new(config.flow_config())?;
+        let adam = config.adam();
         let selection = Mlp {
             dims: vec![
                 context_dim,

@@ -63,7 +63,11 @@ impl GuideSpec {
                 .map_err(|e| Error::Invalid(format!("guide settings: {e}")))?,
             None => NisGuideConfig::default(),
         };
-        Ok(GuideSpec::Neural(NisGuideConfig { loss, seed, ..base }))
+        let config = NisGuideConfig { loss, seed, ..base };
+        config
+            .validate()
+            .map_err(|e| Error::Invalid(format!("guide settings: {e}")))?;
+        Ok(GuideSpec::Neural(config))
     }
 
     /// Builds the guide for `scene` and renders with it; `options.schedule` is set by the guide
@@ -110,5 +114,31 @@ impl GuideSpec {
                 run(scene, &guided, guide, comm, progress)
             }
         })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    // Regressions found by the fuzz tests: settings the guide cannot train with (min_steps >
+    // max_steps made `clamp` panic mid-render) or cannot allocate are refused when parsed.
+    #[test]
+    fn guide_settings_that_cannot_work_are_refused_when_parsed() {
+        for json in [
+            r#"{"min_steps": 10, "max_steps": 2}"#,
+            r#"{"batch": 0}"#,
+            r#"{"buffer": 18446744073709551615}"#,
+            r#"{"selection_width": 1000000000000}"#,
+            r#"{"context_bins": 1000000000000}"#,
+            r#"{"hidden_width": 65536, "hidden_layers": 64}"#,
+            r#"{"learning_rate": -1.0}"#,
+        ] {
+            let e = GuideSpec::parse("nis-kl", Some(json), 0).unwrap_err();
+            assert!(e.to_string().starts_with("guide settings"), "{json}: {e}");
+        }
+        assert!(
+            GuideSpec::parse("nis-chi2", Some(r#"{"min_steps": 5, "max_steps": 5}"#), 0).is_ok()
+        );
     }
 }

@@ -46,15 +46,10 @@ pub fn err<T>(line: usize, message: impl Into<String>) -> Result<T, XmlError> {
 }
 
 fn line_of(text: &str, pos: usize) -> usize {
-    text.as_bytes()[..pos.min(text.len())]
-        .iter()
-        .filter(|&&b| b == b'\n')
-        .count()
-        + 1
+    line_of_bytes(text.as_bytes(), pos)
 }
 
-fn start_element(text: &str, e: &BytesStart, pos: usize) -> Result<Element, XmlError> {
-    let line = line_of(text, pos);
+fn start_element(e: &BytesStart, line: usize) -> Result<Element, XmlError> {
     let name = String::from_utf8_lossy(e.name().as_ref()).into_owned();
     let mut attrs = Vec::new();
     for a in e.attributes() {
@@ -79,10 +74,51 @@ fn start_element(text: &str, e: &BytesStart, pos: usize) -> Result<Element, XmlE
     })
 }
 
+/// Deepest nesting of elements a scene may have. Mitsuba scenes nest a handful of levels; the
+/// bound keeps every recursive walk of the tree (substitution, loading, dropping it) far from
+/// the end of the stack, so a hostile file is an error, not a crash.
+pub const MAX_DEPTH: usize = 64;
+
+/// Line numbers of increasing byte positions, counted incrementally (a scene of n elements is
+/// read in O(n), not O(n²)).
+struct Lines<'a> {
+    text: &'a [u8],
+    pos: usize,
+    line: usize,
+}
+
+impl Lines<'_> {
+    fn at(&mut self, pos: usize) -> usize {
+        let pos = pos.min(self.text.len());
+        if pos < self.pos {
+            return line_of_bytes(self.text, pos);
+        }
+        self.line += self.text[self.pos..pos]
+            .iter()
+            .filter(|&&b| b == b'\n')
+            .count();
+        self.pos = pos;
+        self.line
+    }
+}
+
+fn line_of_bytes(text: &[u8], pos: usize) -> usize {
+    text[..pos.min(text.len())]
+        .iter()
+        .filter(|&&b| b == b'\n')
+        .count()
+        + 1
+}
+
 /// Parse `text` into its root element.
 pub fn parse(text: &str) -> Result<Element, XmlError> {
     let mut reader = Reader::from_str(text);
     reader.config_mut().trim_text(true);
+    let mut lines = Lines {
+        text: text.as_bytes(),
+        pos: 0,
+        line: 1,
+    };
     let mut stack: Vec<Element> = Vec::new();
     let mut root = None;
     loop {
@@ -96,9 +132,18 @@ pub fn parse(text: &str) -> Result<Element, XmlError> {
             message: format!("malformed XML: {e}"),
         })?;
         match event {
-            Event::Start(e) => stack.push(start_element(text, &e, pos)?),
+            Event::Start(e) => {
+                let line = lines.at(pos);
+                if stack.len() == MAX_DEPTH {
+                    return err(
+                        line,
+                        format!("elements nest deeper than {MAX_DEPTH} levels"),
+                    );
+                }
+                stack.push(start_element(&e, line)?)
+            }
             Event::Empty(e) => {
-                let el = start_element(text, &e, pos)?;
+                let el = start_element(&e, lines.at(pos))?;
                 match stack.last_mut() {
                     Some(parent) => parent.children.push(el),
                     None => root = Some(el),
@@ -112,7 +157,7 @@ pub fn parse(text: &str) -> Result<Element, XmlError> {
                 }
             }
             Event::Text(t) if !t.iter().all(u8::is_ascii_whitespace) => {
-                return err(line_of(text, pos), "unexpected text outside of attributes");
+                return err(lines.at(pos), "unexpected text outside of attributes");
             }
             Event::Eof => break,
             _ => {}
@@ -127,25 +172,45 @@ pub fn parse(text: &str) -> Result<Element, XmlError> {
     })
 }
 
-/// Replace `$name` in every attribute (except `<default>`'s own) using `params`.
-pub fn substitute(el: &mut Element, params: &HashMap<String, String>) -> Result<(), XmlError> {
+/// Replace `$name` in every attribute (except `<default>`'s own) using `params`, in one pass:
+/// a value that itself contains `$` is inserted as it is (as in Mitsuba), so no definition can
+/// expand forever. `budget` bounds the bytes that substitution may add in all (many references
+/// to a long value would otherwise multiply the file's size).
+pub fn substitute(
+    el: &mut Element,
+    params: &HashMap<String, String>,
+    budget: &mut usize,
+) -> Result<(), XmlError> {
     if el.name != "default" {
         for (_, value) in &mut el.attrs {
-            while let Some(start) = value.find('$') {
-                let rest = &value[start + 1..];
-                let len = rest
+            if !value.contains('$') {
+                continue;
+            }
+            let mut out = String::with_capacity(value.len());
+            let mut rest = value.as_str();
+            while let Some(start) = rest.find('$') {
+                out.push_str(&rest[..start]);
+                let after = &rest[start + 1..];
+                let len = after
                     .find(|c: char| !(c.is_ascii_alphanumeric() || c == '_'))
-                    .unwrap_or(rest.len());
-                let key = &rest[..len];
+                    .unwrap_or(after.len());
+                let key = &after[..len];
                 let Some(v) = params.get(key) else {
                     return err(el.line, format!("parameter ${key} has no value (add a <default> or pass it on the command line)"));
                 };
-                *value = format!("{}{}{}", &value[..start], v, &rest[len..]);
+                *budget = budget.checked_sub(v.len()).ok_or(XmlError {
+                    line: el.line,
+                    message: "parameter substitution makes the scene implausibly large".into(),
+                })?;
+                out.push_str(v);
+                rest = &after[len..];
             }
+            out.push_str(rest);
+            *value = out;
         }
     }
     for c in &mut el.children {
-        substitute(c, params)?;
+        substitute(c, params, budget)?;
     }
     Ok(())
 }
@@ -168,11 +233,17 @@ impl Element {
     }
 }
 
-/// Parse a float, naming the element on failure.
+/// Parse a finite float, naming the element on failure (`1e39` overflows f32, and no scene
+/// quantity is meaningful as ±∞ or NaN).
 pub fn parse_float(s: &str, line: usize) -> Result<f32, XmlError> {
-    s.trim()
-        .parse::<f32>()
-        .or_else(|_| err(line, format!("'{s}' is not a number")))
+    match s.trim().parse::<f32>() {
+        Ok(v) if v.is_finite() => Ok(v),
+        Ok(_) => err(
+            line,
+            format!("'{s}' is not a finite number (in single precision)"),
+        ),
+        Err(_) => err(line, format!("'{s}' is not a number")),
+    }
 }
 
 /// Parse one or three numbers separated by commas and/or spaces.

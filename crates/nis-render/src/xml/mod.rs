@@ -67,7 +67,9 @@ pub fn load_scene_str(
             .entry(name.to_string())
             .or_insert_with(|| value.to_string());
     }
-    dom::substitute(&mut root, &values).map_err(to_error)?;
+    // Substitution may add up to the file's own size again, plus a margin for short files.
+    let mut budget = text.len() + (1 << 16);
+    dom::substitute(&mut root, &values, &mut budget).map_err(to_error)?;
     let mut loader = Loader {
         base_dir: base_dir.to_path_buf(),
         ..Default::default()
@@ -100,6 +102,18 @@ struct Loader {
     environment: Option<Rgb>,
     camera: Option<Camera>,
     settings: RenderSettings,
+}
+
+/// Largest film side the loader accepts, in pixels.
+pub const MAX_FILM_SIDE: i64 = 1 << 15;
+/// Largest film the loader accepts, in pixels (8192², 768 MiB of RGB f32).
+pub const MAX_FILM_PIXELS: i64 = 1 << 26;
+
+fn out_of_range(el: &Element, name: &str, value: i64, range: &str) -> LoadError {
+    LoadError::Xml(XmlError {
+        line: el.line,
+        message: format!("{name} = {value} is out of range (expected {range})"),
+    })
 }
 
 fn unsupported<T>(el: &Element, supported: &str) -> LoadResult<T> {
@@ -160,8 +174,16 @@ impl Loader {
             return unsupported(el, "path");
         }
         let p = Props::new(el)?;
-        self.settings.max_depth = p.int("max_depth", -1)? as i32;
-        self.settings.rr_depth = p.int("rr_depth", 5)?.max(0) as u32;
+        let max_depth = p.int("max_depth", -1)?;
+        self.settings.max_depth = i32::try_from(max_depth)
+            .ok()
+            .filter(|&d| d >= -1)
+            .ok_or_else(|| {
+                out_of_range(el, "max_depth", max_depth, "-1 (unbounded) or 0..=2^31-1")
+            })?;
+        let rr_depth = p.int("rr_depth", 5)?;
+        self.settings.rr_depth = u32::try_from(rr_depth)
+            .map_err(|_| out_of_range(el, "rr_depth", rr_depth, "0..=2^32-1"))?;
         self.settings.hide_emitters = p.boolean("hide_emitters", false)?;
         p.finish()?;
         Ok(())
@@ -177,11 +199,18 @@ impl Loader {
                 .into());
         }
         let p = Props::new(el)?;
-        let fov = p.float("fov", f32::NAN)?;
-        if !fov.is_finite() {
+        let Some(fov) = p.float_opt("fov")? else {
             return Err(err::<()>(el.line, "the sensor needs <float name=\"fov\">")
                 .unwrap_err()
                 .into());
+        };
+        if !(fov > 0.0 && fov < 180.0) {
+            return Err(err::<()>(
+                el.line,
+                format!("the field of view must be between 0 and 180 degrees, got {fov}"),
+            )
+            .unwrap_err()
+            .into());
         }
         let fov_axis = match p.string("fov_axis")?.unwrap_or("x") {
             "x" => FovAxis::X,
@@ -220,10 +249,16 @@ impl Loader {
                         "rfilter",
                     ]);
                     f.finish()?;
-                    if width <= 0 || height <= 0 {
-                        return Err(err::<()>(c.line, "film width and height must be positive")
-                            .unwrap_err()
-                            .into());
+                    if !(1..=MAX_FILM_SIDE).contains(&width)
+                        || !(1..=MAX_FILM_SIDE).contains(&height)
+                        || width * height > MAX_FILM_PIXELS
+                    {
+                        return Err(err::<()>(
+                            c.line,
+                            format!("film of {width}×{height} pixels: each side must be 1..={MAX_FILM_SIDE} and the film at most {MAX_FILM_PIXELS} pixels"),
+                        )
+                        .unwrap_err()
+                        .into());
                     }
                     for r in c
                         .children
@@ -237,7 +272,11 @@ impl Loader {
                 }
                 "sampler" => {
                     let s = Props::new(c)?;
-                    self.settings.spp = s.int("sample_count", 4)?.max(1) as u32;
+                    let spp = s.int("sample_count", 4)?;
+                    self.settings.spp = u32::try_from(spp)
+                        .ok()
+                        .filter(|&n| n >= 1)
+                        .ok_or_else(|| out_of_range(c, "sample_count", spp, "1..=2^32-1"))?;
                     s.ignore(&["seed", "jitter"]);
                     s.finish()?;
                 }

@@ -72,9 +72,13 @@ impl<'a> Props<'a> {
     }
 
     pub(super) fn float(&self, name: &'a str, default: f32) -> Result<f32, XmlError> {
+        Ok(self.float_opt(name)?.unwrap_or(default))
+    }
+
+    pub(super) fn float_opt(&self, name: &'a str) -> Result<Option<f32>, XmlError> {
         match self.get(name, &["float", "integer"])? {
-            Some(p) => parse_float(p.required("value")?, p.line),
-            None => Ok(default),
+            Some(p) => parse_float(p.required("value")?, p.line).map(Some),
+            None => Ok(None),
         }
     }
 
@@ -114,7 +118,7 @@ impl<'a> Props<'a> {
             Some(p) if p.name == "spectrum" => {
                 let v = p.required("value")?;
                 match v.trim().parse::<f32>() {
-                    Ok(x) => Ok(Rgb::splat(x)),
+                    Ok(_) => parse_float(v, p.line).map(Rgb::splat),
                     Err(_) => err(p.line, format!("only constant <spectrum value=\"number\"> is supported, not '{v}'; use <rgb>")),
                 }
             }
@@ -198,8 +202,8 @@ pub(super) fn ior(value: &str, line: usize) -> Result<f32, XmlError> {
         ("amber", 1.55),
         ("diamond", 2.419),
     ];
-    if let Ok(v) = value.trim().parse::<f32>() {
-        return Ok(v);
+    if value.trim().parse::<f32>().is_ok() {
+        return parse_float(value, line);
     }
     TABLE
         .iter()

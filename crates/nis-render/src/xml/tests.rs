@@ -132,3 +132,81 @@ fn bsdfs_read_mitsuba_parameters() {
         }
     );
 }
+
+// Regressions found by the fuzz tests (tests/fuzz_readers.rs).
+
+#[test]
+fn deep_nesting_is_an_error_not_a_stack_overflow() {
+    let depth = 100_000;
+    let xml = format!(
+        "<scene>{}{}</scene>",
+        "<transform>".repeat(depth),
+        "</transform>".repeat(depth)
+    );
+    let e = load(&xml).unwrap_err().to_string();
+    assert!(e.contains("nest deeper than 64"), "{e}");
+    let twosided = format!(
+        "<scene>{SENSOR}{}<bsdf type=\"diffuse\"/>{}</scene>",
+        "<bsdf type=\"twosided\">".repeat(depth),
+        "</bsdf>".repeat(depth)
+    );
+    assert!(load(&twosided).is_err());
+}
+
+#[test]
+fn parameters_substitute_once_and_within_a_budget() {
+    // A default that refers to itself used to loop for ever, doubling the string.
+    let xml = format!(
+        "<scene><default name=\"a\" value=\"$a$a\"/>{SENSOR}<shape type=\"cube\"><string name=\"x\" value=\"$a\"/></shape></scene>"
+    );
+    let e = load(&xml).unwrap_err().to_string();
+    assert!(e.contains("unsupported parameter 'x'"), "{e}");
+    // Many references to a long value: the expansion is bounded by the file's size.
+    let long = "9".repeat(50_000);
+    let many = format!(
+        "<scene><default name=\"a\" value=\"{long}\"/>{SENSOR}<shape type=\"cube\"><string name=\"y\" value=\"{}\"/></shape></scene>",
+        "$a".repeat(20_000)
+    );
+    let e = load(&many).unwrap_err().to_string();
+    assert!(e.contains("implausibly large"), "{e}");
+}
+
+#[test]
+fn absurd_numbers_are_errors_not_wrapped_or_infinite_values() {
+    let cornell = |k: &str, v: &str| {
+        crate::scenes::load_with("cornell-box", &[(k.to_string(), v.to_string())])
+            .map(|s| (s.camera.width(), s.settings.spp, s.settings.max_depth))
+    };
+    for (k, v) in [
+        ("res", "2147483648"),
+        ("res", "4294967297"),
+        ("res", "100000"),
+        ("res", "0"),
+        ("spp", "-5"),
+        ("spp", "0"),
+        ("spp", "4294967296"),
+        ("max_depth", "-2"),
+        ("max_depth", "2147483648"),
+    ] {
+        let e = cornell(k, v).unwrap_err().to_string();
+        assert!(
+            e.contains("out of range") || e.contains("film of"),
+            "{k}={v}: {e}"
+        );
+    }
+    assert_eq!(cornell("res", "8192").unwrap().0, 8192);
+    assert_eq!(cornell("max_depth", "-1").unwrap().2, -1);
+    for fov in ["1e39", "nan", "inf", "0", "180", "-10"] {
+        let xml = format!(
+            "<scene><sensor type=\"perspective\"><float name=\"fov\" value=\"{fov}\"/></sensor></scene>"
+        );
+        assert!(load(&xml).is_err(), "fov {fov} was accepted");
+    }
+    for value in ["1e39, 0, 0", "NaN", "-inf"] {
+        let xml = format!(
+            "<scene>{SENSOR}<bsdf type=\"diffuse\" id=\"a\"><rgb name=\"reflectance\" value=\"{value}\"/></bsdf></scene>"
+        );
+        let e = load(&xml).unwrap_err().to_string();
+        assert!(e.contains("not a finite number"), "{value}: {e}");
+    }
+}

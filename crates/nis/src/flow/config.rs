@@ -9,6 +9,10 @@ use crate::transform::TransformKind;
 
 /// Largest dimension a flow accepts (a sanity bound against corrupt configs).
 pub const MAX_DIM: usize = 4096;
+/// Most parameters a flow may have (256 MiB of f32 weights; Adam keeps two more copies). A
+/// config read from a file or the command line is checked against it before anything is
+/// allocated, so a corrupt or hostile one is an error, not an attempt at terabytes.
+pub const MAX_PARAMS: usize = 1 << 26;
 
 /// Everything needed to build a flow, weights aside.
 ///
@@ -72,7 +76,54 @@ impl FlowConfig {
         }
     }
 
-    /// Rejects configurations that describe no valid flow.
+    /// The number of parameters of the flow this config builds, computed without building it
+    /// and in O(log D) steps whatever the numbers; `None` when it does not fit in a `usize`.
+    pub fn param_count(&self) -> Option<usize> {
+        use crate::transform::Transform;
+        let np = self.transform.param_count();
+        let mlp = |inputs: usize, outputs: usize| -> Option<usize> {
+            let input = inputs
+                .checked_mul(self.blob_bins)?
+                .checked_add(self.context_dim)?;
+            let hidden = self.hidden_width;
+            let output = outputs.checked_mul(np)?;
+            if self.hidden_layers == 0 {
+                return input.checked_add(1)?.checked_mul(output);
+            }
+            let first = input.checked_add(1)?.checked_mul(hidden)?;
+            let middle = hidden
+                .checked_add(1)?
+                .checked_mul(hidden)?
+                .checked_mul(self.hidden_layers - 1)?;
+            let last = hidden.checked_add(1)?.checked_mul(output)?;
+            first.checked_add(middle)?.checked_add(last)
+        };
+        let layers = self.coupling_count();
+        if self.dim <= 1 {
+            return mlp(0, self.dim)?.checked_mul(layers);
+        }
+        // The sizes of mask::partitions: pattern 2b puts the dimensions with bit b clear in A,
+        // pattern 2b + 1 is its complement; layer l uses pattern l mod 2⌈log₂ D⌉.
+        let bits = (usize::BITS - (self.dim - 1).leading_zeros()) as usize;
+        let patterns = 2 * bits;
+        let mut total = 0usize;
+        for p in 0..patterns.min(layers) {
+            let b = p / 2;
+            let period = 1usize << (b + 1);
+            let clear = (self.dim / period) * (period / 2) + (self.dim % period).min(period / 2);
+            let (a, bb) = if p % 2 == 1 {
+                (self.dim - clear, clear)
+            } else {
+                (clear, self.dim - clear)
+            };
+            let uses = layers / patterns + usize::from(p < layers % patterns);
+            total = total.checked_add(mlp(a, bb)?.checked_mul(uses)?)?;
+        }
+        Some(total)
+    }
+
+    /// Rejects configurations that describe no valid flow, or one with more than
+    /// [`MAX_PARAMS`] parameters.
     pub fn validate(&self) -> Result<()> {
         let bad = |m: String| Err(Error::Config(m));
         if self.dim == 0 || self.dim > MAX_DIM {
@@ -96,6 +147,64 @@ impl FlowConfig {
         if self.context_dim > 1 << 16 {
             return bad(format!("context dimension too large: {}", self.context_dim));
         }
-        self.transform.validate()
+        self.transform.validate()?;
+        match self.param_count() {
+            Some(n) if n <= MAX_PARAMS => Ok(()),
+            n => bad(format!(
+                "the flow would have {} parameters, more than the limit of {MAX_PARAMS}",
+                n.map_or("more than 2^64".to_string(), |n| n.to_string())
+            )),
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::flow::{Density, Flow};
+
+    #[test]
+    fn param_count_matches_the_built_flow() {
+        for dim in [1, 2, 3, 5, 8, 17, 100] {
+            for (couplings, context_dim, transform, hidden_layers) in [
+                (0, 0, TransformKind::Quadratic { bins: 4 }, 2),
+                (3, 0, TransformKind::Affine, 0),
+                (7, 5, TransformKind::RationalQuadratic { bins: 3 }, 1),
+                (23, 0, TransformKind::Linear { bins: 2 }, 3),
+            ] {
+                let config = FlowConfig {
+                    dim,
+                    transform,
+                    couplings,
+                    hidden_layers,
+                    hidden_width: 6,
+                    blob_bins: 3,
+                    context_dim,
+                    seed: 0,
+                };
+                let flow = Flow::new(config.clone()).unwrap();
+                assert_eq!(config.param_count(), Some(flow.param_count()), "{config:?}");
+            }
+        }
+    }
+
+    #[test]
+    fn a_config_too_large_to_allocate_is_rejected_before_building() {
+        // Every bound but the total holds: 64 layers of 65536² weights per coupling.
+        let config = FlowConfig {
+            dim: 4096,
+            hidden_layers: 64,
+            hidden_width: 1 << 16,
+            ..FlowConfig::default()
+        };
+        let e = Flow::new(config).unwrap_err().to_string();
+        assert!(e.contains("parameters"), "{e}");
+        // Counting is cheap whatever the numbers (it used to walk every coupling layer).
+        let absurd = FlowConfig {
+            dim: usize::MAX,
+            couplings: usize::MAX,
+            ..FlowConfig::default()
+        };
+        assert_eq!(absurd.param_count(), None);
     }
 }

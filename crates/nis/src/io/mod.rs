@@ -128,6 +128,16 @@ pub fn from_bytes(bytes: &[u8]) -> std::result::Result<(Flow, HashMap<String, St
     let meta = read_metadata(bytes, FORMAT, "a nis model")?;
     let config: FlowConfig = serde_json::from_str(meta.get("config").ok_or("no config")?)
         .map_err(|e| format!("config is not valid: {e}"))?;
+    config.validate().map_err(|e| e.to_string())?;
+    // The weights must be in the file: check the claim before allocating the flow.
+    let needed = config.param_count().and_then(|n| n.checked_mul(4));
+    if needed.is_none_or(|n| n > bytes.len()) {
+        return Err(format!(
+            "the config needs {} bytes of weights, the file has {} bytes in all",
+            needed.map_or("more than 2^64".into(), |n| n.to_string()),
+            bytes.len()
+        ));
+    }
     let mut flow = Flow::new(config).map_err(|e| e.to_string())?;
     let tensors =
         SafeTensors::deserialize(bytes).map_err(|e| format!("truncated or corrupt ({e})"))?;

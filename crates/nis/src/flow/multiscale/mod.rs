@@ -260,26 +260,16 @@ pub struct MultiScaleConfig {
     pub seed: u64,
 }
 
-/// The multi-scale flow: a [`Composed`] stack of [`MsCoupling`] layers.
-pub type MultiScale = Composed<MsCoupling>;
-
-impl MultiScale {
-    /// A new flow (the identity) for `width × height` images with `scales` squeezes, conditioners
-    /// of `features` channels and `blocks` residual blocks, weights from `seed`.
-    pub fn new(config: MultiScaleConfig) -> Result<MultiScale> {
-        let MultiScaleConfig {
-            width,
-            height,
-            transform,
-            scales,
-            features,
-            blocks,
-            seed,
-        } = config;
-        transform.validate()?;
+impl MultiScaleConfig {
+    /// Rejects shapes that describe no valid flow, or one with more than
+    /// [`crate::flow::config::MAX_PARAMS`] parameters (checked before anything is allocated).
+    pub fn validate(&self) -> Result<()> {
+        self.transform.validate()?;
+        let (width, height, features, blocks) =
+            (self.width, self.height, self.features, self.blocks);
         if width < 2
             || height < 2
-            || width * height > 1 << 16
+            || width.checked_mul(height).is_none_or(|d| d > 1 << 16)
             || features == 0
             || features > 1024
             || blocks > 32
@@ -288,21 +278,61 @@ impl MultiScale {
                 "multi-scale flow: {width}×{height} images, {features} features, {blocks} blocks is no valid shape"
             )));
         }
-        let np = transform.param_count();
+        let n = self.param_count();
+        if n > crate::flow::config::MAX_PARAMS {
+            return Err(Error::Config(format!(
+                "the multi-scale flow would have {n} parameters, more than the limit of {}",
+                crate::flow::config::MAX_PARAMS
+            )));
+        }
+        Ok(())
+    }
+
+    /// The number of parameters of the flow this shape builds, without building it. Meaningful
+    /// once the bounds of [`MultiScaleConfig::validate`] on the image and the nets hold.
+    pub fn param_count(&self) -> usize {
+        architecture(self.width, self.height, self.scales)
+            .into_iter()
+            .map(|t| conditioner(t.c, t.mask, self, 0).param_count())
+            .sum()
+    }
+}
+
+/// The convolutional conditioner of a coupling on a tensor of `c` channels.
+fn conditioner(c: usize, mask: Mask, config: &MultiScaleConfig, offset: usize) -> ConvNet {
+    let np = config.transform.param_count();
+    let (c_in, c_out) = match mask {
+        Mask::Checkerboard { .. } => (c + 1, c * np),
+        Mask::Channel { .. } => (c / 2, c / 2 * np),
+    };
+    ConvNet {
+        c_in,
+        features: config.features,
+        blocks: config.blocks,
+        c_out,
+        offset,
+    }
+}
+
+/// The multi-scale flow: a [`Composed`] stack of [`MsCoupling`] layers.
+pub type MultiScale = Composed<MsCoupling>;
+
+impl MultiScale {
+    /// A new flow (the identity) for `width × height` images with `scales` squeezes, conditioners
+    /// of `features` channels and `blocks` residual blocks, weights from `seed`.
+    pub fn new(config: MultiScaleConfig) -> Result<MultiScale> {
+        config.validate()?;
+        let (width, height, transform, scales, seed) = (
+            config.width,
+            config.height,
+            config.transform,
+            config.scales,
+            config.seed,
+        );
         let mut offset = 0;
         let mut couplings = Vec::new();
         for Tensor { h, w, c, idx, mask } in architecture(width, height, scales) {
-            let (c_in, c_out) = match mask {
-                Mask::Checkerboard { .. } => (c + 1, c * np),
-                Mask::Channel { .. } => (c / 2, c / 2 * np),
-            };
-            let net = ConvNet {
-                c_in,
-                features,
-                blocks,
-                c_out,
-                offset,
-            };
+            let net = conditioner(c, mask, &config, offset);
             offset += net.param_count();
             couplings.push(MsCoupling {
                 h,

@@ -323,6 +323,9 @@ impl NisIntegrator {
                 .ok_or_else(|| bad("not an integrator file (no settings)"))?,
         )
         .map_err(|e| bad(&format!("integrator settings: {e}")))?;
+        config
+            .validate()
+            .map_err(|e| bad(&format!("integrator settings: {e}")))?;
         let trained_evals = meta
             .get("trained_evals")
             .and_then(|s| s.parse().ok())
