@@ -1,6 +1,8 @@
 #!/usr/bin/env bash
-# The tests: the Rust workspace, then the Python module `nis` built as a wheel, installed into its
-# own virtual environment and run under pytest.
+# The tests: the Rust workspace, the MPI tests (scripts/test-mpi.sh: installs Open MPI if needed,
+# builds with the feature `mpi` into target/mpi, runs `nis` under mpirun with 1, 2 and 3 ranks),
+# then the Python module `nis` built as a wheel, installed into its own virtual environment and
+# run under pytest.
 #
 #   scripts/test.sh
 #
@@ -12,6 +14,7 @@ cd "$(dirname "$0")/.."
 started=$SECONDS
 
 cargo test --workspace --release
+scripts/test-mpi.sh
 export PYTHONDONTWRITEBYTECODE=1   # no __pycache__ beside the sources
 
 venv=target/py-venv

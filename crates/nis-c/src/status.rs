@@ -64,7 +64,8 @@ impl From<nis::Error> for Failure {
         let code = match &e {
             E::Config(_) | E::Dimension { .. } => NIS_ERR_CONFIG,
             E::Integrand { .. } | E::NonFinite { .. } | E::OutOfDomain { .. } => NIS_ERR_NON_FINITE,
-            E::IntegrandFailed { .. } => NIS_ERR_CALLBACK,
+            // Another MPI rank's failure; the C ABI runs on one process, where it cannot occur.
+            E::IntegrandFailed { .. } | E::Rank { .. } => NIS_ERR_CALLBACK,
             E::Model { .. } | E::Io { .. } => NIS_ERR_FILE,
         };
         Failure::new(code, e.to_string())

@@ -1,7 +1,8 @@
 //! `nis bench flow`, `nis bench integrate`, `nis bench memory`, `nis bench coverage` and `nis
 //! bench time-to-precision`: the drivers are `nis_paper::bench::{flow, integrate, memory,
 //! coverage, time_to_precision}`; results go to stdout and to sections of `docs/BENCHMARKS.md`
-//! (coverage: `docs/ROBUSTNESS.md`).
+//! (coverage: `docs/ROBUSTNESS.md`). `nis bench mpi` (driver `nis_paper::bench::mpi`) writes a
+//! section of `docs/BENCHMARKS.md` and the model in `docs/SCALING.md`.
 
 use std::path::{Path, PathBuf};
 
@@ -243,6 +244,22 @@ pub fn run_time_to_precision(
         }
     })?;
     pb.finish_and_clear();
+    println!("{md}");
+    Ok(())
+}
+
+/// `nis bench mpi`: strong scaling over MPI ranks and the scaling model.
+pub fn run_mpi(
+    nis: &Path,
+    example: &Path,
+    runs: usize,
+    docs: &Path,
+    scaling: &Path,
+) -> Result<(), Box<dyn std::error::Error>> {
+    let programs = nis_paper::bench::mpi::MpiPrograms { nis, example };
+    let md = nis_paper::bench::mpi::run(&programs, runs, docs, scaling, &mut |line| {
+        eprintln!("{line}")
+    })?;
     println!("{md}");
     Ok(())
 }

@@ -4,6 +4,7 @@ use std::path::PathBuf;
 
 use clap::builder::{PossibleValuesParser, TypedValueParser};
 use indicatif::{ProgressBar, ProgressStyle};
+use nis::comm::Comm;
 use nis::flow::Density;
 use nis::integrands::{self, Builtin, SUITE};
 use nis::integrate::unweight::{SampleFormat, SampleWriter};
@@ -142,14 +143,49 @@ impl IntegrateArgs {
     }
 }
 
-/// Runs one method on a built-in integrand.
+/// What one method gave: the result and, for NIS on several ranks, every rank's checksum of its
+/// flow's parameters (in rank order; all equal when the ranks trained in step).
+pub struct MethodRun {
+    pub result: IntegrationResult,
+    pub rank_checksums: Option<Vec<String>>,
+}
+
+/// FNV-1a over the parameters' bits.
+fn checksum(params: &[f32]) -> u64 {
+    params
+        .iter()
+        .flat_map(|p| p.to_le_bytes())
+        .fold(0xcbf2_9ce4_8422_2325, |h, b| {
+            (h ^ u64::from(b)).wrapping_mul(0x0100_0000_01b3)
+        })
+}
+
+/// Every rank's checksum of `params`, in rank order (`None` on one process).
+fn rank_checksums(comm: &Comm, params: &[f32]) -> Option<Vec<String>> {
+    (comm.size() > 1).then(|| {
+        let mine = format!("{:016x}", checksum(params)).into_bytes();
+        comm.all_gather_bytes(mine)
+            .into_iter()
+            .map(|b| String::from_utf8_lossy(&b).into_owned())
+            .collect()
+    })
+}
+
+/// Runs one method on a built-in integrand (all ranks of `comm` together; rank 0 shows progress
+/// and writes `--save`).
 pub fn run_method(
     f: &Builtin,
     method: Method,
     args: &IntegrateArgs,
-) -> Result<IntegrationResult, Error> {
-    let pb = bar(method.name());
+    comm: &Comm,
+) -> Result<MethodRun, Error> {
+    let pb = if comm.is_root() {
+        bar(method.name())
+    } else {
+        ProgressBar::hidden()
+    };
     let progress = shows_on(&pb);
+    let mut sums = None;
     let r = match (&args.load, method) {
         (Some(path), Method::Nis) => {
             let mut nis = NisIntegrator::load(path)?;
@@ -162,22 +198,35 @@ pub fn run_method(
                 )
                 .into());
             }
+            nis.set_comm(comm.clone());
             nis.set_seed(args.seed);
             nis.set_progress(Some(Box::new(progress)));
             nis.estimate(f, args.evals)?
         }
-        _ => {
-            let mut integ = nis::integrate::integrator(method, f.dim, &args.settings()?)?;
-            integ.set_progress(Some(Box::new(progress)));
-            let r = integ.integrate(f, args.evals)?;
-            if let (Some(path), Method::Nis) = (&args.save, method) {
-                integ.save(path)?;
+        (None, Method::Nis) => {
+            let mut nis = NisIntegrator::new(f.dim, args.settings()?.nis)?;
+            nis.set_comm(comm.clone());
+            nis.set_progress(Some(Box::new(progress)));
+            let r = nis.integrate(f, args.evals)?;
+            sums = rank_checksums(comm, nis.flow().params());
+            // Every rank holds the same flow; one file, written by rank 0 (atomically).
+            if let (Some(path), true) = (&args.save, comm.is_root()) {
+                nis.save(path)?;
             }
             r
         }
+        _ => {
+            let mut integ = nis::integrate::integrator(method, f.dim, &args.settings()?)?;
+            integ.set_comm(comm.clone());
+            integ.set_progress(Some(Box::new(progress)));
+            integ.integrate(f, args.evals)?
+        }
     };
     pb.finish_and_clear();
-    Ok(r)
+    Ok(MethodRun {
+        result: r,
+        rank_checksums: sums,
+    })
 }
 
 /// A table row for one method.
@@ -198,25 +247,34 @@ pub fn row(label: &str, r: &IntegrationResult, exact: f64) -> String {
 
 pub const HEADER: &str = "method            value ± std_err          pull  rel.var/eval  χ²/dof     k̂    n_eval  unw.eff  seconds";
 
-pub fn run(args: &IntegrateArgs) -> Result<(), Error> {
+/// `nis integrate`: every rank of `comm` runs it; rank 0 alone prints.
+pub fn run(args: &IntegrateArgs, comm: &Comm) -> Result<(), Error> {
     let f = integrands::by_name(&args.name, args.dim)?;
+    let root = comm.is_root();
     let methods = match args.method {
         Some(m) => vec![m],
         None => Method::ALL.to_vec(),
     };
     let integrand = format!("{} (d = {})", f.name, f.dim);
     if args.json && args.method.is_some() {
-        let r = run_method(&f, methods[0], args)?;
+        let run = run_method(&f, methods[0], args, comm)?;
+        let r = run.result;
         let mut v = serde_json::to_value(&r)?;
         v["exact"] = serde_json::json!(f.exact);
         v["integrand"] = serde_json::json!(integrand);
+        if let Some(sums) = run.rank_checksums {
+            v["rank_checksums"] = serde_json::json!(sums);
+        }
+        if !root {
+            return Ok(());
+        }
         println!("{}", serde_json::to_string(&v)?);
         for w in &r.warnings {
             eprintln!("warning: {w}");
         }
         return Ok(());
     }
-    if !args.json {
+    if !args.json && root {
         println!(
             "{} in {} dimensions: exact {:.7e}{}  ({})",
             f.name,
@@ -233,8 +291,8 @@ pub fn run(args: &IntegrateArgs) -> Result<(), Error> {
     }
     let mut results = Vec::new();
     for m in methods {
-        let r = run_method(&f, m, args)?;
-        if !args.json {
+        let r = run_method(&f, m, args, comm)?.result;
+        if !args.json && root {
             println!("{}", row(m.label(), &r, f.exact));
             for w in &r.warnings {
                 eprintln!("warning ({}): {w}", m.label());
@@ -245,6 +303,9 @@ pub fn run(args: &IntegrateArgs) -> Result<(), Error> {
     let labelled: Vec<(&str, &IntegrationResult)> =
         results.iter().map(|(m, r)| (m.label(), r)).collect();
     let disagree = disagreements(&labelled, DISAGREEMENT_SIGMAS);
+    if !root {
+        return Ok(());
+    }
     // Each method's own warnings, then the disagreements between methods.
     let warnings: Vec<String> = results
         .iter()
@@ -326,7 +387,7 @@ pub fn eval(args: &EvalArgs) -> Result<(), Error> {
 /// `nis list`.
 pub fn list() {
     println!("{:<14} {:<14} description", "name", "dimensions");
-    for e in SUITE {
+    for e in SUITE.iter().chain([&integrands::COSTLY]) {
         let dims: Vec<String> = e.dims.iter().map(|d| d.to_string()).collect();
         println!("{:<14} {:<14} {}", e.name, dims.join(","), e.description);
     }

@@ -12,6 +12,7 @@ use std::path::PathBuf;
 use std::process::ExitCode;
 
 use clap::{Parser, Subcommand};
+use nis::comm::Comm;
 
 #[derive(Parser)]
 #[command(
@@ -123,19 +124,62 @@ enum BenchCommand {
     /// docs/BENCHMARKS.md and a plot per integrand. The full run takes hours: run it on a quiet
     /// machine. Example: nis bench time-to-precision --only camel-sharp:8 --targets 1e-3 --cap 60 --seeds 1
     TimeToPrecision(bench::BenchTimeToPrecisionArgs),
+    /// Strong scaling over MPI ranks (1 vs 2, one thread each) for a ~100 µs/point and a cheap
+    /// integrand, the communication of a training step, and the scaling model in
+    /// docs/SCALING.md. Starts mpirun with binaries built with the feature `mpi`
+    /// (scripts/bench-mpi.sh builds them and runs this).
+    /// Example: nis bench mpi --mpi-nis target/mpi/nis --mpi-example target/mpi/mpi_ranks
+    Mpi {
+        /// `nis` built with `--features mpi`.
+        #[arg(long)]
+        mpi_nis: PathBuf,
+        /// The library's `mpi_ranks` example built with `--features mpi`.
+        #[arg(long)]
+        mpi_example: PathBuf,
+        /// Runs per measurement (their median is reported).
+        #[arg(long, default_value_t = 3)]
+        runs: usize,
+        /// Markdown file the measurements go to.
+        #[arg(long, default_value = "docs/BENCHMARKS.md")]
+        docs: PathBuf,
+        /// Markdown file the scaling model goes to.
+        #[arg(long, default_value = "docs/SCALING.md")]
+        scaling: PathBuf,
+    },
+}
+
+/// The processes of this run: MPI's world when built with the feature `mpi` (one rank when
+/// started without `mpirun`), else this process alone.
+fn comm() -> Result<Comm, nis::Error> {
+    #[cfg(feature = "mpi")]
+    return nis::comm::mpi::MpiComm::init();
+    #[cfg(not(feature = "mpi"))]
+    Ok(Comm::default())
 }
 
 fn main() -> ExitCode {
     let cli = Cli::parse();
+    let comm = match comm() {
+        Ok(comm) => comm,
+        Err(e) => {
+            eprintln!("error: {e}");
+            return ExitCode::FAILURE;
+        }
+    };
     let result = match cli.command {
-        Command::Integrate(args) => integrate::run(&args),
+        Command::Integrate(args) => integrate::run(&args, &comm),
+        Command::Render(args) => render::run_render(&args, &comm),
+        _ if comm.size() > 1 => Err(format!(
+            "only `nis integrate` and `nis render` run on several MPI ranks ({} here)",
+            comm.size()
+        )
+        .into()),
         Command::Sample(args) => integrate::sample(&args),
+        Command::Eval(args) => integrate::eval(&args),
         Command::List => {
             integrate::list();
             Ok(())
         }
-        Command::Eval(args) => integrate::eval(&args),
-        Command::Render(args) => render::run_render(&args),
         Command::Compare(args) => render::run_compare(&args),
         Command::Bench(BenchCommand::Flow { batch, torch, docs }) => {
             bench::run_flow(batch, torch, &docs)
@@ -151,9 +195,25 @@ fn main() -> ExitCode {
         Command::Bench(BenchCommand::Density(args)) => density::run_bench(&args),
         Command::Bench(BenchCommand::Memory(args)) => bench::run_memory(&args),
         Command::Bench(BenchCommand::TimeToPrecision(args)) => bench::run_time_to_precision(&args),
+        Command::Bench(BenchCommand::Mpi {
+            mpi_nis,
+            mpi_example,
+            runs,
+            docs,
+            scaling,
+        }) => bench::run_mpi(&mpi_nis, &mpi_example, runs, &docs, &scaling),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,
+        Err(e) if comm.size() > 1 => {
+            // Every rank failed at the same batch (the library's failure flag) or this one alone
+            // did; rank 0 says why. Exiting without finalising MPI makes mpirun end the other
+            // ranks, should any still wait for this one.
+            if comm.is_root() {
+                eprintln!("error: {e}");
+            }
+            std::process::exit(1)
+        }
         Err(e) => {
             eprintln!("error: {e}");
             ExitCode::FAILURE

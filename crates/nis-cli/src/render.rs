@@ -6,6 +6,7 @@ use std::path::{Path, PathBuf};
 use std::time::Duration;
 
 use indicatif::{ProgressBar, ProgressStyle};
+use nis::comm::Comm;
 use nis_render::compare::{compare, error_map};
 use nis_render::film::Image;
 use nis_render::guiding::spec::GuideSpec;
@@ -120,10 +121,11 @@ pub fn render_with(
     options: &RenderOptions,
     guide: &str,
     guide_config: Option<&str>,
+    comm: &Comm,
     progress: &(dyn Fn(f64) + Sync),
 ) -> Result<RenderOutput, Box<dyn std::error::Error>> {
     let spec = GuideSpec::parse(guide, guide_config, options.seed)?;
-    Ok(spec.render(scene, options, progress)?)
+    Ok(spec.render_across(scene, options, comm, progress)?)
 }
 
 fn load(
@@ -144,9 +146,12 @@ fn load(
     }
 }
 
-/// Run `nis render`.
-pub fn run_render(args: &RenderArgs) -> Result<(), Box<dyn std::error::Error>> {
+/// Run `nis render` on every rank of `comm`; rank 0 prints and writes the image.
+pub fn run_render(args: &RenderArgs, comm: &Comm) -> Result<(), Box<dyn std::error::Error>> {
     if let Some(path) = &args.export_xml {
+        if !comm.is_root() {
+            return Ok(());
+        }
         let xml = nis_render::scenes::xml(&args.scene)
             .ok_or_else(|| format!("'{}' is not a built-in scene", args.scene))?;
         nis::io::write_atomic(path, xml.as_bytes())?;
@@ -184,7 +189,11 @@ pub fn run_render(args: &RenderArgs) -> Result<(), Box<dyn std::error::Error>> {
         (None, Some(0)) => return Err("--spp must be at least 1".into()),
         (None, spp) => Budget::Samples(spp.unwrap_or(scene.settings.spp)),
     };
-    let bar = ProgressBar::new(1000);
+    let bar = if comm.is_root() {
+        ProgressBar::new(1000)
+    } else {
+        ProgressBar::hidden()
+    };
     bar.set_style(ProgressStyle::with_template(
         "{spinner} [{elapsed_precise}] {wide_bar} {percent}% (eta {eta})",
     )?);
@@ -202,6 +211,7 @@ pub fn run_render(args: &RenderArgs) -> Result<(), Box<dyn std::error::Error>> {
             &options,
             &args.guide,
             args.guide_config.as_deref(),
+            comm,
             &progress,
         )
         .map_err(|e| e.to_string())
@@ -214,6 +224,9 @@ pub fn run_render(args: &RenderArgs) -> Result<(), Box<dyn std::error::Error>> {
         None => run()?,
     };
     bar.finish_and_clear();
+    if !comm.is_root() {
+        return Ok(());
+    }
     let rays = out.stats.rays + out.stats.shadow_rays;
     println!(
         "{}: {}x{}, {} spp in {:.2} s; {:.2} M rays/s, {:.2} M samples/s; mean radiance {:.6}",

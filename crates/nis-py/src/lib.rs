@@ -58,7 +58,8 @@ pub(crate) fn to_py_err(e: nis::Error) -> PyErr {
             let _ = v.setattr("value", value);
             err
         }),
-        Error::IntegrandFailed { .. } => PyRuntimeError::new_err(message),
+        // Rank: another MPI rank's failure; the module runs on one process, where it cannot occur.
+        Error::IntegrandFailed { .. } | Error::Rank { .. } => PyRuntimeError::new_err(message),
         Error::Model { .. } => ModelError::new_err(message),
         Error::Io { path, source } => {
             let args = (

@@ -38,6 +38,14 @@ pub enum Error {
         /// The integrand's own account of what went wrong.
         message: String,
     },
+    /// Another MPI rank failed (its own error is this message); every rank stops at that batch.
+    #[error("rank {rank} failed: {message}")]
+    Rank {
+        /// The lowest rank that failed.
+        rank: usize,
+        /// Its error, as text.
+        message: String,
+    },
     /// A model file that cannot be read back as the flow it claims to be.
     #[error("model file {path}: {reason}")]
     Model { path: PathBuf, reason: String },

@@ -19,11 +19,14 @@
 //!   estimates and error bars, unweighted samples.
 //! - [`integrands`]: the built-in test suite with exact values.
 //! - [`io`]: model files (config JSON + safetensors) and atomic writes.
+//! - [`comm`]: the collective operations of data-parallel runs over MPI ranks (feature `mpi`),
+//!   with a single-process implementation that every run uses by default.
 //! - [`error`]: the typed errors of all of the above.
 //!
 //! The paper's experiments (2-D image targets, density estimation on real images, figures,
 //! benchmarks) live in the crate `nis-paper`; the path tracer and path guiding in `nis-render`.
 
+pub mod comm;
 pub mod error;
 pub mod flow;
 pub mod integrands;

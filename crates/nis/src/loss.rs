@@ -14,6 +14,7 @@
 
 use serde::{Deserialize, Serialize};
 
+use crate::comm::Comm;
 use crate::error::{Error, Result};
 
 /// The divergence a flow is trained to minimise.
@@ -66,6 +67,72 @@ pub fn weights_annealed(
     log_q_sample: &[f64],
     beta: f64,
 ) -> Result<Weights> {
+    weights_across(&Comm::default(), loss, f, log_q, log_q_sample, beta)
+}
+
+/// [`weights_annealed`] for a batch split over the ranks of `comm` (data-parallel training):
+/// each rank passes its share and gets its share's weights, normalised so that the weights of
+/// the whole batch sum to one (the maximum and the sum of the exponentials are reduced over the
+/// ranks). `integral` and `rel_var` describe this rank's share. An invalid input on any rank is
+/// an error on every rank ([`Comm::check`]).
+pub fn weights_across(
+    comm: &Comm,
+    loss: Loss,
+    f: &[f64],
+    log_q: &[f64],
+    log_q_sample: &[f64],
+    beta: f64,
+) -> Result<Weights> {
+    comm.check(check_inputs(loss, f, log_q, log_q_sample))?;
+    let n = log_q_sample.len();
+    if loss == Loss::Nll {
+        let total = comm.sum(n as f64) as usize;
+        return Ok(Weights {
+            w: vec![1.0 / total.max(1) as f32; n],
+            integral: 0.0,
+            rel_var: 0.0,
+        });
+    }
+    let (mut mean, mut m2) = (0.0f64, 0.0f64);
+    for (i, (&fi, &ls)) in f.iter().zip(log_q_sample).enumerate() {
+        // Welford's update of the mean and variance of |f|/q_s.
+        let r = fi.abs() * (-ls).exp();
+        let d = r - mean;
+        mean += d / (i + 1) as f64;
+        m2 += d * (r - mean);
+    }
+    let rel_var = if mean > 0.0 && n > 1 {
+        m2 / (n - 1) as f64 / (mean * mean)
+    } else {
+        0.0
+    };
+    let log_w: Vec<f64> = f
+        .iter()
+        .zip(log_q.iter().zip(log_q_sample))
+        .map(|(&fi, (&lq, &ls))| match loss {
+            Loss::Kl => beta * fi.abs().ln() - ls,
+            _ => 2.0 * beta * fi.abs().ln() - lq - ls,
+        })
+        .collect();
+    let mut max = [log_w.iter().copied().fold(f64::NEG_INFINITY, f64::max)];
+    comm.max_f64(&mut max);
+    let max = max[0];
+    let w = if max == f64::NEG_INFINITY {
+        vec![0.0; n]
+    } else {
+        let e: Vec<f64> = log_w.iter().map(|l| (l - max).exp()).collect();
+        let sum = comm.sum(e.iter().sum());
+        e.iter().map(|v| (v / sum) as f32).collect()
+    };
+    Ok(Weights {
+        w,
+        integral: mean,
+        rel_var,
+    })
+}
+
+/// The inputs' shapes agree and every value is finite.
+fn check_inputs(loss: Loss, f: &[f64], log_q: &[f64], log_q_sample: &[f64]) -> Result<()> {
     let n = log_q_sample.len();
     if log_q.len() != n || (loss != Loss::Nll && f.len() != n) {
         return Err(Error::Dimension {
@@ -95,11 +162,7 @@ pub fn weights_annealed(
         });
     }
     if loss == Loss::Nll {
-        return Ok(Weights {
-            w: vec![1.0 / n.max(1) as f32; n],
-            integral: 0.0,
-            rel_var: 0.0,
-        });
+        return Ok(());
     }
     if let Some(i) = f.iter().position(|v| !v.is_finite()) {
         return Err(Error::NonFinite {
@@ -108,40 +171,7 @@ pub fn weights_annealed(
             value: f[i],
         });
     }
-    let (mut mean, mut m2) = (0.0f64, 0.0f64);
-    for (i, (&fi, &ls)) in f.iter().zip(log_q_sample).enumerate() {
-        // Welford's update of the mean and variance of |f|/q_s.
-        let r = fi.abs() * (-ls).exp();
-        let d = r - mean;
-        mean += d / (i + 1) as f64;
-        m2 += d * (r - mean);
-    }
-    let rel_var = if mean > 0.0 && n > 1 {
-        m2 / (n - 1) as f64 / (mean * mean)
-    } else {
-        0.0
-    };
-    let log_w: Vec<f64> = f
-        .iter()
-        .zip(log_q.iter().zip(log_q_sample))
-        .map(|(&fi, (&lq, &ls))| match loss {
-            Loss::Kl => beta * fi.abs().ln() - ls,
-            _ => 2.0 * beta * fi.abs().ln() - lq - ls,
-        })
-        .collect();
-    let max = log_w.iter().copied().fold(f64::NEG_INFINITY, f64::max);
-    let w = if max == f64::NEG_INFINITY {
-        vec![0.0; n]
-    } else {
-        let e: Vec<f64> = log_w.iter().map(|l| (l - max).exp()).collect();
-        let sum: f64 = e.iter().sum();
-        e.iter().map(|v| (v / sum) as f32).collect()
-    };
-    Ok(Weights {
-        w,
-        integral: mean,
-        rel_var,
-    })
+    Ok(())
 }
 
 #[cfg(test)]

@@ -15,6 +15,7 @@
 //! }
 //! ```
 
+use crate::comm::Comm;
 use crate::error::{Error, Result};
 use crate::flow::{Density, Flow, Samples, Tape};
 use crate::loss::{self, Loss};
@@ -34,6 +35,11 @@ pub fn descend(
 }
 
 /// A density (by default the coupling flow) with its optimiser and loss.
+///
+/// Trained data-parallel over the ranks of a [`Comm`] ([`Trainer::set_comm`]), each step's batch
+/// is the union of the ranks' shares: the loss weights are normalised over all of them and the
+/// gradients summed in the communicator's fixed order before every rank takes the same Adam step,
+/// so every rank holds the same parameters after every step.
 #[derive(Clone, Debug)]
 pub struct Trainer<D = Flow> {
     flow: D,
@@ -41,6 +47,8 @@ pub struct Trainer<D = Flow> {
     loss: Loss,
     /// Exponent of the tempered target |f|^β (1: the integrand itself).
     beta: f64,
+    /// The ranks that share each batch (one process by default).
+    comm: Comm,
 }
 
 /// What one step saw.
@@ -65,7 +73,14 @@ impl<D: Density> Trainer<D> {
             adam,
             loss,
             beta: 1.0,
+            comm: Comm::default(),
         })
+    }
+
+    /// Trains on batches split over the ranks of `comm` from now on: every rank passes its share
+    /// of each batch to the steps, and all ranks must step together.
+    pub fn set_comm(&mut self, comm: Comm) {
+        self.comm = comm;
     }
 
     /// The density being trained.
@@ -111,7 +126,8 @@ impl<D: Density> Trainer<D> {
         let tape = samples.tape.as_ref().ok_or_else(|| {
             Error::Config("on-policy step needs samples drawn with sample_for_training".into())
         })?;
-        let w = loss::weights_annealed(self.loss, f, &samples.log_q, &samples.log_q, self.beta)?;
+        let (log_q, beta) = (&samples.log_q, self.beta);
+        let w = loss::weights_across(&self.comm, self.loss, f, log_q, log_q, beta)?;
         self.apply(tape, &w, &samples.log_q)
     }
 
@@ -126,12 +142,16 @@ impl<D: Density> Trainer<D> {
         log_q_sample: &[f64],
     ) -> Result<StepStats> {
         let eval = self.flow.log_density_for_training(x, ctx)?;
-        let w = loss::weights_annealed(self.loss, f, &eval.log_q, log_q_sample, self.beta)?;
+        let (log_q, beta) = (&eval.log_q, self.beta);
+        let w = loss::weights_across(&self.comm, self.loss, f, log_q, log_q_sample, beta)?;
         self.apply(&eval.tape, &w, &eval.log_q)
     }
 
     fn apply(&mut self, tape: &Tape, w: &loss::Weights, log_q: &[f64]) -> Result<StepStats> {
-        let grad_norm = descend(&mut self.flow, &mut self.adam, tape, &w.w)?;
+        // `descend`, with the ranks' gradients summed between the backward pass and Adam.
+        let mut grad = self.flow.backward(tape, &w.w)?;
+        self.comm.sum_f32(&mut grad);
+        let grad_norm = self.adam.step(self.flow.params_mut(), &grad)?;
         let mean_nll = -log_q.iter().sum::<f64>() / log_q.len().max(1) as f64;
         Ok(StepStats {
             integral: w.integral,

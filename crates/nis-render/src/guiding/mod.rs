@@ -128,17 +128,92 @@ pub struct PdfQuery {
 pub trait GuideStatistics: Default + Send {
     /// Add `later`'s statistics after this one's.
     fn merge(&mut self, later: Self);
+    /// The statistics as numbers, to send to other processes.
+    fn to_words(&self) -> Vec<f32>;
+    /// The statistics [`GuideStatistics::to_words`] gave `words`.
+    fn from_words(words: &[f32]) -> Self;
 }
 
 /// Nothing to learn from.
 impl GuideStatistics for () {
     fn merge(&mut self, _: Self) {}
+    fn to_words(&self) -> Vec<f32> {
+        Vec::new()
+    }
+    fn from_words(_: &[f32]) -> Self {}
+}
+
+/// A record a guide keeps, as a fixed number of `f32`s (so records can cross processes).
+pub trait Record: Copy + Send {
+    /// Numbers per record.
+    const WORDS: usize;
+    /// Appends the record's `WORDS` numbers to `out`.
+    fn write(&self, out: &mut Vec<f32>);
+    /// The record from its `WORDS` numbers.
+    fn read(words: &[f32]) -> Self;
 }
 
 /// Records (reduced to what a guide keeps), in the order they were made.
-impl<T: Send> GuideStatistics for Vec<T> {
+impl<T: Record> GuideStatistics for Vec<T> {
     fn merge(&mut self, later: Self) {
         self.extend(later);
+    }
+    fn to_words(&self) -> Vec<f32> {
+        let mut out = Vec::with_capacity(self.len() * T::WORDS);
+        for r in self {
+            r.write(&mut out);
+        }
+        out
+    }
+    fn from_words(words: &[f32]) -> Self {
+        words.chunks_exact(T::WORDS).map(T::read).collect()
+    }
+}
+
+/// Numbers a count takes in [`GuideStatistics::to_words`] (16 bits each, exact in `f32`).
+pub(crate) const COUNT_WORDS: usize = 4;
+
+/// Appends `n` as [`COUNT_WORDS`] numbers, 16 bits each, lowest first.
+pub(crate) fn write_count(n: usize, out: &mut Vec<f32>) {
+    let n = n as u64;
+    out.extend((0..COUNT_WORDS).map(|i| ((n >> (16 * i)) & 0xffff) as f32));
+}
+
+/// The count [`write_count`] wrote to the first [`COUNT_WORDS`] numbers of `w`.
+pub(crate) fn read_count(w: &[f32]) -> usize {
+    w[..COUNT_WORDS]
+        .iter()
+        .enumerate()
+        .fold(0u64, |n, (i, &v)| n | (v as u64) << (16 * i)) as usize
+}
+
+/// Three numbers of a vector.
+fn vec3_at(w: &[f32], i: usize) -> Vec3 {
+    Vec3::new(w[i], w[i + 1], w[i + 2])
+}
+
+impl Record for GuideRecord {
+    const WORDS: usize = 20;
+    fn write(&self, out: &mut Vec<f32>) {
+        let v = &self.vertex;
+        for x in [v.p, v.n, v.wo, self.wi, self.bsdf_cos, self.radiance] {
+            out.extend_from_slice(&x.to_array());
+        }
+        out.extend_from_slice(&[self.pdf, self.bsdf_pdf]);
+    }
+    fn read(w: &[f32]) -> Self {
+        GuideRecord {
+            vertex: GuideVertex {
+                p: vec3_at(w, 0),
+                n: vec3_at(w, 3),
+                wo: vec3_at(w, 6),
+            },
+            wi: vec3_at(w, 9),
+            bsdf_cos: vec3_at(w, 12),
+            radiance: vec3_at(w, 15),
+            pdf: w[18],
+            bsdf_pdf: w[19],
+        }
     }
 }
 

@@ -46,7 +46,7 @@ use serde::{Deserialize, Serialize};
 
 use super::{
     cylindrical_to_dir, dir_to_cylindrical, Guide, GuideRecord, GuideSample, GuideStatistics,
-    GuideVertex, PdfQuery, SampleQuery,
+    GuideVertex, PdfQuery, SampleQuery, COUNT_WORDS,
 };
 use crate::bvh::Aabb;
 use crate::geometry::luminance;
@@ -246,6 +246,26 @@ impl PassSamples {
     }
 }
 
+impl super::Record for Sample {
+    const WORDS: usize = CONTEXT_SCALARS + 5;
+    fn write(&self, out: &mut Vec<f32>) {
+        out.extend_from_slice(&self.context);
+        out.extend_from_slice(&[self.x[0], self.x[1], self.f, self.pdf, self.bsdf_pdf]);
+    }
+    fn read(w: &[f32]) -> Self {
+        let c = CONTEXT_SCALARS;
+        let mut context = [0.0; CONTEXT_SCALARS];
+        context.copy_from_slice(&w[..c]);
+        Sample {
+            context,
+            x: [w[c], w[c + 1]],
+            f: w[c + 2],
+            pdf: w[c + 3],
+            bsdf_pdf: w[c + 4],
+        }
+    }
+}
+
 impl GuideStatistics for PassSamples {
     fn merge(&mut self, later: Self) {
         self.cap = match (self.cap, later.cap) {
@@ -255,6 +275,33 @@ impl GuideStatistics for PassSamples {
         self.seen += later.seen;
         self.samples.extend(later.samples);
         self.trim();
+    }
+    /// The cap plus one (0 for none) and the count of records seen, then the kept records.
+    fn to_words(&self) -> Vec<f32> {
+        use super::Record;
+        let mut out = Vec::with_capacity(2 * COUNT_WORDS + self.samples.len() * Sample::WORDS);
+        super::write_count(self.cap.map_or(0, |c| c + 1), &mut out);
+        super::write_count(self.seen, &mut out);
+        for s in &self.samples {
+            s.write(&mut out);
+        }
+        out
+    }
+    fn from_words(words: &[f32]) -> Self {
+        use super::Record;
+        let (head, records) = words.split_at((2 * COUNT_WORDS).min(words.len()));
+        if head.len() < 2 * COUNT_WORDS {
+            return PassSamples::default();
+        }
+        let cap = super::read_count(&head[..COUNT_WORDS]);
+        PassSamples {
+            samples: records
+                .chunks_exact(Sample::WORDS)
+                .map(Sample::read)
+                .collect(),
+            seen: super::read_count(&head[COUNT_WORDS..]),
+            cap: cap.checked_sub(1),
+        }
     }
 }
 
@@ -606,5 +653,43 @@ impl Guide for NisGuide {
     fn end_training(&mut self) {
         self.training = false;
         self.buffer = Vec::new();
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn pass_samples_cross_processes_whole() {
+        // What ranks send each other: the cap, the count of records seen (beyond f32's 2^24)
+        // and the kept records, bit for bit; no cap stays no cap, and a cap of 0 stays one.
+        let sample = |i: usize| Sample {
+            context: std::array::from_fn(|j| (i * 31 + j) as f32 * 0.37 - 5.0),
+            x: [i as f32 * 0.1, -0.25],
+            f: 1.5e-7 * i as f32,
+            pdf: 0.3,
+            bsdf_pdf: f32::MIN_POSITIVE,
+        };
+        let bits = |s: &Sample| {
+            let mut w = Vec::new();
+            super::super::Record::write(s, &mut w);
+            w.iter().map(|v| v.to_bits()).collect::<Vec<_>>()
+        };
+        for cap in [None, Some(0), Some(3), Some(1 << 40)] {
+            let pass = PassSamples {
+                samples: (0..3).map(sample).collect(),
+                seen: (1 << 33) + 12_345,
+                cap,
+            };
+            let back = PassSamples::from_words(&pass.to_words());
+            assert_eq!((back.seen, back.cap), (pass.seen, pass.cap));
+            assert_eq!(back.samples.len(), 3);
+            for (a, b) in pass.samples.iter().zip(&back.samples) {
+                assert_eq!(bits(a), bits(b));
+            }
+        }
+        let empty = PassSamples::from_words(&PassSamples::default().to_words());
+        assert_eq!((empty.seen, empty.cap, empty.samples.len()), (0, None, 0));
     }
 }

@@ -8,9 +8,10 @@ use crate::guiding::gmm::{Gmm, GmmConfig};
 use crate::guiding::neural::{GuideLoss, NisGuide, NisGuideConfig};
 use crate::guiding::ppg::{Ppg, PpgConfig};
 use crate::guiding::{Guide, NoGuide};
-use crate::render::{render, RenderOptions, RenderOutput, Schedule};
+use crate::render::{render_across, RenderOptions, RenderOutput, Schedule};
 use crate::scene::Scene;
 use crate::Error;
+use nis::comm::Comm;
 
 /// A guiding method and its settings.
 #[derive(Clone, Debug)]
@@ -77,6 +78,17 @@ impl GuideSpec {
         options: &RenderOptions,
         progress: &(dyn Fn(f64) + Sync),
     ) -> Result<RenderOutput, Error> {
+        self.render_across(scene, options, &Comm::default(), progress)
+    }
+
+    /// [`GuideSpec::render`] split over the ranks of `comm` ([`render_across`]).
+    pub fn render_across(
+        &self,
+        scene: &Scene,
+        options: &RenderOptions,
+        comm: &Comm,
+        progress: &(dyn Fn(f64) + Sync),
+    ) -> Result<RenderOutput, Error> {
         let bounds: Aabb = scene.bounds();
         let with = |schedule| RenderOptions {
             schedule,
@@ -86,19 +98,20 @@ impl GuideSpec {
             scene: &Scene,
             options: &RenderOptions,
             mut guide: G,
+            comm: &Comm,
             progress: &(dyn Fn(f64) + Sync),
         ) -> RenderOutput {
-            render(scene, options, &mut guide, progress)
+            render_across(scene, options, &mut guide, comm, progress)
         }
         let guided = with(Schedule::Training);
         Ok(match self {
-            GuideSpec::None => run(scene, &with(Schedule::Plain), NoGuide, progress),
-            GuideSpec::Ppg(c) => run(scene, &guided, Ppg::new(bounds, *c), progress),
-            GuideSpec::Gmm(c) => run(scene, &guided, Gmm::new(bounds, *c), progress),
+            GuideSpec::None => run(scene, &with(Schedule::Plain), NoGuide, comm, progress),
+            GuideSpec::Ppg(c) => run(scene, &guided, Ppg::new(bounds, *c), comm, progress),
+            GuideSpec::Gmm(c) => run(scene, &guided, Gmm::new(bounds, *c), comm, progress),
             GuideSpec::Neural(c) => {
                 let guide = NisGuide::new(bounds, c.clone())
                     .map_err(|e| Error::Invalid(format!("neural guide: {e}")))?;
-                run(scene, &guided, guide, progress)
+                run(scene, &guided, guide, comm, progress)
             }
         })
     }

@@ -6,6 +6,12 @@
 //! seed and the sample count, never on the number of threads or on how samples are split into
 //! passes. Pixels use a box filter: a sample lands uniformly in its pixel and counts only there.
 //!
+//! Across processes (MPI ranks, [`render_across`]) the waves of every pass's first sample slice
+//! are dealt out to the ranks in turn, and each rank traces its tiles in every slice; the pixel sums are then summed over the ranks — each pixel's from the one rank
+//! that traced it plus zeros, so the image is bit-identical to the single-process one — and a
+//! learning guide gets the statistics of all ranks, in rank order, so every rank applies the same
+//! update and holds the same guide.
+//!
 //! [`render`] is the one entry point; [`RenderOptions::schedule`] says whether the guide trains
 //! in passes of its own first ([`schedule`], whose passes are then combined by inverse variance,
 //! [`combine`]) or learns, if it wants to, after every pass of a plain render.
@@ -14,6 +20,7 @@ use std::ops::Range;
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::time::Instant;
 
+use nis::comm::Comm;
 use rand_pcg::Pcg32;
 use rayon::prelude::*;
 
@@ -129,9 +136,23 @@ pub fn render<G: Guide + ?Sized>(
     guide: &mut G,
     progress: &(dyn Fn(f64) + Sync),
 ) -> RenderOutput {
+    render_across(scene, options, guide, &Comm::default(), progress)
+}
+
+/// [`render`] split over the ranks of `comm` (see the module documentation): every rank calls it
+/// with the same arguments and gets the whole image (and the same trained guide). A time budget
+/// ends when rank 0's clock says so.
+pub fn render_across<G: Guide + ?Sized>(
+    scene: &Scene,
+    options: &RenderOptions,
+    guide: &mut G,
+    comm: &Comm,
+    progress: &(dyn Fn(f64) + Sync),
+) -> RenderOutput {
     let mut renderer = Renderer {
         scene,
         options,
+        comm,
         start: Instant::now(),
         stats: PathStats::default(),
     };
@@ -157,6 +178,7 @@ pub fn render<G: Guide + ?Sized>(
 struct Renderer<'a> {
     scene: &'a Scene,
     options: &'a RenderOptions,
+    comm: &'a Comm,
     start: Instant,
     stats: PathStats,
 }
@@ -195,7 +217,7 @@ impl Renderer<'_> {
         let mut passes: Vec<PassSums> = Vec::new();
         let training = TrainingPasses::new(budget, start);
         let mut spp = 0u32;
-        while let Some(count) = training.next(passes.len(), spp) {
+        while let Some(count) = self.rank0_decides(training.next(passes.len(), spp)) {
             let mut sums = vec![PixelSum::default(); w as usize * h as usize];
             let done = spp;
             self.pass(guide, spp..spp + count, true, &mut sums, &|f| {
@@ -264,11 +286,36 @@ impl Renderer<'_> {
             spp += count;
             match budget {
                 Budget::Samples(_) => break,
-                Budget::Seconds(t) if start.elapsed().as_secs_f64() >= t => break,
+                Budget::Seconds(t) if self.time_is_up(t) => break,
                 Budget::Seconds(_) => {}
             }
         }
         spp
+    }
+
+    /// Rank 0's `choice` on every rank (a time budget's passes follow rank 0's clock).
+    fn rank0_decides(&self, choice: Option<u32>) -> Option<u32> {
+        if self.comm.size() == 1 {
+            return choice;
+        }
+        // Only rank 0 adds a non-zero number: the sum is its choice, exactly.
+        let mine = match choice {
+            Some(n) if self.comm.is_root() => f64::from(n) + 1.0,
+            _ => 0.0,
+        };
+        let sum = self.comm.sum(mine);
+        if sum > 0.0 {
+            Some(sum as u32 - 1)
+        } else {
+            None
+        }
+    }
+
+    /// Whether `seconds` have passed since the start, by rank 0's clock (so that all ranks stop
+    /// after the same pass).
+    fn time_is_up(&self, seconds: f64) -> bool {
+        let up = self.comm.is_root() && self.start.elapsed().as_secs_f64() >= seconds;
+        self.comm.any(up)
     }
 
     /// Add the samples `samples` of every pixel to `sums`; with `learn`, a guide that wants
@@ -300,12 +347,26 @@ impl Renderer<'_> {
             .step_by(WAVE_SPP as usize)
             .map(|s| s..(s + WAVE_SPP).min(samples.end))
             .collect();
+        let tiles_per_wave = |slice: &Range<u32>| {
+            let tile_paths = (TILE_SIZE * TILE_SIZE) as usize * slice.len();
+            WAVE_PATHS.div_ceil(tile_paths.max(1)).max(1)
+        };
+        // This rank's tiles: the first slice's waves dealt out to the ranks in turn, every
+        // size-th from its rank on. A tile keeps its rank in every slice, so each pixel is traced
+        // by one rank, its slices in order, as in one process.
+        let (rank, size) = (self.comm.rank(), self.comm.size());
+        let first = slices.first().map_or(1, tiles_per_wave);
+        let tiles: Vec<(u32, u32)> = tiles
+            .chunks(first)
+            .skip(rank)
+            .step_by(size)
+            .flatten()
+            .copied()
+            .collect();
         let waves: Vec<Wave> = slices
             .iter()
             .flat_map(|slice| {
-                let tile_paths = (TILE_SIZE * TILE_SIZE) as usize * slice.len();
-                let tiles_per_wave = WAVE_PATHS.div_ceil(tile_paths.max(1)).max(1);
-                tiles.chunks(tiles_per_wave).map(move |tiles| Wave {
+                tiles.chunks(tiles_per_wave(slice)).map(move |tiles| Wave {
                     samples: slice.clone(),
                     tiles,
                 })
@@ -316,6 +377,9 @@ impl Renderer<'_> {
         let learn = learn && guide.wants_records();
         let mut statistics = G::Statistics::default();
         let shared: &G = guide;
+        // This pass's pixel sums, summed over the ranks before they join `sums`.
+        let mut pass_sums = vec![PixelSum::default(); sums.len()];
+        let mut stats = PathStats::default();
         for group in waves.chunks(WAVES_PER_GROUP) {
             let results: Vec<WaveResult<G::Statistics>> = group
                 .par_iter()
@@ -327,15 +391,20 @@ impl Renderer<'_> {
                 })
                 .collect();
             for result in results {
-                self.stats.merge(&result.stats);
+                stats.merge(&result.stats);
                 for (i, v) in result.pixels {
-                    sums[i].merge(&v);
+                    pass_sums[i].merge(&v);
                 }
                 statistics.merge(result.statistics);
             }
         }
+        self.stats.merge(&sum_stats(self.comm, stats));
+        sum_pixels(self.comm, &mut pass_sums);
+        for (s, p) in sums.iter_mut().zip(&pass_sums) {
+            s.merge(p);
+        }
         if learn {
-            guide.update(statistics);
+            guide.update(gather_statistics(self.comm, statistics));
         }
     }
 
@@ -415,4 +484,60 @@ impl Renderer<'_> {
             statistics,
         }
     }
+}
+
+/// Counters summed over the ranks (exact: they stay far below 2⁵³).
+fn sum_stats(comm: &Comm, s: PathStats) -> PathStats {
+    if comm.size() == 1 {
+        return s;
+    }
+    let mut v = [s.rays, s.shadow_rays, s.paths, s.invalid].map(|c| c as f64);
+    comm.sum_f64(&mut v);
+    let [rays, shadow_rays, paths, invalid] = v.map(|c| c as u64);
+    PathStats {
+        rays,
+        shadow_rays,
+        paths,
+        invalid,
+    }
+}
+
+/// Pixel sums summed over the ranks. Each pixel was traced by one rank and is zero on the
+/// others, and x + 0 = x, so the sums are exactly those of one process.
+fn sum_pixels(comm: &Comm, sums: &mut [PixelSum]) {
+    if comm.size() == 1 {
+        return;
+    }
+    let mut flat: Vec<f64> = sums
+        .iter()
+        .flat_map(|s| [s.rgb[0], s.rgb[1], s.rgb[2], s.luminance_sq])
+        .collect();
+    comm.sum_f64(&mut flat);
+    for (s, v) in sums.iter_mut().zip(flat.chunks_exact(4)) {
+        *s = PixelSum {
+            rgb: [v[0], v[1], v[2]],
+            luminance_sq: v[3],
+        };
+    }
+}
+
+/// Every rank's guide statistics merged in rank order, on every rank.
+fn gather_statistics<S: GuideStatistics>(comm: &Comm, statistics: S) -> S {
+    if comm.size() == 1 {
+        return statistics;
+    }
+    let bytes = statistics
+        .to_words()
+        .iter()
+        .flat_map(|w| w.to_le_bytes())
+        .collect();
+    let mut all = S::default();
+    for b in comm.all_gather_bytes(bytes) {
+        let words: Vec<f32> = b
+            .chunks_exact(4)
+            .map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]]))
+            .collect();
+        all.merge(S::from_words(&words));
+    }
+    all
 }

@@ -60,7 +60,7 @@ pub struct SuiteEntry {
     pub description: &'static str,
 }
 
-/// Everything `by_name` knows, with the dimensions the benchmark runs.
+/// The suite the benchmark runs, with its dimensions; `by_name` also knows [`COSTLY`].
 pub const SUITE: &[SuiteEntry] = &[
     SuiteEntry {
         name: "gauss",
@@ -143,6 +143,43 @@ pub const SUITE: &[SuiteEntry] = &[
         description: "a peak on a thin curved ridge x_i = g_i(x₁) (non-separable)",
     },
 ];
+
+/// An integrand as slow as a matrix element: `camel` (α = 0.2) times a factor that costs
+/// [`COSTLY_ROUNDS`] rounds of transcendental arithmetic per point (for scaling measurements).
+pub const COSTLY: SuiteEntry = SuiteEntry {
+    name: "costly",
+    dims: &[4],
+    description: "camel (α = 0.2) at ~100 µs per point (transcendental rounds; scaling tests)",
+};
+
+/// Rounds of [`costly`] in the built-in `costly`: about 100 µs per point on the 2-core Zen 4
+/// development machine (docs/SCALING.md measures it).
+pub const COSTLY_ROUNDS: usize = 4_500;
+
+/// `camel` (α = 0.2) in `dim` dimensions, each point also paying for `rounds` rounds of
+/// transcendental arithmetic: the factor (1/R)·Σ_j (sin² t_j + cos² t_j) with t_j = Σx + 0.618·j
+/// is 1 in exact arithmetic and within a few R·ε of it in floating point, so the integral is
+/// camel's to ~1e-12 while every point costs what a real matrix element might.
+pub fn costly(dim: usize, rounds: usize) -> Builtin {
+    let camel = camel(dim, 0.2);
+    let rounds = rounds.max(1);
+    Builtin {
+        name: format!("costly({rounds} rounds)"),
+        dim,
+        exact: camel.exact,
+        exact_err: camel.exact * 1e-12,
+        source: "camel (i-flow) × a factor equal to 1 that costs transcendental rounds",
+        f: Box::new(move |x| {
+            let t0: f64 = x.iter().sum();
+            let mut s = 0.0;
+            for j in 0..rounds {
+                let (sin, cos) = (t0 + 0.618 * j as f64).sin_cos();
+                s += sin * sin + cos * cos;
+            }
+            camel.value(x) * (s / rounds as f64)
+        }),
+    }
+}
 
 /// The i-flow Gaussian, normalised on R^d: (α√π)^(−d)·exp(−Σ(x_i − ½)²/α²).
 fn gauss(dim: usize, alpha: f64) -> Builtin {
@@ -278,8 +315,9 @@ fn gamma_half_plus_one(dim: usize) -> f64 {
 
 /// Builds a built-in integrand by name; `dim` defaults to the smallest of its suite dimensions.
 pub fn by_name(name: &str, dim: Option<usize>) -> Result<Builtin> {
-    let entry = SUITE.iter().find(|e| e.name == name).ok_or_else(|| {
-        let names: Vec<&str> = SUITE.iter().map(|e| e.name).collect();
+    let mut known = SUITE.iter().chain([&COSTLY]);
+    let entry = known.find(|e| e.name == name).ok_or_else(|| {
+        let names: Vec<&str> = SUITE.iter().chain([&COSTLY]).map(|e| e.name).collect();
         Error::Config(format!(
             "unknown integrand {name:?}; built-ins: {}",
             names.join(", ")
@@ -340,6 +378,7 @@ pub fn by_name(name: &str, dim: Option<usize>) -> Result<Builtin> {
         "product-peak" => product_peak(d),
         "corner-peak" => corner_peak(d),
         "oscillatory" => oscillatory(d),
+        "costly" => costly(d, COSTLY_ROUNDS),
         "sphere" => {
             let r: f64 = 0.45;
             Builtin {

@@ -177,6 +177,16 @@ impl WeightTail {
             b3 += d2 * d;
             b4 += d2 * d2;
         }
+        self.merge_central(w.len() as u64, mb, [b2, b3, b4]);
+    }
+
+    /// Merges the mean `mb` and central moment sums `[M₂, M₃, M₄]` of `count` further weights
+    /// (Pébay's formulas).
+    fn merge_central(&mut self, count: u64, mb: f64, [b2, b3, b4]: [f64; 3]) {
+        if count == 0 {
+            return;
+        }
+        let nb = count as f64;
         let na = self.n as f64;
         let n = na + nb;
         let delta = mb - self.mean;
@@ -189,7 +199,73 @@ impl WeightTail {
             b3 + d3 * na * nb * (na - nb) / (n * n) + 3.0 * delta * (na * b2 - nb * self.m2) / n;
         self.m2 += b2 + d2 * na * nb / n;
         self.mean += delta * nb / n;
-        self.n += w.len() as u64;
+        self.n += count;
+    }
+
+    /// An empty tail of the same capacity.
+    pub fn emptied(&self) -> WeightTail {
+        WeightTail {
+            capacity: self.capacity,
+            heap: BinaryHeap::new(),
+            n: 0,
+            sum_abs: 0.0,
+            sum_sq: 0.0,
+            mean: 0.0,
+            m2: 0.0,
+            m3: 0.0,
+            m4: 0.0,
+        }
+    }
+
+    /// Adds the weights `later` saw (after these): the largest of both heaps, the sums added and
+    /// the central moments merged. The top |w| of the union are among the tops of the parts, so
+    /// the tail is the one of all the weights together.
+    pub fn merge(&mut self, later: &WeightTail) {
+        for &Reverse(bits) in &later.heap {
+            if self.heap.len() < self.capacity {
+                self.heap.push(Reverse(bits));
+            } else if self.heap.peek().is_some_and(|Reverse(low)| bits > *low) {
+                self.heap.pop();
+                self.heap.push(Reverse(bits));
+            }
+        }
+        self.sum_abs += later.sum_abs;
+        self.sum_sq += later.sum_sq;
+        self.merge_central(later.n, later.mean, [later.m2, later.m3, later.m4]);
+    }
+
+    /// The state as numbers, to send to other processes ([`WeightTail::from_words`]).
+    pub fn to_words(&self) -> Vec<f64> {
+        let mut out = vec![
+            self.capacity as f64,
+            self.n as f64,
+            self.sum_abs,
+            self.sum_sq,
+            self.mean,
+            self.m2,
+            self.m3,
+            self.m4,
+        ];
+        out.extend(self.heap.iter().map(|Reverse(b)| f64::from_bits(*b)));
+        out
+    }
+
+    /// The tail [`WeightTail::to_words`] gave `words` (empty for fewer words than its header).
+    pub fn from_words(words: &[f64]) -> WeightTail {
+        if words.len() < 8 {
+            return WeightTail::new(1);
+        }
+        WeightTail {
+            capacity: words[0] as usize,
+            heap: words[8..].iter().map(|v| Reverse(v.to_bits())).collect(),
+            n: words[1] as u64,
+            sum_abs: words[2],
+            sum_sq: words[3],
+            mean: words[4],
+            m2: words[5],
+            m3: words[6],
+            m4: words[7],
+        }
     }
 
     /// The figures for the weights so far.
@@ -240,6 +316,52 @@ mod tests {
 
     fn rng(seed: u64) -> rand_pcg::Pcg64Mcg {
         rand_pcg::Pcg64Mcg::seed_from_u64(seed)
+    }
+
+    #[test]
+    fn tails_merged_from_parts_are_the_tail_of_the_whole() {
+        // What ranks do before `finish`: each keeps the tail of its own weights, and the parts,
+        // sent as words and merged in order, must give the figures of all the weights together:
+        // the same top |w| (so the same k̂, exactly), the same n, and sums and moments equal up
+        // to the rounding of summing in another order.
+        let mut r = rng(21);
+        let n = 30_001u64;
+        let w: Vec<f64> = (0..n)
+            .map(|_| (1.0 - r.random::<f64>()).powf(-0.7) - 0.9)
+            .collect();
+        let mut whole = WeightTail::new(n);
+        for chunk in w.chunks(4_096) {
+            whole.add(chunk);
+        }
+        let mut merged = whole.emptied();
+        for part in [&w[..1], &w[1..12_345], &w[12_345..12_345], &w[12_345..]] {
+            let mut t = whole.emptied();
+            for chunk in part.chunks(4_096) {
+                t.add(chunk);
+            }
+            merged.merge(&WeightTail::from_words(&t.to_words()));
+        }
+        let sorted = |t: &WeightTail| {
+            let mut v: Vec<u64> = t.heap.iter().map(|Reverse(b)| *b).collect();
+            v.sort_unstable();
+            v
+        };
+        assert_eq!(merged.n, n);
+        assert_eq!(sorted(&merged), sorted(&whole));
+        let (a, b) = (whole.reliability(), merged.reliability());
+        assert_eq!(a.pareto_k.to_bits(), b.pareto_k.to_bits());
+        assert!(
+            (a.ess / b.ess - 1.0).abs() < 1e-12,
+            "{} vs {}",
+            a.ess,
+            b.ess
+        );
+        assert!(
+            (a.var_rel_err / b.var_rel_err - 1.0).abs() < 1e-9,
+            "{} vs {}",
+            a.var_rel_err,
+            b.var_rel_err
+        );
     }
 
     #[test]

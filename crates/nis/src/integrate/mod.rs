@@ -25,6 +25,7 @@ use std::str::FromStr;
 
 use serde::{Deserialize, Serialize};
 
+use crate::comm::Comm;
 use crate::error::{Error, Result};
 
 pub use diagnostics::{Reliability, PARETO_K_LIMIT};
@@ -96,6 +97,14 @@ pub trait Integrator: Send {
     fn integrate(&mut self, f: &dyn Integrand, evals: u64) -> Result<IntegrationResult>;
     /// Sets (or removes) the observer of progress; the default is none.
     fn set_progress(&mut self, progress: Option<Box<dyn Progress>>);
+    /// Runs data-parallel over the ranks of `comm` (e.g. [`crate::comm::mpi::MpiComm`]) from
+    /// now on; the default is one process. Every rank builds the same integrator with the same
+    /// settings, sets its communicator before integrating and makes the same calls: each draws
+    /// its share of every batch from its own random stream (derived from the seed and its rank,
+    /// [`Comm::stream_seed`]), and the sums the adaptation and the estimate need are reduced over
+    /// the ranks in a fixed order, so every rank gets the same result — one per seed and rank
+    /// count — and with one process exactly the result without MPI. Restarts the random streams.
+    fn set_comm(&mut self, comm: Comm);
     /// Saves the adapted state for later estimates. Only NIS keeps one worth saving (its flow,
     /// see [`nis::NisIntegrator::save`]); the others refuse with [`Error::Config`].
     fn save(&self, path: &Path) -> Result<()> {

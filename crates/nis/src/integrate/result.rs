@@ -6,6 +6,7 @@ use std::time::Instant;
 use serde::{Deserialize, Serialize};
 
 use super::diagnostics::WeightTail;
+use crate::comm::Comm;
 use crate::error::{Error, Result};
 
 /// The outcome of an integration, the same for every method.
@@ -246,6 +247,54 @@ impl Accumulator {
         Ok(())
     }
 
+    /// [`Accumulator::add_iteration`] for an iteration of `evals` evaluations over all ranks of
+    /// `comm`, whose estimate and variance every rank knows already, this rank's weights being
+    /// `w`: the largest |w| and Σ|w| are reduced over the ranks (the tail stays this rank's until
+    /// [`Accumulator::reduce_tail`]). Every rank must call it together; with one process it is
+    /// `add_iteration`.
+    pub fn add_iteration_across(
+        &mut self,
+        comm: &Comm,
+        estimate: f64,
+        variance: f64,
+        evals: u64,
+        w: &[f64],
+    ) -> Result<()> {
+        if comm.size() == 1 {
+            return self.add_iteration(estimate, variance, w);
+        }
+        let mut max = [w.iter().fold(0.0f64, |m, v| m.max(v.abs()))];
+        comm.max_f64(&mut max);
+        check_representable(estimate, variance, max[0])?;
+        self.iterations.push(Iteration {
+            estimate,
+            variance,
+            evals,
+        });
+        self.max_abs_w = self.max_abs_w.max(max[0]);
+        // Rank 0 carries the running sum; the others add only their own weights.
+        let start = if comm.is_root() { self.sum_abs_w } else { 0.0 };
+        self.sum_abs_w = comm.sum(w.iter().fold(start, |s, v| s + v.abs()));
+        self.n += evals;
+        self.tail.add(w);
+        Ok(())
+    }
+
+    /// Makes the reliability figures those of every rank's weights: the ranks' tails are
+    /// gathered and merged in rank order (see [`WeightTail::merge`]). Call it on every rank
+    /// before [`Accumulator::finish`]; with one process it changes nothing.
+    pub fn reduce_tail(&mut self, comm: &Comm) {
+        if comm.size() == 1 {
+            return;
+        }
+        let parts = comm.all_gather_bytes(f64s_to_bytes(&self.tail.to_words()));
+        let mut all = self.tail.emptied();
+        for p in parts {
+            all.merge(&WeightTail::from_words(&bytes_to_f64s(&p)));
+        }
+        self.tail = all;
+    }
+
     /// The final result. Iterations have (nearly) equal sizes, so their evaluation-weighted mean
     /// is the pooled mean — unbiased, unlike an inverse-variance weighting.
     pub fn finish(
@@ -479,22 +528,65 @@ impl Moments {
             self.sum_abs_w += row[0].abs();
             self.max_abs_w = self.max_abs_w.max(row[0].abs());
         }
-        if self.n == 0 {
-            (self.mean, self.comoment, self.n) = (mean, comoment, m as u64);
+        self.merge_central(m as u64, mean, comoment);
+    }
+
+    /// Merges the mean and co-moments of `nb` further weights (Chan, Golub and LeVeque).
+    fn merge_central(&mut self, nb: u64, mean: Vec<f64>, comoment: Vec<f64>) {
+        let k = self.k;
+        if nb == 0 {
             return;
         }
-        let (na, nb) = (self.n as f64, mf);
-        let n = na + nb;
+        if self.n == 0 {
+            (self.mean, self.comoment, self.n) = (mean, comoment, nb);
+            return;
+        }
+        let (na, nb_f) = (self.n as f64, nb as f64);
+        let n = na + nb_f;
         let delta: Vec<f64> = mean.iter().zip(&self.mean).map(|(b, a)| b - a).collect();
         for i in 0..k {
             for j in 0..k {
-                self.comoment[i * k + j] += comoment[i * k + j] + delta[i] * delta[j] * na * nb / n;
+                self.comoment[i * k + j] +=
+                    comoment[i * k + j] + delta[i] * delta[j] * na * nb_f / n;
             }
         }
         for (a, d) in self.mean.iter_mut().zip(&delta) {
-            *a += d * nb / n;
+            *a += d * nb_f / n;
         }
-        self.n += m as u64;
+        self.n += nb;
+    }
+
+    /// Adds the weights `later` holds (after these): the pairwise merge of their moments.
+    pub fn merge(&mut self, later: &Moments) {
+        assert_eq!(self.k, later.k, "moments of as many components");
+        self.sum_abs_w += later.sum_abs_w;
+        self.max_abs_w = self.max_abs_w.max(later.max_abs_w);
+        self.merge_central(later.n, later.mean.clone(), later.comoment.clone());
+    }
+
+    /// The moments of every rank's weights of `comm`, merged in rank order (this rank's being
+    /// these), on every rank. Every rank must call it together; with one process, a copy.
+    pub fn across(&self, comm: &Comm) -> Moments {
+        if comm.size() == 1 {
+            return self.clone();
+        }
+        let mut words = vec![self.n as f64, self.sum_abs_w, self.max_abs_w];
+        words.extend_from_slice(&self.mean);
+        words.extend_from_slice(&self.comoment);
+        let k = self.k;
+        let mut all = Moments::new(k);
+        for part in comm.all_gather_bytes(f64s_to_bytes(&words)) {
+            let w = bytes_to_f64s(&part);
+            all.merge(&Moments {
+                k,
+                n: w[0] as u64,
+                sum_abs_w: w[1],
+                max_abs_w: w[2],
+                mean: w[3..3 + k].to_vec(),
+                comoment: w[3 + k..3 + k + k * k].to_vec(),
+            });
+        }
+        all
     }
 
     /// The mean and the covariance of the mean (`k × k`; zero for fewer than two weights).
@@ -507,6 +599,18 @@ impl Moments {
         };
         (self.mean.clone(), cov)
     }
+}
+
+/// Numbers as little-endian bytes, to cross processes.
+pub(crate) fn f64s_to_bytes(v: &[f64]) -> Vec<u8> {
+    v.iter().flat_map(|x| x.to_le_bytes()).collect()
+}
+
+/// The numbers [`f64s_to_bytes`] made.
+pub(crate) fn bytes_to_f64s(b: &[u8]) -> Vec<f64> {
+    b.chunks_exact(8)
+        .map(|c| f64::from_le_bytes(c.try_into().expect("8 bytes")))
+        .collect()
 }
 
 /// Accumulates the final phase of a vector-valued integrand: per iteration the mean vector and
@@ -615,6 +719,53 @@ mod tests {
         // The variance of the mean of the uniform spread: (1e-3)²/12/n, to 10% (n = 3001).
         let var = whole.mean_and_cov_of_mean().1[0];
         assert!((var / (1e-6 / 12.0 / 3001.0) - 1.0).abs() < 0.1, "{var}");
+    }
+
+    #[test]
+    fn moments_merged_from_parts_equal_the_two_pass_ones() {
+        // What `Moments::across` does with the ranks' parts, in rank order: the pooled mean and
+        // covariance of all the weights, to the accuracy of the chunked ones above.
+        let mut rng = rand_pcg::Pcg64Mcg::seed_from_u64(12);
+        let k = 2;
+        let w: Vec<f64> = (0..2999 * k)
+            .map(|i| 1e4 * (1 + i % k) as f64 + 1e-3 * rng.random::<f64>())
+            .collect();
+        let mut whole = Moments::new(k);
+        whole.add(&w);
+        let mut merged = Moments::new(k);
+        for part in [
+            &w[..2 * k],
+            &w[2 * k..2 * k],
+            &w[2 * k..1000 * k],
+            &w[1000 * k..],
+        ] {
+            let mut m = Moments::new(k);
+            m.add(part);
+            merged.merge(&m);
+        }
+        assert_eq!(merged.n(), 2999);
+        assert_eq!(
+            merged.sum_abs_w.to_bits(),
+            {
+                let mut s = 0.0;
+                for part in [&w[..2 * k], &w[2 * k..1000 * k], &w[1000 * k..]] {
+                    s += part.iter().step_by(k).map(|v| v.abs()).sum::<f64>();
+                }
+                s
+            }
+            .to_bits()
+        );
+        assert_eq!(merged.max_abs_w, whole.max_abs_w);
+        let ((m1, c1), (m2, c2)) = (whole.mean_and_cov_of_mean(), merged.mean_and_cov_of_mean());
+        for (a, b) in m1.iter().zip(&m2) {
+            assert!((a - b).abs() <= 1e-12 * a.abs(), "mean {a} vs {b}");
+        }
+        for (a, b) in c1.iter().zip(&c2) {
+            assert!((a - b).abs() <= 1e-8 * c1[0].abs(), "cov {a} vs {b}");
+        }
+        // One process: `across` is the identity, bit for bit.
+        let same = whole.across(&Comm::default());
+        assert_eq!(same.mean_and_cov_of_mean(), whole.mean_and_cov_of_mean());
     }
 
     #[test]

@@ -12,6 +12,7 @@ use super::{
     check_budget, check_dim, evaluate, report, Accumulator, Integrand, IntegrationResult,
     Integrator, Method, Progress,
 };
+use crate::comm::Comm;
 use crate::error::{Error, Result};
 
 /// Points drawn and evaluated at once: an iteration's memory, whatever the budget.
@@ -85,6 +86,7 @@ pub struct PlainMc {
     config: PlainMcConfig,
     dim: usize,
     rng: Pcg64Mcg,
+    comm: Comm,
     progress: Option<Box<dyn Progress>>,
 }
 
@@ -96,6 +98,7 @@ impl PlainMc {
             rng: Pcg64Mcg::seed_from_u64(config.seed),
             config,
             dim,
+            comm: Comm::default(),
             progress: None,
         })
     }
@@ -119,6 +122,11 @@ impl Integrator for PlainMc {
         self.progress = progress;
     }
 
+    fn set_comm(&mut self, comm: Comm) {
+        self.rng = Pcg64Mcg::seed_from_u64(comm.stream_seed(self.config.seed));
+        self.comm = comm;
+    }
+
     /// `evals` uniform points in `iterations` equal iterations.
     fn integrate(&mut self, f: &dyn Integrand, evals: u64) -> Result<IntegrationResult> {
         let dim = self.dim;
@@ -137,15 +145,21 @@ impl Integrator for PlainMc {
         let mut done = 0;
         for it in 0..iterations {
             let n = (evals * (it as u64 + 1) / iterations as u64 - done).max(1) as usize;
-            // In chunks, so that memory does not grow with the budget.
+            // This rank's share of the iteration, in chunks, so that memory does not grow with
+            // the budget; the ranks' moments are merged in rank order.
+            let mine = self.comm.share(n as u64);
             let mut moments = Moments::new(k);
-            while moments.n() < n as u64 {
-                let m = (n - moments.n() as usize).min(CHUNK);
+            let mut drawn = Ok(());
+            while drawn.is_ok() && moments.n() < mine {
+                let m = (mine - moments.n()).min(CHUNK as u64) as usize;
                 let x: Vec<f64> = (0..m * dim).map(|_| self.rng.random::<f64>()).collect();
-                let w = evaluate(f, &x, dim)?;
-                acc.observe(&column(&w, k, 0));
-                moments.add(&w);
+                drawn = evaluate(f, &x, dim).map(|w| {
+                    acc.observe(&column(&w, k, 0));
+                    moments.add(&w);
+                });
             }
+            self.comm.check(drawn)?;
+            let moments = moments.across(&self.comm);
             acc.add_moments(&moments)?;
             if k > 1 {
                 comps.add_moments(&moments);
@@ -153,6 +167,7 @@ impl Integrator for PlainMc {
             done += n as u64;
             report(&mut self.progress, done, evals, "uniform");
         }
+        acc.reduce_tail(&self.comm);
         let mut r = acc.finish(done, started, Vec::new());
         if k > 1 {
             r.components = Some(comps.finish());

@@ -121,6 +121,24 @@ pub struct Sample {
     weight: f32,
 }
 
+impl super::Record for Sample {
+    const WORDS: usize = 10;
+    fn write(&self, out: &mut Vec<f32>) {
+        for v in [self.p, self.n, self.wi] {
+            out.extend_from_slice(&v.to_array());
+        }
+        out.push(self.weight);
+    }
+    fn read(w: &[f32]) -> Self {
+        Sample {
+            p: super::vec3_at(w, 0),
+            n: super::vec3_at(w, 3),
+            wi: super::vec3_at(w, 6),
+            weight: w[9],
+        }
+    }
+}
+
 impl Sample {
     fn key(&self) -> [u32; 10] {
         bits_key([

@@ -99,6 +99,22 @@ pub struct Deposit {
     flux: f32,
 }
 
+impl super::Record for Deposit {
+    const WORDS: usize = 7;
+    fn write(&self, out: &mut Vec<f32>) {
+        out.extend_from_slice(&[
+            self.p.x, self.p.y, self.p.z, self.wi.x, self.wi.y, self.wi.z, self.flux,
+        ]);
+    }
+    fn read(w: &[f32]) -> Self {
+        Deposit {
+            p: super::vec3_at(w, 0),
+            wi: super::vec3_at(w, 3),
+            flux: w[6],
+        }
+    }
+}
+
 impl Deposit {
     fn key(&self) -> [u32; 7] {
         bits_key([

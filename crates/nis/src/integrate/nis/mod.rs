@@ -21,6 +21,7 @@ use super::{
     check_budget, check_dim, evaluate, report, Accumulator, Integrand, IntegrationResult,
     Integrator, Method, Progress,
 };
+use crate::comm::Comm;
 use crate::error::{Error, Result};
 use crate::flow::mixture::{self, MixtureBatch};
 use crate::flow::{Density, Flow, FlowConfig};
@@ -41,6 +42,8 @@ pub struct NisIntegrator {
     /// Whether this object has set the learning-rate schedule (its first training does).
     scheduled: bool,
     streams: Streams,
+    /// The ranks that share every batch (one process by default).
+    comm: Comm,
     progress: Option<Box<dyn Progress>>,
 }
 
@@ -84,6 +87,7 @@ impl NisIntegrator {
             trainer,
             trained_evals: 0,
             scheduled: false,
+            comm: Comm::default(),
             progress: None,
         })
     }
@@ -107,7 +111,15 @@ impl NisIntegrator {
     /// another seed than the one it was trained with).
     pub fn set_seed(&mut self, seed: u64) {
         self.config.seed = seed;
-        self.streams = Streams::new(seed);
+        self.streams = Streams::new(self.comm.stream_seed(seed));
+    }
+
+    /// Runs data-parallel over the ranks of `comm` from now on (see [`Integrator::set_comm`]):
+    /// restarts the random streams as this rank's streams of the seed.
+    pub fn set_comm(&mut self, comm: Comm) {
+        self.trainer.set_comm(comm.clone());
+        self.comm = comm;
+        self.set_seed(self.config.seed);
     }
 
     /// The adaptive phase: `evals` more evaluations in batches, one training step (or
@@ -121,6 +133,14 @@ impl NisIntegrator {
         let k = f.components();
         self.config.train_on.check(k)?;
         let batch = self.config.batch;
+        if batch < self.comm.size() {
+            return Err(Error::Config(format!(
+                "a batch of {batch} points cannot be shared by {} ranks",
+                self.comm.size()
+            )));
+        }
+        // This rank's share of every batch; the steps are the whole batch's.
+        let share = self.comm.share(batch as u64) as usize;
         let steps = (evals / batch as u64) as usize;
         if !self.scheduled {
             let decay = self
@@ -141,20 +161,23 @@ impl NisIntegrator {
                 1.0
             };
             self.trainer.set_temperature(beta);
-            let (b, x64) = draw(
+            let drawn = draw(
                 self.trainer.flow(),
                 self.config.uniform_fraction,
-                batch,
+                share,
                 &mut self.streams.train,
                 true,
-            )?;
-            let fx = evaluate(f, &x64, dim)?;
+            );
+            // The failure flag of the batch: an error on any rank stops every rank here.
+            let (b, fx) = self
+                .comm
+                .check(drawn.and_then(|(b, x64)| Ok((b, evaluate(f, &x64, dim)?))))?;
             let target = self.config.train_on.target(&fx, k);
             self.trained_evals += batch as u64;
             done += batch as u64;
             let n_f = b.density_part.len();
             // Skip the step when the flow's share saw nothing: there is no direction to learn.
-            if target[..n_f].iter().any(|v| *v != 0.0) {
+            if self.comm.any(target[..n_f].iter().any(|v| *v != 0.0)) {
                 self.trainer
                     .step_on_policy(&b.density_part, &target[..n_f])?;
                 for _ in 1..self.config.steps_per_batch {
@@ -201,16 +224,21 @@ impl NisIntegrator {
         let mut done = 0u64;
         for it in 0..iters {
             let n = ((evals * (it as u64 + 1)) / iters as u64 - done).max(2) as usize;
-            // Draw in pieces of bounded memory, pooled into one iteration: memory does not
-            // grow with the budget.
+            // This rank's share, drawn in pieces of bounded memory, pooled into one iteration:
+            // memory does not grow with the budget. The ranks' moments are merged in rank order.
+            let mine = self.comm.share(n as u64);
             let mut moments = Moments::new(k);
-            while moments.n() < n as u64 {
-                let m = (n - moments.n() as usize).min(ESTIMATE_CHUNK);
+            let mut drawn = Ok(());
+            while drawn.is_ok() && moments.n() < mine {
+                let m = (mine - moments.n()).min(ESTIMATE_CHUNK as u64) as usize;
                 let (flow, lambda) = (self.trainer.flow(), self.config.uniform_fraction);
-                let w = weights(flow, lambda, f, m, &mut self.streams.estimate)?.1;
-                acc.observe(&column(&w, k, 0));
-                moments.add(&w);
+                drawn = weights(flow, lambda, f, m, &mut self.streams.estimate).map(|(_, w)| {
+                    acc.observe(&column(&w, k, 0));
+                    moments.add(&w);
+                });
             }
+            self.comm.check(drawn)?;
+            let moments = moments.across(&self.comm);
             acc.add_moments(&moments)?;
             if k > 1 {
                 comps.add_moments(&moments);
@@ -223,6 +251,7 @@ impl NisIntegrator {
                 "nis: estimating",
             );
         }
+        acc.reduce_tail(&self.comm);
         let mut r = acc.finish(trained + done, started, Vec::new());
         if k > 1 {
             r.components = Some(comps.finish());
@@ -308,6 +337,7 @@ impl NisIntegrator {
             trainer,
             trained_evals,
             scheduled: false,
+            comm: Comm::default(),
             progress: None,
         })
     }
@@ -324,6 +354,10 @@ impl Integrator for NisIntegrator {
 
     fn set_progress(&mut self, progress: Option<Box<dyn Progress>>) {
         self.progress = progress;
+    }
+
+    fn set_comm(&mut self, comm: Comm) {
+        NisIntegrator::set_comm(self, comm);
     }
 
     /// Trains on `train_fraction` of `evals` (whole batches), then estimates with the rest.

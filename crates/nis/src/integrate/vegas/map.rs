@@ -14,6 +14,8 @@ const TINY: f64 = 1e-257;
 /// its digits there.
 const NEARLY_ONE: f64 = 0.999_999_99;
 
+use crate::comm::Comm;
+
 /// The separable map: per dimension, `n + 1` edges from 0 to 1.
 #[derive(Clone, Debug)]
 pub(super) struct Map {
@@ -60,6 +62,21 @@ impl Map {
         for (d, &i) in inc.iter().enumerate() {
             self.sum[d * self.n + i] += datum;
             self.count[d * self.n + i] += 1;
+        }
+    }
+
+    /// Sums the training data over the ranks of `comm` (sums and counts per increment), so that
+    /// every rank adapts to all the points. With one process it changes nothing.
+    pub(super) fn reduce_training(&mut self, comm: &Comm) {
+        if comm.size() == 1 {
+            return;
+        }
+        comm.sum_f64(&mut self.sum);
+        // Counts stay far below 2^53: exact as f64.
+        let mut count: Vec<f64> = self.count.iter().map(|&c| c as f64).collect();
+        comm.sum_f64(&mut count);
+        for (c, v) in self.count.iter_mut().zip(count) {
+            *c = v as u64;
         }
     }
 

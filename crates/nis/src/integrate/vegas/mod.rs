@@ -29,6 +29,7 @@ use super::{
     check_budget, check_dim, evaluate, report, Accumulator, Integrand, IntegrationResult,
     Integrator, Method, Progress, TrainOn,
 };
+use crate::comm::Comm;
 use crate::error::{Error, Result};
 use map::Map;
 use strata::Strata;
@@ -165,6 +166,8 @@ pub struct Vegas {
     /// The hypercubes and their weights (replaced when a call's budget gives other hypercubes).
     strata: Option<Strata>,
     rng: Pcg64Mcg,
+    /// The ranks that share every iteration (one process by default).
+    comm: Comm,
     progress: Option<Box<dyn Progress>>,
 }
 
@@ -193,6 +196,7 @@ impl Vegas {
             dim,
             map: None,
             strata: None,
+            comm: Comm::default(),
             progress: None,
         })
     }
@@ -247,6 +251,11 @@ impl Integrator for Vegas {
         self.progress = progress;
     }
 
+    fn set_comm(&mut self, comm: Comm) {
+        self.rng = Pcg64Mcg::seed_from_u64(comm.stream_seed(self.config.seed));
+        self.comm = comm;
+    }
+
     /// `evals` evaluations in all: the first `warmup` iterations only adapt the map and strata,
     /// the others also make the estimate (and keep adapting them for the next call).
     fn integrate(&mut self, f: &dyn Integrand, evals: u64) -> Result<IntegrationResult> {
@@ -284,6 +293,7 @@ impl Integrator for Vegas {
         let cubes = strata.cubes;
         let volume = 1.0 / cubes as f64;
         let rng = &mut self.rng;
+        let comm = &self.comm;
         let mut acc = Accumulator::new((per_iter * (plan.iterations - plan.warmup)) as u64);
         let mut comps = ComponentAccumulator::new(k);
         let mut n_eval = 0u64;
@@ -295,12 +305,18 @@ impl Integrator for Vegas {
         for it in 0..plan.iterations {
             let counts = strata.allocate(per_iter + usize::from(it < plan.extra), min_per_cube);
             let total: usize = counts.iter().sum();
+            // Every rank draws its share of each hypercube's points from its own stream.
+            let mine: Vec<usize> = counts
+                .iter()
+                .map(|&n| comm.share(n as u64) as usize)
+                .collect();
+            let local: usize = mine.iter().sum();
             x.clear();
-            x.reserve(total * dim);
-            let mut jacs = Vec::with_capacity(total);
-            let mut incs = Vec::with_capacity(total * dim);
+            x.reserve(local * dim);
+            let mut jacs = Vec::with_capacity(local);
+            let mut incs = Vec::with_capacity(local * dim);
             let mut point = vec![0.0; dim];
-            for (h, &nh) in counts.iter().enumerate() {
+            for (h, &nh) in mine.iter().enumerate() {
                 strata.corner(h, &mut corner);
                 for _ in 0..nh {
                     for ((yd, &c), &s) in y.iter_mut().zip(&corner).zip(&strata.per_axis) {
@@ -311,7 +327,8 @@ impl Integrator for Vegas {
                     incs.extend_from_slice(&inc);
                 }
             }
-            let fx = evaluate(f, &x, dim)?;
+            // The failure flag of the iteration: an error on any rank stops every rank here.
+            let fx = comm.check(evaluate(f, &x, dim))?;
             // The sampler adapts to f itself unless told otherwise: then no copy, no second pass.
             let adapts_to_f = k == 1 && train_on == TrainOn::Component(0);
             let target = if adapts_to_f {
@@ -320,49 +337,45 @@ impl Integrator for Vegas {
                 train_on.target(&fx, k)
             };
             n_eval += total as u64;
-            // Per hypercube: mean and variance of f·J; the estimate Σ_h V_h·mean_h.
-            let (mut estimate, mut variance) = (0.0, 0.0);
-            let (mut mean_k, mut cov_k) = (vec![0.0; k], vec![0.0; k * k]);
-            let mut w_eff = Vec::with_capacity(total);
-            let mut start = 0;
-            for (h, &nh) in counts.iter().enumerate() {
-                let (mean, var, fj) = cube_stats((start..start + nh).map(|i| fx[i * k] * jacs[i]));
-                estimate += volume * mean;
-                variance += volume * volume * var / nh as f64;
-                for v in &fj {
-                    w_eff.push(v * volume * total as f64 / nh as f64);
-                }
-                // The map and the strata adapt to the target (component 0 of a scalar: f).
-                let (t_var, tj) = if adapts_to_f {
-                    (var, fj)
-                } else {
-                    let (_, t_var, tj) =
-                        cube_stats((start..start + nh).map(|i| target[i] * jacs[i]));
-                    (t_var, tj)
-                };
-                for (kk, v) in tj.iter().enumerate() {
-                    let i = start + kk;
+            let cube = Cubes {
+                counts: &counts,
+                mine: &mine,
+                fx: &fx,
+                jacs: &jacs,
+                k,
+            };
+            // Per hypercube, over all ranks: mean and variance of f·J (and of the target's
+            // values·J when the sampler adapts to something else).
+            let (means, vars) = cube.moments(comm, |i| fx[i * k] * jacs[i]);
+            let t_vars = (!adapts_to_f).then(|| cube.moments(comm, |i| target[i] * jacs[i]).1);
+            let mut w_eff = Vec::with_capacity(local);
+            for (h, r) in cube.ranges().enumerate() {
+                let n_all = counts[h] as f64;
+                for i in r {
+                    let fj = fx[i * k] * jacs[i];
+                    w_eff.push(fj * volume * total as f64 / n_all);
+                    // The map adapts to the target (component 0 of a scalar: f).
+                    let v = if adapts_to_f { fj } else { target[i] * jacs[i] };
                     map.add_training(&incs[i * dim..(i + 1) * dim], (v * volume).powi(2));
                 }
-                contribution_var[h] = volume * volume * t_var / nh as f64;
-                if k > 1 {
-                    add_cube_components(
-                        &fx[start * k..(start + nh) * k],
-                        &jacs[start..start + nh],
-                        volume,
-                        &mut mean_k,
-                        &mut cov_k,
-                    );
-                }
-                start += nh;
             }
+            map.reduce_training(comm);
+            // The estimate Σ_h V_h·mean_h; the strata adapt to the target's variances.
+            let (mut estimate, mut variance) = (0.0, 0.0);
+            for (h, &nh) in counts.iter().enumerate() {
+                estimate += volume * means[h];
+                variance += volume * volume * vars[h] / nh as f64;
+                let t_var = t_vars.as_ref().map_or(vars[h], |t| t[h]);
+                contribution_var[h] = volume * volume * t_var / nh as f64;
+            }
+            let component_estimates = (k > 1).then(|| cube.components(comm, volume));
             if it >= plan.warmup {
                 // The share was fixed by the history before this iteration's points.
                 let share = next_share(remaining, plan.iterations - it, &history);
                 remaining -= share;
                 shares.push(share);
-                acc.add_iteration(estimate, variance, &w_eff)?;
-                if k > 1 {
+                acc.add_iteration_across(comm, estimate, variance, total as u64, &w_eff)?;
+                if let Some((mean_k, cov_k)) = component_estimates {
                     comps.add_iteration(mean_k, cov_k, total as u64);
                 }
             }
@@ -380,6 +393,7 @@ impl Integrator for Vegas {
                 },
             );
         }
+        acc.reduce_tail(comm);
         let mut r = acc.finish_weighted(&shares, n_eval, started, Vec::new());
         if k > 1 {
             r.components = Some(comps.finish_weighted(&shares));
@@ -438,43 +452,96 @@ fn next_share(remaining: f64, left: usize, history: &[f64]) -> f64 {
     remaining / sum
 }
 
-/// Mean and sample variance of one hypercube's values f·J, and the values.
-fn cube_stats(values: impl Iterator<Item = f64>) -> (f64, f64, Vec<f64>) {
-    let fj: Vec<f64> = values.collect();
-    let nh = fj.len();
-    let mean = fj.iter().sum::<f64>() / nh as f64;
-    let var = fj.iter().map(|v| (v - mean).powi(2)).sum::<f64>() / (nh - 1) as f64;
-    (mean, var, fj)
+/// One iteration's points by hypercube: how many every rank drew in each (`counts`) and how
+/// many this rank drew (`mine`, its points in cube order), with their values (`fx`, `n × k`),
+/// and the map's Jacobians.
+struct Cubes<'a> {
+    counts: &'a [usize],
+    mine: &'a [usize],
+    fx: &'a [f64],
+    jacs: &'a [f64],
+    k: usize,
 }
 
-/// Adds one hypercube's share V_h·mean_h of every component to `mean` and V_h²·Cov_h/n_h to
-/// `cov`, from its values `fx` (`n_h × k`) and Jacobians.
-fn add_cube_components(fx: &[f64], jacs: &[f64], volume: f64, mean: &mut [f64], cov: &mut [f64]) {
-    let k = mean.len();
-    let nh = jacs.len() as f64;
-    let mut m = vec![0.0; k];
-    for (row, j) in fx.chunks_exact(k).zip(jacs) {
-        for (a, v) in m.iter_mut().zip(row) {
-            *a += v * j;
-        }
+impl Cubes<'_> {
+    /// This rank's points of each hypercube, as index ranges.
+    fn ranges(&self) -> impl Iterator<Item = std::ops::Range<usize>> + '_ {
+        self.mine.iter().scan(0, |start, &nh| {
+            *start += nh;
+            Some(*start - nh..*start)
+        })
     }
-    m.iter_mut().for_each(|a| *a /= nh);
-    // Σ (f_a·J − m_a)(f_b·J − m_b), each product formed once so the matrix is exactly symmetric.
-    let mut sum = vec![0.0; k * k];
-    for (row, jac) in fx.chunks_exact(k).zip(jacs) {
-        for a in 0..k {
-            let da = row[a] * jac - m[a];
-            for b in 0..k {
-                sum[a * k + b] += da * (row[b] * jac - m[b]);
+
+    /// Per hypercube, the mean and the sample variance of `value(i)` over the points of all
+    /// ranks: sums, then squared deviations from the means, reduced over the ranks (two passes,
+    /// as over one process's points).
+    fn moments(&self, comm: &Comm, value: impl Fn(usize) -> f64) -> (Vec<f64>, Vec<f64>) {
+        let mut means: Vec<f64> = self.ranges().map(|r| r.map(&value).sum()).collect();
+        comm.sum_f64(&mut means);
+        for (m, &n) in means.iter_mut().zip(self.counts) {
+            *m /= n as f64;
+        }
+        let mut vars: Vec<f64> = self
+            .ranges()
+            .zip(&means)
+            .map(|(r, m)| r.map(|i| (value(i) - m).powi(2)).sum())
+            .collect();
+        comm.sum_f64(&mut vars);
+        for (v, &n) in vars.iter_mut().zip(self.counts) {
+            *v /= (n - 1) as f64;
+        }
+        (means, vars)
+    }
+
+    /// Every component's estimate Σ_h V_h·mean_h and its covariance Σ_h V_h²·Cov_h/n_h, the
+    /// hypercubes' means and covariances taken over the points of all ranks.
+    fn components(&self, comm: &Comm, volume: f64) -> (Vec<f64>, Vec<f64>) {
+        let (k, cubes) = (self.k, self.counts.len());
+        let mut m = vec![0.0; cubes * k];
+        for (h, r) in self.ranges().enumerate() {
+            for i in r {
+                for a in 0..k {
+                    m[h * k + a] += self.fx[i * k + a] * self.jacs[i];
+                }
             }
         }
-    }
-    let scale = volume * volume / (nh - 1.0) / nh;
-    for (c, s) in cov.iter_mut().zip(&sum) {
-        *c += scale * s;
-    }
-    for (a, v) in mean.iter_mut().zip(&m) {
-        *a += volume * v;
+        comm.sum_f64(&mut m);
+        for (h, &n) in self.counts.iter().enumerate() {
+            m[h * k..(h + 1) * k]
+                .iter_mut()
+                .for_each(|a| *a /= n as f64);
+        }
+        // Σ (f_a·J − m_a)(f_b·J − m_b), each product formed once so the matrix is exactly
+        // symmetric.
+        let mut sums = vec![0.0; cubes * k * k];
+        for (h, r) in self.ranges().enumerate() {
+            let (m, sum) = (
+                &m[h * k..(h + 1) * k],
+                &mut sums[h * k * k..(h + 1) * k * k],
+            );
+            for i in r {
+                let (row, jac) = (&self.fx[i * k..(i + 1) * k], self.jacs[i]);
+                for a in 0..k {
+                    let da = row[a] * jac - m[a];
+                    for b in 0..k {
+                        sum[a * k + b] += da * (row[b] * jac - m[b]);
+                    }
+                }
+            }
+        }
+        comm.sum_f64(&mut sums);
+        let (mut mean, mut cov) = (vec![0.0; k], vec![0.0; k * k]);
+        for (h, &n) in self.counts.iter().enumerate() {
+            let nh = n as f64;
+            let scale = volume * volume / (nh - 1.0) / nh;
+            for (c, s) in cov.iter_mut().zip(&sums[h * k * k..(h + 1) * k * k]) {
+                *c += scale * s;
+            }
+            for (a, v) in mean.iter_mut().zip(&m[h * k..(h + 1) * k]) {
+                *a += volume * v;
+            }
+        }
+        (mean, cov)
     }
 }
 
