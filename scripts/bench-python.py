@@ -24,6 +24,8 @@ import subprocess
 import sys
 import time
 
+from docs_section import write_section
+
 DIM, EVALS, SEED, ALPHA = 8, 1_000_000, 1, 0.2
 EXACT = (0.5 * (math.erf(1 / (3 * ALPHA)) + math.erf(2 / (3 * ALPHA)))) ** DIM
 
@@ -225,20 +227,7 @@ def driver(args):
     section = "\n".join(lines)
     print(section)
     if args.out:
-        text = open(args.out, encoding="utf-8").read() if os.path.exists(args.out) else ""
-        start, end = "<!-- python:start -->", "<!-- python:end -->"
-        block = f"{start}\n{section}\n{end}"
-        if start in text and end in text:
-            text = text[: text.index(start)] + block + text[text.index(end) + len(end):]
-        else:
-            text = text.rstrip() + "\n\n" + block + "\n"
-        # Atomically, like every writer of nis: a temporary file beside it, then a rename.
-        tmp = f"{os.path.join(os.path.dirname(args.out) or '.', '.' + os.path.basename(args.out))}.{os.getpid()}.tmp"
-        with open(tmp, "w", encoding="utf-8") as fh:
-            fh.write(text)
-            fh.flush()
-            os.fsync(fh.fileno())
-        os.replace(tmp, args.out)
+        write_section(args.out, "python", section)
 
 
 def main():

@@ -19,6 +19,7 @@ import subprocess
 import sys
 import time
 
+from docs_section import write_section
 from nis_served import Served
 
 
@@ -146,17 +147,7 @@ def main():
             f"{statistics.median(r['wall'] for r in b):.2f} |")
     section = "\n".join(lines)
     print(section)
-    text = open(args.out, encoding="utf-8").read() if os.path.exists(args.out) else "# Benchmarks\n"
-    start, end = "<!-- vegas:start -->", "<!-- vegas:end -->"
-    block = f"{start}\n{section}\n{end}"
-    if start in text and end in text:
-        text = text[: text.index(start)] + block + text[text.index(end) + len(end):]
-    else:
-        text = text.rstrip() + "\n\n" + block + "\n"
-    tmp = f"{args.out}.tmp-{os.getpid()}"
-    with open(tmp, "w", encoding="utf-8") as fh:
-        fh.write(text)
-    os.replace(tmp, args.out)
+    write_section(args.out, "vegas", section)
 
 
 if __name__ == "__main__":

@@ -295,9 +295,7 @@ fn a_plain_path_traced_image_is_bit_identical_to_one_process() {
     // 20 spp: two sample slices (16 and 4), whose waves are cut differently; a tile keeps its
     // rank in both, so each pixel is still traced by one rank, slices in order.
     for spp in ["4", "20"] {
-        let single = tmp(&format!("single-{spp}.exr"));
-        let mut c = Command::new(NIS);
-        c.args([
+        let render = [
             "render",
             "cornell-box",
             "--spp",
@@ -306,23 +304,15 @@ fn a_plain_path_traced_image_is_bit_identical_to_one_process() {
             "40",
             "--seed",
             "2",
-            "--out",
-        ])
-        .arg(&single);
+        ];
+        let single = tmp(&format!("single-{spp}.exr"));
+        let mut c = Command::new(NIS);
+        c.args(render).arg("--out").arg(&single);
         ok(c);
         let single = std::fs::read(&single).unwrap();
         for ranks in [2, 3] {
             let out = tmp(&format!("ranks{ranks}-{spp}.exr"));
-            let mut args = vec![
-                "render",
-                "cornell-box",
-                "--spp",
-                spp,
-                "--res",
-                "40",
-                "--seed",
-                "2",
-            ];
+            let mut args = render.to_vec();
             args.extend_from_slice(&["--out", out.to_str().unwrap()]);
             ok(mpirun(ranks, &env_path("NIS_MPI_BIN"), &args));
             assert!(

@@ -136,8 +136,13 @@ pub struct WeightTail {
 impl WeightTail {
     /// For about `planned` weights in all: keeps the PSIS tail of that many, plus the cutoff.
     pub fn new(planned: u64) -> WeightTail {
+        WeightTail::with_capacity(tail_len(planned.max(1)) + 1)
+    }
+
+    /// No weights yet, keeping the `capacity` largest.
+    fn with_capacity(capacity: usize) -> WeightTail {
         WeightTail {
-            capacity: tail_len(planned.max(1)) + 1,
+            capacity,
             heap: BinaryHeap::new(),
             n: 0,
             sum_abs: 0.0,
@@ -146,6 +151,16 @@ impl WeightTail {
             m2: 0.0,
             m3: 0.0,
             m4: 0.0,
+        }
+    }
+
+    /// Keeps |w| (as its bits) if it is among the `capacity` largest so far.
+    fn offer(&mut self, bits: u64) {
+        if self.heap.len() < self.capacity {
+            self.heap.push(Reverse(bits));
+        } else if self.heap.peek().is_some_and(|Reverse(low)| bits > *low) {
+            self.heap.pop();
+            self.heap.push(Reverse(bits));
         }
     }
 
@@ -158,13 +173,7 @@ impl WeightTail {
             let a = v.abs();
             self.sum_abs += a;
             self.sum_sq += a * a;
-            let bits = a.to_bits();
-            if self.heap.len() < self.capacity {
-                self.heap.push(Reverse(bits));
-            } else if self.heap.peek().is_some_and(|Reverse(low)| bits > *low) {
-                self.heap.pop();
-                self.heap.push(Reverse(bits));
-            }
+            self.offer(a.to_bits());
         }
         // The batch's own central moments, two-pass, then merged into the running ones.
         let nb = w.len() as f64;
@@ -204,17 +213,7 @@ impl WeightTail {
 
     /// An empty tail of the same capacity.
     pub fn emptied(&self) -> WeightTail {
-        WeightTail {
-            capacity: self.capacity,
-            heap: BinaryHeap::new(),
-            n: 0,
-            sum_abs: 0.0,
-            sum_sq: 0.0,
-            mean: 0.0,
-            m2: 0.0,
-            m3: 0.0,
-            m4: 0.0,
-        }
+        WeightTail::with_capacity(self.capacity)
     }
 
     /// Adds the weights `later` saw (after these): the largest of both heaps, the sums added and
@@ -222,12 +221,7 @@ impl WeightTail {
     /// the tail is the one of all the weights together.
     pub fn merge(&mut self, later: &WeightTail) {
         for &Reverse(bits) in &later.heap {
-            if self.heap.len() < self.capacity {
-                self.heap.push(Reverse(bits));
-            } else if self.heap.peek().is_some_and(|Reverse(low)| bits > *low) {
-                self.heap.pop();
-                self.heap.push(Reverse(bits));
-            }
+            self.offer(bits);
         }
         self.sum_abs += later.sum_abs;
         self.sum_sq += later.sum_sq;
