@@ -106,7 +106,11 @@ impl GuideSpec {
         let guided = with(Schedule::Training);
         Ok(match self {
             GuideSpec::None => run(scene, &with(Schedule::Plain), NoGuide, comm, progress),
-            GuideSpec::Ppg(c) => run(scene, &guided, Ppg::new(bounds, *c), comm, progress),
+            GuideSpec::Ppg(c) => {
+                let film = u64::from(scene.camera.width()) * u64::from(scene.camera.height());
+                let config = c.for_film(film);
+                run(scene, &guided, Ppg::new(bounds, config), comm, progress)
+            }
             GuideSpec::Gmm(c) => run(scene, &guided, Gmm::new(bounds, *c), comm, progress),
             GuideSpec::Neural(c) => {
                 let guide = NisGuide::new(bounds, c.clone())

@@ -44,12 +44,20 @@ mod quadtree;
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct PpgConfig {
     /// `c`: a spatial leaf splits after receiving more than `c · √(2^k)` samples in
-    /// iteration `k` (§5.3, c = 12 000). The paper's value is for megapixel renders, where
-    /// training yields millions of records; with small training budgets a smaller `c` trades
-    /// noisier quadtrees for spatial resolution and can win: on `cornell-indirect` at
-    /// 64 × 64, after training passes of 1, 2, …, 64 spp, the mean relative per-pixel variance
-    /// at 16 spp was 1.68 unguided, 1.51 with c = 12 000 (8 leaves), 0.97 with c = 2 000 (62).
+    /// iteration `k` (§5.3, c = 12 000 for the paper's 1280 × 720 renders), scaled to the
+    /// film by [`PpgConfig::film_pixels`]. The square root is the paper's balance: with
+    /// `N_k ∝ 2^k` samples in iteration `k`, both the number of leaves (`N_k / threshold`) and
+    /// the samples per leaf grow as `√N_k`. A film of `P` pixels traces `P / P_paper` times
+    /// the paper's samples per pass, so keeping that balance at a given `N_k` means the
+    /// threshold `c · √(2^k · P / P_paper)`: c = 1 600 at 128², 3 200 at 256². With the
+    /// paper's c unscaled, a 128² render with 31 training spp hardly splits (8 leaves on
+    /// `cornell-indirect` at 64², where the mean relative per-pixel variance at 16 spp was
+    /// 1.51, against 1.68 unguided and 0.97 with c = 2 000 and 62 leaves).
     pub spatial_threshold: f64,
+    /// Pixels of the film the guide trains on, if the threshold is to be scaled to it by
+    /// `√(film_pixels / PAPER_FILM_PIXELS)`; `None` uses `spatial_threshold` as it is.
+    /// [`GuideSpec`](super::spec::GuideSpec) sets it to the rendered film.
+    pub film_pixels: Option<u64>,
     /// `ρ`: a quadtree node is subdivided when it carries more than this fraction of its
     /// tree's flux (§5.2, 1 %).
     pub flux_threshold: f64,
@@ -71,11 +79,33 @@ impl Default for PpgConfig {
     fn default() -> Self {
         Self {
             spatial_threshold: 12_000.0,
+            film_pixels: None,
             flux_threshold: 0.01,
             max_quadtree_depth: 20,
             max_spatial_depth: 60,
             bsdf_fraction: 0.5,
             spatial_filter: false,
+        }
+    }
+}
+
+/// Pixels of the renders the paper's `c = 12 000` was chosen for (1280 × 720).
+pub const PAPER_FILM_PIXELS: u64 = 1280 * 720;
+
+impl PpgConfig {
+    /// These settings with the spatial threshold scaled to a film of `pixels` pixels.
+    pub fn for_film(self, pixels: u64) -> PpgConfig {
+        PpgConfig {
+            film_pixels: Some(pixels),
+            ..self
+        }
+    }
+
+    /// `c` as applied: [`PpgConfig::spatial_threshold`] scaled to the film, if one is set.
+    pub fn effective_spatial_threshold(&self) -> f64 {
+        match self.film_pixels {
+            Some(p) => self.spatial_threshold * (p as f64 / PAPER_FILM_PIXELS as f64).sqrt(),
+            None => self.spatial_threshold,
         }
     }
 }
@@ -291,7 +321,8 @@ impl Guide for Ppg {
             leaf.sampling.sum_up();
             leaf.sampling_total = leaf.sampling.total();
         }
-        let threshold = self.config.spatial_threshold * 2f64.powf(0.5 * f64::from(self.iteration));
+        let threshold =
+            self.config.effective_spatial_threshold() * 2f64.powf(0.5 * f64::from(self.iteration));
         self.refine_space(threshold);
         let (depth, rho) = (self.config.max_quadtree_depth, self.config.flux_threshold);
         for leaf in self.tree.leaves_mut() {
@@ -376,6 +407,41 @@ mod tests {
         assert_eq!(at(Vec3::new(0.3, 0.3, 0.3)), at(Vec3::new(0.1, 0.4, 0.9)));
         assert_ne!(at(Vec3::new(0.3, 0.3, 0.3)), at(Vec3::new(0.6, 0.3, 0.3)));
         assert_ne!(at(Vec3::new(0.3, 0.3, 0.3)), at(Vec3::new(0.3, 0.6, 0.3)));
+    }
+
+    #[test]
+    fn spatial_threshold_scales_with_the_square_root_of_the_film() {
+        // The paper's film: c as given; a quarter of its pixels: c/2.
+        let c = PpgConfig::default();
+        assert_eq!(c.effective_spatial_threshold(), 12_000.0);
+        assert_eq!(
+            c.for_film(PAPER_FILM_PIXELS).effective_spatial_threshold(),
+            12_000.0
+        );
+        let quarter = c.for_film(PAPER_FILM_PIXELS / 4);
+        assert!((quarter.effective_spatial_threshold() - 6_000.0).abs() < 1e-9);
+        let at_128 = c.for_film(128 * 128).effective_spatial_threshold();
+        assert!((at_128 - 1_600.0).abs() < 1e-9, "{at_128}");
+        // And the tree splits at the scaled threshold: c = 100 on a film of a quarter of the
+        // paper's pixels splits above 50 samples.
+        let mut g = Ppg::new(
+            unit_box(),
+            PpgConfig {
+                spatial_threshold: 100.0,
+                ..PpgConfig::default()
+            }
+            .for_film(PAPER_FILM_PIXELS / 4),
+        );
+        assert_eq!(leaves_after(&mut g, 51), 2);
+        let mut g = Ppg::new(
+            unit_box(),
+            PpgConfig {
+                spatial_threshold: 100.0,
+                ..PpgConfig::default()
+            }
+            .for_film(PAPER_FILM_PIXELS / 4),
+        );
+        assert_eq!(leaves_after(&mut g, 50), 1);
     }
 
     #[test]
