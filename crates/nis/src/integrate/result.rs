@@ -177,6 +177,8 @@ pub struct Accumulator {
     max_abs_w: f64,
     sum_abs_w: f64,
     n: u64,
+    /// Evaluations of pieces added without their weights ([`Accumulator::add_piece`]).
+    piece_evals: u64,
     tail: WeightTail,
 }
 
@@ -188,6 +190,7 @@ impl Accumulator {
             max_abs_w: 0.0,
             sum_abs_w: 0.0,
             n: 0,
+            piece_evals: 0,
             tail: WeightTail::new(planned),
         }
     }
@@ -278,6 +281,33 @@ impl Accumulator {
         self.n += evals;
         self.tail.add(w);
         Ok(())
+    }
+
+    /// Adds a piece of the estimate made elsewhere (e.g. pooled training batches) with its
+    /// estimate, variance, evaluations and largest |w|: it counts in the estimate, χ² and the
+    /// variance per evaluation, not in the unweighting efficiency (the final sampler's). Its
+    /// weights reach the reliability figures through [`Accumulator::observe_tail`]. An error when
+    /// the variance does not fit in an f64.
+    pub fn add_piece(
+        &mut self,
+        estimate: f64,
+        variance: f64,
+        evals: u64,
+        max_abs_w: f64,
+    ) -> Result<()> {
+        check_representable(estimate, variance, max_abs_w)?;
+        self.iterations.push(Iteration {
+            estimate,
+            variance,
+            evals,
+        });
+        self.piece_evals += evals;
+        Ok(())
+    }
+
+    /// Adds the weights `tail` saw (this rank's) to the reliability figures.
+    pub fn observe_tail(&mut self, tail: &WeightTail) {
+        self.tail.merge(tail);
     }
 
     /// Makes the reliability figures those of every rank's weights: the ranks' tails are
@@ -430,7 +460,7 @@ impl Accumulator {
             rel_var_per_eval: if zero {
                 0.0
             } else {
-                self.n as f64 * var / (value * value)
+                (self.n + self.piece_evals) as f64 * var / (value * value)
             },
             unweighting_efficiency: if zero {
                 0.0

@@ -36,6 +36,10 @@ pub struct NisConfig {
     pub anneal_from: f64,
     /// Iterations of the final phase (for χ²/dof).
     pub final_iterations: usize,
+    /// Share of the adaptive phase's batches, the last ones, whose evaluations also enter the
+    /// estimate of `integrate`, with shares fixed before each batch is drawn so that it stays
+    /// unbiased (`integrate/nis/reuse.rs`; 0: the final phase's evaluations alone).
+    pub reuse_training: f64,
     /// Seed of the random streams (training, estimating, unweighting).
     pub seed: u64,
     /// The component of a vector-valued integrand the flow learns.
@@ -65,6 +69,7 @@ impl Default for NisConfig {
             uniform_fraction: 0.002,
             anneal_from: 0.1,
             final_iterations: 10,
+            reuse_training: 0.0,
             seed: 0,
             train_on: TrainOn::default(),
         }
@@ -88,6 +93,7 @@ impl NisConfig {
             && self.anneal_from > 0.0
             && self.anneal_from <= 1.0
             && self.final_iterations >= 1
+            && (0.0..=1.0).contains(&self.reuse_training)
             && self.learning_rate_end > 0.0
             && self.learning_rate_end <= 1.0;
         if ok {
@@ -181,6 +187,11 @@ impl NisConfigBuilder {
         self.config.final_iterations = iterations;
         self
     }
+    /// Sets [`NisConfig::reuse_training`].
+    pub fn reuse_training(mut self, share: f64) -> Self {
+        self.config.reuse_training = share;
+        self
+    }
     /// Sets [`NisConfig::train_on`].
     pub fn train_on(mut self, train_on: TrainOn) -> Self {
         self.config.train_on = train_on;
@@ -232,6 +243,7 @@ mod tests {
             .uniform_fraction(0.01)
             .anneal_from(0.5)
             .final_iterations(4)
+            .reuse_training(0.75)
             .train_on(TrainOn::SumAbs)
             .build()
             .unwrap();
@@ -254,6 +266,7 @@ mod tests {
             uniform_fraction: 0.01,
             anneal_from: 0.5,
             final_iterations: 4,
+            reuse_training: 0.75,
             seed: 6,
             train_on: TrainOn::SumAbs,
         };
@@ -268,6 +281,8 @@ mod tests {
             NisConfig::builder().uniform_fraction(-0.1),
             NisConfig::builder().anneal_from(0.0),
             NisConfig::builder().final_iterations(0),
+            NisConfig::builder().reuse_training(1.5),
+            NisConfig::builder().reuse_training(f64::NAN),
             NisConfig::builder().learning_rate_end(0.0),
         ] {
             assert!(matches!(bad.build(), Err(Error::Config(_))));

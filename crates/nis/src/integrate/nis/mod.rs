@@ -26,8 +26,10 @@ use crate::error::{Error, Result};
 use crate::flow::mixture::{self, MixtureBatch};
 use crate::flow::{Density, Flow, FlowConfig};
 use crate::train::Trainer;
+use reuse::TrainingPieces;
 
 mod config;
+mod reuse;
 
 pub use config::{NisConfig, NisConfigBuilder};
 
@@ -128,6 +130,17 @@ impl NisIntegrator {
     /// untrained flow anneals its target from |f|^`anneal_from` — later ones continue Adam as it
     /// stands on the plain target.
     pub fn train(&mut self, f: &dyn Integrand, evals: u64) -> Result<()> {
+        self.train_keeping(f, evals, None)
+    }
+
+    /// [`NisIntegrator::train`], handing every batch to `pieces` (training reused in the
+    /// estimate) when given.
+    fn train_keeping(
+        &mut self,
+        f: &dyn Integrand,
+        evals: u64,
+        mut pieces: Option<&mut TrainingPieces>,
+    ) -> Result<()> {
         let dim = self.flow().dim();
         check_dim(f, dim)?;
         let k = f.components();
@@ -172,6 +185,9 @@ impl NisIntegrator {
             let (b, fx) = self
                 .comm
                 .check(drawn.and_then(|(b, x64)| Ok((b, evaluate(f, &x64, dim)?))))?;
+            if let Some(p) = pieces.as_deref_mut() {
+                p.observe(step, &b, &fx, &self.comm);
+            }
             let target = self.config.train_on.target(&fx, k);
             self.trained_evals += batch as u64;
             done += batch as u64;
@@ -197,17 +213,19 @@ impl NisIntegrator {
     /// The final phase alone: the flow frozen, `evals` evaluations in `final_iterations`
     /// iterations. For a trained or loaded integrator; the result counts only these evaluations.
     pub fn estimate(&mut self, f: &dyn Integrand, evals: u64) -> Result<IntegrationResult> {
-        self.final_phase(f, evals, 0, Instant::now())
+        self.final_phase(f, evals, 0, Instant::now(), None)
     }
 
     /// The final phase, after `trained` evaluations of training in the same call (for the
-    /// evaluation count and the progress) that started at `started`.
+    /// evaluation count and the progress) that started at `started`, combined with the kept
+    /// training batches `pieces` when given.
     fn final_phase(
         &mut self,
         f: &dyn Integrand,
         evals: u64,
         trained: u64,
         started: Instant,
+        pieces: Option<TrainingPieces>,
     ) -> Result<IntegrationResult> {
         let dim = self.flow().dim();
         check_dim(f, dim)?;
@@ -221,6 +239,9 @@ impl NisIntegrator {
         )?;
         let mut acc = Accumulator::new(evals);
         let mut comps = ComponentAccumulator::new(k);
+        if let Some(p) = &pieces {
+            p.add_to(&mut acc, &mut comps)?;
+        }
         let mut done = 0u64;
         for it in 0..iters {
             let n = ((evals * (it as u64 + 1)) / iters as u64 - done).max(2) as usize;
@@ -252,9 +273,16 @@ impl NisIntegrator {
             );
         }
         acc.reduce_tail(&self.comm);
-        let mut r = acc.finish(trained + done, started, Vec::new());
+        let shares = pieces.map(|p| p.shares(&acc.iterations));
+        let mut r = match &shares {
+            Some(a) => acc.finish_weighted(a, trained + done, started, Vec::new()),
+            None => acc.finish(trained + done, started, Vec::new()),
+        };
         if k > 1 {
-            r.components = Some(comps.finish());
+            r.components = Some(match &shares {
+                Some(a) => comps.finish_weighted(a),
+                None => comps.finish(),
+            });
         }
         Ok(r)
     }
@@ -365,8 +393,10 @@ impl Integrator for NisIntegrator {
         let started = Instant::now();
         let batch = self.config.batch as u64;
         let train = ((evals as f64 * self.config.train_fraction) as u64 / batch) * batch;
-        self.train(f, train)?;
-        self.final_phase(f, evals - train, train, started)
+        let batches = (train / batch) as usize;
+        let mut pieces = TrainingPieces::plan(&self.config, batches, evals - train, f.components());
+        self.train_keeping(f, train, pieces.as_mut())?;
+        self.final_phase(f, evals - train, train, started, pieces)
     }
 
     fn save(&self, path: &Path) -> Result<()> {
