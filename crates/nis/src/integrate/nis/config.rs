@@ -22,6 +22,12 @@ pub struct NisConfig {
     /// Adam steps per batch: the first on-policy, the others reuse the batch off-policy (its
     /// points keep the density they were drawn from), trading compute for evaluations.
     pub steps_per_batch: usize,
+    /// Earlier batches (the flow's share of each, its points, target values and the density that
+    /// drew them) kept for replay, the newest replacing the oldest (0: none).
+    pub replay_batches: usize,
+    /// Extra Adam steps per batch, each on one kept batch (newest first, in turn), off-policy:
+    /// loss weights from f/q_sampling, gradient of ln q_current (MadNIS's buffered training).
+    pub replay_steps: usize,
     /// Share of the evaluation budget spent in the adaptive phase.
     pub train_fraction: f64,
     /// The optimiser.
@@ -59,6 +65,8 @@ impl Default for NisConfig {
             loss: Loss::Kl,
             batch: 1024,
             steps_per_batch: 1,
+            replay_batches: 0,
+            replay_steps: 0,
             train_fraction: 0.4,
             adam: AdamConfig {
                 learning_rate: 5e-3,
@@ -88,6 +96,7 @@ impl NisConfig {
     pub(super) fn validate(&self) -> Result<()> {
         let ok = self.batch >= 2
             && self.steps_per_batch >= 1
+            && (self.replay_steps == 0 || self.replay_batches >= 1)
             && (0.0..1.0).contains(&self.train_fraction)
             && (0.0..1.0).contains(&self.uniform_fraction)
             && self.anneal_from > 0.0
@@ -150,6 +159,12 @@ impl NisConfigBuilder {
     /// Sets [`NisConfig::steps_per_batch`].
     pub fn steps_per_batch(mut self, steps: usize) -> Self {
         self.config.steps_per_batch = steps;
+        self
+    }
+    /// Sets [`NisConfig::replay_batches`] and [`NisConfig::replay_steps`].
+    pub fn replay(mut self, batches: usize, steps: usize) -> Self {
+        self.config.replay_batches = batches;
+        self.config.replay_steps = steps;
         self
     }
     /// Sets [`NisConfig::train_fraction`].
@@ -236,6 +251,7 @@ mod tests {
             .loss(Loss::ChiSquare)
             .batch(100)
             .steps_per_batch(3)
+            .replay(8, 2)
             .train_fraction(0.25)
             .adam(adam)
             .learning_rate(2e-3)
@@ -257,6 +273,8 @@ mod tests {
             loss: Loss::ChiSquare,
             batch: 100,
             steps_per_batch: 3,
+            replay_batches: 8,
+            replay_steps: 2,
             train_fraction: 0.25,
             adam: AdamConfig {
                 learning_rate: 2e-3,
@@ -277,6 +295,7 @@ mod tests {
         for bad in [
             NisConfig::builder().batch(1),
             NisConfig::builder().steps_per_batch(0),
+            NisConfig::builder().replay(0, 1),
             NisConfig::builder().train_fraction(1.0),
             NisConfig::builder().uniform_fraction(-0.1),
             NisConfig::builder().anneal_from(0.0),

@@ -26,7 +26,7 @@ use crate::error::{Error, Result};
 use crate::flow::mixture::{self, MixtureBatch};
 use crate::flow::{Density, Flow, FlowConfig};
 use crate::train::Trainer;
-use reuse::TrainingPieces;
+use reuse::{ReplayBuffer, TrainingPieces};
 
 mod config;
 mod reuse;
@@ -156,15 +156,18 @@ impl NisIntegrator {
         let share = self.comm.share(batch as u64) as usize;
         let steps = (evals / batch as u64) as usize;
         if !self.scheduled {
+            // The rate decays over the Adam steps of the on-policy and the replayed batches.
+            let adam_steps = steps * (1 + self.config.replay_steps);
             let decay = self
                 .config
                 .learning_rate_end
-                .powf(1.0 / steps.max(1) as f32);
+                .powf(1.0 / adam_steps.max(1) as f32);
             self.trainer
                 .set_learning_rate_decay(decay * self.config.adam.decay)?;
             self.scheduled = true;
         }
         let anneal = self.trained_evals == 0 && steps > 1;
+        let mut replay = ReplayBuffer::new(self.config.replay_batches);
         let mut done = 0;
         for step in 0..steps {
             let beta = if anneal {
@@ -204,6 +207,19 @@ impl NisIntegrator {
                         &b.density_part.log_q,
                     )?;
                 }
+            }
+            // Earlier batches replayed off-policy (their points keep the density that drew them).
+            for _ in 0..self.config.replay_steps {
+                if let Some(r) = replay.next() {
+                    self.trainer.step(&r.x, None, &r.target, &r.log_q)?;
+                }
+            }
+            if self.comm.any(target[..n_f].iter().any(|v| *v != 0.0)) {
+                replay.push(
+                    b.density_part.x,
+                    target[..n_f].to_vec(),
+                    b.density_part.log_q,
+                );
             }
             report(&mut self.progress, done, evals, "nis: training");
         }

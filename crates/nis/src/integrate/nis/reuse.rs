@@ -1,7 +1,18 @@
-//! Training evaluations in the estimate ([`NisConfig::reuse_training`](super::NisConfig)):
-//! the last batches of the adaptive phase join the final phase's iterations, with shares fixed
-//! before each batch is drawn, so that the combined estimate stays unbiased.
+//! Every evaluation counts: training batches replayed in later steps ([`ReplayBuffer`],
+//! [`NisConfig::replay_batches`](super::NisConfig)), and the last training batches in the estimate
+//! ([`NisConfig::reuse_training`](super::NisConfig)): they join the final phase's iterations with
+//! shares fixed before each batch is drawn, so that the combined estimate stays unbiased.
 //!
+//! # Replay
+//! A batch's points X_i ~ q_s (the flow as it stood) stay valid training data after the flow has
+//! moved on: every loss here has the gradient −Σ w_i ∇ ln q(X_i; θ) with weights built from
+//! f_i/q_s(X_i) (see [`crate::loss`]), so a kept batch with its ln q_s gives an unbiased (up to
+//! the normalisation Adam absorbs) gradient of the current flow's loss, at the cost of a forward
+//! and backward pass but no evaluation of the integrand (MadNIS's buffered training, Heimel et
+//! al. 2023). Kept batches are replayed newest first, in turn, so the choice draws no random
+//! numbers and the training stream, and with it determinism, is untouched.
+//!
+//! # Training in the estimate
 //! Each training batch b is drawn from the defensive mixture q_b of the flow as it stands before
 //! the batch, so its mean weight I_b = mean f/q_b estimates ∫ f without bias given everything
 //! before it: E[I_b | past] = I, whatever the tempered target the flow is learning (β only
@@ -40,9 +51,61 @@
 use super::super::diagnostics::WeightTail;
 use super::super::result::{Accumulator, ComponentAccumulator, Iteration, Moments};
 use super::NisConfig;
+use std::collections::VecDeque;
+
 use crate::comm::Comm;
 use crate::error::Result;
 use crate::flow::mixture::{mix_log_density, MixtureBatch};
+
+/// The last `capacity` training batches (the flow's share of each), for off-policy replay.
+pub(super) struct ReplayBuffer {
+    capacity: usize,
+    /// Oldest first.
+    batches: VecDeque<Replayed>,
+    /// Replay steps so far: which batch is next.
+    turn: usize,
+}
+
+/// A kept batch: points (`n × D`), the target the flow learns at them, and ln q_s of the density
+/// that drew them.
+pub(super) struct Replayed {
+    pub(super) x: Vec<f32>,
+    pub(super) target: Vec<f64>,
+    pub(super) log_q: Vec<f64>,
+}
+
+impl ReplayBuffer {
+    /// Keeps up to `capacity` batches (0: none).
+    pub(super) fn new(capacity: usize) -> ReplayBuffer {
+        ReplayBuffer {
+            capacity,
+            batches: VecDeque::with_capacity(capacity),
+            turn: 0,
+        }
+    }
+
+    /// Keeps a batch, dropping the oldest when full.
+    pub(super) fn push(&mut self, x: Vec<f32>, target: Vec<f64>, log_q: Vec<f64>) {
+        if self.capacity == 0 {
+            return;
+        }
+        if self.batches.len() == self.capacity {
+            self.batches.pop_front();
+        }
+        self.batches.push_back(Replayed { x, target, log_q });
+    }
+
+    /// The batch to replay next: the newest, then older ones in turn (`None` while empty).
+    pub(super) fn next(&mut self) -> Option<&Replayed> {
+        let len = self.batches.len();
+        if len == 0 {
+            return None;
+        }
+        let i = len - 1 - self.turn % len;
+        self.turn += 1;
+        self.batches.get(i)
+    }
+}
 
 /// The kept training batches of one `integrate` call, pooled into groups, with the share left for
 /// the final phase.
@@ -385,5 +448,20 @@ mod tests {
             "{}",
             p.remaining
         );
+    }
+
+    #[test]
+    fn the_replay_buffer_keeps_the_newest_batches_and_replays_them_newest_first_in_turn() {
+        let mut r = ReplayBuffer::new(3);
+        assert!(r.next().is_none());
+        for b in 0..5 {
+            r.push(vec![b as f32], vec![b as f64], vec![0.0]);
+        }
+        // Batches 2, 3, 4 kept; replayed 4, 3, 2, 4, …
+        let seen: Vec<f64> = (0..4).map(|_| r.next().unwrap().target[0]).collect();
+        assert_eq!(seen, [4.0, 3.0, 2.0, 4.0]);
+        let mut none = ReplayBuffer::new(0);
+        none.push(vec![0.0], vec![1.0], vec![0.0]);
+        assert!(none.next().is_none());
     }
 }
