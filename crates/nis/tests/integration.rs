@@ -328,7 +328,9 @@ fn results_do_not_depend_on_the_thread_count() {
 fn results_are_bit_identical_to_the_recorded_ones() {
     let gauss = integrands::by_name("gauss", Some(2)).unwrap();
     let expected = [
-        (Method::Nis, "0.9985264702903238", "0.0008658039878684403"),
+        // NIS re-recorded when the second half of training joined the estimate
+        // (`reuse_training` 0.5; was 0.9985264702903238 ± 0.0008658039878684403).
+        (Method::Nis, "0.9975888861012578", "0.0008608700272456198"),
         // VEGAS+ re-recorded when it took the `vegas` package's stratification and map
         // adaptation and the shares of its iterations (was 0.999350167143816 ± 0.000141235…).
         (Method::Vegas, "0.9991300887314856", "0.0001732057132195463"),
@@ -361,8 +363,9 @@ fn results_are_bit_identical_to_the_recorded_ones() {
     assert_eq!(
         (r.value.to_bits(), r.std_err.to_bits()),
         (
-            0.9633652310386513f64.to_bits(),
-            0.0010154772808631763f64.to_bits()
+            // With training in the estimate (was 0.9633652310386513 ± 0.0010154772808631763).
+            0.9629408979037558f64.to_bits(),
+            0.0009019711064073797f64.to_bits()
         )
     );
 }

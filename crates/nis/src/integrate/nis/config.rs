@@ -77,7 +77,7 @@ impl Default for NisConfig {
             uniform_fraction: 0.002,
             anneal_from: 0.1,
             final_iterations: 10,
-            reuse_training: 0.0,
+            reuse_training: 0.5,
             seed: 0,
             train_on: TrainOn::default(),
         }
