@@ -16,20 +16,22 @@ pub struct IntegrationResult {
     pub value: f64,
     /// Its standard error.
     pub std_err: f64,
-    /// χ² per degree of freedom of the final phase's iteration estimates around their mean.
+    /// χ² per degree of freedom of the final phase's iteration estimates around their mean (for
+    /// NIS with training in the estimate, of the pooled training pieces too; docs/ESTIMATE.md).
     pub chi2_per_dof: f64,
     /// All evaluations of the integrand, training included.
     pub n_eval: u64,
-    /// Var(f/q)/F² per evaluation of the final phase: n_final·std_err²/value².
+    /// Var(f/q)/F² per evaluation of the estimate: n·std_err²/value², n the evaluations that make
+    /// it (the final phase's, and the kept training batches' for NIS with training reused).
     pub rel_var_per_eval: f64,
     /// Unweighting efficiency mean(|w|)/max(|w|) of the final phase's weights.
     pub unweighting_efficiency: f64,
-    /// PSIS's Pareto k̂ of the final phase's |w| tail: above [`PARETO_K_LIMIT`](super::PARETO_K_LIMIT) the error bar
+    /// PSIS's Pareto k̂ of the |w| tail of the weights that make the estimate: above [`PARETO_K_LIMIT`](super::PARETO_K_LIMIT) the error bar
     /// cannot be trusted (`NaN`, `null` in JSON, when it cannot be fitted). See
     /// [`diagnostics`](super::diagnostics).
     #[serde(default)]
     pub pareto_k: f64,
-    /// Effective sample size (Σ|w|)²/Σw² of the final phase's weights.
+    /// Effective sample size (Σ|w|)²/Σw² of the weights that make the estimate.
     #[serde(default)]
     pub ess: f64,
     /// Relative error of the variance estimate behind `std_err` (√Var(s²)/s²).

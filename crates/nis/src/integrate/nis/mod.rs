@@ -4,7 +4,11 @@
 //! Sampling uses a defensive mixture q_mix = λ·uniform + (1 − λ)·q with fixed counts per batch
 //! (the balance heuristic of multiple importance sampling): weights f/q_mix are bounded by f/λ
 //! wherever the flow has not (yet) put mass, which keeps error bars honest when the flow misses
-//! a sliver of the integrand. Training sees only the flow's share of each batch, on-policy.
+//! a sliver of the integrand. Training sees only the flow's share of each batch, on-policy, and
+//! optionally earlier batches again, off-policy (`replay_batches`).
+//! The estimate is the final phase's, joined by the second half of the training batches with
+//! shares fixed before each batch is drawn, so it stays unbiased (`reuse_training`; `reuse.rs`,
+//! docs/ESTIMATE.md).
 //! Early training optionally targets the tempered |f|^β with β rising to 1 (annealing), so that a
 //! flow which has only seen the far tails of several modes is pulled toward all of them.
 
@@ -404,7 +408,8 @@ impl Integrator for NisIntegrator {
         NisIntegrator::set_comm(self, comm);
     }
 
-    /// Trains on `train_fraction` of `evals` (whole batches), then estimates with the rest.
+    /// Trains on `train_fraction` of `evals` (whole batches), then estimates with the rest and
+    /// the last `reuse_training` of the training batches.
     fn integrate(&mut self, f: &dyn Integrand, evals: u64) -> Result<IntegrationResult> {
         let started = Instant::now();
         let batch = self.config.batch as u64;
