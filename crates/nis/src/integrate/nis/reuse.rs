@@ -26,7 +26,8 @@
 //! E[Î] = I exactly. (Weights normalised by their random sum, Σ w_b I_b / Σ w_b, are not
 //! unbiased in general even for predictable w_b: the total depends on earlier batches' values.)
 //! For the same reason Var(Î) = Σ E[a_j²·Var(I_j | past)], estimated without bias by
-//! Σ a_j²·V_j with each batch's own variance estimate V_j = s_j²/n_j.
+//! Σ a_j²·V_j with each batch's own variance estimate V_j = s_j²/n_j (the i.i.d. formula, which
+//! errs high for a batch with fixed counts of each mixture component).
 //!
 //! The shares: batch b (among the last `reuse_training` of the batches, fixed in advance — the
 //! early ones come from a nearly uniform, possibly tempered flow) takes from what is left, r, the
@@ -39,8 +40,9 @@
 //! b against a future assumed as good as the best batch so far, using only earlier batches: with
 //! equal variances every kept evaluation gets weight 1/N (the pooled mean), and a batch whose
 //! predecessor was noisier than the best gets proportionally less. Since the flow only improves on
-//! average, the assumption errs on the side of giving training batches too little, never letting
-//! a poor flow's batch outweigh the final phase.
+//! average, the assumption errs on the side of giving training batches too little rather than too
+//! much. The window matters: with all batches kept (1), the early ones, whose best-so-far is
+//! itself poor, get nearly count shares and the error bar grows (docs/ESTIMATE.md).
 //!
 //! For display and χ²/dof, consecutive kept batches are pooled into as many groups as the final
 //! phase has iterations (a group's estimate Σ a_b I_b / Σ a_b, its variance Σ a_b² V_b / (Σ a_b)²);
@@ -48,11 +50,11 @@
 //! variance. The reliability figures (k̂, ESS, var_rel_err) see the kept batches' weights too; the
 //! unweighting efficiency stays the final sampler's.
 
+use std::collections::VecDeque;
+
 use super::super::diagnostics::WeightTail;
 use super::super::result::{Accumulator, ComponentAccumulator, Iteration, Moments};
 use super::NisConfig;
-use std::collections::VecDeque;
-
 use crate::comm::Comm;
 use crate::error::Result;
 use crate::flow::mixture::{mix_log_density, MixtureBatch};
