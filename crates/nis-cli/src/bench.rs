@@ -1,6 +1,6 @@
-//! `nis bench flow`, `nis bench integrate`, `nis bench memory`, `nis bench coverage` and `nis
-//! bench time-to-precision`: the drivers are `nis_paper::bench::{flow, integrate, memory,
-//! coverage, time_to_precision}`; results go to stdout and to sections of `docs/BENCHMARKS.md`
+//! `nis bench flow`, `nis bench integrate`, `nis bench memory`, `nis bench coverage`, `nis
+//! bench time-to-precision` and `nis bench reuse`: the drivers are `nis_paper::bench::{flow,
+//! integrate, memory, coverage, time_to_precision, reuse}`; results go to stdout and to sections of `docs/BENCHMARKS.md`
 //! (coverage: `docs/ROBUSTNESS.md`). `nis bench mpi` (driver `nis_paper::bench::mpi`) writes a
 //! section of `docs/BENCHMARKS.md` and the model in `docs/SCALING.md`.
 
@@ -260,6 +260,56 @@ pub fn run_mpi(
     let md = nis_paper::bench::mpi::run(&programs, runs, docs, scaling, &mut |line| {
         eprintln!("{line}")
     })?;
+    println!("{md}");
+    Ok(())
+}
+
+/// Arguments of `nis bench reuse`.
+#[derive(clap::Args)]
+pub struct BenchReuseArgs {
+    /// Evaluations of the error-bar comparison (camel d4, d8).
+    #[arg(long, default_value_t = 1_000_000)]
+    evals: u64,
+    /// Seeds of the error-bar comparison.
+    #[arg(long, default_value_t = 3)]
+    seeds: u64,
+    /// Share of the training batches reused in the estimate, compared with none.
+    #[arg(long, default_value_t = 0.5)]
+    reuse: f64,
+    /// Training budgets of the replay comparison.
+    #[arg(long, value_delimiter = ',', default_values_t = [100_000u64, 400_000])]
+    train_budgets: Vec<u64>,
+    /// Markdown file the results go to.
+    #[arg(long, default_value = "docs/BENCHMARKS.md")]
+    docs: PathBuf,
+}
+
+/// `nis bench reuse`: a bar over the runs, a line per finished run.
+pub fn run_reuse(a: &BenchReuseArgs) -> Result<(), Box<dyn std::error::Error>> {
+    let pb = ProgressBar::new(0);
+    pb.set_style(
+        ProgressStyle::with_template("{bar:30} {pos}/{len} runs  {elapsed_precise}  {msg}")
+            .expect("a valid template"),
+    );
+    pb.enable_steady_tick(std::time::Duration::from_millis(500));
+    let options = nis_paper::bench::reuse::Options {
+        evals: a.evals,
+        seeds: a.seeds,
+        reuse: a.reuse,
+        train_budgets: a.train_budgets.clone(),
+        ..Default::default()
+    };
+    let md = nis_paper::bench::reuse::run(&options, &a.docs, &mut |done, total, line| {
+        pb.set_length(total as u64);
+        pb.set_position(done as u64);
+        // Without a terminal the bar is hidden: keep the lines as a log.
+        if pb.is_hidden() {
+            eprintln!("{line}");
+        } else {
+            pb.println(line);
+        }
+    })?;
+    pb.finish_and_clear();
     println!("{md}");
     Ok(())
 }

@@ -124,6 +124,12 @@ enum BenchCommand {
     /// docs/BENCHMARKS.md and a plot per integrand. The full run takes hours: run it on a quiet
     /// machine. Example: nis bench time-to-precision --only camel-sharp:8 --targets 1e-3 --cap 60 --seeds 1
     TimeToPrecision(bench::BenchTimeToPrecisionArgs),
+    /// Every evaluation counts: the NIS error bar of camel d4, d8 at 10⁶ evaluations with the
+    /// final phase alone and with the last training batches in the estimate (3 seeds), and the
+    /// variance per evaluation after training with and without replaying earlier batches (camel
+    /// d4, d8, gauss d8), with the training's wall time; into docs/BENCHMARKS.md (~10 minutes on
+    /// two cores). Example: nis bench reuse --evals 200000 --seeds 1
+    Reuse(bench::BenchReuseArgs),
     /// Strong scaling over MPI ranks (1 vs 2, one thread each) for a ~100 µs/point and a cheap
     /// integrand, the communication of a training step, and the scaling model in
     /// docs/SCALING.md. Starts mpirun with binaries built with the feature `mpi`
@@ -195,6 +201,7 @@ fn main() -> ExitCode {
         Command::Bench(BenchCommand::Density(args)) => density::run_bench(&args),
         Command::Bench(BenchCommand::Memory(args)) => bench::run_memory(&args),
         Command::Bench(BenchCommand::TimeToPrecision(args)) => bench::run_time_to_precision(&args),
+        Command::Bench(BenchCommand::Reuse(args)) => bench::run_reuse(&args),
         Command::Bench(BenchCommand::Mpi {
             mpi_nis,
             mpi_example,

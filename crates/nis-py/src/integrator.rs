@@ -80,7 +80,8 @@ impl PyIntegrator {
         hidden_layers = None, hidden_width = None, blob_bins = None, loss = None, batch = None,
         steps_per_batch = None, train_fraction = None, learning_rate = None,
         learning_rate_end = None, uniform_fraction = None, anneal_from = None,
-        final_iterations = None, increments = None, alpha = None, beta = None,
+        final_iterations = None, reuse_training = None, replay_batches = None,
+        replay_steps = None, increments = None, alpha = None, beta = None,
         iterations = None, warmup = None, min_per_cube = None, train_on = None, threads = None
     ))]
     // Each parameter is a named keyword of the Python constructor (the `vegas`-like interface the
@@ -105,6 +106,9 @@ impl PyIntegrator {
         uniform_fraction: Option<f64>,
         anneal_from: Option<f64>,
         final_iterations: Option<i64>,
+        reuse_training: Option<f64>,
+        replay_batches: Option<i64>,
+        replay_steps: Option<i64>,
         increments: Option<i64>,
         alpha: Option<f64>,
         beta: Option<f64>,
@@ -167,6 +171,9 @@ impl PyIntegrator {
             n.final_iterations,
             c("final_iterations")
         );
+        set!(nis, reuse_training, n.reuse_training, same);
+        set!(nis, replay_batches, n.replay_batches, c("replay_batches"));
+        set!(nis, replay_steps, n.replay_steps, c("replay_steps"));
         let v = &mut s.vegas;
         set!(vegas, increments, v.increments, c("increments"));
         set!(vegas, alpha, v.alpha, same);

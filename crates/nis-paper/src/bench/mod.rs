@@ -12,6 +12,7 @@
 //! - [`memory`]: peak RSS of integration and rendering against the budget (`docs/BENCHMARKS.md`).
 //! - [`time_to_precision`]: wall time of NIS, VEGAS+, plain MC and the `vegas` package to a target
 //!   relative error with an honest answer (`docs/BENCHMARKS.md`).
+//! - [`reuse`]: training evaluations in the estimate and replayed training (`docs/BENCHMARKS.md`).
 //! - [`mpi`]: strong scaling over MPI ranks and the scaling model (`docs/SCALING.md`).
 
 pub mod coverage;
@@ -22,6 +23,7 @@ pub mod guiding;
 pub mod integrate;
 pub mod memory;
 pub mod mpi;
+pub mod reuse;
 pub mod time_to_precision;
 
 use std::time::Instant;

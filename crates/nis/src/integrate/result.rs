@@ -16,20 +16,22 @@ pub struct IntegrationResult {
     pub value: f64,
     /// Its standard error.
     pub std_err: f64,
-    /// χ² per degree of freedom of the final phase's iteration estimates around their mean.
+    /// χ² per degree of freedom of the final phase's iteration estimates around their mean (for
+    /// NIS with training in the estimate, of the pooled training pieces too; docs/ESTIMATE.md).
     pub chi2_per_dof: f64,
     /// All evaluations of the integrand, training included.
     pub n_eval: u64,
-    /// Var(f/q)/F² per evaluation of the final phase: n_final·std_err²/value².
+    /// Var(f/q)/F² per evaluation of the estimate: n·std_err²/value², n the evaluations that make
+    /// it (the final phase's, and the kept training batches' for NIS with training reused).
     pub rel_var_per_eval: f64,
     /// Unweighting efficiency mean(|w|)/max(|w|) of the final phase's weights.
     pub unweighting_efficiency: f64,
-    /// PSIS's Pareto k̂ of the final phase's |w| tail: above [`PARETO_K_LIMIT`](super::PARETO_K_LIMIT) the error bar
+    /// PSIS's Pareto k̂ of the |w| tail of the weights that make the estimate: above [`PARETO_K_LIMIT`](super::PARETO_K_LIMIT) the error bar
     /// cannot be trusted (`NaN`, `null` in JSON, when it cannot be fitted). See
     /// [`diagnostics`](super::diagnostics).
     #[serde(default)]
     pub pareto_k: f64,
-    /// Effective sample size (Σ|w|)²/Σw² of the final phase's weights.
+    /// Effective sample size (Σ|w|)²/Σw² of the weights that make the estimate.
     #[serde(default)]
     pub ess: f64,
     /// Relative error of the variance estimate behind `std_err` (√Var(s²)/s²).
@@ -177,6 +179,8 @@ pub struct Accumulator {
     max_abs_w: f64,
     sum_abs_w: f64,
     n: u64,
+    /// Evaluations of pieces added without their weights ([`Accumulator::add_piece`]).
+    piece_evals: u64,
     tail: WeightTail,
 }
 
@@ -188,6 +192,7 @@ impl Accumulator {
             max_abs_w: 0.0,
             sum_abs_w: 0.0,
             n: 0,
+            piece_evals: 0,
             tail: WeightTail::new(planned),
         }
     }
@@ -278,6 +283,33 @@ impl Accumulator {
         self.n += evals;
         self.tail.add(w);
         Ok(())
+    }
+
+    /// Adds a piece of the estimate made elsewhere (e.g. pooled training batches) with its
+    /// estimate, variance, evaluations and largest |w|: it counts in the estimate, χ² and the
+    /// variance per evaluation, not in the unweighting efficiency (the final sampler's). Its
+    /// weights reach the reliability figures through [`Accumulator::observe_tail`]. An error when
+    /// the variance does not fit in an f64.
+    pub fn add_piece(
+        &mut self,
+        estimate: f64,
+        variance: f64,
+        evals: u64,
+        max_abs_w: f64,
+    ) -> Result<()> {
+        check_representable(estimate, variance, max_abs_w)?;
+        self.iterations.push(Iteration {
+            estimate,
+            variance,
+            evals,
+        });
+        self.piece_evals += evals;
+        Ok(())
+    }
+
+    /// Adds the weights `tail` saw (this rank's) to the reliability figures.
+    pub fn observe_tail(&mut self, tail: &WeightTail) {
+        self.tail.merge(tail);
     }
 
     /// Makes the reliability figures those of every rank's weights: the ranks' tails are
@@ -430,7 +462,7 @@ impl Accumulator {
             rel_var_per_eval: if zero {
                 0.0
             } else {
-                self.n as f64 * var / (value * value)
+                (self.n + self.piece_evals) as f64 * var / (value * value)
             },
             unweighting_efficiency: if zero {
                 0.0

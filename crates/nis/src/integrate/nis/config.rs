@@ -22,6 +22,12 @@ pub struct NisConfig {
     /// Adam steps per batch: the first on-policy, the others reuse the batch off-policy (its
     /// points keep the density they were drawn from), trading compute for evaluations.
     pub steps_per_batch: usize,
+    /// Earlier batches (the flow's share of each, its points, target values and the density that
+    /// drew them) kept for replay, the newest replacing the oldest (0: none).
+    pub replay_batches: usize,
+    /// Extra Adam steps per batch, each on one kept batch (newest first, in turn), off-policy:
+    /// loss weights from f/q_sampling, gradient of ln q_current (MadNIS's buffered training).
+    pub replay_steps: usize,
     /// Share of the evaluation budget spent in the adaptive phase.
     pub train_fraction: f64,
     /// The optimiser.
@@ -36,6 +42,10 @@ pub struct NisConfig {
     pub anneal_from: f64,
     /// Iterations of the final phase (for χ²/dof).
     pub final_iterations: usize,
+    /// Share of the adaptive phase's batches, the last ones, whose evaluations also enter the
+    /// estimate of `integrate`, with shares fixed before each batch is drawn so that it stays
+    /// unbiased (`integrate/nis/reuse.rs`; 0: the final phase's evaluations alone).
+    pub reuse_training: f64,
     /// Seed of the random streams (training, estimating, unweighting).
     pub seed: u64,
     /// The component of a vector-valued integrand the flow learns.
@@ -55,6 +65,8 @@ impl Default for NisConfig {
             loss: Loss::Kl,
             batch: 1024,
             steps_per_batch: 1,
+            replay_batches: 0,
+            replay_steps: 0,
             train_fraction: 0.4,
             adam: AdamConfig {
                 learning_rate: 5e-3,
@@ -65,6 +77,7 @@ impl Default for NisConfig {
             uniform_fraction: 0.002,
             anneal_from: 0.1,
             final_iterations: 10,
+            reuse_training: 0.5,
             seed: 0,
             train_on: TrainOn::default(),
         }
@@ -83,11 +96,13 @@ impl NisConfig {
     pub(super) fn validate(&self) -> Result<()> {
         let ok = self.batch >= 2
             && self.steps_per_batch >= 1
+            && (self.replay_steps == 0 || self.replay_batches >= 1)
             && (0.0..1.0).contains(&self.train_fraction)
             && (0.0..1.0).contains(&self.uniform_fraction)
             && self.anneal_from > 0.0
             && self.anneal_from <= 1.0
             && self.final_iterations >= 1
+            && (0.0..=1.0).contains(&self.reuse_training)
             && self.learning_rate_end > 0.0
             && self.learning_rate_end <= 1.0;
         if ok {
@@ -146,6 +161,12 @@ impl NisConfigBuilder {
         self.config.steps_per_batch = steps;
         self
     }
+    /// Sets [`NisConfig::replay_batches`] and [`NisConfig::replay_steps`].
+    pub fn replay(mut self, batches: usize, steps: usize) -> Self {
+        self.config.replay_batches = batches;
+        self.config.replay_steps = steps;
+        self
+    }
     /// Sets [`NisConfig::train_fraction`].
     pub fn train_fraction(mut self, fraction: f64) -> Self {
         self.config.train_fraction = fraction;
@@ -179,6 +200,11 @@ impl NisConfigBuilder {
     /// Sets [`NisConfig::final_iterations`].
     pub fn final_iterations(mut self, iterations: usize) -> Self {
         self.config.final_iterations = iterations;
+        self
+    }
+    /// Sets [`NisConfig::reuse_training`].
+    pub fn reuse_training(mut self, share: f64) -> Self {
+        self.config.reuse_training = share;
         self
     }
     /// Sets [`NisConfig::train_on`].
@@ -225,6 +251,7 @@ mod tests {
             .loss(Loss::ChiSquare)
             .batch(100)
             .steps_per_batch(3)
+            .replay(8, 2)
             .train_fraction(0.25)
             .adam(adam)
             .learning_rate(2e-3)
@@ -232,6 +259,7 @@ mod tests {
             .uniform_fraction(0.01)
             .anneal_from(0.5)
             .final_iterations(4)
+            .reuse_training(0.75)
             .train_on(TrainOn::SumAbs)
             .build()
             .unwrap();
@@ -245,6 +273,8 @@ mod tests {
             loss: Loss::ChiSquare,
             batch: 100,
             steps_per_batch: 3,
+            replay_batches: 8,
+            replay_steps: 2,
             train_fraction: 0.25,
             adam: AdamConfig {
                 learning_rate: 2e-3,
@@ -254,6 +284,7 @@ mod tests {
             uniform_fraction: 0.01,
             anneal_from: 0.5,
             final_iterations: 4,
+            reuse_training: 0.75,
             seed: 6,
             train_on: TrainOn::SumAbs,
         };
@@ -264,10 +295,13 @@ mod tests {
         for bad in [
             NisConfig::builder().batch(1),
             NisConfig::builder().steps_per_batch(0),
+            NisConfig::builder().replay(0, 1),
             NisConfig::builder().train_fraction(1.0),
             NisConfig::builder().uniform_fraction(-0.1),
             NisConfig::builder().anneal_from(0.0),
             NisConfig::builder().final_iterations(0),
+            NisConfig::builder().reuse_training(1.5),
+            NisConfig::builder().reuse_training(f64::NAN),
             NisConfig::builder().learning_rate_end(0.0),
         ] {
             assert!(matches!(bad.build(), Err(Error::Config(_))));

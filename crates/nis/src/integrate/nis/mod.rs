@@ -4,7 +4,11 @@
 //! Sampling uses a defensive mixture q_mix = λ·uniform + (1 − λ)·q with fixed counts per batch
 //! (the balance heuristic of multiple importance sampling): weights f/q_mix are bounded by f/λ
 //! wherever the flow has not (yet) put mass, which keeps error bars honest when the flow misses
-//! a sliver of the integrand. Training sees only the flow's share of each batch, on-policy.
+//! a sliver of the integrand. Training sees only the flow's share of each batch, on-policy, and
+//! optionally earlier batches again, off-policy (`replay_batches`).
+//! The estimate is the final phase's, joined by the second half of the training batches with
+//! shares fixed before each batch is drawn, so it stays unbiased (`reuse_training`; `reuse.rs`,
+//! docs/ESTIMATE.md).
 //! Early training optionally targets the tempered |f|^β with β rising to 1 (annealing), so that a
 //! flow which has only seen the far tails of several modes is pulled toward all of them.
 
@@ -26,8 +30,10 @@ use crate::error::{Error, Result};
 use crate::flow::mixture::{self, MixtureBatch};
 use crate::flow::{Density, Flow, FlowConfig};
 use crate::train::Trainer;
+use reuse::{ReplayBuffer, TrainingPieces};
 
 mod config;
+mod reuse;
 
 pub use config::{NisConfig, NisConfigBuilder};
 
@@ -128,6 +134,17 @@ impl NisIntegrator {
     /// untrained flow anneals its target from |f|^`anneal_from` — later ones continue Adam as it
     /// stands on the plain target.
     pub fn train(&mut self, f: &dyn Integrand, evals: u64) -> Result<()> {
+        self.train_keeping(f, evals, None)
+    }
+
+    /// [`NisIntegrator::train`], handing every batch to `pieces` (training reused in the
+    /// estimate) when given.
+    fn train_keeping(
+        &mut self,
+        f: &dyn Integrand,
+        evals: u64,
+        mut pieces: Option<&mut TrainingPieces>,
+    ) -> Result<()> {
         let dim = self.flow().dim();
         check_dim(f, dim)?;
         let k = f.components();
@@ -143,15 +160,18 @@ impl NisIntegrator {
         let share = self.comm.share(batch as u64) as usize;
         let steps = (evals / batch as u64) as usize;
         if !self.scheduled {
+            // The rate decays over the Adam steps of the on-policy and the replayed batches.
+            let adam_steps = steps * (1 + self.config.replay_steps);
             let decay = self
                 .config
                 .learning_rate_end
-                .powf(1.0 / steps.max(1) as f32);
+                .powf(1.0 / adam_steps.max(1) as f32);
             self.trainer
                 .set_learning_rate_decay(decay * self.config.adam.decay)?;
             self.scheduled = true;
         }
         let anneal = self.trained_evals == 0 && steps > 1;
+        let mut replay = ReplayBuffer::new(self.config.replay_batches);
         let mut done = 0;
         for step in 0..steps {
             let beta = if anneal {
@@ -172,6 +192,9 @@ impl NisIntegrator {
             let (b, fx) = self
                 .comm
                 .check(drawn.and_then(|(b, x64)| Ok((b, evaluate(f, &x64, dim)?))))?;
+            if let Some(p) = pieces.as_deref_mut() {
+                p.observe(step, &b, &fx, &self.comm);
+            }
             let target = self.config.train_on.target(&fx, k);
             self.trained_evals += batch as u64;
             done += batch as u64;
@@ -189,6 +212,19 @@ impl NisIntegrator {
                     )?;
                 }
             }
+            // Earlier batches replayed off-policy (their points keep the density that drew them).
+            for _ in 0..self.config.replay_steps {
+                if let Some(r) = replay.next() {
+                    self.trainer.step(&r.x, None, &r.target, &r.log_q)?;
+                }
+            }
+            if self.comm.any(target[..n_f].iter().any(|v| *v != 0.0)) {
+                replay.push(
+                    b.density_part.x,
+                    target[..n_f].to_vec(),
+                    b.density_part.log_q,
+                );
+            }
             report(&mut self.progress, done, evals, "nis: training");
         }
         Ok(())
@@ -197,17 +233,19 @@ impl NisIntegrator {
     /// The final phase alone: the flow frozen, `evals` evaluations in `final_iterations`
     /// iterations. For a trained or loaded integrator; the result counts only these evaluations.
     pub fn estimate(&mut self, f: &dyn Integrand, evals: u64) -> Result<IntegrationResult> {
-        self.final_phase(f, evals, 0, Instant::now())
+        self.final_phase(f, evals, 0, Instant::now(), None)
     }
 
     /// The final phase, after `trained` evaluations of training in the same call (for the
-    /// evaluation count and the progress) that started at `started`.
+    /// evaluation count and the progress) that started at `started`, combined with the kept
+    /// training batches `pieces` when given.
     fn final_phase(
         &mut self,
         f: &dyn Integrand,
         evals: u64,
         trained: u64,
         started: Instant,
+        pieces: Option<TrainingPieces>,
     ) -> Result<IntegrationResult> {
         let dim = self.flow().dim();
         check_dim(f, dim)?;
@@ -221,6 +259,9 @@ impl NisIntegrator {
         )?;
         let mut acc = Accumulator::new(evals);
         let mut comps = ComponentAccumulator::new(k);
+        if let Some(p) = &pieces {
+            p.add_to(&mut acc, &mut comps)?;
+        }
         let mut done = 0u64;
         for it in 0..iters {
             let n = ((evals * (it as u64 + 1)) / iters as u64 - done).max(2) as usize;
@@ -252,9 +293,16 @@ impl NisIntegrator {
             );
         }
         acc.reduce_tail(&self.comm);
-        let mut r = acc.finish(trained + done, started, Vec::new());
+        let shares = pieces.map(|p| p.shares(&acc.iterations));
+        let mut r = match &shares {
+            Some(a) => acc.finish_weighted(a, trained + done, started, Vec::new()),
+            None => acc.finish(trained + done, started, Vec::new()),
+        };
         if k > 1 {
-            r.components = Some(comps.finish());
+            r.components = Some(match &shares {
+                Some(a) => comps.finish_weighted(a),
+                None => comps.finish(),
+            });
         }
         Ok(r)
     }
@@ -360,13 +408,16 @@ impl Integrator for NisIntegrator {
         NisIntegrator::set_comm(self, comm);
     }
 
-    /// Trains on `train_fraction` of `evals` (whole batches), then estimates with the rest.
+    /// Trains on `train_fraction` of `evals` (whole batches), then estimates with the rest and
+    /// the last `reuse_training` of the training batches.
     fn integrate(&mut self, f: &dyn Integrand, evals: u64) -> Result<IntegrationResult> {
         let started = Instant::now();
         let batch = self.config.batch as u64;
         let train = ((evals as f64 * self.config.train_fraction) as u64 / batch) * batch;
-        self.train(f, train)?;
-        self.final_phase(f, evals - train, train, started)
+        let batches = (train / batch) as usize;
+        let mut pieces = TrainingPieces::plan(&self.config, batches, evals - train, f.components());
+        self.train_keeping(f, train, pieces.as_mut())?;
+        self.final_phase(f, evals - train, train, started, pieces)
     }
 
     fn save(&self, path: &Path) -> Result<()> {
