@@ -40,6 +40,32 @@ pub struct NisConfig {
     pub seed: u64,
     /// The component of a vector-valued integrand the flow learns.
     pub train_on: TrainOn,
+    /// Stratified sampling of the flow's latent in the final phase, with VEGAS+'s adaptive
+    /// allocation of points to hypercubes (`None` or JSON `null`: i.i.d. latents).
+    pub stratify: Option<Stratify>,
+}
+
+/// How the final phase stratifies the flow's latent space (see `integrate::nis::strata`).
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct Stratify {
+    /// Damping of the allocation's adaptation, as VEGAS+'s β (0: equal counts per hypercube).
+    pub beta: f64,
+    /// Fewest points per hypercube (at least 2, for its variance).
+    pub min_per_cube: usize,
+    /// Most hypercubes (they are planned from the points per iteration, as VEGAS+ plans them;
+    /// this bounds the memory of a large budget; 1: no stratification of the latent).
+    pub max_cubes: usize,
+}
+
+impl Default for Stratify {
+    fn default() -> Self {
+        Stratify {
+            beta: 0.75,
+            min_per_cube: 2,
+            max_cubes: 1 << 16,
+        }
+    }
 }
 
 impl Default for NisConfig {
@@ -67,6 +93,7 @@ impl Default for NisConfig {
             final_iterations: 10,
             seed: 0,
             train_on: TrainOn::default(),
+            stratify: Some(Stratify::default()),
         }
     }
 }
@@ -89,7 +116,10 @@ impl NisConfig {
             && self.anneal_from <= 1.0
             && self.final_iterations >= 1
             && self.learning_rate_end > 0.0
-            && self.learning_rate_end <= 1.0;
+            && self.learning_rate_end <= 1.0
+            && self
+                .stratify
+                .is_none_or(|s| s.beta >= 0.0 && s.min_per_cube >= 2 && s.max_cubes >= 1);
         if ok {
             Ok(())
         } else {
@@ -186,6 +216,11 @@ impl NisConfigBuilder {
         self.config.train_on = train_on;
         self
     }
+    /// Sets [`NisConfig::stratify`].
+    pub fn stratify(mut self, stratify: Option<Stratify>) -> Self {
+        self.config.stratify = stratify;
+        self
+    }
     /// Seeds the run: the random streams ([`NisConfig::seed`]) and the flow's initialisation
     /// (its `seed`), whatever order the setters came in.
     pub fn seed(mut self, seed: u64) -> Self {
@@ -233,6 +268,11 @@ mod tests {
             .anneal_from(0.5)
             .final_iterations(4)
             .train_on(TrainOn::SumAbs)
+            .stratify(Some(Stratify {
+                beta: 0.5,
+                min_per_cube: 3,
+                max_cubes: 10,
+            }))
             .build()
             .unwrap();
         let expected = NisConfig {
@@ -256,6 +296,11 @@ mod tests {
             final_iterations: 4,
             seed: 6,
             train_on: TrainOn::SumAbs,
+            stratify: Some(Stratify {
+                beta: 0.5,
+                min_per_cube: 3,
+                max_cubes: 10,
+            }),
         };
         assert_eq!(c, expected);
         // Without `seed`, the flow keeps its own.
@@ -269,6 +314,18 @@ mod tests {
             NisConfig::builder().anneal_from(0.0),
             NisConfig::builder().final_iterations(0),
             NisConfig::builder().learning_rate_end(0.0),
+            NisConfig::builder().stratify(Some(Stratify {
+                min_per_cube: 1,
+                ..Stratify::default()
+            })),
+            NisConfig::builder().stratify(Some(Stratify {
+                max_cubes: 0,
+                ..Stratify::default()
+            })),
+            NisConfig::builder().stratify(Some(Stratify {
+                beta: -1.0,
+                ..Stratify::default()
+            })),
         ] {
             assert!(matches!(bad.build(), Err(Error::Config(_))));
         }

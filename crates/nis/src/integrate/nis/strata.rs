@@ -1,0 +1,273 @@
+//! The final phase with a stratified latent: the flow maps z ∈ [0,1]^D, uniform, to x with
+//! density q(x), so ∫ g(x) q(x) dx = ∫ g(x(z)) dz, and that integral over the latent cube can be
+//! sampled as VEGAS+ samples its y-space (Lepage 2021, Sec. 3): cut into hypercubes h of volume
+//! V_h, n_h points uniform in each, the estimate Σ_h V_h·mean_h with variance
+//! Σ_h V_h²·Var_h/n_h, and the n_h of the next iteration allocated by the measured variances
+//! ([`crate::integrate::vegas::strata`], damped by β).
+//!
+//! The defensive mixture q_mix = λ·uniform + (1 − λ)·q is kept as a sum of two integrals,
+//! ∫ f = ∫ (1 − λ)·f/q_mix · q dx + ∫ λ·f/q_mix dx (the two weights add up to one wherever
+//! q_mix > 0), each estimated by its own points: the first over the flow's stratified latent,
+//! the second over uniform points in x, i.i.d. (the mixture as a whole cannot be stratified in
+//! its latent: it has no inverse). This is the balance heuristic of multiple importance
+//! sampling with fixed counts, so it is unbiased for any counts, and with counts in proportion
+//! λ : 1 − λ and one hypercube it is exactly the i.i.d. final phase's estimator.
+//!
+//! Why the whole is unbiased: within an iteration every hypercube's mean is unbiased for its
+//! part of the integral whatever its count, and the counts of iteration t depend only on the
+//! points of iterations before t; the iterations are pooled with weights fixed by their sizes.
+//! So each iteration's error has mean zero given the past (a martingale difference), the pooled
+//! estimate is unbiased, and its variance is the sum of the iterations' (stratified) variances.
+//! The per-point weights handed to the reliability figures (k̂, ESS, unweighting efficiency) are
+//! those whose plain mean is the stratified estimate, as VEGAS+ hands them.
+
+use rand::Rng;
+use rand_pcg::Pcg64Mcg;
+
+use super::config::Stratify;
+use super::ESTIMATE_CHUNK;
+use crate::comm::Comm;
+use crate::error::Result;
+use crate::flow::{Bijection, Density, Flow};
+use crate::integrate::result::Moments;
+use crate::integrate::vegas::strata::Strata;
+use crate::integrate::{evaluate, TrainOn};
+
+/// The stratification of one final phase: its hypercubes, their adapted allocation, and what a
+/// chunk of points needs to know.
+pub(super) struct LatentStrata {
+    strata: Strata,
+    settings: Stratify,
+    /// Share λ of the uniform component in q_mix.
+    lambda: f64,
+    /// Share of the next iteration's points drawn uniformly: λ at first, then the share the
+    /// measured standard deviations of the two parts call for (Neyman's allocation), at least λ.
+    uniform_share: f64,
+    /// Components of the integrand.
+    k: usize,
+    train_on: TrainOn,
+}
+
+/// One iteration's estimate: Σ over both components, its variance (component 0), and the
+/// per-component mean and covariance of the mean (`k`, `k × k`).
+pub(super) struct Stratified {
+    pub(super) estimate: f64,
+    pub(super) variance: f64,
+    pub(super) mean: Vec<f64>,
+    pub(super) cov: Vec<f64>,
+    /// Evaluations over all ranks.
+    pub(super) evals: u64,
+    /// This rank's largest |w| and Σ|w| of the weights it observed.
+    pub(super) max_abs_w: f64,
+    pub(super) sum_abs_w: f64,
+}
+
+impl LatentStrata {
+    /// The hypercubes for iterations of about `per_iter` points, as VEGAS+ plans them for its
+    /// y-space (at most `settings.max_cubes`).
+    pub(super) fn new(
+        dim: usize,
+        per_iter: u64,
+        lambda: f64,
+        k: usize,
+        train_on: TrainOn,
+        settings: Stratify,
+    ) -> LatentStrata {
+        let (_, n_q) = split(per_iter, lambda);
+        // Planning from fewer points gives fewer hypercubes: the even quarter fills max_cubes.
+        let cap = (settings.max_cubes as f64 * settings.min_per_cube as f64
+            / (1.0 - crate::integrate::vegas::strata::ADAPTIVE_SHARE))
+            .min(usize::MAX as f64) as usize;
+        let strata = Strata::plan(dim, (n_q as usize).min(cap), settings.min_per_cube);
+        LatentStrata {
+            strata,
+            settings,
+            lambda,
+            uniform_share: lambda,
+            k,
+            train_on,
+        }
+    }
+
+    /// The fewest evaluations an iteration needs: `min_per_cube` in every hypercube and two
+    /// uniform points (for their variance) when λ > 0.
+    pub(super) fn min_per_iteration(settings: Stratify, lambda: f64) -> u64 {
+        (settings.min_per_cube + if lambda > 0.0 { 2 } else { 0 }) as u64
+    }
+
+    /// One iteration of `n` evaluations over all ranks: this rank's share of every hypercube's
+    /// points and of the uniform ones drawn from `rng`, evaluated in chunks of bounded memory;
+    /// each chunk's weights go to `observe`. Adapts the allocation for the next iteration.
+    pub(super) fn iteration(
+        &mut self,
+        flow: &Flow,
+        f: &dyn crate::integrate::Integrand,
+        n: u64,
+        rng: &mut Pcg64Mcg,
+        comm: &Comm,
+        observe: &mut dyn FnMut(&[f64]),
+    ) -> Result<Stratified> {
+        let (dim, k, lambda) = (flow.dim(), self.k, self.lambda);
+        let (n_u, n_q) = split(n, self.uniform_share);
+        let counts = self
+            .strata
+            .allocate(n_q as usize, self.settings.min_per_cube);
+        let evals = counts.iter().sum::<usize>() as u64 + n_u;
+        let cubes = self.strata.cubes;
+        let volume = 1.0 / cubes as f64;
+        let adapts_to_f = k == 1 && self.train_on == TrainOn::Component(0);
+        let mut g = vec![Moments::new(k); cubes];
+        let mut t = if adapts_to_f {
+            Vec::new()
+        } else {
+            vec![Moments::new(1); cubes]
+        };
+        let mut uniform = Moments::new(k);
+        let (mut max_abs_w, mut sum_abs_w) = (0.0f64, 0.0);
+        // The reliability figures see the sampler's own weights f/q_mix (those of the i.i.d.
+        // final phase and of unweighting), not the stratified estimate's N·V_h/n_h-scaled ones:
+        // those would measure the allocation (a cube given few points scales its weights up),
+        // and an allocation adapted to the variances shows a Pareto k̂ > 1 on a flow whose own
+        // weights have k̂ < 0.1.
+        let mut weigh = |w: &[f64], observe: &mut dyn FnMut(&[f64])| {
+            let w0: Vec<f64> = w.chunks_exact(k).map(|r| r[0]).collect();
+            for v in &w0 {
+                max_abs_w = max_abs_w.max(v.abs());
+                sum_abs_w += v.abs();
+            }
+            observe(&w0);
+        };
+        let drawn: Result<()> = (|| {
+            // This rank's points of each hypercube, in cube order, in chunks.
+            let mine: Vec<usize> = counts
+                .iter()
+                .map(|&c| comm.share(c as u64) as usize)
+                .collect();
+            let mut corner = vec![0usize; dim];
+            let (mut h, mut done_in_h) = (0, 0);
+            while h < cubes {
+                let (mut z, mut cube_of) = (Vec::new(), Vec::new());
+                while h < cubes && cube_of.len() < ESTIMATE_CHUNK {
+                    let take = (mine[h] - done_in_h).min(ESTIMATE_CHUNK - cube_of.len());
+                    self.strata.corner(h, &mut corner);
+                    for _ in 0..take {
+                        for (&c, &s) in corner.iter().zip(&self.strata.per_axis) {
+                            z.push(((c as f64 + rng.random::<f64>()) / s as f64) as f32);
+                        }
+                        cube_of.push(h);
+                    }
+                    done_in_h += take;
+                    if done_in_h == mine[h] {
+                        (h, done_in_h) = (h + 1, 0);
+                    }
+                }
+                let (x, neg_log_q) = flow.inverse(&z, None)?;
+                let log_q: Vec<f64> = neg_log_q.iter().map(|l| -l).collect();
+                let w = mixture_weights(f, &x, &log_q, lambda, dim, k)?;
+                let target = (!adapts_to_f).then(|| self.train_on.target(&w, k));
+                // Runs of one hypercube: moments, and the weights for the reliability figures.
+                let mut start = 0;
+                while start < cube_of.len() {
+                    let c = cube_of[start];
+                    let end = start + cube_of[start..].iter().take_while(|&&b| b == c).count();
+                    let run = &w[start * k..end * k];
+                    g[c].add(run);
+                    if let Some(t_all) = &target {
+                        t[c].add(&t_all[start..end]);
+                    }
+                    weigh(run, observe);
+                    start = end;
+                }
+            }
+            // The uniform component, i.i.d. in x, also in chunks.
+            let mut left = comm.share(n_u) as usize;
+            while left > 0 {
+                let m = left.min(ESTIMATE_CHUNK);
+                let x: Vec<f32> = (0..m * dim).map(|_| rng.random::<f32>()).collect();
+                let log_q = flow.log_density(&x, None)?;
+                let w = mixture_weights(f, &x, &log_q, lambda, dim, k)?;
+                uniform.add(&w);
+                weigh(&w, observe);
+                left -= m;
+            }
+            Ok(())
+        })();
+        comm.check(drawn)?;
+        let g = Moments::across_each(&g, comm);
+        let t = Moments::across_each(&t, comm);
+        let uniform = uniform.across(comm);
+        // Σ_h V_h·(1 − λ)·mean_h + λ·mean_u, and its covariance.
+        let (mut mean, mut cov) = (vec![0.0; k], vec![0.0; k * k]);
+        let mut contribution_var = vec![0.0; cubes];
+        let a = (1.0 - lambda) * volume;
+        // Σ_h a·σ_h, the flow part's standard deviation per point under Neyman's allocation.
+        let mut sigma_q = 0.0;
+        for (h, m) in g.iter().enumerate() {
+            let (mh, ch) = m.mean_and_cov_of_mean();
+            sigma_q += a * (ch[0] * counts[h] as f64).max(0.0).sqrt();
+            mean.iter_mut().zip(&mh).for_each(|(s, v)| *s += a * v);
+            cov.iter_mut().zip(&ch).for_each(|(s, v)| *s += a * a * v);
+            contribution_var[h] = a * a * t.get(h).map_or(ch[0], |t| t.mean_and_cov_of_mean().1[0]);
+        }
+        if n_u > 0 {
+            let (mu, cu) = uniform.mean_and_cov_of_mean();
+            mean.iter_mut().zip(&mu).for_each(|(s, v)| *s += lambda * v);
+            cov.iter_mut()
+                .zip(&cu)
+                .for_each(|(s, v)| *s += lambda * lambda * v);
+            // The two parts' points in proportion to their standard deviations (the variance
+            // Σ c²σ_c²/n_c is least for n_c ∝ c·σ_c), never fewer uniform ones than λ asks for,
+            // nor more than half; fixed before the next iteration's points, so still unbiased.
+            let sigma_u = lambda * (cu[0] * n_u as f64).max(0.0).sqrt();
+            if sigma_u + sigma_q > 0.0 && (sigma_u + sigma_q).is_finite() {
+                self.uniform_share =
+                    (sigma_u / (sigma_u + sigma_q)).clamp(lambda, MAX_UNIFORM_SHARE);
+            }
+        }
+        self.strata.adapt(&contribution_var, self.settings.beta);
+        Ok(Stratified {
+            estimate: mean[0],
+            variance: cov[0],
+            mean,
+            cov,
+            evals,
+            max_abs_w,
+            sum_abs_w,
+        })
+    }
+}
+
+/// Most of an iteration's points the uniform part may take: the flow is the sampler.
+const MAX_UNIFORM_SHARE: f64 = 0.5;
+
+/// Uniform and flow points of an iteration of `n`: n_u = round(λn), at least two when λ > 0 (for
+/// the uniform part's variance), and the rest.
+fn split(n: u64, lambda: f64) -> (u64, u64) {
+    let n_u = if lambda > 0.0 {
+        ((lambda * n as f64).round() as u64).max(2)
+    } else {
+        0
+    };
+    (n_u, n.saturating_sub(n_u))
+}
+
+/// f/q_mix at the points `x` with ln q, `n × k` row-major.
+fn mixture_weights(
+    f: &dyn crate::integrate::Integrand,
+    x: &[f32],
+    log_q: &[f64],
+    lambda: f64,
+    dim: usize,
+    k: usize,
+) -> Result<Vec<f64>> {
+    let x64: Vec<f64> = x.iter().map(|&v| v as f64).collect();
+    let fx = evaluate(f, &x64, dim)?;
+    Ok(fx
+        .chunks_exact(k)
+        .zip(log_q)
+        .flat_map(|(v, &l)| {
+            let inv_q = (-crate::flow::mixture::mix_log_density(lambda, l)).exp();
+            v.iter().map(move |v| v * inv_q)
+        })
+        .collect())
+}
