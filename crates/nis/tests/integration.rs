@@ -273,7 +273,9 @@ fn results_do_not_depend_on_the_thread_count() {
 fn results_are_bit_identical_to_the_recorded_ones() {
     let gauss = integrands::by_name("gauss", Some(2)).unwrap();
     let expected = [
-        (Method::Nis, "0.9985264702903238", "0.0008658039878684403"),
+        // NIS re-recorded when its final phase stratified the flow's latent (was
+        // 0.9985264702903238 ± 0.0008658039878684403 with i.i.d. latents).
+        (Method::Nis, "0.9985663773057368", "0.0004164985998553177"),
         // VEGAS+ re-recorded when it took the `vegas` package's stratification and map
         // adaptation and the shares of its iterations (was 0.999350167143816 ± 0.000141235…).
         (Method::Vegas, "0.9991300887314856", "0.0001732057132195463"),
@@ -305,9 +307,10 @@ fn results_are_bit_identical_to_the_recorded_ones() {
         .unwrap();
     assert_eq!(
         (r.value.to_bits(), r.std_err.to_bits()),
+        // Stratified latent (was 0.9633652310386513 ± 0.0010154772808631763 with i.i.d. ones).
         (
-            0.9633652310386513f64.to_bits(),
-            0.0010154772808631763f64.to_bits()
+            0.9636802830549673f64.to_bits(),
+            0.0007242640210011912f64.to_bits()
         )
     );
 }

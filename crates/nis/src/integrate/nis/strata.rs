@@ -271,3 +271,203 @@ fn mixture_weights(
         })
         .collect())
 }
+
+#[cfg(test)]
+mod tests {
+    use std::time::Instant;
+
+    use rand::SeedableRng;
+
+    use super::*;
+    use crate::flow::{Flow, FlowConfig};
+    use crate::integrate::Accumulator;
+    use crate::transform::TransformKind;
+
+    /// A 2-d flow whose parameters got uniform noise: q is far from uniform, and far from f.
+    fn flow() -> Flow {
+        let mut flow = Flow::new(FlowConfig {
+            transform: TransformKind::Quadratic { bins: 6 },
+            hidden_layers: 1,
+            hidden_width: 8,
+            blob_bins: 4,
+            ..FlowConfig::new(2)
+        })
+        .unwrap();
+        let mut rng = Pcg64Mcg::seed_from_u64(9);
+        for p in flow.params_mut() {
+            *p += 0.8 * (2.0 * rng.random::<f32>() - 1.0);
+        }
+        flow
+    }
+
+    /// ∫ 20·x⁹·y dx dy = 1 over the unit square: a steep edge q knows nothing about.
+    fn integrand(x: &[f64]) -> f64 {
+        20.0 * x[0].powi(9) * x[1]
+    }
+
+    /// A stratified final phase of `iterations` × `per_iter` points from `seed`: its estimate
+    /// and standard error, pooled as the integrator pools them.
+    fn run(flow: &Flow, lambda: f64, settings: Stratify, seed: u64) -> (f64, f64) {
+        let (iterations, per_iter) = (4, 2000);
+        let f = integrand;
+        let mut latent = LatentStrata::new(2, per_iter, lambda, 1, TrainOn::default(), settings);
+        let mut rng = Pcg64Mcg::seed_from_u64(seed);
+        let comm = Comm::default();
+        let mut acc = Accumulator::new(iterations * per_iter);
+        for _ in 0..iterations {
+            let s = latent
+                .iteration(flow, &f, per_iter, &mut rng, &comm, &mut |w| acc.observe(w))
+                .unwrap();
+            assert_eq!(s.evals, per_iter);
+            acc.add_observed_iteration(
+                &comm,
+                s.estimate,
+                s.variance,
+                s.evals,
+                s.max_abs_w,
+                s.sum_abs_w,
+            )
+            .unwrap();
+        }
+        let r = acc.finish(iterations * per_iter, Instant::now(), Vec::new());
+        (r.value, r.std_err)
+    }
+
+    /// The mean and the sample variance of `v`.
+    fn mean_var(v: &[f64]) -> (f64, f64) {
+        let n = v.len() as f64;
+        let m = v.iter().sum::<f64>() / n;
+        (
+            m,
+            v.iter().map(|x| (x - m).powi(2)).sum::<f64>() / (n - 1.0),
+        )
+    }
+
+    /// Bands of `SIGMAS` standard deviations of the sampling distributions below.
+    const SIGMAS: f64 = 4.0;
+
+    #[test]
+    fn stratified_estimates_are_unbiased_and_their_error_bars_cover() {
+        let flow = flow();
+        let seeds = 400;
+        for lambda in [0.0, 0.05] {
+            let runs: Vec<(f64, f64)> = (0..seeds)
+                .map(|s| run(&flow, lambda, Stratify::default(), s))
+                .collect();
+            let pulls: Vec<f64> = runs.iter().map(|(v, e)| (v - 1.0) / e).collect();
+            let s = seeds as f64;
+            let values: Vec<f64> = runs.iter().map(|r| r.0).collect();
+            let (mean, spread) = mean_var(&values);
+            // The mean of the estimates ~ N(1, spread/S): unbiased. (The mean pull is not the
+            // test: with a few points per hypercube of a skewed f/q, a low estimate comes with a
+            // low variance estimate, which pulls it below zero without any bias; measured −0.15
+            // at λ = 0 over 1600 seeds, the estimates' mean 0.99977 ± 0.00039.)
+            assert!(
+                (mean - 1.0).abs() < SIGMAS * (spread / s).sqrt(),
+                "λ {lambda}: {mean}"
+            );
+            // Coverage of ±1σ and ±2σ within binomial bands of S seeds.
+            for (k, p) in [(1.0, 0.6827), (2.0, 0.9545)] {
+                let inside = pulls.iter().filter(|z| z.abs() < k).count() as f64 / s;
+                let band = SIGMAS * (p * (1.0 - p) / s).sqrt();
+                assert!((inside - p).abs() < band, "λ {lambda}: {k}σ: {inside}");
+            }
+            // The stratified variance estimate against the spread of the estimates over the
+            // seeds: their ratio's sampling error is about √(2/(S − 1)).
+            let claimed = runs.iter().map(|r| r.1 * r.1).sum::<f64>() / s;
+            let ratio = spread / claimed;
+            assert!(
+                (ratio - 1.0).abs() < SIGMAS * (2.0 / (s - 1.0)).sqrt(),
+                "λ {lambda}: spread/claimed = {ratio}"
+            );
+        }
+    }
+
+    #[test]
+    fn one_hypercube_is_the_iid_estimate_and_more_hypercubes_beat_it() {
+        let flow = flow();
+        let seeds = 300;
+        let one = Stratify {
+            max_cubes: 1,
+            ..Stratify::default()
+        };
+        let (iterations, per_iter) = (4usize, 2000usize);
+        // The i.i.d. final phase's estimate: the mean of f/q over all its points.
+        let iid: Vec<f64> = (0..seeds)
+            .map(|s| {
+                let mut rng = Pcg64Mcg::seed_from_u64(s);
+                let (_, w) =
+                    super::super::weights(&flow, 0.0, &integrand, iterations * per_iter, &mut rng)
+                        .unwrap();
+                w.iter().sum::<f64>() / w.len() as f64
+            })
+            .collect();
+        let single: Vec<f64> = (0..seeds)
+            .map(|s| run(&flow, 0.0, one, 1000 + s).0)
+            .collect();
+        let many: Vec<f64> = (0..seeds)
+            .map(|s| run(&flow, 0.0, Stratify::default(), 2000 + s).0)
+            .collect();
+        let s = seeds as f64;
+        let (m_iid, v_iid) = mean_var(&iid);
+        let (m_one, v_one) = mean_var(&single);
+        let (_, v_many) = mean_var(&many);
+        // Same mean (two-sample z) and same variance (ratio within its sampling error, doubled for
+        // two samples).
+        let se = ((v_iid + v_one) / s).sqrt();
+        assert!((m_iid - m_one).abs() < SIGMAS * se, "{m_iid} vs {m_one}");
+        let ratio = v_one / v_iid;
+        assert!(
+            (ratio - 1.0).abs() < SIGMAS * (4.0 / (s - 1.0)).sqrt(),
+            "variance one cube / i.i.d. = {ratio}"
+        );
+        // 2000 points per iteration give 15 × 15 hypercubes: less variance on a smooth f (measured
+        // 0.24 of it).
+        assert!(
+            v_many < 0.5 * v_iid,
+            "stratified {v_many} vs i.i.d. {v_iid}"
+        );
+    }
+
+    #[test]
+    fn estimates_do_not_depend_on_the_thread_count() {
+        let flow = flow();
+        let on = |threads| {
+            rayon::ThreadPoolBuilder::new()
+                .num_threads(threads)
+                .build()
+                .unwrap()
+                .install(|| run(&flow, 0.05, Stratify::default(), 7))
+        };
+        let one = on(1);
+        assert_eq!(one.0.to_bits(), on(3).0.to_bits());
+        assert_eq!(one.1.to_bits(), on(3).1.to_bits());
+    }
+
+    #[test]
+    fn hypercubes_follow_the_plan_and_the_cap() {
+        let flow = flow();
+        let latent = LatentStrata::new(2, 50_000, 0.0, 1, TrainOn::default(), Stratify::default());
+        assert_eq!(latent.strata.per_axis, vec![79, 79]);
+        let capped = Stratify {
+            max_cubes: 100,
+            ..Stratify::default()
+        };
+        let latent = LatentStrata::new(2, 50_000, 0.0, 1, TrainOn::default(), capped);
+        assert_eq!(latent.strata.per_axis, vec![10, 10]);
+        // An iteration makes exactly its points, the uniform ones included.
+        let mut latent = LatentStrata::new(2, 1001, 0.1, 1, TrainOn::default(), capped);
+        let mut rng = Pcg64Mcg::seed_from_u64(1);
+        let s = latent
+            .iteration(
+                &flow,
+                &integrand,
+                1001,
+                &mut rng,
+                &Comm::default(),
+                &mut |_| {},
+            )
+            .unwrap();
+        assert_eq!(s.evals, 1001);
+    }
+}
