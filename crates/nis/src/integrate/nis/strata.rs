@@ -114,22 +114,23 @@ impl LatentStrata {
             .allocate(n_q as usize, self.settings.min_per_cube);
         let evals = counts.iter().sum::<usize>() as u64 + n_u;
         let cubes = self.strata.cubes;
-        let volume = 1.0 / cubes as f64;
-        let adapts_to_f = k == 1 && self.train_on == TrainOn::Component(0);
-        let mut g = vec![Moments::new(k); cubes];
-        let mut t = if adapts_to_f {
-            Vec::new()
+        // The uniform part stratified in x with equal counts, two points per hypercube: as
+        // many hypercubes as that allows (it gets few points, too few to adapt an allocation).
+        let uniform_strata = Strata::plan(dim, 4 * n_u as usize, UNIFORM_PER_CUBE);
+        let uniform_counts = if n_u == 0 {
+            vec![0; uniform_strata.cubes]
         } else {
-            vec![Moments::new(1); cubes]
+            uniform_strata.allocate(n_u as usize, UNIFORM_PER_CUBE)
         };
-        let mut uniform = Moments::new(k);
+        let adapts_to_f = k == 1 && self.train_on == TrainOn::Component(0);
+        let target = (!adapts_to_f).then_some(self.train_on);
         let (mut max_abs_w, mut sum_abs_w) = (0.0f64, 0.0);
         // The reliability figures see the sampler's own weights f/q_mix (those of the i.i.d.
         // final phase and of unweighting), not the stratified estimate's N·V_h/n_h-scaled ones:
         // those would measure the allocation (a cube given few points scales its weights up),
         // and an allocation adapted to the variances shows a Pareto k̂ > 1 on a flow whose own
         // weights have k̂ < 0.1.
-        let mut weigh = |w: &[f64], observe: &mut dyn FnMut(&[f64])| {
+        let mut weigh = |w: &[f64]| {
             let w0: Vec<f64> = w.chunks_exact(k).map(|r| r[0]).collect();
             for v in &w0 {
                 max_abs_w = max_abs_w.max(v.abs());
@@ -137,92 +138,56 @@ impl LatentStrata {
             }
             observe(&w0);
         };
-        let drawn: Result<()> = (|| {
-            // This rank's points of each hypercube, in cube order, in chunks.
-            let mine: Vec<usize> = counts
-                .iter()
-                .map(|&c| comm.share(c as u64) as usize)
-                .collect();
-            let mut corner = vec![0usize; dim];
-            let (mut h, mut done_in_h) = (0, 0);
-            while h < cubes {
-                let (mut z, mut cube_of) = (Vec::new(), Vec::new());
-                while h < cubes && cube_of.len() < ESTIMATE_CHUNK {
-                    let take = (mine[h] - done_in_h).min(ESTIMATE_CHUNK - cube_of.len());
-                    self.strata.corner(h, &mut corner);
-                    for _ in 0..take {
-                        for (&c, &s) in corner.iter().zip(&self.strata.per_axis) {
-                            z.push(((c as f64 + rng.random::<f64>()) / s as f64) as f32);
-                        }
-                        cube_of.push(h);
-                    }
-                    done_in_h += take;
-                    if done_in_h == mine[h] {
-                        (h, done_in_h) = (h + 1, 0);
-                    }
-                }
-                let (x, neg_log_q) = flow.inverse(&z, None)?;
+        let drawn = (|| {
+            let flow_part = Cubes {
+                strata: &self.strata,
+                counts: &counts,
+            }
+            .draw(comm, rng, k, target, &mut weigh, &mut |z| {
+                let (x, neg_log_q) = flow.inverse(z, None)?;
                 let log_q: Vec<f64> = neg_log_q.iter().map(|l| -l).collect();
-                let w = mixture_weights(f, &x, &log_q, lambda, dim, k)?;
-                let target = (!adapts_to_f).then(|| self.train_on.target(&w, k));
-                // Runs of one hypercube: moments, and the weights for the reliability figures.
-                let mut start = 0;
-                while start < cube_of.len() {
-                    let c = cube_of[start];
-                    let end = start + cube_of[start..].iter().take_while(|&&b| b == c).count();
-                    let run = &w[start * k..end * k];
-                    g[c].add(run);
-                    if let Some(t_all) = &target {
-                        t[c].add(&t_all[start..end]);
-                    }
-                    weigh(run, observe);
-                    start = end;
-                }
+                mixture_weights(f, &x, &log_q, lambda, dim, k)
+            })?;
+            let uniform_part = Cubes {
+                strata: &uniform_strata,
+                counts: &uniform_counts,
             }
-            // The uniform component, i.i.d. in x, also in chunks.
-            let mut left = comm.share(n_u) as usize;
-            while left > 0 {
-                let m = left.min(ESTIMATE_CHUNK);
-                let x: Vec<f32> = (0..m * dim).map(|_| rng.random::<f32>()).collect();
-                let log_q = flow.log_density(&x, None)?;
-                let w = mixture_weights(f, &x, &log_q, lambda, dim, k)?;
-                uniform.add(&w);
-                weigh(&w, observe);
-                left -= m;
-            }
-            Ok(())
+            .draw(comm, rng, k, None, &mut weigh, &mut |x| {
+                let log_q = flow.log_density(x, None)?;
+                mixture_weights(f, x, &log_q, lambda, dim, k)
+            })?;
+            Ok((flow_part, uniform_part))
         })();
-        comm.check(drawn)?;
+        let ((g, t), (u, _)) = comm.check(drawn)?;
         let g = Moments::across_each(&g, comm);
         let t = Moments::across_each(&t, comm);
-        let uniform = uniform.across(comm);
-        // Σ_h V_h·(1 − λ)·mean_h + λ·mean_u, and its covariance.
+        let u = Moments::across_each(&u, comm);
+        // Σ_h V_h·(1 − λ)·mean_h + Σ_h' V_h'·λ·mean_h', and its covariance.
         let (mut mean, mut cov) = (vec![0.0; k], vec![0.0; k * k]);
         let mut contribution_var = vec![0.0; cubes];
-        let a = (1.0 - lambda) * volume;
-        // Σ_h a·σ_h, the flow part's standard deviation per point under Neyman's allocation.
-        let mut sigma_q = 0.0;
-        for (h, m) in g.iter().enumerate() {
+        // Σ_h a_h·σ_h of each part, its standard deviation per point under Neyman's allocation.
+        let mut add = |m: &Moments, a: f64| {
             let (mh, ch) = m.mean_and_cov_of_mean();
-            sigma_q += a * (ch[0] * counts[h] as f64).max(0.0).sqrt();
             mean.iter_mut().zip(&mh).for_each(|(s, v)| *s += a * v);
             cov.iter_mut().zip(&ch).for_each(|(s, v)| *s += a * a * v);
-            contribution_var[h] = a * a * t.get(h).map_or(ch[0], |t| t.mean_and_cov_of_mean().1[0]);
+            (a * (ch[0] * m.n() as f64).max(0.0).sqrt(), a * a * ch[0])
+        };
+        let a = (1.0 - lambda) / cubes as f64;
+        let mut sigma_q = 0.0;
+        for (h, m) in g.iter().enumerate() {
+            let (sigma, var) = add(m, a);
+            sigma_q += sigma;
+            contribution_var[h] = t
+                .get(h)
+                .map_or(var, |t| a * a * t.mean_and_cov_of_mean().1[0]);
         }
-        if n_u > 0 {
-            let (mu, cu) = uniform.mean_and_cov_of_mean();
-            mean.iter_mut().zip(&mu).for_each(|(s, v)| *s += lambda * v);
-            cov.iter_mut()
-                .zip(&cu)
-                .for_each(|(s, v)| *s += lambda * lambda * v);
+        let a_u = lambda / uniform_strata.cubes as f64;
+        let sigma_u: f64 = u.iter().map(|m| add(m, a_u).0).sum();
+        if n_u > 0 && sigma_u + sigma_q > 0.0 && (sigma_u + sigma_q).is_finite() {
             // The two parts' points in proportion to their standard deviations (the variance
             // Σ c²σ_c²/n_c is least for n_c ∝ c·σ_c), never fewer uniform ones than λ asks for,
             // nor more than half; fixed before the next iteration's points, so still unbiased.
-            let sigma_u = lambda * (cu[0] * n_u as f64).max(0.0).sqrt();
-            if sigma_u + sigma_q > 0.0 && (sigma_u + sigma_q).is_finite() {
-                self.uniform_share =
-                    (sigma_u / (sigma_u + sigma_q)).clamp(lambda, MAX_UNIFORM_SHARE);
-            }
+            self.uniform_share = (sigma_u / (sigma_u + sigma_q)).clamp(lambda, MAX_UNIFORM_SHARE);
         }
         self.strata.adapt(&contribution_var, self.settings.beta);
         Ok(Stratified {
@@ -236,6 +201,84 @@ impl LatentStrata {
         })
     }
 }
+
+/// One iteration's hypercubes and their points over all ranks.
+struct Cubes<'a> {
+    strata: &'a Strata,
+    counts: &'a [usize],
+}
+
+/// Per hypercube, the moments of f/q_mix (`k` components) and, when the sampler adapts to
+/// another target, of that target's values.
+type CubeMoments = (Vec<Moments>, Vec<Moments>);
+
+impl Cubes<'_> {
+    /// This rank's share of every hypercube's points, uniform in it, drawn from `rng` in cube
+    /// order and evaluated in chunks of bounded memory: `eval` maps a chunk of points of the
+    /// unit cube to their weights f/q_mix; `weigh` sees every chunk's weights.
+    fn draw(
+        &self,
+        comm: &Comm,
+        rng: &mut Pcg64Mcg,
+        k: usize,
+        target: Option<TrainOn>,
+        weigh: &mut dyn FnMut(&[f64]),
+        eval: &mut dyn FnMut(&[f32]) -> Result<Vec<f64>>,
+    ) -> Result<CubeMoments> {
+        let (cubes, dim) = (self.strata.cubes, self.strata.per_axis.len());
+        let mut g = vec![Moments::new(k); cubes];
+        let mut t = if target.is_some() {
+            vec![Moments::new(1); cubes]
+        } else {
+            Vec::new()
+        };
+        let mine: Vec<usize> = self
+            .counts
+            .iter()
+            .map(|&c| comm.share(c as u64) as usize)
+            .collect();
+        let mut corner = vec![0usize; dim];
+        let (mut h, mut done_in_h) = (0, 0);
+        while h < cubes {
+            let (mut z, mut cube_of) = (Vec::new(), Vec::new());
+            while h < cubes && cube_of.len() < ESTIMATE_CHUNK {
+                let take = (mine[h] - done_in_h).min(ESTIMATE_CHUNK - cube_of.len());
+                self.strata.corner(h, &mut corner);
+                for _ in 0..take {
+                    for (&c, &s) in corner.iter().zip(&self.strata.per_axis) {
+                        z.push(((c as f64 + rng.random::<f64>()) / s as f64) as f32);
+                    }
+                    cube_of.push(h);
+                }
+                done_in_h += take;
+                if done_in_h == mine[h] {
+                    (h, done_in_h) = (h + 1, 0);
+                }
+            }
+            if cube_of.is_empty() {
+                continue;
+            }
+            let w = eval(&z)?;
+            let values = target.map(|t| t.target(&w, k));
+            // Runs of one hypercube.
+            let mut start = 0;
+            while start < cube_of.len() {
+                let c = cube_of[start];
+                let end = start + cube_of[start..].iter().take_while(|&&b| b == c).count();
+                g[c].add(&w[start * k..end * k]);
+                if let Some(v) = &values {
+                    t[c].add(&v[start..end]);
+                }
+                start = end;
+            }
+            weigh(&w);
+        }
+        Ok((g, t))
+    }
+}
+
+/// Points per hypercube of the uniform part (equal counts: enough for each one's variance).
+const UNIFORM_PER_CUBE: usize = 2;
 
 /// Most of an iteration's points the uniform part may take: the flow is the sampler.
 const MAX_UNIFORM_SHARE: f64 = 0.5;
