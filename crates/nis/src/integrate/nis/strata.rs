@@ -8,10 +8,12 @@
 //! The defensive mixture q_mix = λ·uniform + (1 − λ)·q is kept as a sum of two integrals,
 //! ∫ f = ∫ (1 − λ)·f/q_mix · q dx + ∫ λ·f/q_mix dx (the two weights add up to one wherever
 //! q_mix > 0), each estimated by its own points: the first over the flow's stratified latent,
-//! the second over uniform points in x, i.i.d. (the mixture as a whole cannot be stratified in
-//! its latent: it has no inverse). This is the balance heuristic of multiple importance
-//! sampling with fixed counts, so it is unbiased for any counts, and with counts in proportion
-//! λ : 1 − λ and one hypercube it is exactly the i.i.d. final phase's estimator.
+//! the second over x itself, stratified with equal counts (the mixture as a whole cannot be
+//! stratified in a latent: it has no inverse). This is the balance heuristic of multiple
+//! importance sampling with fixed counts, so it is unbiased for any counts; with counts in
+//! proportion λ : 1 − λ and one hypercube each it is exactly the i.i.d. final phase's estimator.
+//! The counts of the two parts follow Neyman's allocation (n_c ∝ c·σ_c, the uniform part never
+//! below λ), measured on the iteration before.
 //!
 //! Why the whole is unbiased: within an iteration every hypercube's mean is unbiased for its
 //! part of the integral whatever its count, and the counts of iteration t depend only on the
@@ -115,8 +117,10 @@ impl LatentStrata {
         let evals = counts.iter().sum::<usize>() as u64 + n_u;
         let cubes = self.strata.cubes;
         // The uniform part stratified in x with equal counts, two points per hypercube: as
-        // many hypercubes as that allows (it gets few points, too few to adapt an allocation).
-        let uniform_strata = Strata::plan(dim, 4 * n_u as usize, UNIFORM_PER_CUBE);
+        // many hypercubes as that allows (it gets few points, too few to adapt an allocation),
+        // at most max_cubes (planning from 8·max_cubes points gives that many).
+        let planned = (4 * n_u as usize).min(8 * self.settings.max_cubes);
+        let uniform_strata = Strata::plan(dim, planned, UNIFORM_PER_CUBE);
         let uniform_counts = if n_u == 0 {
             vec![0; uniform_strata.cubes]
         } else {
@@ -512,5 +516,24 @@ mod tests {
             )
             .unwrap();
         assert_eq!(s.evals, 1001);
+        // Half the points uniform, more than 8·max_cubes of them: the uniform part's hypercubes
+        // are capped too, and the counts still add up.
+        let mut latent = LatentStrata::new(2, 10_000, 0.5, 1, TrainOn::default(), capped);
+        let s = latent
+            .iteration(
+                &flow,
+                &integrand,
+                10_000,
+                &mut rng,
+                &Comm::default(),
+                &mut |_| {},
+            )
+            .unwrap();
+        assert_eq!(s.evals, 10_000);
+        assert!(
+            (s.estimate - 1.0).abs() < 5.0 * s.variance.sqrt(),
+            "{}",
+            s.estimate
+        );
     }
 }
