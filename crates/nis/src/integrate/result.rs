@@ -282,8 +282,9 @@ impl Accumulator {
 
     /// Adds one iteration of `evals` evaluations over all ranks of `comm` whose estimate and
     /// variance every rank knows already (e.g. stratified, drawn in chunks): this rank's weights
-    /// (scaled so that their mean estimates the integral) were [`observe`](Accumulator::observe)d
-    /// chunk by chunk, and their largest |w| and Σ|w| are these; both are reduced over the ranks.
+    /// for the reliability figures (for a stratified iteration, the sampler's own f/q) were
+    /// [`observe`](Accumulator::observe)d chunk by chunk, and their largest |w| and Σ|w| are
+    /// these; both are reduced over the ranks.
     /// Every rank must call it together. An error when the estimate or its variance is not finite.
     pub fn add_observed_iteration(
         &mut self,

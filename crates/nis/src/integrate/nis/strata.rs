@@ -119,7 +119,7 @@ impl LatentStrata {
         // The uniform part stratified in x with equal counts, two points per hypercube: as
         // many hypercubes as that allows (it gets few points, too few to adapt an allocation),
         // at most max_cubes (planning from 8·max_cubes points gives that many).
-        let planned = (4 * n_u as usize).min(8 * self.settings.max_cubes);
+        let planned = (4 * n_u as usize).min(self.settings.max_cubes.saturating_mul(8));
         let uniform_strata = Strata::plan(dim, planned, UNIFORM_PER_CUBE);
         let uniform_counts = if n_u == 0 {
             vec![0; uniform_strata.cubes]
