@@ -17,11 +17,10 @@ pub fn run_flow(batch: usize, torch: bool, docs: &Path) -> Result<(), Box<dyn st
 
 /// `nis bench integrate`: the suite × methods at one budget; Markdown tables.
 pub fn run_integrate(
-    evals: u64,
-    only: Option<&str>,
+    options: &nis_paper::bench::integrate::Options,
     docs: &Path,
 ) -> Result<(), Box<dyn std::error::Error>> {
-    let md = nis_paper::bench::integrate::run(evals, only, docs, &mut |line| eprintln!("{line}"))?;
+    let md = nis_paper::bench::integrate::run(options, docs, &mut |line| eprintln!("{line}"))?;
     println!("{md}");
     Ok(())
 }

@@ -64,7 +64,9 @@ pub struct IntegrateArgs {
     #[arg(long)]
     pub load: Option<PathBuf>,
     /// NIS settings to change, as JSON merged into the defaults, e.g.
-    /// '{"batch": 2048, "flow": {"hidden_width": 64}, "adam": {"learning_rate": 0.001}}'.
+    /// '{"batch": 2048, "flow": {"hidden_width": 64}, "adam": {"learning_rate": 0.001}}';
+    /// '{"stratify": null}' draws the final phase's latents i.i.d. instead of stratified,
+    /// '{"stratify": {"beta": 0}}' keeps equal counts per hypercube.
     #[arg(long, value_name = "JSON")]
     pub nis_config: Option<String>,
 }

@@ -83,15 +83,22 @@ enum BenchCommand {
         #[arg(long, default_value = "docs/BENCHMARKS.md")]
         docs: PathBuf,
     },
-    /// The built-in suite with plain MC, VEGAS+, NIS-PQ/KL, NIS-PQ/χ² and NIS-RQ/KL at one
-    /// budget. Example: nis bench integrate --evals 1000000
+    /// The built-in suite with plain MC, VEGAS+, NIS-PQ/KL, NIS-PQ/χ², NIS-RQ/KL and NIS-PQ/KL
+    /// with i.i.d. latents at one budget, medians over seeds.
+    /// Example: nis bench integrate --evals 1000000 --dims 2 --seeds 3
     Integrate {
         /// Evaluations per integrand and method.
         #[arg(long, default_value_t = 1_000_000)]
         evals: u64,
-        /// Only this integrand.
+        /// Only these integrands (comma-separated).
         #[arg(long)]
         only: Option<String>,
+        /// Only these dimensions (comma-separated; default: all of the suite's).
+        #[arg(long, value_delimiter = ',')]
+        dims: Vec<usize>,
+        /// Seeds per cell, 0..seeds (the table shows medians and every seed's pull).
+        #[arg(long, default_value_t = 1)]
+        seeds: u64,
         /// Markdown file the results go to.
         #[arg(long, default_value = "docs/BENCHMARKS.md")]
         docs: PathBuf,
@@ -190,8 +197,20 @@ fn main() -> ExitCode {
         Command::Bench(BenchCommand::Flow { batch, torch, docs }) => {
             bench::run_flow(batch, torch, &docs)
         }
-        Command::Bench(BenchCommand::Integrate { evals, only, docs }) => {
-            bench::run_integrate(evals, only.as_deref(), &docs)
+        Command::Bench(BenchCommand::Integrate {
+            evals,
+            only,
+            dims,
+            seeds,
+            docs,
+        }) => {
+            let options = nis_paper::bench::integrate::Options {
+                evals,
+                only: only.as_deref(),
+                dims: &dims,
+                seeds,
+            };
+            bench::run_integrate(&options, &docs)
         }
         Command::Bench(BenchCommand::Coverage(args)) => bench::run_coverage(&args),
         Command::FitImage(args) => fit_image::run(&args),

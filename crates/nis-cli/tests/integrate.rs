@@ -65,6 +65,56 @@ fn a_budget_too_small_for_an_error_bar_is_an_error() {
     }
 }
 
+/// The stratified final phase is the default; `--nis-config` turns it off or tunes it, and bad
+/// settings are a clear error, not a panic.
+#[test]
+fn nis_config_sets_the_stratification_of_the_latent() {
+    let run = |config: &str| {
+        let out = nis(&[
+            "integrate",
+            "camel",
+            "--dim",
+            "2",
+            "--evals",
+            "20000",
+            "--method",
+            "nis",
+            "--json",
+            "--nis-config",
+            config,
+        ]);
+        (
+            out.status.success(),
+            out.stdout,
+            String::from_utf8_lossy(&out.stderr).into_owned(),
+        )
+    };
+    let value = |stdout: &[u8]| {
+        let v: serde_json::Value = serde_json::from_slice(stdout).unwrap();
+        (
+            v["value"].as_f64().unwrap(),
+            v["std_err"].as_f64().unwrap(),
+            v["exact"].as_f64(),
+        )
+    };
+    let (ok, default, err) = run("{}");
+    assert!(ok, "{err}");
+    let (ok, iid, err) = run(r#"{"stratify": null}"#);
+    assert!(ok, "{err}");
+    let (ok, even, err) = run(r#"{"stratify": {"beta": 0}}"#);
+    assert!(ok, "{err}");
+    let (d, i, e) = (value(&default), value(&iid), value(&even));
+    assert!(d != i && d != e && i != e, "three distinct final phases");
+    for (v, s, _) in [d, i, e] {
+        assert!((v - 0.9816603).abs() < 5.0 * s, "{v} ± {s}");
+    }
+    let (ok, _, err) = run(r#"{"stratify": {"min_per_cube": 1}}"#);
+    assert!(
+        !ok && err.contains("invalid NIS settings") && !err.contains("panicked"),
+        "{err}"
+    );
+}
+
 /// `nis eval` with and without a synthetic cost: the same values, bit for bit.
 #[test]
 fn eval_serves_the_same_values_with_a_synthetic_cost() {

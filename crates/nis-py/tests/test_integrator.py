@@ -19,7 +19,7 @@ def within(r, exact, sigmas=5.0):
 # The Rust test `results_are_bit_identical_to_the_recorded_ones` (crates/nis/tests/integration.rs):
 # gauss in 2-d, seed 5, 10^5 evaluations, default settings.
 RECORDED = {
-    "nis": ("0.9975888861012578", "0.0008608700272456198"),
+    "nis": ("0.9984810124758622", "0.00041478925580432097"),
     "vegas": ("0.9991300887314856", "0.0001732057132195463"),
     "uniform": ("0.9975623516355743", "0.005446123321194651"),
 }
@@ -52,7 +52,7 @@ def test_a_numpy_integrand_agrees_with_the_rust_result_for_the_same_seed(gauss):
 def test_chi2_loss_on_camel_matches_the_recorded_bits():
     camel = nis.integrands.camel(dim=4)
     r = nis.Integrator(4, "nis", loss="chi2", seed=3)(lambda x: camel(x), evals=200_000)
-    assert (r.mean, r.sdev) == (0.9629408979037558, 0.0009019711064073797)
+    assert (r.mean, r.sdev) == (0.9633959753049646, 0.0007263337158204969)
 
 
 def test_a_numpy_integrand_agrees_with_the_exact_value_and_the_result_reads_well(gauss):

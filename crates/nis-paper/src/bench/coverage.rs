@@ -235,8 +235,13 @@ pub fn run_cell(f: &Builtin, method: &str, budget: Budget) -> Cell {
 }
 
 /// The cache file of a cell.
+/// NIS cells also name whether the final phase stratifies the flow's latent (the default since
+/// it does), so that a cache of cells run before cannot pass for them.
 fn cache_path(dir: &Path, name: &str, dim: usize, method: &str, budget: Budget) -> PathBuf {
-    let method = method.replace("χ²", "chi2").to_lowercase();
+    let mut method = method.replace("χ²", "chi2").to_lowercase();
+    if method.starts_with("nis") && Settings::default().nis.stratify.is_some() {
+        method.push_str("-strata");
+    }
     dir.join(format!(
         "{name}-d{dim}-{method}-{}-{}.json",
         budget.evals, budget.seeds

@@ -312,6 +312,35 @@ impl Accumulator {
         self.tail.merge(tail);
     }
 
+    /// Adds one iteration of `evals` evaluations over all ranks of `comm` whose estimate and
+    /// variance every rank knows already (e.g. stratified, drawn in chunks): this rank's weights
+    /// for the reliability figures (for a stratified iteration, the sampler's own f/q) were
+    /// [`observe`](Accumulator::observe)d chunk by chunk, and their largest |w| and Σ|w| are
+    /// these; both are reduced over the ranks.
+    /// Every rank must call it together. An error when the estimate or its variance is not finite.
+    pub fn add_observed_iteration(
+        &mut self,
+        comm: &Comm,
+        estimate: f64,
+        variance: f64,
+        evals: u64,
+        max_abs_w: f64,
+        sum_abs_w: f64,
+    ) -> Result<()> {
+        let mut max = [max_abs_w];
+        comm.max_f64(&mut max);
+        check_representable(estimate, variance, max[0])?;
+        self.iterations.push(Iteration {
+            estimate,
+            variance,
+            evals,
+        });
+        self.max_abs_w = self.max_abs_w.max(max[0]);
+        self.sum_abs_w += comm.sum(sum_abs_w);
+        self.n += evals;
+        Ok(())
+    }
+
     /// Makes the reliability figures those of every rank's weights: the ranks' tails are
     /// gathered and merged in rank order (see [`WeightTail::merge`]). Call it on every rank
     /// before [`Accumulator::finish`]; with one process it changes nothing.
@@ -599,24 +628,42 @@ impl Moments {
     /// The moments of every rank's weights of `comm`, merged in rank order (this rank's being
     /// these), on every rank. Every rank must call it together; with one process, a copy.
     pub fn across(&self, comm: &Comm) -> Moments {
+        Moments::across_each(std::slice::from_ref(self), comm)
+            .pop()
+            .expect("one")
+    }
+
+    /// [`Moments::across`] for many moments at once, in one gather (e.g. one per hypercube of a
+    /// stratified iteration): each merged over the ranks in rank order. All must have the same
+    /// number of components, and every rank must pass as many.
+    pub(crate) fn across_each(parts: &[Moments], comm: &Comm) -> Vec<Moments> {
         if comm.size() == 1 {
-            return self.clone();
+            return parts.to_vec();
         }
-        let mut words = vec![self.n as f64, self.sum_abs_w, self.max_abs_w];
-        words.extend_from_slice(&self.mean);
-        words.extend_from_slice(&self.comoment);
-        let k = self.k;
-        let mut all = Moments::new(k);
+        let k = parts.first().map_or(1, |m| m.k);
+        let stride = 3 + k + k * k;
+        let mut words = Vec::with_capacity(parts.len() * stride);
+        for m in parts {
+            assert_eq!(m.k, k, "moments of as many components");
+            words.extend_from_slice(&[m.n as f64, m.sum_abs_w, m.max_abs_w]);
+            words.extend_from_slice(&m.mean);
+            words.extend_from_slice(&m.comoment);
+        }
+        let mut all = vec![Moments::new(k); parts.len()];
         for part in comm.all_gather_bytes(f64s_to_bytes(&words)) {
-            let w = bytes_to_f64s(&part);
-            all.merge(&Moments {
-                k,
-                n: w[0] as u64,
-                sum_abs_w: w[1],
-                max_abs_w: w[2],
-                mean: w[3..3 + k].to_vec(),
-                comoment: w[3 + k..3 + k + k * k].to_vec(),
-            });
+            for (a, w) in all
+                .iter_mut()
+                .zip(bytes_to_f64s(&part).chunks_exact(stride))
+            {
+                a.merge(&Moments {
+                    k,
+                    n: w[0] as u64,
+                    sum_abs_w: w[1],
+                    max_abs_w: w[2],
+                    mean: w[3..3 + k].to_vec(),
+                    comoment: w[3 + k..].to_vec(),
+                });
+            }
         }
         all
     }

@@ -34,8 +34,10 @@ use reuse::{ReplayBuffer, TrainingPieces};
 
 mod config;
 mod reuse;
+mod strata;
 
-pub use config::{NisConfig, NisConfigBuilder};
+pub use config::{NisConfig, NisConfigBuilder, Stratify};
+use strata::LatentStrata;
 
 /// A flow-based integrator: it trains its flow, then estimates with it (again and again, or after
 /// saving). It owns the flow, the optimiser's state and the random streams, so a second
@@ -251,12 +253,19 @@ impl NisIntegrator {
         check_dim(f, dim)?;
         let k = f.components();
         let iters = self.config.final_iterations;
-        check_budget(
-            Method::Nis,
-            evals,
-            2 * iters as u64,
-            "two per iteration of the final phase, after training",
-        )?;
+        let lambda = self.config.uniform_fraction;
+        let (least, why) = match self.config.stratify {
+            Some(s) => (
+                LatentStrata::min_per_iteration(s, lambda),
+                "min_per_cube and two uniform points per iteration of the final phase",
+            ),
+            None => (2, "two per iteration of the final phase, after training"),
+        };
+        check_budget(Method::Nis, evals, least * iters as u64, why)?;
+        let mut latent = self.config.stratify.map(|s| {
+            let per_iter = evals / iters as u64;
+            LatentStrata::new(dim, per_iter, lambda, k, self.config.train_on, s)
+        });
         let mut acc = Accumulator::new(evals);
         let mut comps = ComponentAccumulator::new(k);
         if let Some(p) = &pieces {
@@ -264,7 +273,33 @@ impl NisIntegrator {
         }
         let mut done = 0u64;
         for it in 0..iters {
-            let n = ((evals * (it as u64 + 1)) / iters as u64 - done).max(2) as usize;
+            let upto = (evals * (it as u64 + 1)) / iters as u64;
+            if let Some(latent) = latent.as_mut() {
+                let n = upto.saturating_sub(done).max(least);
+                let flow = self.trainer.flow();
+                let rng = &mut self.streams.estimate;
+                let s = latent.iteration(flow, f, n, rng, &self.comm, &mut |w| acc.observe(w))?;
+                acc.add_observed_iteration(
+                    &self.comm,
+                    s.estimate,
+                    s.variance,
+                    s.evals,
+                    s.max_abs_w,
+                    s.sum_abs_w,
+                )?;
+                if k > 1 {
+                    comps.add_iteration(s.mean, s.cov, s.evals);
+                }
+                done += s.evals;
+                report(
+                    &mut self.progress,
+                    trained + done,
+                    trained + evals,
+                    "nis: estimating",
+                );
+                continue;
+            }
+            let n = (upto - done).max(2) as usize;
             // This rank's share, drawn in pieces of bounded memory, pooled into one iteration:
             // memory does not grow with the budget. The ranks' moments are merged in rank order.
             let mine = self.comm.share(n as u64);

@@ -16,7 +16,7 @@
 //! their points are drawn, from the trend of the earlier variances ([`next_share`]).
 
 mod map;
-mod strata;
+pub(crate) mod strata;
 
 use std::time::Instant;
 

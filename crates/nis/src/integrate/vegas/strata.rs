@@ -7,15 +7,15 @@
 
 /// Share of each iteration's points allocated by the measured variances (the package's
 /// `neval_frac`); the rest is spread evenly, at least `min_per_cube` per hypercube.
-pub(super) const ADAPTIVE_SHARE: f64 = 0.75;
+pub(crate) const ADAPTIVE_SHARE: f64 = 0.75;
 
 /// The hypercubes of one call and their adapted weights d_h.
 #[derive(Clone, Debug)]
-pub(super) struct Strata {
+pub(crate) struct Strata {
     /// Strata per axis (the first axes may have one more than the others).
-    pub(super) per_axis: Vec<usize>,
+    pub(crate) per_axis: Vec<usize>,
     /// Number of hypercubes, Π per_axis.
-    pub(super) cubes: usize,
+    pub(crate) cubes: usize,
     /// d_h = σ_h^β per hypercube (all 1 before the first iteration).
     weights: Vec<f64>,
 }
@@ -23,7 +23,7 @@ pub(super) struct Strata {
 impl Strata {
     /// As many hypercubes as leave `min_per_cube` points each in the evenly spread quarter of
     /// `per_iter` points: n_s = ⌊(N/4/min)^(1/d)⌋ per axis, then as many axes as fit with n_s + 1.
-    pub(super) fn plan(dim: usize, per_iter: usize, min_per_cube: usize) -> Strata {
+    pub(crate) fn plan(dim: usize, per_iter: usize, min_per_cube: usize) -> Strata {
         let even = (1.0 - ADAPTIVE_SHARE) * per_iter as f64 / min_per_cube as f64;
         let mut ns = (even.powf(1.0 / dim as f64).floor() as usize).max(1);
         // Guard the root's rounding: n_s^d must not exceed the budget, (n_s + 1)^d must.
@@ -50,14 +50,14 @@ impl Strata {
     }
 
     /// Same hypercubes as `other` (then its adapted weights can be kept).
-    pub(super) fn same_cubes(&self, other: &Strata) -> bool {
+    pub(crate) fn same_cubes(&self, other: &Strata) -> bool {
         self.per_axis == other.per_axis
     }
 
     /// Points per hypercube for an iteration of `per_iter` points: an even base of
     /// ⌊N/4/cubes⌋ (at least `min_per_cube`) and the rest ∝ d_h, rounded cumulatively so the
     /// counts add up to exactly `per_iter`.
-    pub(super) fn allocate(&self, per_iter: usize, min_per_cube: usize) -> Vec<usize> {
+    pub(crate) fn allocate(&self, per_iter: usize, min_per_cube: usize) -> Vec<usize> {
         let cubes = self.cubes;
         let base = ((((1.0 - ADAPTIVE_SHARE) * per_iter as f64) / cubes as f64) as usize)
             .max(min_per_cube);
@@ -81,7 +81,7 @@ impl Strata {
     }
 
     /// The y-coordinates' lower corner, in strata, of hypercube `h`, written to `corner`.
-    pub(super) fn corner(&self, mut h: usize, corner: &mut [usize]) {
+    pub(crate) fn corner(&self, mut h: usize, corner: &mut [usize]) {
         for (c, &s) in corner.iter_mut().zip(&self.per_axis) {
             *c = h % s;
             h /= s;
@@ -90,7 +90,7 @@ impl Strata {
 
     /// Replaces the weights by d_h = (σ_h²)^(β/2) from the variances of the hypercubes'
     /// contributions; all zero (a constant integrand) spreads points evenly again.
-    pub(super) fn adapt(&mut self, contribution_var: &[f64], beta: f64) {
+    pub(crate) fn adapt(&mut self, contribution_var: &[f64], beta: f64) {
         for (w, v) in self.weights.iter_mut().zip(contribution_var) {
             *w = v.abs().powf(beta / 2.0);
         }
