@@ -296,7 +296,12 @@ pub fn error_time(title: &str, panels: &[ErrorTimePanel]) -> Result<RgbImage> {
                 .map_err(figure_error)?;
             let mut mesh = chart.configure_mesh();
             if has_font() {
-                mesh.x_desc("wall seconds").y_desc("MAPE");
+                mesh.x_desc("wall seconds")
+                    .y_desc("MAPE")
+                    .x_labels(6)
+                    .y_labels(6)
+                    .x_label_formatter(&|t| format!("{t:.3}"))
+                    .y_label_formatter(&|m| format!("{m:.3}"));
             } else {
                 mesh.x_labels(0).y_labels(0);
             }
@@ -331,7 +336,7 @@ pub fn error_time(title: &str, panels: &[ErrorTimePanel]) -> Result<RgbImage> {
             if has_font() {
                 chart
                     .configure_series_labels()
-                    .position(SeriesLabelPosition::UpperRight)
+                    .position(SeriesLabelPosition::LowerLeft)
                     .background_style(WHITE.mix(0.8))
                     .border_style(BLACK)
                     .label_font(("sans-serif", 13))
