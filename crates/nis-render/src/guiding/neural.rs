@@ -470,27 +470,29 @@ impl NisGuide {
                     Direction::Forward => (0..layers.len()).collect(),
                     Direction::Inverse => (0..layers.len()).rev().collect(),
                 };
+                // Buffers shared by the layers: every activation is overwritten before it is
+                // read (the first layer's by the cache rows, the others by their dense layer).
+                let mut tape = MlpTape {
+                    rows: n,
+                    acts: Vec::new(),
+                };
+                let mut enc = Vec::new();
                 for l in order {
                     let c = &layers[l];
                     let mlp = &c.mlp;
                     let p = c.params(params);
                     let h = mlp.dims[1];
                     let off = self.first_offsets[l];
-                    let mut tape = MlpTape {
-                        rows: n,
-                        acts: mlp
-                            .dims
-                            .iter()
-                            .enumerate()
-                            .map(|(j, &d)| if j == 0 { Vec::new() } else { vec![0.0; n * d] })
-                            .collect(),
-                    };
+                    tape.acts.resize_with(mlp.dims.len(), Vec::new);
+                    for (a, &d) in tape.acts.iter_mut().zip(&mlp.dims).skip(1) {
+                        a.resize(n * d, 0.0);
+                    }
                     let first = &mut tape.acts[1];
                     for (row, &v) in first.chunks_exact_mut(h).zip(vertex) {
                         row.copy_from_slice(&cache.first[v * width + off..v * width + off + h]);
                     }
                     let enc_w = c.encoding.width(c.a.len());
-                    let mut enc = vec![0.0f32; n * enc_w];
+                    enc.resize(n * enc_w, 0.0);
                     let mut s = vec![0.0f32; c.a.len()];
                     for (r, e) in enc.chunks_exact_mut(enc_w.max(1)).enumerate().take(n) {
                         for (k, &a) in c.a.iter().enumerate() {
