@@ -35,7 +35,7 @@
 //! to the first dense layer of every conditioner and of the selection network. That layer is
 //! `W·[enc(x_A); enc(ctx)] + b = W_A·enc(x_A) + (W_ctx·enc(ctx) + b)`, so [`Guide::prepare`]
 //! one-blob encodes the context once per vertex and computes the second term of all those
-//! layers in one matrix product ([`VertexCache`]); a query then adds only `W_A·enc(x_A)`, 16
+//! layers in one matrix product (the guide's [`Guide::Prepared`]); a query then adds only `W_A·enc(x_A)`, 16
 //! inputs instead of 128 at the default sizes. The result is the flow's own density up to f32
 //! rounding (tested against [`Flow`]'s uncached evaluation).
 
@@ -349,20 +349,11 @@ pub struct NisGuide {
     /// [`Guide::prepare`] multiplies the encoded context with. Rebuilt after every update.
     context_weights: Vec<f32>,
     context_bias: Vec<f32>,
-    /// Where each coupling's first layer starts in a [`VertexCache`] row; the selection
+    /// Where each coupling's first layer starts in a cache row; the selection
     /// network's starts at the last entry.
     first_offsets: Vec<usize>,
-    /// Numbers per vertex in a [`VertexCache`].
+    /// Numbers per vertex in a cache row.
     first_width: usize,
-}
-
-/// What every query at a vertex shares: per vertex, the first layer's pre-activations of every
-/// conditioner and of the selection network due to the context, bias included (see the module
-/// docs). Filled by [`Guide::prepare`].
-#[derive(Debug, Default)]
-pub struct VertexCache {
-    first: Vec<f32>,
-    width: usize,
 }
 
 fn sigmoid(z: f32) -> f32 {
@@ -452,14 +443,14 @@ impl NisGuide {
     /// as [`Flow`]'s own passes, with each conditioner's first layer started from the cache.
     fn flow_cached(
         &self,
-        cache: &VertexCache,
+        cache: &[f32],
         vertex: &[usize],
         u: &mut [f32],
         direction: Direction,
     ) -> Vec<f64> {
         let layers = self.flow.layers();
         let params = self.flow.params();
-        let (width, dim) = (cache.width, 2);
+        let (width, dim) = (self.first_width, 2);
         let mut log_q = vec![0.0f64; vertex.len()];
         u.par_chunks_mut(CHUNK_ROWS * dim)
             .zip(log_q.par_chunks_mut(CHUNK_ROWS))
@@ -489,7 +480,7 @@ impl NisGuide {
                     }
                     let first = &mut tape.acts[1];
                     for (row, &v) in first.chunks_exact_mut(h).zip(vertex) {
-                        row.copy_from_slice(&cache.first[v * width + off..v * width + off + h]);
+                        row.copy_from_slice(&cache[v * width + off..v * width + off + h]);
                     }
                     let enc_w = c.encoding.width(c.a.len());
                     enc.resize(n * enc_w, 0.0);
@@ -687,22 +678,23 @@ impl NisGuide {
 }
 
 impl Guide for NisGuide {
-    type Prepared = VertexCache;
+    /// What every query at a vertex shares: per vertex, the first layer's pre-activations of
+    /// every conditioner and then of the selection network due to the context, bias included
+    /// (see the module docs), `rows × first_width`.
+    type Prepared = Vec<f32>;
     type Statistics = PassSamples;
 
     /// Encodes each vertex's context once and multiplies it with the context's columns of
     /// every network's first layer, chunk by chunk.
-    fn prepare(&self, vertices: &[GuideVertex], cache: &mut VertexCache) {
+    fn prepare(&self, vertices: &[GuideVertex], cache: &mut Vec<f32>) {
         let (cdim, width, k) = (
             self.selection.dims[0],
             self.first_width,
             self.config.context_bins,
         );
-        cache.width = width;
-        cache.first.clear();
-        cache.first.resize(vertices.len() * width, 0.0);
+        cache.clear();
+        cache.resize(vertices.len() * width, 0.0);
         cache
-            .first
             .par_chunks_mut(CHUNK_ROWS * width)
             .zip(vertices.par_chunks(CHUNK_ROWS))
             .for_each(|(out, v)| {
@@ -722,16 +714,19 @@ impl Guide for NisGuide {
     }
 
     /// The selection network from its cached first layer on.
-    fn selection_probabilities(&self, _: &[GuideVertex], cache: &VertexCache, out: &mut [f32]) {
+    fn selection_probabilities(&self, _: &[GuideVertex], cache: &Vec<f32>, out: &mut [f32]) {
         if !self.trained {
             out.fill(0.0);
             return;
         }
-        let (width, off) = (cache.width, *self.first_offsets.last().expect("selection"));
+        let (width, off) = (
+            self.first_width,
+            *self.first_offsets.last().expect("selection"),
+        );
         let h = self.selection.dims[1];
         let m = self.config.min_selection;
         out.par_chunks_mut(CHUNK_ROWS)
-            .zip(cache.first.par_chunks(CHUNK_ROWS * width))
+            .zip(cache.par_chunks(CHUNK_ROWS * width))
             .for_each(|(out, first)| {
                 let mut tape = MlpTape {
                     rows: out.len(),
@@ -768,7 +763,7 @@ impl Guide for NisGuide {
     fn sample_batch(
         &self,
         _: &[GuideVertex],
-        cache: &VertexCache,
+        cache: &Vec<f32>,
         queries: &[SampleQuery],
         out: &mut [Option<GuideSample>],
     ) {
@@ -790,7 +785,7 @@ impl Guide for NisGuide {
     fn pdf_batch(
         &self,
         _: &[GuideVertex],
-        cache: &VertexCache,
+        cache: &Vec<f32>,
         queries: &[PdfQuery],
         out: &mut [f32],
     ) {
@@ -902,7 +897,7 @@ mod tests {
         // activation); through two conditioners and the splines' exponentials the density
         // moves by far less than 1e-4 relative, the sampled point by less than 1e-5.
         let (guide, vertices, dirs, us) = random_guide();
-        let mut cache = VertexCache::default();
+        let mut cache = Vec::new();
         guide.prepare(&vertices, &mut cache);
         let rows: Vec<usize> = (0..dirs.len())
             .map(|i| (i * 7919) % vertices.len())
