@@ -51,7 +51,7 @@ pub struct BenchGuidingArgs {
     pub curve_points: u32,
 
     /// The MAPE whose reach time the table gives (default: path tracing's at the equal-time
-    /// budget).
+    /// budget, or the best method's when path tracing is not among the methods).
     #[arg(long)]
     pub target_mape: Option<f64>,
 
