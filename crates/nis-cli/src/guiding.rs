@@ -16,8 +16,9 @@ use crate::render::GUIDES;
 /// Compare the guiding methods on built-in scenes against a path-traced reference.
 #[derive(Debug, clap::Args)]
 #[command(after_help = "\
-Example:
-  nis bench guiding --scene two-rooms-door --spp 64 --res 128")]
+Examples:
+  nis bench guiding --scene two-rooms-door --spp 64 --res 128
+  nis bench guiding --scene cornell-box --res 32 --spp 16 --reference-spp 1024 --equal-time-spp 64 --curve-points 3")]
 pub struct BenchGuidingArgs {
     /// Built-in scenes to render (repeat; default: all four).
     #[arg(long)]
@@ -35,10 +36,24 @@ pub struct BenchGuidingArgs {
     #[arg(long, default_value_t = 4096)]
     pub reference_spp: u32,
 
-    /// Seconds per method in the equal-time comparison (default: what nis-kl took at equal
-    /// samples per pixel).
+    /// Seconds per method in the equal-time comparison (default: what unguided path tracing
+    /// takes for --equal-time-spp samples per pixel).
     #[arg(long)]
     pub seconds: Option<f64>,
+
+    /// Samples per pixel of unguided path tracing whose wall time is the equal-time budget.
+    #[arg(long, default_value_t = 512)]
+    pub equal_time_spp: u32,
+
+    /// Budgets on each method's error-vs-time curve: the equal-time budget, half of it, a
+    /// quarter, … (this many in all).
+    #[arg(long, default_value_t = 4)]
+    pub curve_points: u32,
+
+    /// The MAPE whose reach time the table gives (default: path tracing's at the equal-time
+    /// budget, or the best method's when path tracing is not among the methods).
+    #[arg(long)]
+    pub target_mape: Option<f64>,
 
     /// Methods (repeat; default: all).
     #[arg(long, value_parser = GUIDES)]
@@ -80,6 +95,9 @@ pub fn run_bench(args: &BenchGuidingArgs) -> Result<(), Box<dyn std::error::Erro
         res: args.res,
         reference_spp: args.reference_spp,
         seconds: args.seconds,
+        equal_time_spp: args.equal_time_spp,
+        curve_points: args.curve_points,
+        target_mape: args.target_mape,
         methods: args.method.clone(),
         seed: args.seed,
         out: args.out.clone(),

@@ -36,6 +36,8 @@ fn bench_guiding_writes_a_table_a_montage_and_a_cached_reference() {
         "16",
         "--seconds",
         "0.2",
+        "--curve-points",
+        "2",
         "--docs",
         docs.to_str().unwrap(),
         "--img",
@@ -53,14 +55,42 @@ fn bench_guiding_writes_a_table_a_montage_and_a_cached_reference() {
         );
     }
     assert!(md.contains("](img/guiding-cornell-box.png)"), "{md}");
-    let png = std::fs::read(img.join("guiding-cornell-box.png")).unwrap();
-    assert!(png.starts_with(b"\x89PNG"));
+    assert!(md.contains("](img/guiding-error-time.png)"), "{md}");
+    assert!(md.contains("seconds to MAPE"), "{md}");
+    for png in ["guiding-cornell-box.png", "guiding-error-time.png"] {
+        assert!(std::fs::read(img.join(png))
+            .unwrap()
+            .starts_with(b"\x89PNG"));
+    }
     let reference = out.join("reference/cornell-box-8-16spp.exr");
     assert!(reference.is_file());
     // A second run reuses the reference.
     let o = nis(&args);
     assert!(o.status.success());
     assert!(String::from_utf8_lossy(&o.stderr).contains("cornell-box: reference"));
+    std::fs::remove_dir_all(&dir).ok();
+}
+
+#[test]
+fn bench_guiding_rejects_an_empty_curve() {
+    let dir = scratch("curve");
+    let o = nis(&[
+        "bench",
+        "guiding",
+        "--curve-points",
+        "0",
+        "--docs",
+        dir.join("R.md").to_str().unwrap(),
+        "--out",
+        dir.join("out").to_str().unwrap(),
+    ]);
+    assert!(!o.status.success());
+    assert!(
+        String::from_utf8_lossy(&o.stderr).contains("curve needs"),
+        "{}",
+        String::from_utf8_lossy(&o.stderr)
+    );
+    assert!(!dir.join("R.md").exists());
     std::fs::remove_dir_all(&dir).ok();
 }
 

@@ -256,6 +256,99 @@ pub fn curves(title: &str, series: &[(String, Vec<CurvePoint>)]) -> Result<RgbIm
     RgbImage::from_raw(W, H, buffer).ok_or_else(|| figure_error("plot buffer size"))
 }
 
+/// One panel of [`error_time`]: a scene's name, its equal-time budget in seconds and, per
+/// method, its (wall seconds, MAPE) points.
+pub type ErrorTimePanel = (String, f64, Vec<(String, Vec<(f64, f64)>)>);
+
+/// Error against wall-clock time, one panel per scene: MAPE against seconds on logarithmic
+/// axes, one line with markers per method, and a grey vertical line at the scene's equal-time
+/// budget, so the time at which one method overtakes another can be read off.
+pub fn error_time(title: &str, panels: &[ErrorTimePanel]) -> Result<RgbImage> {
+    const H: u32 = 440;
+    let w = 360 * panels.len().max(1) as u32 + 40;
+    let mut buffer = vec![255u8; (w * H * 3) as usize];
+    {
+        let root = BitMapBackend::with_buffer(&mut buffer, (w, H)).into_drawing_area();
+        root.fill(&WHITE).map_err(figure_error)?;
+        let root = if has_font() {
+            root.titled(title, ("sans-serif", 22))
+                .map_err(figure_error)?
+        } else {
+            root
+        };
+        let areas = root.split_evenly((1, panels.len().max(1)));
+        for (area, (scene, budget, series)) in areas.iter().zip(panels) {
+            let all = || series.iter().flat_map(|(_, c)| c.iter().copied());
+            let t_lo = all().map(|p| p.0).fold(*budget, f64::min).max(1e-3) / 1.5;
+            let t_hi = all().map(|p| p.0).fold(*budget, f64::max) * 1.5;
+            let m_hi = all().map(|p| p.1).fold(LOG_FLOOR, f64::max) * 1.5;
+            let m_lo = all().map(|p| p.1).fold(m_hi, f64::min).max(LOG_FLOOR) / 1.5;
+            let mut builder = ChartBuilder::on(area);
+            builder.margin(12);
+            if has_font() {
+                builder
+                    .caption(scene, ("sans-serif", 18))
+                    .x_label_area_size(36)
+                    .y_label_area_size(56);
+            }
+            let mut chart = builder
+                .build_cartesian_2d((t_lo..t_hi).log_scale(), (m_lo..m_hi).log_scale())
+                .map_err(figure_error)?;
+            let mut mesh = chart.configure_mesh();
+            if has_font() {
+                mesh.x_desc("wall seconds")
+                    .y_desc("MAPE")
+                    .x_labels(6)
+                    .y_labels(6)
+                    .x_label_formatter(&|t| format!("{t:.3}"))
+                    .y_label_formatter(&|m| format!("{m:.3}"));
+            } else {
+                mesh.x_labels(0).y_labels(0);
+            }
+            mesh.draw().map_err(figure_error)?;
+            chart
+                .draw_series(LineSeries::new(
+                    [(*budget, m_lo), (*budget, m_hi)],
+                    BLACK.mix(0.35).stroke_width(1),
+                ))
+                .map_err(figure_error)?;
+            for (k, (method, curve)) in series.iter().enumerate() {
+                let colour = SERIES[k % SERIES.len()];
+                let points: Vec<(f64, f64)> = curve
+                    .iter()
+                    .map(|&(t, m)| (t.max(t_lo), m.max(m_lo)))
+                    .collect();
+                let line = chart
+                    .draw_series(LineSeries::new(
+                        points.iter().copied(),
+                        colour.stroke_width(2),
+                    ))
+                    .map_err(figure_error)?;
+                if has_font() {
+                    line.label(method.as_str()).legend(move |(x, y)| {
+                        PathElement::new(vec![(x, y), (x + 18, y)], colour.stroke_width(2))
+                    });
+                }
+                chart
+                    .draw_series(points.iter().map(|&p| Circle::new(p, 3, colour.filled())))
+                    .map_err(figure_error)?;
+            }
+            if has_font() {
+                chart
+                    .configure_series_labels()
+                    .position(SeriesLabelPosition::LowerLeft)
+                    .background_style(WHITE.mix(0.8))
+                    .border_style(BLACK)
+                    .label_font(("sans-serif", 13))
+                    .draw()
+                    .map_err(figure_error)?;
+            }
+        }
+        root.present().map_err(figure_error)?;
+    }
+    RgbImage::from_raw(w, H, buffer).ok_or_else(|| figure_error("plot buffer size"))
+}
+
 /// One row of the montage: a target's name, its tabulated density p and each model's q (all
 /// on the same nx×ny grid).
 pub struct MontageRow {

@@ -4,10 +4,17 @@ use gemm::{gemm, Parallelism};
 
 /// `out[n×o] = x[n×i] · w[i×o] + b`.
 pub fn forward(x: &[f32], w: &[f32], b: &[f32], out: &mut [f32], n: usize, i: usize, o: usize) {
-    assert!(x.len() >= n * i && w.len() == i * o && b.len() == o && out.len() >= n * o);
+    assert!(b.len() == o && out.len() >= n * o);
     for row in out[..n * o].chunks_exact_mut(o) {
         row.copy_from_slice(b);
     }
+    accumulate(x, w, out, n, i, o);
+}
+
+/// `out[n×o] += x[n×i] · w[i×o]`: a dense layer whose output already holds a part computed
+/// elsewhere (e.g. the bias plus the contribution of inputs shared by many rows).
+pub fn accumulate(x: &[f32], w: &[f32], out: &mut [f32], n: usize, i: usize, o: usize) {
+    assert!(x.len() >= n * i && w.len() == i * o && out.len() >= n * o);
     if n == 0 || i == 0 || o == 0 {
         return;
     }

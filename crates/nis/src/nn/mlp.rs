@@ -71,10 +71,24 @@ impl Mlp {
         }
     }
 
+    /// Layer `j`'s weights (`[in, out]` row-major) and biases within this MLP's parameters.
+    pub fn layer_params<'a>(&self, params: &'a [f32], j: usize) -> (&'a [f32], &'a [f32]) {
+        let (wo, bo) = self.offsets(j);
+        (&params[wo..bo], &params[bo..bo + self.dims[j + 1]])
+    }
+
     /// Forward pass of one chunk: fills `tape.acts[1..]` from `tape.acts[0]`.
     pub fn forward(&self, params: &[f32], tape: &mut MlpTape) {
+        self.forward_from(params, tape, 0);
+    }
+
+    /// Forward pass of one chunk from layer `first` on: fills `tape.acts[first + 1..]` from
+    /// `tape.acts[first]` (after its activation), leaving the earlier activations alone, so a
+    /// caller that computed the first layers some other way (e.g. with a part of the input shared
+    /// by many rows precomputed) runs the rest.
+    pub fn forward_from(&self, params: &[f32], tape: &mut MlpTape, first: usize) {
         let n = tape.rows;
-        for j in 0..self.layers() {
+        for j in first..self.layers() {
             let (i, o) = (self.dims[j], self.dims[j + 1]);
             let (wo, bo) = self.offsets(j);
             let (prev, next) = tape.acts.split_at_mut(j + 1);
@@ -153,5 +167,55 @@ impl Mlp {
                 .collect();
         }
         Some(g)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use rand::SeedableRng;
+
+    #[test]
+    fn forward_from_a_split_first_layer_matches_forward() {
+        // The first layer computed in two parts (the last inputs' contribution plus the bias,
+        // then the first inputs' accumulated onto it), the rest by `forward_from`.
+        let mlp = Mlp {
+            dims: vec![7, 5, 4, 3],
+        };
+        let mut params = vec![0.0; mlp.param_count()];
+        let mut rng = rand_pcg::Pcg64Mcg::seed_from_u64(3);
+        mlp.init(&mut params, &mut rng);
+        for p in params.iter_mut() {
+            *p += rng.random::<f32>() - 0.5;
+        }
+        let rows = 9;
+        let mut whole = mlp.tape(rows);
+        for v in whole.acts[0].iter_mut() {
+            *v = rng.random();
+        }
+        mlp.forward(&params, &mut whole);
+        let (w, b) = mlp.layer_params(&params, 0);
+        let (head, o) = (3, 5);
+        let x = &whole.acts[0];
+        let first: Vec<f32> = x.chunks_exact(7).flat_map(|r| r[..head].to_vec()).collect();
+        let rest: Vec<f32> = x.chunks_exact(7).flat_map(|r| r[head..].to_vec()).collect();
+        let mut split = mlp.tape(rows);
+        dense::forward(
+            &rest,
+            &w[head * o..],
+            b,
+            &mut split.acts[1],
+            rows,
+            7 - head,
+            o,
+        );
+        dense::accumulate(&first, &w[..head * o], &mut split.acts[1], rows, head, o);
+        elementwise::relu(&mut split.acts[1]);
+        mlp.forward_from(&params, &mut split, 1);
+        for (a, b) in whole.acts.iter().zip(&split.acts).skip(1) {
+            for (a, b) in a.iter().zip(b) {
+                assert!((a - b).abs() <= 1e-5 * (1.0 + a.abs()), "{a} vs {b}");
+            }
+        }
     }
 }

@@ -1,0 +1,19 @@
+#!/usr/bin/env bash
+# Where a guided render's time goes (docs/GUIDING.md): samples `nis render` with perf on one
+# thread (whole call stacks, so every sample can be attributed) and sorts the samples into the
+# guide's stages and the kernels they run in.
+#
+#   scripts/profile-guiding.sh [SCENE] [RES] [SPP] [GUIDE]   (default: cornell-box 128 64 nis-kl)
+#
+# Needs `perf` (Debian: apt-get install linux-perf) and a release build of `nis`.
+set -euo pipefail
+scene=${1:-cornell-box}; res=${2:-128}; spp=${3:-64}; guide=${4:-nis-kl}
+root=$(cd "$(dirname "$0")/.." && pwd)
+nis=${NIS:-$root/target/release/nis}
+work=$(mktemp -d /tmp/profile-guiding-XXXXXX)
+trap 'rm -rf "$work"' EXIT
+perf record -q -F 250 --call-graph dwarf,32768 -o "$work/perf.data" \
+  "$nis" render "$scene" --res "$res" --spp "$spp" --guide "$guide" --threads 1 \
+  --out "$work/render.exr" >/dev/null
+perf script -i "$work/perf.data" -F comm,tid,ip,sym 2>/dev/null > "$work/stacks.txt"
+python3 "$root/scripts/profile_breakdown.py" "$work/stacks.txt"
