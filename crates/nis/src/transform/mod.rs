@@ -11,6 +11,7 @@
 //! round trip loses only what storing y as `f32` loses, and gradient checks can be tight.
 
 mod affine;
+mod batch;
 mod linear;
 mod quadratic;
 mod rational_quadratic;
@@ -42,6 +43,48 @@ pub trait Transform {
     /// Reverse mode at x: given ∂L/∂y and ∂L/∂log C'(x), writes ∂L/∂p into `g_p` (overwriting it)
     /// and returns ∂L/∂x.
     fn backward(&self, p: &[f32], x: f64, g_y: f64, g_log_det: f64, g_p: &mut [f32]) -> f64;
+
+    /// [`Transform::forward`] of `x.len()` scalars at once: scalar i has its parameters at
+    /// `p[i·stride..]`, `x[i]` becomes y_i and ln C'(x_i) is added to `log_det[i]`. A transform
+    /// may override it with a kernel that works across scalars; it must give the same numbers as
+    /// the per-scalar method (the default, and the reference the overrides are tested against).
+    fn forward_batch(&self, p: &[f32], stride: usize, x: &mut [f64], log_det: &mut [f64]) {
+        let n = self.param_count();
+        for (i, (x, ld)) in x.iter_mut().zip(log_det.iter_mut()).enumerate() {
+            let (y, l) = self.forward(&p[i * stride..i * stride + n], *x);
+            *x = y;
+            *ld += l;
+        }
+    }
+
+    /// [`Transform::inverse`] of `y.len()` scalars at once, laid out as in
+    /// [`Transform::forward_batch`]: `y[i]` becomes x_i and ln C'(x_i) is added to `log_det[i]`.
+    fn inverse_batch(&self, p: &[f32], stride: usize, y: &mut [f64], log_det: &mut [f64]) {
+        let n = self.param_count();
+        for (i, (y, ld)) in y.iter_mut().zip(log_det.iter_mut()).enumerate() {
+            let (x, l) = self.inverse(&p[i * stride..i * stride + n], *y);
+            *y = x;
+            *ld += l;
+        }
+    }
+
+    /// [`Transform::backward`] of `x.len()` scalars at once: `g[i]` holds ∂L/∂y_i on entry and
+    /// ∂L/∂x_i on exit; ∂L/∂p of scalar i is written to `g_p[i·stride..]` (overwriting it).
+    fn backward_batch(
+        &self,
+        p: &[f32],
+        stride: usize,
+        x: &[f64],
+        g: &mut [f64],
+        g_log_det: &[f64],
+        g_p: &mut [f32],
+    ) {
+        let n = self.param_count();
+        for (i, (&x, g)) in x.iter().zip(g.iter_mut()).enumerate() {
+            let at = i * stride;
+            *g = self.backward(&p[at..at + n], x, *g, g_log_det[i], &mut g_p[at..at + n]);
+        }
+    }
 }
 
 /// Which coupling transform a flow uses, with its bin count.
@@ -136,6 +179,23 @@ impl Transform for TransformKind {
     }
     fn backward(&self, p: &[f32], x: f64, g_y: f64, g_log_det: f64, g_p: &mut [f32]) -> f64 {
         with_transform!(*self, s => s.backward(p, x, g_y, g_log_det, g_p))
+    }
+    fn forward_batch(&self, p: &[f32], stride: usize, x: &mut [f64], log_det: &mut [f64]) {
+        with_transform!(*self, s => s.forward_batch(p, stride, x, log_det))
+    }
+    fn inverse_batch(&self, p: &[f32], stride: usize, y: &mut [f64], log_det: &mut [f64]) {
+        with_transform!(*self, s => s.inverse_batch(p, stride, y, log_det))
+    }
+    fn backward_batch(
+        &self,
+        p: &[f32],
+        stride: usize,
+        x: &[f64],
+        g: &mut [f64],
+        g_log_det: &[f64],
+        g_p: &mut [f32],
+    ) {
+        with_transform!(*self, s => s.backward_batch(p, stride, x, g, g_log_det, g_p))
     }
 }
 
