@@ -49,23 +49,13 @@ pub trait Transform {
     /// may override it with a kernel that works across scalars; it must give the same numbers as
     /// the per-scalar method (the default, and the reference the overrides are tested against).
     fn forward_batch(&self, p: &[f32], stride: usize, x: &mut [f64], log_det: &mut [f64]) {
-        let n = self.param_count();
-        for (i, (x, ld)) in x.iter_mut().zip(log_det.iter_mut()).enumerate() {
-            let (y, l) = self.forward(&p[i * stride..i * stride + n], *x);
-            *x = y;
-            *ld += l;
-        }
+        forward_each(self, p, stride, x, log_det);
     }
 
     /// [`Transform::inverse`] of `y.len()` scalars at once, laid out as in
     /// [`Transform::forward_batch`]: `y[i]` becomes x_i and ln C'(x_i) is added to `log_det[i]`.
     fn inverse_batch(&self, p: &[f32], stride: usize, y: &mut [f64], log_det: &mut [f64]) {
-        let n = self.param_count();
-        for (i, (y, ld)) in y.iter_mut().zip(log_det.iter_mut()).enumerate() {
-            let (x, l) = self.inverse(&p[i * stride..i * stride + n], *y);
-            *y = x;
-            *ld += l;
-        }
+        inverse_each(self, p, stride, y, log_det);
     }
 
     /// [`Transform::backward`] of `x.len()` scalars at once: `g[i]` holds ∂L/∂y_i on entry and
@@ -79,12 +69,66 @@ pub trait Transform {
         g_log_det: &[f64],
         g_p: &mut [f32],
     ) {
-        let n = self.param_count();
-        for (i, (&x, g)) in x.iter().zip(g.iter_mut()).enumerate() {
-            let at = i * stride;
-            *g = self.backward(&p[at..at + n], x, *g, g_log_det[i], &mut g_p[at..at + n]);
-        }
+        backward_each(self, p, stride, x, g, g_log_det, g_p);
     }
+}
+
+/// [`Transform::forward_batch`] by the per-scalar method: the reference the batched kernels are
+/// tested and benchmarked against.
+pub fn forward_each<T: Transform + ?Sized>(
+    t: &T,
+    p: &[f32],
+    stride: usize,
+    x: &mut [f64],
+    log_det: &mut [f64],
+) {
+    let n = t.param_count();
+    for (i, (x, ld)) in x.iter_mut().zip(log_det.iter_mut()).enumerate() {
+        let (y, l) = t.forward(&p[i * stride..i * stride + n], *x);
+        *x = y;
+        *ld += l;
+    }
+}
+
+/// [`Transform::inverse_batch`] by the per-scalar method.
+pub fn inverse_each<T: Transform + ?Sized>(
+    t: &T,
+    p: &[f32],
+    stride: usize,
+    y: &mut [f64],
+    log_det: &mut [f64],
+) {
+    let n = t.param_count();
+    for (i, (y, ld)) in y.iter_mut().zip(log_det.iter_mut()).enumerate() {
+        let (x, l) = t.inverse(&p[i * stride..i * stride + n], *y);
+        *y = x;
+        *ld += l;
+    }
+}
+
+/// [`Transform::backward_batch`] by the per-scalar method.
+pub fn backward_each<T: Transform + ?Sized>(
+    t: &T,
+    p: &[f32],
+    stride: usize,
+    x: &[f64],
+    g: &mut [f64],
+    g_log_det: &[f64],
+    g_p: &mut [f32],
+) {
+    let n = t.param_count();
+    for (i, (&x, g)) in x.iter().zip(g.iter_mut()).enumerate() {
+        let at = i * stride;
+        *g = t.backward(&p[at..at + n], x, *g, g_log_det[i], &mut g_p[at..at + n]);
+    }
+}
+
+/// Whether the environment variable `NIS_SCALAR_SPLINES` is set (to anything): coupling layers
+/// then run their transforms through the per-scalar reference ([`forward_each`], …) instead of
+/// the batched kernels, so a benchmark can time both in one binary. The numbers are the same.
+pub fn scalar_reference() -> bool {
+    static SCALAR: std::sync::OnceLock<bool> = std::sync::OnceLock::new();
+    *SCALAR.get_or_init(|| std::env::var_os("NIS_SCALAR_SPLINES").is_some())
 }
 
 /// Which coupling transform a flow uses, with its bin count.
