@@ -11,7 +11,7 @@
 use crate::kernels::elementwise::exp;
 
 /// Scalars per group: one AVX-512 register of f64, two of AVX2.
-pub(crate) const LANES: usize = 8;
+pub(crate) const LANES: usize = 64;
 
 /// One value per lane.
 pub(crate) type Lane = [f64; LANES];

@@ -219,20 +219,15 @@ impl LaneKnots {
             for l in 0..LANES {
                 cdf[l] += 0.5 * (v[j - 1][l] + v[j][l]) * w[j - 1][l];
                 edge[l] += w[j - 1][l];
-                // The scalar searches' conditions, literally (they differ for NaN only).
-                let reached = if in_y {
-                    !(t[l] < cdf[l])
-                } else {
-                    t[l] >= edge[l]
-                };
-                if reached {
-                    at.b[l] = j as f64;
-                    at.edge[l] = edge[l];
-                    at.cdf[l] = cdf[l];
-                    at.w[l] = w[j][l];
-                    at.v0[l] = v[j][l];
-                    at.v1[l] = v[j + 1][l];
-                }
+                // The scalar searches' conditions, literally (they differ for NaN only), and
+                // selects rather than branches, so the lanes run as vectors.
+                let reached = (in_y && !(t[l] < cdf[l])) || (!in_y && t[l] >= edge[l]);
+                at.b[l] = if reached { j as f64 } else { at.b[l] };
+                at.edge[l] = if reached { edge[l] } else { at.edge[l] };
+                at.cdf[l] = if reached { cdf[l] } else { at.cdf[l] };
+                at.w[l] = if reached { w[j][l] } else { at.w[l] };
+                at.v0[l] = if reached { v[j][l] } else { at.v0[l] };
+                at.v1[l] = if reached { v[j + 1][l] } else { at.v1[l] };
             }
         }
         at
@@ -269,10 +264,10 @@ fn run_lanes(
         let tin = batch::load(t, first);
         let at = kn.locate(&tin, inverse);
         let (mut out, mut q) = (splat(0.0), splat(0.0));
-        for l in 0..LANES {
-            let (w, v0) = (at.w[l], at.v0[l]);
-            let dv = at.v1[l] - v0;
-            let alpha = if inverse {
+        if inverse {
+            for l in 0..LANES {
+                let (w, v0) = (at.w[l], at.v0[l]);
+                let dv = at.v1[l] - v0;
                 // As Quadratic::inverse_in: the cancellation-free root of the bin's quadratic.
                 let a = 0.5 * dv * w;
                 let bq = v0 * w;
@@ -280,13 +275,16 @@ fn run_lanes(
                 let disc = (bq * bq + 4.0 * a * c).max(0.0);
                 let alpha = (2.0 * c / (bq + disc.sqrt())).clamp(0.0, 1.0);
                 out[l] = (at.edge[l] + alpha * w).clamp(0.0, 1.0);
-                alpha
-            } else {
+                q[l] = v0 + alpha * dv;
+            }
+        } else {
+            for l in 0..LANES {
+                let (w, v0) = (at.w[l], at.v0[l]);
+                let dv = at.v1[l] - v0;
                 let alpha = ((tin[l] - at.edge[l]) / w).clamp(0.0, 1.0);
                 out[l] = (at.cdf[l] + w * alpha * (v0 + 0.5 * alpha * dv)).clamp(0.0, 1.0);
-                alpha
-            };
-            q[l] = v0 + alpha * dv;
+                q[l] = v0 + alpha * dv;
+            }
         }
         let lanes = LANES.min(n - first);
         for l in 0..lanes {
@@ -355,12 +353,16 @@ fn backward_lanes(
         // Y_b = Σ_{i<b} ½(V_i + V_{i+1})W_i and X_b = Σ_{i<b} W_i.
         for i in 0..k {
             for l in 0..LANES {
-                if (i as f64) < at.b[l] {
-                    let t = 0.5 * g_y[l] * kn.w[i][l];
-                    g_v[i][l] += t;
-                    g_v[i + 1][l] += t;
-                    g_w[i][l] += g_y[l] * 0.5 * (kn.v[i][l] + kn.v[i + 1][l]) + g_edge[l];
-                }
+                let below = (i as f64) < at.b[l];
+                let t = 0.5 * g_y[l] * kn.w[i][l];
+                let g_wi = g_y[l] * 0.5 * (kn.v[i][l] + kn.v[i + 1][l]) + g_edge[l];
+                g_v[i][l] = if below { g_v[i][l] + t } else { g_v[i][l] };
+                g_v[i + 1][l] = if below {
+                    g_v[i + 1][l] + t
+                } else {
+                    g_v[i + 1][l]
+                };
+                g_w[i][l] = if below { g_w[i][l] + g_wi } else { g_w[i][l] };
             }
         }
         // V_j = m + (1 − m)·E_j/N with N = Σ ½(E_i + E_{i+1})W_i.
