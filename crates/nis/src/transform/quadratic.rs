@@ -164,6 +164,9 @@ struct LaneKnots {
     v: Vec<Lane>,
     e: Vec<Lane>,
     norm: Lane,
+    /// The left edge X_b and the CDF there, per bin (X_0 = Y_0 = 0).
+    x_at: Vec<Lane>,
+    y_at: Vec<Lane>,
 }
 
 impl LaneKnots {
@@ -174,6 +177,8 @@ impl LaneKnots {
             v: vec![splat(0.0); k + 1],
             e: vec![splat(0.0); k + 1],
             norm: splat(0.0),
+            x_at: vec![splat(0.0); k],
+            y_at: vec![splat(0.0); k],
         }
     }
 
@@ -201,34 +206,39 @@ impl LaneKnots {
 
     /// Each lane's bin (as [`Quadratic::locate`] for x, or the inverse's search for y): the last
     /// bin whose left edge (in x) or left CDF value (in y) the point reaches. Edges and CDF values
-    /// rise with the bin, so that is the count of edges reached, found without a branch per lane.
+    /// rise with the bin, so that is the count of edges reached: counted without a branch, then
+    /// the bin's quantities are gathered lane by lane.
     #[inline(always)]
-    fn locate(&self, t: &Lane, in_y: bool) -> Located {
+    fn locate(&mut self, t: &Lane, in_y: bool) -> Located {
         let k = self.w.len();
         let (w, v) = (&self.w, &self.v);
-        let mut at = Located {
-            b: splat(0.0),
-            edge: splat(0.0),
-            cdf: splat(0.0),
-            w: w[0],
-            v0: v[0],
-            v1: v[1],
-        };
-        let (mut edge, mut cdf) = (splat(0.0), splat(0.0));
+        let (x_at, y_at) = (&mut self.x_at, &mut self.y_at);
+        let mut count = splat(0.0);
         for j in 1..k {
             for l in 0..LANES {
-                cdf[l] += 0.5 * (v[j - 1][l] + v[j][l]) * w[j - 1][l];
-                edge[l] += w[j - 1][l];
-                // The scalar searches' conditions, literally (they differ for NaN only), and
-                // selects rather than branches, so the lanes run as vectors.
-                let reached = (in_y && !(t[l] < cdf[l])) || (!in_y && t[l] >= edge[l]);
-                at.b[l] = if reached { j as f64 } else { at.b[l] };
-                at.edge[l] = if reached { edge[l] } else { at.edge[l] };
-                at.cdf[l] = if reached { cdf[l] } else { at.cdf[l] };
-                at.w[l] = if reached { w[j][l] } else { at.w[l] };
-                at.v0[l] = if reached { v[j][l] } else { at.v0[l] };
-                at.v1[l] = if reached { v[j + 1][l] } else { at.v1[l] };
+                // The scalar searches' running sums and conditions, literally (the conditions
+                // differ for NaN only).
+                y_at[j][l] = y_at[j - 1][l] + 0.5 * (v[j - 1][l] + v[j][l]) * w[j - 1][l];
+                x_at[j][l] = x_at[j - 1][l] + w[j - 1][l];
+                let reached = (in_y && !(t[l] < y_at[j][l])) || (!in_y && t[l] >= x_at[j][l]);
+                count[l] += if reached { 1.0 } else { 0.0 };
             }
+        }
+        let mut at = Located {
+            b: count,
+            edge: splat(0.0),
+            cdf: splat(0.0),
+            w: splat(0.0),
+            v0: splat(0.0),
+            v1: splat(0.0),
+        };
+        for l in 0..LANES {
+            let b = count[l] as usize;
+            at.edge[l] = x_at[b][l];
+            at.cdf[l] = y_at[b][l];
+            at.w[l] = w[b][l];
+            at.v0[l] = v[b][l];
+            at.v1[l] = v[b + 1][l];
         }
         at
     }
@@ -336,19 +346,15 @@ fn backward_lanes(
             g_x[l] = g_alpha / w;
             g_edge[l] = -g_alpha / w;
         }
-        // Into the lanes whose bin is j (b and b + 1 for the vertex heights), zero elsewhere.
-        g_v[0] = splat(0.0);
-        for j in 0..k {
-            for l in 0..LANES {
-                let mine = at.b[l] == j as f64;
-                g_v[j][l] = if mine { 0.0 + own[0][l] } else { g_v[j][l] };
-                g_v[j + 1][l] = if mine { 0.0 + own[1][l] } else { 0.0 };
-                g_w[j][l] = if mine {
-                    0.0 + own[2][l] - own[3][l]
-                } else {
-                    0.0
-                };
-            }
+        // Into the lanes' own bins (b and b + 1 for the vertex heights), zero elsewhere.
+        for row in g_w.iter_mut().chain(g_v.iter_mut()) {
+            *row = splat(0.0);
+        }
+        for l in 0..LANES {
+            let b = at.b[l] as usize;
+            g_v[b][l] = 0.0 + own[0][l];
+            g_v[b + 1][l] = 0.0 + own[1][l];
+            g_w[b][l] = 0.0 + own[2][l] - own[3][l];
         }
         // Y_b = Σ_{i<b} ½(V_i + V_{i+1})W_i and X_b = Σ_{i<b} W_i.
         for i in 0..k {
