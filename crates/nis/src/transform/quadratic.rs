@@ -220,7 +220,8 @@ impl LaneKnots {
                 // differ for NaN only).
                 y_at[j][l] = y_at[j - 1][l] + 0.5 * (v[j - 1][l] + v[j][l]) * w[j - 1][l];
                 x_at[j][l] = x_at[j - 1][l] + w[j - 1][l];
-                let reached = (in_y && !(t[l] < y_at[j][l])) || (!in_y && t[l] >= x_at[j][l]);
+                let below = t[l] < y_at[j][l];
+                let reached = (in_y && !below) || (!in_y && t[l] >= x_at[j][l]);
                 count[l] += if reached { 1.0 } else { 0.0 };
             }
         }
@@ -297,9 +298,9 @@ fn run_lanes(
             }
         }
         let lanes = LANES.min(n - first);
-        for l in 0..lanes {
-            t[first + l] = out[l];
-            log_det[first + l] += q[l].ln();
+        t[first..first + lanes].copy_from_slice(&out[..lanes]);
+        for (ld, q) in log_det[first..first + lanes].iter_mut().zip(&q) {
+            *ld += q.ln();
         }
     }
 }
