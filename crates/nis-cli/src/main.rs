@@ -79,7 +79,8 @@ enum BenchCommand {
         /// into target/torch-venv on first use).
         #[arg(long)]
         torch: bool,
-        /// Only the reference flows whose name starts with this (e.g. `R2`), for profiling.
+        /// Only the reference flows whose name starts with this (e.g. `R2`), for profiling; the
+        /// docs are then left alone.
         #[arg(long)]
         only: Option<String>,
         /// Markdown file the results go to.

@@ -208,7 +208,8 @@ fn torch_baseline(batch: usize) -> Result<Vec<TorchRow>> {
 }
 
 /// `nis bench flow`: runs and records in the section "flow" of `docs`; with `torch`, also the
-/// PyTorch eager baseline of R1; with `only`, just the reference flows whose name starts with it.
+/// PyTorch eager baseline of R1; with `only`, just the reference flows whose name starts with it,
+/// and nothing is written.
 /// Returns the Markdown; `log` sees each row as it is measured.
 pub fn run(
     batch: usize,
@@ -243,6 +244,9 @@ pub fn run(
             ));
         }
     }
-    report::write_section(docs, "flow", "Flow throughput (`nis bench flow`)", &md)?;
+    // A partial run (for profiling) leaves the recorded table alone.
+    if only.is_none() {
+        report::write_section(docs, "flow", "Flow throughput (`nis bench flow`)", &md)?;
+    }
     Ok(md)
 }
