@@ -9,8 +9,13 @@ use std::path::{Path, PathBuf};
 use indicatif::{ProgressBar, ProgressStyle};
 
 /// `nis bench flow`: runs and records; with `torch`, also the PyTorch eager baseline of R1.
-pub fn run_flow(batch: usize, torch: bool, docs: &Path) -> Result<(), Box<dyn std::error::Error>> {
-    let md = nis_paper::bench::flow::run(batch, torch, docs, &mut |row| eprint!("{row}"))?;
+pub fn run_flow(
+    batch: usize,
+    torch: bool,
+    only: Option<&str>,
+    docs: &Path,
+) -> Result<(), Box<dyn std::error::Error>> {
+    let md = nis_paper::bench::flow::run(batch, torch, only, docs, &mut |row| eprint!("{row}"))?;
     println!("{md}");
     Ok(())
 }

@@ -79,6 +79,10 @@ enum BenchCommand {
         /// into target/torch-venv on first use).
         #[arg(long)]
         torch: bool,
+        /// Only the reference flows whose name starts with this (e.g. `R2`), for profiling; the
+        /// docs are then left alone.
+        #[arg(long)]
+        only: Option<String>,
         /// Markdown file the results go to.
         #[arg(long, default_value = "docs/BENCHMARKS.md")]
         docs: PathBuf,
@@ -194,9 +198,12 @@ fn main() -> ExitCode {
             Ok(())
         }
         Command::Compare(args) => render::run_compare(&args),
-        Command::Bench(BenchCommand::Flow { batch, torch, docs }) => {
-            bench::run_flow(batch, torch, &docs)
-        }
+        Command::Bench(BenchCommand::Flow {
+            batch,
+            torch,
+            only,
+            docs,
+        }) => bench::run_flow(batch, torch, only.as_deref(), &docs),
         Command::Bench(BenchCommand::Integrate {
             evals,
             only,

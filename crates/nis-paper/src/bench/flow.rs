@@ -117,8 +117,9 @@ fn bare_gemm_seconds(flow: &Flow, n: usize, threads: usize) -> f64 {
     })
 }
 
-/// Runs the flow benchmark and returns its Markdown report.
-pub fn flow(batch: usize, log: &mut dyn FnMut(&str)) -> Result<String> {
+/// Runs the flow benchmark (only the reference flows whose name starts with `only`, if given) and
+/// returns its Markdown report.
+pub fn flow(batch: usize, only: Option<&str>, log: &mut dyn FnMut(&str)) -> Result<String> {
     let mut md = String::new();
     md.push_str(&format!(
         "Batch {batch}; samples/s, median of 5 runs. Dense share: the flow's dense-layer FLOP rate \
@@ -126,7 +127,10 @@ pub fn flow(batch: usize, log: &mut dyn FnMut(&str)) -> Result<String> {
          and thread count (forward, weight gradient, input gradient).\n\n"
     ));
     md.push_str("| config | params | threads | sample + log q (samples/s) | train step (samples/s) | dense share of bare gemm |\n|---|---:|---:|---:|---:|---:|\n");
-    for r in references() {
+    let chosen = references()
+        .into_iter()
+        .filter(|r| only.is_none_or(|o| r.name.starts_with(o)));
+    for r in chosen {
         let flow = Flow::new(r.config.clone())?;
         for threads in [1, 2] {
             let pool = rayon::ThreadPoolBuilder::new()
@@ -204,9 +208,17 @@ fn torch_baseline(batch: usize) -> Result<Vec<TorchRow>> {
 }
 
 /// `nis bench flow`: runs and records in the section "flow" of `docs`; with `torch`, also the
-/// PyTorch eager baseline of R1. Returns the Markdown; `log` sees each row as it is measured.
-pub fn run(batch: usize, torch: bool, docs: &Path, log: &mut dyn FnMut(&str)) -> Result<String> {
-    let mut md = flow(batch, log)?;
+/// PyTorch eager baseline of R1; with `only`, just the reference flows whose name starts with it,
+/// and nothing is written.
+/// Returns the Markdown; `log` sees each row as it is measured.
+pub fn run(
+    batch: usize,
+    torch: bool,
+    only: Option<&str>,
+    docs: &Path,
+    log: &mut dyn FnMut(&str),
+) -> Result<String> {
+    let mut md = flow(batch, only, log)?;
     if torch {
         let rows = torch_baseline(batch)?;
         md.push_str(
@@ -232,6 +244,9 @@ pub fn run(batch: usize, torch: bool, docs: &Path, log: &mut dyn FnMut(&str)) ->
             ));
         }
     }
-    report::write_section(docs, "flow", "Flow throughput (`nis bench flow`)", &md)?;
+    // A partial run (for profiling) leaves the recorded table alone.
+    if only.is_none() {
+        report::write_section(docs, "flow", "Flow throughput (`nis bench flow`)", &md)?;
+    }
     Ok(md)
 }

@@ -12,7 +12,10 @@ use super::config::FlowConfig;
 use crate::kernels::CHUNK_ROWS;
 use crate::nn::encoding::OneBlob;
 use crate::nn::mlp::{Mlp, MlpTape};
-use crate::transform::{with_transform, Transform, TransformKind};
+use crate::transform::{
+    backward_each, forward_each, inverse_each, scalar_reference, with_transform, Transform,
+    TransformKind,
+};
 
 /// A coupling layer: its partition, conditioner and transform; its weights live in the flow's
 /// parameter vector at `offset..offset + mlp.param_count()`.
@@ -79,21 +82,27 @@ impl Coupling {
         let np = self.transform.param_count();
         let width = self.b.len() * np;
         let mut g_out = vec![0.0f32; rows * width];
-        with_transform!(self.transform, s => {
+        // One B dimension at a time over all rows: the transform's batched kernel sees a column.
+        let (mut x, mut g) = (vec![0.0f64; rows], vec![0.0f64; rows]);
+        let g_ld: Vec<f64> = g_log_det.iter().map(|&v| v as f64).collect();
+        for (k, &d) in self.b.iter().enumerate() {
             for r in 0..rows {
-                for (k, &d) in self.b.iter().enumerate() {
-                    let at = r * width + k * np;
-                    let g_x = s.backward(
-                        &out[at..at + np],
-                        input[r * dim + d] as f64,
-                        g_u[r * dim + d] as f64,
-                        g_log_det[r] as f64,
-                        &mut g_out[at..at + np],
-                    );
-                    g_u[r * dim + d] = g_x as f32;
-                }
+                x[r] = input[r * dim + d] as f64;
+                g[r] = g_u[r * dim + d] as f64;
             }
-        });
+            let (p, g_p) = (&out[k * np..], &mut g_out[k * np..]);
+            if scalar_reference() {
+                with_transform!(self.transform, s => {
+                    backward_each(&s, p, width, &x, &mut g, &g_ld, g_p)
+                });
+            } else {
+                self.transform
+                    .backward_batch(p, width, &x, &mut g, &g_ld, g_p);
+            }
+            for r in 0..rows {
+                g_u[r * dim + d] = g[r] as f32;
+            }
+        }
         g_out
     }
 
@@ -145,21 +154,27 @@ impl Layer for Coupling {
         let out = tape.acts.last().expect("an MLP has an output layer");
         let np = self.transform.param_count();
         let width = self.b.len() * np;
-        with_transform!(self.transform, s => {
+        let mut v = vec![0.0f64; n];
+        for (k, &d) in self.b.iter().enumerate() {
             for r in 0..n {
-                let row = &out[r * width..(r + 1) * width];
-                for (k, &d) in self.b.iter().enumerate() {
-                    let p = &row[k * np..(k + 1) * np];
-                    let v = u[r * dim + d] as f64;
-                    let (v, ld) = match direction {
-                        Direction::Forward => s.forward(p, v),
-                        Direction::Inverse => s.inverse(p, v),
-                    };
-                    u[r * dim + d] = v as f32;
-                    log_det[r] += ld;
+                v[r] = u[r * dim + d] as f64;
+            }
+            let p = &out[k * np..];
+            let t = self.transform;
+            match (direction, scalar_reference()) {
+                (Direction::Forward, false) => t.forward_batch(p, width, &mut v, log_det),
+                (Direction::Inverse, false) => t.inverse_batch(p, width, &mut v, log_det),
+                (Direction::Forward, true) => {
+                    with_transform!(t, s => forward_each(&s, p, width, &mut v, log_det))
+                }
+                (Direction::Inverse, true) => {
+                    with_transform!(t, s => inverse_each(&s, p, width, &mut v, log_det))
                 }
             }
-        });
+            for r in 0..n {
+                u[r * dim + d] = v[r] as f32;
+            }
+        }
         tape
     }
 

@@ -117,4 +117,9 @@ mod tests {
     fn affine_round_trips_and_gradients() {
         testing::check_transform(&Affine, false);
     }
+
+    #[test]
+    fn affine_batched_equals_per_scalar() {
+        testing::check_batch(&Affine);
+    }
 }

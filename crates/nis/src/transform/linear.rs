@@ -83,6 +83,13 @@ mod tests {
     use crate::transform::testing;
 
     #[test]
+    fn linear_batched_equals_per_scalar() {
+        for bins in [1, 2, 5, 16, 32] {
+            testing::check_batch(&Linear { bins });
+        }
+    }
+
+    #[test]
     fn linear_round_trips_and_gradients() {
         for bins in [1, 2, 5, 32] {
             testing::check_transform(&Linear { bins }, true);

@@ -11,6 +11,7 @@
 //! round trip loses only what storing y as `f32` loses, and gradient checks can be tight.
 
 mod affine;
+mod batch;
 mod linear;
 mod quadratic;
 mod rational_quadratic;
@@ -42,6 +43,92 @@ pub trait Transform {
     /// Reverse mode at x: given ∂L/∂y and ∂L/∂log C'(x), writes ∂L/∂p into `g_p` (overwriting it)
     /// and returns ∂L/∂x.
     fn backward(&self, p: &[f32], x: f64, g_y: f64, g_log_det: f64, g_p: &mut [f32]) -> f64;
+
+    /// [`Transform::forward`] of `x.len()` scalars at once: scalar i has its parameters at
+    /// `p[i·stride..]`, `x[i]` becomes y_i and ln C'(x_i) is added to `log_det[i]`. A transform
+    /// may override it with a kernel that works across scalars; it must give the same numbers as
+    /// the per-scalar method (the default, and the reference the overrides are tested against).
+    fn forward_batch(&self, p: &[f32], stride: usize, x: &mut [f64], log_det: &mut [f64]) {
+        forward_each(self, p, stride, x, log_det);
+    }
+
+    /// [`Transform::inverse`] of `y.len()` scalars at once, laid out as in
+    /// [`Transform::forward_batch`]: `y[i]` becomes x_i and ln C'(x_i) is added to `log_det[i]`.
+    fn inverse_batch(&self, p: &[f32], stride: usize, y: &mut [f64], log_det: &mut [f64]) {
+        inverse_each(self, p, stride, y, log_det);
+    }
+
+    /// [`Transform::backward`] of `x.len()` scalars at once: `g[i]` holds ∂L/∂y_i on entry and
+    /// ∂L/∂x_i on exit; ∂L/∂p of scalar i is written to `g_p[i·stride..]` (overwriting it).
+    fn backward_batch(
+        &self,
+        p: &[f32],
+        stride: usize,
+        x: &[f64],
+        g: &mut [f64],
+        g_log_det: &[f64],
+        g_p: &mut [f32],
+    ) {
+        backward_each(self, p, stride, x, g, g_log_det, g_p);
+    }
+}
+
+/// [`Transform::forward_batch`] by the per-scalar method: the reference the batched kernels are
+/// tested and benchmarked against.
+pub fn forward_each<T: Transform + ?Sized>(
+    t: &T,
+    p: &[f32],
+    stride: usize,
+    x: &mut [f64],
+    log_det: &mut [f64],
+) {
+    let n = t.param_count();
+    for (i, (x, ld)) in x.iter_mut().zip(log_det.iter_mut()).enumerate() {
+        let (y, l) = t.forward(&p[i * stride..i * stride + n], *x);
+        *x = y;
+        *ld += l;
+    }
+}
+
+/// [`Transform::inverse_batch`] by the per-scalar method.
+pub fn inverse_each<T: Transform + ?Sized>(
+    t: &T,
+    p: &[f32],
+    stride: usize,
+    y: &mut [f64],
+    log_det: &mut [f64],
+) {
+    let n = t.param_count();
+    for (i, (y, ld)) in y.iter_mut().zip(log_det.iter_mut()).enumerate() {
+        let (x, l) = t.inverse(&p[i * stride..i * stride + n], *y);
+        *y = x;
+        *ld += l;
+    }
+}
+
+/// [`Transform::backward_batch`] by the per-scalar method.
+pub fn backward_each<T: Transform + ?Sized>(
+    t: &T,
+    p: &[f32],
+    stride: usize,
+    x: &[f64],
+    g: &mut [f64],
+    g_log_det: &[f64],
+    g_p: &mut [f32],
+) {
+    let n = t.param_count();
+    for (i, (&x, g)) in x.iter().zip(g.iter_mut()).enumerate() {
+        let at = i * stride;
+        *g = t.backward(&p[at..at + n], x, *g, g_log_det[i], &mut g_p[at..at + n]);
+    }
+}
+
+/// Whether the environment variable `NIS_SCALAR_SPLINES` is set (to anything): coupling layers
+/// then run their transforms through the per-scalar reference ([`forward_each`], …) instead of
+/// the batched kernels, so a benchmark can time both in one binary. The numbers are the same.
+pub fn scalar_reference() -> bool {
+    static SCALAR: std::sync::OnceLock<bool> = std::sync::OnceLock::new();
+    *SCALAR.get_or_init(|| std::env::var_os("NIS_SCALAR_SPLINES").is_some())
 }
 
 /// Which coupling transform a flow uses, with its bin count.
@@ -136,6 +223,23 @@ impl Transform for TransformKind {
     }
     fn backward(&self, p: &[f32], x: f64, g_y: f64, g_log_det: f64, g_p: &mut [f32]) -> f64 {
         with_transform!(*self, s => s.backward(p, x, g_y, g_log_det, g_p))
+    }
+    fn forward_batch(&self, p: &[f32], stride: usize, x: &mut [f64], log_det: &mut [f64]) {
+        with_transform!(*self, s => s.forward_batch(p, stride, x, log_det))
+    }
+    fn inverse_batch(&self, p: &[f32], stride: usize, y: &mut [f64], log_det: &mut [f64]) {
+        with_transform!(*self, s => s.inverse_batch(p, stride, y, log_det))
+    }
+    fn backward_batch(
+        &self,
+        p: &[f32],
+        stride: usize,
+        x: &[f64],
+        g: &mut [f64],
+        g_log_det: &[f64],
+        g_p: &mut [f32],
+    ) {
+        with_transform!(*self, s => s.backward_batch(p, stride, x, g, g_log_det, g_p))
     }
 }
 

@@ -7,6 +7,9 @@
 //! V_b + α(V_{b+1} − V_b) and the CDF a quadratic in α. Unlike bin widths of the piecewise-linear
 //! transform, these widths get correct gradients because the density is continuous.
 
+use multiversion::multiversion;
+
+use super::batch::{self, splat, Lane, LANES};
 use super::{
     edges_from_widths, exponentials, softmax_floor, softmax_floor_backward, with_scratch, Transform,
 };
@@ -131,6 +134,274 @@ impl Transform for Quadratic {
             self.backward_in(p, x, g_y, g_log_det, g_p, buf)
         })
     }
+
+    fn forward_batch(&self, p: &[f32], stride: usize, x: &mut [f64], log_det: &mut [f64]) {
+        run_lanes(self.bins, p, stride, x, log_det, false);
+    }
+
+    fn inverse_batch(&self, p: &[f32], stride: usize, y: &mut [f64], log_det: &mut [f64]) {
+        run_lanes(self.bins, p, stride, y, log_det, true);
+    }
+
+    fn backward_batch(
+        &self,
+        p: &[f32],
+        stride: usize,
+        x: &[f64],
+        g: &mut [f64],
+        g_log_det: &[f64],
+        g_p: &mut [f32],
+    ) {
+        backward_lanes(self.bins, p, stride, x, g, g_log_det, g_p);
+    }
+}
+
+/// The knots of a group of scalars ([`Quadratic::knots`] per lane) and their work buffers.
+struct LaneKnots {
+    /// The group's parameters, transposed: `p[j][lane]`.
+    p: Vec<[f32; LANES]>,
+    w: Vec<Lane>,
+    v: Vec<Lane>,
+    e: Vec<Lane>,
+    norm: Lane,
+    /// The left edge X_b and the CDF there, per bin (X_0 = Y_0 = 0).
+    x_at: Vec<Lane>,
+    y_at: Vec<Lane>,
+}
+
+impl LaneKnots {
+    fn new(k: usize) -> LaneKnots {
+        LaneKnots {
+            p: vec![[0.0; LANES]; 2 * k + 1],
+            w: vec![splat(0.0); k],
+            v: vec![splat(0.0); k + 1],
+            e: vec![splat(0.0); k + 1],
+            norm: splat(0.0),
+            x_at: vec![splat(0.0); k],
+            y_at: vec![splat(0.0); k],
+        }
+    }
+
+    /// Loads scalars `first..first + LANES` of `n` and normalises their knots.
+    #[inline(always)]
+    fn compute(&mut self, p: &[f32], stride: usize, first: usize, n: usize) {
+        let k = self.w.len();
+        batch::gather(p, stride, first, n, 0, &mut self.p);
+        batch::softmax_floor(&self.p[..k], MIN_BIN_WIDTH, &mut self.w);
+        batch::exponentials(&self.p[k..], &mut self.e);
+        let mut norm = splat(-0.0);
+        for i in 0..k {
+            for l in 0..LANES {
+                norm[l] += 0.5 * (self.e[i][l] + self.e[i + 1][l]) * self.w[i][l];
+            }
+        }
+        for j in 0..=k {
+            for l in 0..LANES {
+                let scale = (1.0 - MIN_DENSITY) / norm[l];
+                self.v[j][l] = MIN_DENSITY + scale * self.e[j][l];
+            }
+        }
+        self.norm = norm;
+    }
+
+    /// Each lane's bin (as [`Quadratic::locate`] for x, or the inverse's search for y): the last
+    /// bin whose left edge (in x) or left CDF value (in y) the point reaches. Edges and CDF values
+    /// rise with the bin, so that is the count of edges reached: counted without a branch, then
+    /// the bin's quantities are gathered lane by lane.
+    #[inline(always)]
+    fn locate(&mut self, t: &Lane, in_y: bool) -> Located {
+        let k = self.w.len();
+        let (w, v) = (&self.w, &self.v);
+        let (x_at, y_at) = (&mut self.x_at, &mut self.y_at);
+        let mut count = splat(0.0);
+        for j in 1..k {
+            for l in 0..LANES {
+                // The scalar searches' running sums and conditions, literally (the conditions
+                // differ for NaN only).
+                y_at[j][l] = y_at[j - 1][l] + 0.5 * (v[j - 1][l] + v[j][l]) * w[j - 1][l];
+                x_at[j][l] = x_at[j - 1][l] + w[j - 1][l];
+                let below = t[l] < y_at[j][l];
+                let reached = (in_y && !below) || (!in_y && t[l] >= x_at[j][l]);
+                count[l] += if reached { 1.0 } else { 0.0 };
+            }
+        }
+        let mut at = Located {
+            b: count,
+            edge: splat(0.0),
+            cdf: splat(0.0),
+            w: splat(0.0),
+            v0: splat(0.0),
+            v1: splat(0.0),
+        };
+        for l in 0..LANES {
+            let b = count[l] as usize;
+            at.edge[l] = x_at[b][l];
+            at.cdf[l] = y_at[b][l];
+            at.w[l] = w[b][l];
+            at.v0[l] = v[b][l];
+            at.v1[l] = v[b + 1][l];
+        }
+        at
+    }
+}
+
+/// A lane's bin b (as a float), its left edge X_b, the CDF there, its width and vertex heights.
+struct Located {
+    b: Lane,
+    edge: Lane,
+    cdf: Lane,
+    w: Lane,
+    v0: Lane,
+    v1: Lane,
+}
+
+/// The batched forward (`inverse` false) or inverse of [`Quadratic`], [`LANES`] scalars at a time.
+#[multiversion(targets = "simd")]
+fn run_lanes(
+    k: usize,
+    p: &[f32],
+    stride: usize,
+    t: &mut [f64],
+    log_det: &mut [f64],
+    inverse: bool,
+) {
+    let n = t.len();
+    if n == 0 {
+        return;
+    }
+    let mut kn = LaneKnots::new(k);
+    for first in (0..n).step_by(LANES) {
+        kn.compute(p, stride, first, n);
+        let tin = batch::load(t, first);
+        let at = kn.locate(&tin, inverse);
+        let (mut out, mut q) = (splat(0.0), splat(0.0));
+        if inverse {
+            for l in 0..LANES {
+                let (w, v0) = (at.w[l], at.v0[l]);
+                let dv = at.v1[l] - v0;
+                // As Quadratic::inverse_in: the cancellation-free root of the bin's quadratic.
+                let a = 0.5 * dv * w;
+                let bq = v0 * w;
+                let c = (tin[l] - at.cdf[l]).max(0.0);
+                let disc = (bq * bq + 4.0 * a * c).max(0.0);
+                let alpha = (2.0 * c / (bq + disc.sqrt())).clamp(0.0, 1.0);
+                out[l] = (at.edge[l] + alpha * w).clamp(0.0, 1.0);
+                q[l] = v0 + alpha * dv;
+            }
+        } else {
+            for l in 0..LANES {
+                let (w, v0) = (at.w[l], at.v0[l]);
+                let dv = at.v1[l] - v0;
+                let alpha = ((tin[l] - at.edge[l]) / w).clamp(0.0, 1.0);
+                out[l] = (at.cdf[l] + w * alpha * (v0 + 0.5 * alpha * dv)).clamp(0.0, 1.0);
+                q[l] = v0 + alpha * dv;
+            }
+        }
+        let lanes = LANES.min(n - first);
+        t[first..first + lanes].copy_from_slice(&out[..lanes]);
+        for (ld, q) in log_det[first..first + lanes].iter_mut().zip(&q) {
+            *ld += q.ln();
+        }
+    }
+}
+
+/// The batched [`Quadratic::backward`], [`LANES`] scalars at a time.
+#[multiversion(targets = "simd")]
+fn backward_lanes(
+    k: usize,
+    p: &[f32],
+    stride: usize,
+    x: &[f64],
+    g: &mut [f64],
+    g_log_det: &[f64],
+    g_p: &mut [f32],
+) {
+    let n = x.len();
+    if n == 0 {
+        return;
+    }
+    let mut kn = LaneKnots::new(k);
+    let mut g_w = vec![splat(0.0); k];
+    let mut g_v = vec![splat(0.0); k + 1];
+    let mut g_params = vec![[0.0f32; LANES]; 2 * k + 1];
+    for first in (0..n).step_by(LANES) {
+        kn.compute(p, stride, first, n);
+        let xl = batch::load(x, first);
+        let g_y = batch::load(g, first);
+        let g_ld = batch::load(g_log_det, first);
+        let at = kn.locate(&xl, false);
+        // The bin's own terms, as Quadratic::backward_in writes them.
+        let mut own = [[0.0f64; LANES]; 4];
+        let (mut g_x, mut g_edge) = (splat(0.0), splat(0.0));
+        for l in 0..LANES {
+            let (w, v0) = (at.w[l], at.v0[l]);
+            let alpha = ((xl[l] - at.edge[l]) / w).clamp(0.0, 1.0);
+            let dv = at.v1[l] - v0;
+            let q = v0 + alpha * dv;
+            let g_q = g_ld[l] / q;
+            let g_alpha = g_y[l] * w * q + g_q * dv;
+            own[0][l] = g_y[l] * w * (alpha - 0.5 * alpha * alpha) + g_q * (1.0 - alpha);
+            own[1][l] = g_y[l] * w * 0.5 * alpha * alpha + g_q * alpha;
+            own[2][l] = g_y[l] * alpha * (v0 + 0.5 * alpha * dv);
+            own[3][l] = g_alpha * alpha / w;
+            g_x[l] = g_alpha / w;
+            g_edge[l] = -g_alpha / w;
+        }
+        // Into the lanes' own bins (b and b + 1 for the vertex heights), zero elsewhere.
+        for row in g_w.iter_mut().chain(g_v.iter_mut()) {
+            *row = splat(0.0);
+        }
+        for l in 0..LANES {
+            let b = at.b[l] as usize;
+            g_v[b][l] = 0.0 + own[0][l];
+            g_v[b + 1][l] = 0.0 + own[1][l];
+            g_w[b][l] = 0.0 + own[2][l] - own[3][l];
+        }
+        // Y_b = Σ_{i<b} ½(V_i + V_{i+1})W_i and X_b = Σ_{i<b} W_i.
+        for i in 0..k {
+            for l in 0..LANES {
+                let below = (i as f64) < at.b[l];
+                let t = 0.5 * g_y[l] * kn.w[i][l];
+                let g_wi = g_y[l] * 0.5 * (kn.v[i][l] + kn.v[i + 1][l]) + g_edge[l];
+                g_v[i][l] = if below { g_v[i][l] + t } else { g_v[i][l] };
+                g_v[i + 1][l] = if below {
+                    g_v[i + 1][l] + t
+                } else {
+                    g_v[i + 1][l]
+                };
+                g_w[i][l] = if below { g_w[i][l] + g_wi } else { g_w[i][l] };
+            }
+        }
+        // V_j = m + (1 − m)·E_j/N with N = Σ ½(E_i + E_{i+1})W_i.
+        let mut s = splat(-0.0);
+        for j in 0..=k {
+            for l in 0..LANES {
+                s[l] += g_v[j][l] * kn.e[j][l];
+            }
+        }
+        let mut scale = splat(0.0);
+        for l in 0..LANES {
+            scale[l] = (1.0 - MIN_DENSITY) / kn.norm[l];
+            s[l] = s[l] * scale[l] / kn.norm[l];
+        }
+        for i in 0..k {
+            for l in 0..LANES {
+                g_w[i][l] -= s[l] * 0.5 * (kn.e[i][l] + kn.e[i + 1][l]);
+            }
+        }
+        for j in 0..=k {
+            for l in 0..LANES {
+                let left = if j > 0 { kn.w[j - 1][l] } else { 0.0 };
+                let right = if j < k { kn.w[j][l] } else { 0.0 };
+                let dn = 0.5 * (left + right);
+                g_params[k + j][l] = ((g_v[j][l] * scale[l] - s[l] * dn) * kn.e[j][l]) as f32;
+            }
+        }
+        batch::softmax_floor_backward(&kn.w, &g_w, MIN_BIN_WIDTH, &mut g_params[..k]);
+        let lanes = LANES.min(n - first);
+        batch::scatter(&g_params, stride, first, lanes, 0, g_p);
+        g[first..first + lanes].copy_from_slice(&g_x[..lanes]);
+    }
 }
 
 impl Quadratic {
@@ -194,6 +465,13 @@ impl Quadratic {
 mod tests {
     use super::*;
     use crate::transform::testing;
+
+    #[test]
+    fn quadratic_batched_equals_per_scalar() {
+        for bins in [1, 2, 5, 16, 32] {
+            testing::check_batch(&Quadratic { bins });
+        }
+    }
 
     #[test]
     fn quadratic_round_trips_and_gradients() {

@@ -250,6 +250,13 @@ mod tests {
     use crate::transform::testing;
 
     #[test]
+    fn rational_quadratic_batched_equals_per_scalar() {
+        for bins in [1, 2, 5, 16, 32] {
+            testing::check_batch(&RationalQuadratic { bins });
+        }
+    }
+
+    #[test]
     fn rational_quadratic_round_trips_and_gradients() {
         for bins in [1, 2, 5, 32] {
             testing::check_transform(&RationalQuadratic { bins }, false);
