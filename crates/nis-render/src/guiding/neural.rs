@@ -468,6 +468,7 @@ impl NisGuide {
                     acts: Vec::new(),
                 };
                 let mut enc = Vec::new();
+                let mut column = Vec::with_capacity(n);
                 for l in order {
                     let c = &layers[l];
                     let mlp = &c.mlp;
@@ -500,16 +501,22 @@ impl NisGuide {
                     let out = tape.acts.last().expect("an MLP has an output layer");
                     let np = c.transform.param_count();
                     let ow = c.b.len() * np;
-                    for r in 0..n {
-                        for (k, &d) in c.b.iter().enumerate() {
-                            let p = &out[r * ow + k * np..r * ow + (k + 1) * np];
-                            let v = f64::from(u[r * dim + d]);
-                            let (v, ld) = match direction {
-                                Direction::Forward => c.transform.forward(p, v),
-                                Direction::Inverse => c.transform.inverse(p, v),
-                            };
+                    // A column at a time, through the transform's batched kernel (the same
+                    // numbers as its per-scalar methods, which the couplings' tests check).
+                    for (k, &d) in c.b.iter().enumerate() {
+                        column.clear();
+                        column.extend((0..n).map(|r| f64::from(u[r * dim + d])));
+                        let p = &out[k * np..];
+                        match direction {
+                            Direction::Forward => {
+                                c.transform.forward_batch(p, ow, &mut column, log_q)
+                            }
+                            Direction::Inverse => {
+                                c.transform.inverse_batch(p, ow, &mut column, log_q)
+                            }
+                        }
+                        for (r, &v) in column.iter().enumerate() {
                             u[r * dim + d] = v as f32;
-                            log_q[r] += ld;
                         }
                     }
                 }
