@@ -98,11 +98,15 @@ fn check_coverage(label: &str, exact: f64, run: impl Fn(u64) -> IntegrationResul
 
 #[test]
 fn nis_error_bars_cover_the_truth_at_their_nominal_rate() {
-    // A peaked positive integrand, a 4-d one, and one that changes sign.
+    nis_covers("nis", &small_nis());
+}
+
+/// The coverage check of [`check_coverage`] for NIS with `config` (its flow reseeded per run) on
+/// a peaked positive integrand, a 4-d one, and one that changes sign.
+fn nis_covers(label: &str, config: &NisConfig) {
     for (name, dim) in [("camel", 2), ("gauss", 4), ("oscillatory", 2)] {
         let f = integrands::by_name(name, Some(dim)).unwrap();
-        let config = small_nis();
-        check_coverage(&format!("nis {name} d={dim}"), f.exact, |seed| {
+        check_coverage(&format!("{label} {name} d={dim}"), f.exact, |seed| {
             let config = NisConfig {
                 flow: FlowConfig {
                     seed,
@@ -119,25 +123,13 @@ fn nis_error_bars_cover_the_truth_at_their_nominal_rate() {
 fn nis_with_training_in_the_estimate_and_replay_covers_the_truth_at_its_nominal_rate() {
     // The same cells as above with the last half of the training batches in the estimate
     // (shares fixed before each batch: unbiased) and two earlier batches replayed per batch.
-    for (name, dim) in [("camel", 2), ("gauss", 4), ("oscillatory", 2)] {
-        let f = integrands::by_name(name, Some(dim)).unwrap();
-        let config = NisConfig {
-            reuse_training: 0.5,
-            replay_batches: 4,
-            replay_steps: 2,
-            ..small_nis()
-        };
-        check_coverage(&format!("nis+reuse {name} d={dim}"), f.exact, |seed| {
-            let config = NisConfig {
-                flow: FlowConfig {
-                    seed,
-                    ..config.flow.clone()
-                },
-                ..config.clone()
-            };
-            nis_integrate(&f, dim, &config, 20_000, seed).unwrap().0
-        });
-    }
+    let config = NisConfig {
+        reuse_training: 0.5,
+        replay_batches: 4,
+        replay_steps: 2,
+        ..small_nis()
+    };
+    nis_covers("nis+reuse", &config);
 }
 
 #[test]

@@ -253,7 +253,7 @@ impl<D: Density> Density for DefensiveMixture<D> {
 }
 
 #[cfg(test)]
-mod tests {
+pub(crate) mod tests {
     use rand::{Rng, SeedableRng};
     use rand_pcg::Pcg64Mcg;
 
@@ -261,8 +261,9 @@ mod tests {
     use crate::flow::{Flow, FlowConfig};
     use crate::transform::TransformKind;
 
-    /// A 2-d mixture whose flow got uniform parameter noise: q is far from uniform.
-    fn mixture(lambda: f64) -> DefensiveMixture<Flow> {
+    /// A 2-d flow whose parameters got uniform noise: q is far from uniform (for this module's
+    /// tests and the stratified final phase's).
+    pub(crate) fn noisy_flow() -> Flow {
         let mut flow = Flow::new(FlowConfig {
             transform: TransformKind::Quadratic { bins: 6 },
             hidden_layers: 1,
@@ -275,7 +276,12 @@ mod tests {
         for p in flow.params_mut() {
             *p += 0.8 * (2.0 * rng.random::<f32>() - 1.0);
         }
-        DefensiveMixture::new(flow, lambda).unwrap()
+        flow
+    }
+
+    /// A 2-d mixture of [`noisy_flow`] and the uniform density.
+    fn mixture(lambda: f64) -> DefensiveMixture<Flow> {
+        DefensiveMixture::new(noisy_flow(), lambda).unwrap()
     }
 
     #[test]

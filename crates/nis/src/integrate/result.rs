@@ -268,19 +268,9 @@ impl Accumulator {
         if comm.size() == 1 {
             return self.add_iteration(estimate, variance, w);
         }
-        let mut max = [w.iter().fold(0.0f64, |m, v| m.max(v.abs()))];
-        comm.max_f64(&mut max);
-        check_representable(estimate, variance, max[0])?;
-        self.iterations.push(Iteration {
-            estimate,
-            variance,
-            evals,
-        });
-        self.max_abs_w = self.max_abs_w.max(max[0]);
-        // Rank 0 carries the running sum; the others add only their own weights.
-        let start = if comm.is_root() { self.sum_abs_w } else { 0.0 };
-        self.sum_abs_w = comm.sum(w.iter().fold(start, |s, v| s + v.abs()));
-        self.n += evals;
+        let max = w.iter().fold(0.0f64, |m, v| m.max(v.abs()));
+        let sum = w.iter().fold(0.0f64, |s, v| s + v.abs());
+        self.add_observed_iteration(comm, estimate, variance, evals, max, sum)?;
         self.tail.add(w);
         Ok(())
     }

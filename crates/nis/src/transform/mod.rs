@@ -82,12 +82,9 @@ pub fn forward_each<T: Transform + ?Sized>(
     x: &mut [f64],
     log_det: &mut [f64],
 ) {
-    let n = t.param_count();
-    for (i, (x, ld)) in x.iter_mut().zip(log_det.iter_mut()).enumerate() {
-        let (y, l) = t.forward(&p[i * stride..i * stride + n], *x);
-        *x = y;
-        *ld += l;
-    }
+    map_each(t.param_count(), p, stride, x, log_det, |p, x| {
+        t.forward(p, x)
+    });
 }
 
 /// [`Transform::inverse_batch`] by the per-scalar method.
@@ -98,10 +95,24 @@ pub fn inverse_each<T: Transform + ?Sized>(
     y: &mut [f64],
     log_det: &mut [f64],
 ) {
-    let n = t.param_count();
-    for (i, (y, ld)) in y.iter_mut().zip(log_det.iter_mut()).enumerate() {
-        let (x, l) = t.inverse(&p[i * stride..i * stride + n], *y);
-        *y = x;
+    map_each(t.param_count(), p, stride, y, log_det, |p, y| {
+        t.inverse(p, y)
+    });
+}
+
+/// Replaces each `v[i]` by the first value of `map(p_i, v[i])` and adds the second to
+/// `log_det[i]`, `p_i` being the `n` parameters at `p[i·stride..]`.
+fn map_each(
+    n: usize,
+    p: &[f32],
+    stride: usize,
+    v: &mut [f64],
+    log_det: &mut [f64],
+    map: impl Fn(&[f32], f64) -> (f64, f64),
+) {
+    for (i, (v, ld)) in v.iter_mut().zip(log_det.iter_mut()).enumerate() {
+        let (w, l) = map(&p[i * stride..i * stride + n], *v);
+        *v = w;
         *ld += l;
     }
 }

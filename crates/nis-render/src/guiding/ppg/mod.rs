@@ -424,23 +424,15 @@ mod tests {
         assert!((at_128 - 1_600.0).abs() < 1e-9, "{at_128}");
         // And the tree splits at the scaled threshold: c = 100 on a film of a quarter of the
         // paper's pixels splits above 50 samples.
-        let mut g = Ppg::new(
-            unit_box(),
-            PpgConfig {
+        let quarter_film = || {
+            let c = PpgConfig {
                 spatial_threshold: 100.0,
                 ..PpgConfig::default()
-            }
-            .for_film(PAPER_FILM_PIXELS / 4),
-        );
-        assert_eq!(leaves_after(&mut g, 51), 2);
-        let mut g = Ppg::new(
-            unit_box(),
-            PpgConfig {
-                spatial_threshold: 100.0,
-                ..PpgConfig::default()
-            }
-            .for_film(PAPER_FILM_PIXELS / 4),
-        );
+            };
+            Ppg::new(unit_box(), c.for_film(PAPER_FILM_PIXELS / 4))
+        };
+        assert_eq!(leaves_after(&mut quarter_film(), 51), 2);
+        let mut g = quarter_film();
         assert_eq!(leaves_after(&mut g, 50), 1);
     }
 

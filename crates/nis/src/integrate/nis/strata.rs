@@ -326,25 +326,12 @@ mod tests {
     use rand::SeedableRng;
 
     use super::*;
-    use crate::flow::{Flow, FlowConfig};
+    use crate::flow::Flow;
     use crate::integrate::Accumulator;
-    use crate::transform::TransformKind;
 
-    /// A 2-d flow whose parameters got uniform noise: q is far from uniform, and far from f.
+    /// A 2-d flow far from uniform, and far from f.
     fn flow() -> Flow {
-        let mut flow = Flow::new(FlowConfig {
-            transform: TransformKind::Quadratic { bins: 6 },
-            hidden_layers: 1,
-            hidden_width: 8,
-            blob_bins: 4,
-            ..FlowConfig::new(2)
-        })
-        .unwrap();
-        let mut rng = Pcg64Mcg::seed_from_u64(9);
-        for p in flow.params_mut() {
-            *p += 0.8 * (2.0 * rng.random::<f32>() - 1.0);
-        }
-        flow
+        crate::flow::mixture::tests::noisy_flow()
     }
 
     /// ∫ 20·x⁹·y dx dy = 1 over the unit square: a steep edge q knows nothing about.
