@@ -80,7 +80,7 @@ impl PyIntegrator {
         hidden_layers = None, hidden_width = None, blob_bins = None, loss = None, batch = None,
         steps_per_batch = None, train_fraction = None, learning_rate = None,
         learning_rate_end = None, uniform_fraction = None, anneal_from = None,
-        final_iterations = None, reuse_training = None, replay_batches = None,
+        final_iterations = None, stratify = None, reuse_training = None, replay_batches = None,
         replay_steps = None, increments = None, alpha = None, beta = None,
         iterations = None, warmup = None, min_per_cube = None, train_on = None, threads = None
     ))]
@@ -106,6 +106,7 @@ impl PyIntegrator {
         uniform_fraction: Option<f64>,
         anneal_from: Option<f64>,
         final_iterations: Option<i64>,
+        stratify: Option<bool>,
         reuse_training: Option<f64>,
         replay_batches: Option<i64>,
         replay_steps: Option<i64>,
@@ -171,6 +172,10 @@ impl PyIntegrator {
             n.final_iterations,
             c("final_iterations")
         );
+        if let Some(on) = stratify {
+            given.nis.push("stratify");
+            n.stratify = on.then(|| n.stratify.unwrap_or_default());
+        }
         set!(nis, reuse_training, n.reuse_training, same);
         set!(nis, replay_batches, n.replay_batches, c("replay_batches"));
         set!(nis, replay_steps, n.replay_steps, c("replay_steps"));

@@ -77,7 +77,9 @@ class Integrator:
     NIS: ``coupling`` ("pq", "pl", "rq", "affine"), ``bins``, ``layers`` (coupling layers),
     ``hidden_layers``, ``hidden_width``, ``blob_bins``, ``loss`` ("kl", "chi2"), ``batch``,
     ``steps_per_batch``, ``train_fraction``, ``learning_rate``, ``learning_rate_end``,
-    ``uniform_fraction``, ``anneal_from``, ``final_iterations``, ``reuse_training`` (share of
+    ``uniform_fraction``, ``anneal_from``, ``final_iterations``, ``stratify`` (the final phase's
+    latent cut into adaptive hypercubes, as VEGAS+ does; default True, False draws it i.i.d.),
+    ``reuse_training`` (share of
     the training batches, the last ones, in the estimate; docs/ESTIMATE.md), ``replay_batches``,
     ``replay_steps`` (earlier batches replayed off-policy in training).
     VEGAS+: ``increments``, ``alpha``, ``beta``, ``iterations``, ``warmup``, ``min_per_cube``.
@@ -105,6 +107,7 @@ class Integrator:
         uniform_fraction: Optional[float] = None,
         anneal_from: Optional[float] = None,
         final_iterations: Optional[int] = None,
+        stratify: Optional[bool] = None,
         reuse_training: Optional[float] = None,
         replay_batches: Optional[int] = None,
         replay_steps: Optional[int] = None,
