@@ -24,7 +24,7 @@ import subprocess
 import sys
 import time
 
-from docs_section import write_section
+from docs_section import machine, write_section
 
 DIM, EVALS, SEED, ALPHA = 8, 1_000_000, 1, 0.2
 EXACT = (0.5 * (math.erf(1 / (3 * ALPHA)) + math.erf(2 / (3 * ALPHA)))) ** DIM
@@ -116,20 +116,6 @@ def run_rust(cli, reps):
              n_eval=r["n_eval"], seconds=r["seconds"], process_seconds=wall)
 
 
-def machine():
-    cpu = platform.processor() or platform.machine()
-    try:
-        with open("/proc/cpuinfo") as fh:
-            for line in fh:
-                if line.startswith("model name"):
-                    cpu = line.split(":", 1)[1].strip()
-                    break
-    except OSError:
-        pass
-    return f"{cpu}, {os.cpu_count()} cores, {platform.system()} {platform.release()}, " \
-           f"Python {platform.python_version()}"
-
-
 def driver(args):
     rows, notes = [], []
     venvs = args.venvs
@@ -178,7 +164,7 @@ def driver(args):
         f"over {args.reps} runs (one for MadNIS), interleaved; NIS settings are the defaults "
         f"(seed {SEED}), the same in the CLI and the module.",
         "",
-        f"Machine: {machine()}; numpy {versions[1] if len(versions) > 1 else '?'}, "
+        f"Machine: {machine()}, Python {platform.python_version()}; numpy {versions[1] if len(versions) > 1 else '?'}, "
         f"nis {versions[0] if versions else '?'}, vegas {vegas_v or '?'}; shared with other "
         f"builds (1-minute load average {load_start:.1f} at the start, {load_end:.1f} at the end), "
         "so times carry noise of that order.",

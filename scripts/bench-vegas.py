@@ -19,7 +19,7 @@ import subprocess
 import sys
 import time
 
-from docs_section import write_section
+from docs_section import machine, write_section
 from nis_served import Served
 
 
@@ -59,19 +59,6 @@ def package(cli, name, dim, evals, seed):
     finally:
         served.close()
     return dict(value=float(r.mean), sdev=float(r.sdev), n=served.calls, wall=wall)
-
-
-def machine():
-    cpu = platform.processor() or platform.machine()
-    try:
-        with open("/proc/cpuinfo") as fh:
-            for line in fh:
-                if line.startswith("model name"):
-                    cpu = line.split(":", 1)[1].strip()
-                    break
-    except OSError:
-        pass
-    return f"{cpu}, {os.cpu_count()} cores, {platform.system()} {platform.release()}"
 
 
 def fmt_pulls(runs, exact):

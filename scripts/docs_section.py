@@ -3,6 +3,7 @@ nis_paper::report::write_section does for the Rust benches: `<!-- key:start -->`
 replaced (or appended), the file replaced atomically (temporary file beside it, fsync, rename)."""
 
 import os
+import platform
 
 
 def write_section(path, key, section):
@@ -19,3 +20,17 @@ def write_section(path, key, section):
         fh.flush()
         os.fsync(fh.fileno())
     os.replace(tmp, path)
+
+
+def machine():
+    """The machine a benchmark ran on, for its docs section: CPU model, core count, OS."""
+    cpu = platform.processor() or platform.machine()
+    try:
+        with open("/proc/cpuinfo") as fh:
+            for line in fh:
+                if line.startswith("model name"):
+                    cpu = line.split(":", 1)[1].strip()
+                    break
+    except OSError:
+        pass
+    return f"{cpu}, {os.cpu_count()} cores, {platform.system()} {platform.release()}"

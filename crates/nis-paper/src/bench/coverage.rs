@@ -16,7 +16,7 @@ use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
 use crate::error::{Error, Result};
-use crate::image::figure::{figure_error, has_font, png_bytes};
+use crate::image::figure::{draw_legend, figure_error, has_font, png_bytes};
 use crate::report;
 
 /// A budget and how many seeds run at it.
@@ -521,16 +521,7 @@ fn plot(cells: &[Cell], budgets: &[Budget]) -> Result<image::RgbImage> {
                         .legend(move |(x, y)| Circle::new((x + 6, y), 4, colour.filled()));
                 }
             }
-            if has_font() {
-                chart
-                    .configure_series_labels()
-                    .position(SeriesLabelPosition::LowerLeft)
-                    .background_style(WHITE.mix(0.8))
-                    .border_style(BLACK)
-                    .label_font(("sans-serif", 13))
-                    .draw()
-                    .map_err(figure_error)?;
-            }
+            draw_legend(&mut chart, SeriesLabelPosition::LowerLeft, 13)?;
         }
         root.present().map_err(figure_error)?;
     }

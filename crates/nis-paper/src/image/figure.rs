@@ -65,6 +65,30 @@ pub(crate) fn figure_error(e: impl std::fmt::Display) -> Error {
     Error::Figure(e.to_string())
 }
 
+/// Draws the legend of the labelled series of `chart` at `position` (text of `size` px), on a
+/// translucent white box; nothing without a font (the series carry no labels then).
+pub(crate) fn draw_legend<'a, DB, CT>(
+    chart: &mut ChartContext<'a, DB, CT>,
+    position: SeriesLabelPosition,
+    size: u32,
+) -> Result<()>
+where
+    DB: DrawingBackend + 'a,
+    CT: CoordTranslate,
+{
+    if !has_font() {
+        return Ok(());
+    }
+    chart
+        .configure_series_labels()
+        .position(position)
+        .background_style(WHITE.mix(0.8))
+        .border_style(BLACK)
+        .label_font(("sans-serif", size))
+        .draw()
+        .map_err(figure_error)
+}
+
 /// Encodes an RGB image as PNG bytes, compressed hard (figures go into the repository).
 pub fn png_bytes(image: &RgbImage) -> Result<Vec<u8>> {
     let mut bytes = Vec::new();
@@ -240,16 +264,7 @@ pub fn curves(title: &str, series: &[(String, Vec<CurvePoint>)]) -> Result<RgbIm
                     });
                 }
             }
-            if has_font() {
-                chart
-                    .configure_series_labels()
-                    .position(SeriesLabelPosition::UpperRight)
-                    .background_style(WHITE.mix(0.8))
-                    .border_style(BLACK)
-                    .label_font(("sans-serif", 14))
-                    .draw()
-                    .map_err(figure_error)?;
-            }
+            draw_legend(&mut chart, SeriesLabelPosition::UpperRight, 14)?;
         }
         root.present().map_err(figure_error)?;
     }
@@ -333,16 +348,7 @@ pub fn error_time(title: &str, panels: &[ErrorTimePanel]) -> Result<RgbImage> {
                     .draw_series(points.iter().map(|&p| Circle::new(p, 3, colour.filled())))
                     .map_err(figure_error)?;
             }
-            if has_font() {
-                chart
-                    .configure_series_labels()
-                    .position(SeriesLabelPosition::LowerLeft)
-                    .background_style(WHITE.mix(0.8))
-                    .border_style(BLACK)
-                    .label_font(("sans-serif", 13))
-                    .draw()
-                    .map_err(figure_error)?;
-            }
+            draw_legend(&mut chart, SeriesLabelPosition::LowerLeft, 13)?;
         }
         root.present().map_err(figure_error)?;
     }

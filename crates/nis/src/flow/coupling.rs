@@ -12,10 +12,7 @@ use super::config::FlowConfig;
 use crate::kernels::CHUNK_ROWS;
 use crate::nn::encoding::OneBlob;
 use crate::nn::mlp::{Mlp, MlpTape};
-use crate::transform::{
-    backward_each, forward_each, inverse_each, scalar_reference, with_transform, Transform,
-    TransformKind,
-};
+use crate::transform::{Transform, TransformKind};
 
 /// A coupling layer: its partition, conditioner and transform; its weights live in the flow's
 /// parameter vector at `offset..offset + mlp.param_count()`.
@@ -91,14 +88,8 @@ impl Coupling {
                 g[r] = g_u[r * dim + d] as f64;
             }
             let (p, g_p) = (&out[k * np..], &mut g_out[k * np..]);
-            if scalar_reference() {
-                with_transform!(self.transform, s => {
-                    backward_each(&s, p, width, &x, &mut g, &g_ld, g_p)
-                });
-            } else {
-                self.transform
-                    .backward_batch(p, width, &x, &mut g, &g_ld, g_p);
-            }
+            self.transform
+                .backward_batch(p, width, &x, &mut g, &g_ld, g_p);
             for r in 0..rows {
                 g_u[r * dim + d] = g[r] as f32;
             }
@@ -160,16 +151,9 @@ impl Layer for Coupling {
                 v[r] = u[r * dim + d] as f64;
             }
             let p = &out[k * np..];
-            let t = self.transform;
-            match (direction, scalar_reference()) {
-                (Direction::Forward, false) => t.forward_batch(p, width, &mut v, log_det),
-                (Direction::Inverse, false) => t.inverse_batch(p, width, &mut v, log_det),
-                (Direction::Forward, true) => {
-                    with_transform!(t, s => forward_each(&s, p, width, &mut v, log_det))
-                }
-                (Direction::Inverse, true) => {
-                    with_transform!(t, s => inverse_each(&s, p, width, &mut v, log_det))
-                }
+            match direction {
+                Direction::Forward => self.transform.forward_batch(p, width, &mut v, log_det),
+                Direction::Inverse => self.transform.inverse_batch(p, width, &mut v, log_det),
             }
             for r in 0..n {
                 u[r * dim + d] = v[r] as f32;

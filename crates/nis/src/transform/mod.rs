@@ -235,11 +235,21 @@ impl Transform for TransformKind {
     fn backward(&self, p: &[f32], x: f64, g_y: f64, g_log_det: f64, g_p: &mut [f32]) -> f64 {
         with_transform!(*self, s => s.backward(p, x, g_y, g_log_det, g_p))
     }
+    // The batched methods of the enum honour [`scalar_reference`]: every caller (couplings, the
+    // neural guide) gets the per-scalar reference when it is set.
     fn forward_batch(&self, p: &[f32], stride: usize, x: &mut [f64], log_det: &mut [f64]) {
-        with_transform!(*self, s => s.forward_batch(p, stride, x, log_det))
+        if scalar_reference() {
+            with_transform!(*self, s => forward_each(&s, p, stride, x, log_det))
+        } else {
+            with_transform!(*self, s => s.forward_batch(p, stride, x, log_det))
+        }
     }
     fn inverse_batch(&self, p: &[f32], stride: usize, y: &mut [f64], log_det: &mut [f64]) {
-        with_transform!(*self, s => s.inverse_batch(p, stride, y, log_det))
+        if scalar_reference() {
+            with_transform!(*self, s => inverse_each(&s, p, stride, y, log_det))
+        } else {
+            with_transform!(*self, s => s.inverse_batch(p, stride, y, log_det))
+        }
     }
     fn backward_batch(
         &self,
@@ -250,7 +260,11 @@ impl Transform for TransformKind {
         g_log_det: &[f64],
         g_p: &mut [f32],
     ) {
-        with_transform!(*self, s => s.backward_batch(p, stride, x, g, g_log_det, g_p))
+        if scalar_reference() {
+            with_transform!(*self, s => backward_each(&s, p, stride, x, g, g_log_det, g_p))
+        } else {
+            with_transform!(*self, s => s.backward_batch(p, stride, x, g, g_log_det, g_p))
+        }
     }
 }
 

@@ -6,7 +6,7 @@ use plotters::prelude::*;
 
 use super::{CellResult, Contender};
 use crate::error::Result;
-use crate::image::figure::{figure_error, has_font, png_bytes};
+use crate::image::figure::{draw_legend, figure_error, has_font, png_bytes};
 
 const COLOURS: [RGBColor; 4] = [
     RGBColor(31, 119, 180),
@@ -114,16 +114,7 @@ pub fn png(cell: &CellResult, targets: &[f64]) -> Result<Vec<u8>> {
                     .map_err(figure_error)?;
             }
         }
-        if has_font() {
-            chart
-                .configure_series_labels()
-                .position(SeriesLabelPosition::UpperRight)
-                .background_style(WHITE.mix(0.8))
-                .border_style(BLACK)
-                .label_font(("sans-serif", 14))
-                .draw()
-                .map_err(figure_error)?;
-        }
+        draw_legend(&mut chart, SeriesLabelPosition::UpperRight, 14)?;
         root.present().map_err(figure_error)?;
     }
     let image =
