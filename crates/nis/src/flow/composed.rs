@@ -5,9 +5,9 @@
 //! the one implementation of [`Density`] and [`Bijection`] for every flow: the coupling flow
 //! ([`crate::flow::Flow`], MLP conditioners) and RealNVP's multi-scale flow
 //! ([`crate::flow::multiscale::MultiScale`], convolutional conditioners) differ only in their
-//! [`Layer`]. A batch is cut into chunks of [`Layer::CHUNK_ROWS`] rows that run in parallel;
-//! each layer's backward pass reduces gradients in a fixed order, so results do not depend on
-//! the thread count.
+//! [`Layer`]. A batch is cut into chunks of [`Layer::chunk_rows`] rows that run in parallel;
+//! the chunk size depends on the batch's row count only and each layer's backward pass reduces
+//! gradients in a fixed order, so results do not depend on the thread count.
 
 use rand::{Rng, RngCore};
 use rayon::prelude::*;
@@ -15,6 +15,14 @@ use rayon::prelude::*;
 use super::density::{check_context, check_points, next_version};
 use super::{Bijection, Density, Evaluated, Samples, Tape};
 use crate::error::Result;
+
+/// Runs `op` on a worker thread of rayon's pool. Called from outside the pool, every parallel
+/// loop is handed to the pool under a lock and waited for with a wake-up; a training step runs
+/// dozens of small loops (per coupling, per dense layer), and on a batch of a few hundred points
+/// those hand-overs cost a fifth of the step. Inside, the loops are scheduled by work stealing.
+fn in_pool<R: Send>(op: impl FnOnce() -> R + Send) -> R {
+    rayon::scope(|_| op())
+}
 
 /// Which way a chunk goes through a layer.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -55,8 +63,9 @@ pub trait Layer: Clone + std::fmt::Debug + Send + Sync + 'static {
     /// What a flow of these layers is built from (kept for saving and inspection).
     type Config: Clone + std::fmt::Debug + Send + Sync + 'static;
 
-    /// Rows per parallel work item; fixed, so results do not depend on the number of threads.
-    const CHUNK_ROWS: usize;
+    /// Rows per parallel work item in a batch of `rows` rows: a function of `rows` alone, never
+    /// of the thread count, so results do not depend on the number of threads.
+    fn chunk_rows(rows: usize) -> usize;
 
     /// Runs the conditioner on `rows` and transforms them in place in `direction`, adding each
     /// row's ln|det| of the data-to-latent map. Returns the conditioner's record.
@@ -124,41 +133,44 @@ impl<L: Layer> Composed<L> {
         direction: Direction,
         record: bool,
     ) -> (Vec<f64>, Option<Tape>) {
-        let (dim, cdim, chunk) = (self.dim, self.context_dim, L::CHUNK_ROWS);
+        let (dim, cdim) = (self.dim, self.context_dim);
         let rows = u.len() / dim;
+        let chunk = L::chunk_rows(rows).max(1);
         let mut log_q = vec![0.0f64; rows];
-        let chunks: Vec<ChunkTape<L::Record>> = u
-            .par_chunks_mut(chunk * dim)
-            .zip(log_q.par_chunks_mut(chunk))
-            .enumerate()
-            .map(|(c, (u, log_q))| {
-                let ctx = ctx.map(|ctx| &ctx[c * chunk * cdim..(c * chunk + log_q.len()) * cdim]);
-                let mut tapes = Vec::new();
-                let order: Vec<usize> = match direction {
-                    Direction::Forward => (0..self.layers.len()).collect(),
-                    Direction::Inverse => (0..self.layers.len()).rev().collect(),
-                };
-                for l in order {
-                    let input = (record && direction == Direction::Forward).then(|| u.to_vec());
-                    let rows = Rows {
-                        u: &mut *u,
-                        dim,
-                        ctx,
-                        log_det: &mut *log_q,
+        let chunks: Vec<ChunkTape<L::Record>> = in_pool(|| {
+            u.par_chunks_mut(chunk * dim)
+                .zip(log_q.par_chunks_mut(chunk))
+                .enumerate()
+                .map(|(c, (u, log_q))| {
+                    let ctx =
+                        ctx.map(|ctx| &ctx[c * chunk * cdim..(c * chunk + log_q.len()) * cdim]);
+                    let mut tapes = Vec::new();
+                    let order: Vec<usize> = match direction {
+                        Direction::Forward => (0..self.layers.len()).collect(),
+                        Direction::Inverse => (0..self.layers.len()).rev().collect(),
                     };
-                    let out = self.layers[l].apply(&self.params, rows, direction);
-                    if record {
-                        // Inverse: after the layer, u holds the layer's input (data side).
-                        let input = input.unwrap_or_else(|| u.to_vec());
-                        tapes.push(LayerTape { input, record: out });
+                    for l in order {
+                        let input = (record && direction == Direction::Forward).then(|| u.to_vec());
+                        let rows = Rows {
+                            u: &mut *u,
+                            dim,
+                            ctx,
+                            log_det: &mut *log_q,
+                        };
+                        let out = self.layers[l].apply(&self.params, rows, direction);
+                        if record {
+                            // Inverse: after the layer, u holds the layer's input (data side).
+                            let input = input.unwrap_or_else(|| u.to_vec());
+                            tapes.push(LayerTape { input, record: out });
+                        }
                     }
-                }
-                if direction == Direction::Inverse {
-                    tapes.reverse();
-                }
-                tapes
-            })
-            .collect();
+                    if direction == Direction::Inverse {
+                        tapes.reverse();
+                    }
+                    tapes
+                })
+                .collect()
+        });
         let tape = record.then(|| Tape::new(self.version, rows, chunks));
         (log_q, tape)
     }
@@ -246,7 +258,7 @@ impl<L: Layer> Density for Composed<L> {
     fn backward(&self, tape: &Tape, weights: &[f32]) -> Result<Vec<f32>> {
         let chunks: &Vec<ChunkTape<L::Record>> = tape.records(self.version, weights.len())?;
         let mut grads = vec![0.0f32; self.params.len()];
-        L::backward_stack(self, chunks, weights, &mut grads);
+        in_pool(|| L::backward_stack(self, chunks, weights, &mut grads));
         Ok(grads)
     }
 }

@@ -9,7 +9,7 @@ use rayon::prelude::*;
 
 use super::composed::{ChunkTape, Composed, Direction, Layer, Rows};
 use super::config::FlowConfig;
-use crate::kernels::CHUNK_ROWS;
+use crate::kernels;
 use crate::nn::encoding::OneBlob;
 use crate::nn::mlp::{Mlp, MlpTape};
 use crate::transform::{Transform, TransformKind};
@@ -128,7 +128,9 @@ impl Coupling {
 impl Layer for Coupling {
     type Record = MlpTape;
     type Config = FlowConfig;
-    const CHUNK_ROWS: usize = CHUNK_ROWS;
+    fn chunk_rows(rows: usize) -> usize {
+        kernels::chunk_rows(rows)
+    }
 
     /// Runs the conditioner and transforms x_B in place, adding each row's log C' to `log_det`.
     fn apply(&self, params: &[f32], rows: Rows<'_>, direction: Direction) -> MlpTape {
@@ -175,6 +177,15 @@ impl Layer for Coupling {
         let g_log_det: Vec<f32> = weights.iter().map(|w| -w).collect();
         // ∂L/∂u per chunk; the latent's density is constant, so it starts at zero.
         let mut g_u: Vec<Vec<f32>> = chunks.iter().map(|c| vec![0.0; c[0].input.len()]).collect();
+        // Each chunk's first row in the batch.
+        let starts: Vec<usize> = chunks
+            .iter()
+            .scan(0, |next, c| {
+                let start = *next;
+                *next += c[0].record.rows;
+                Some(start)
+            })
+            .collect();
         for (l, coupling) in stack.layers.iter().enumerate().rev() {
             let g_out: Vec<Vec<f32>> = chunks
                 .par_iter()
@@ -182,7 +193,7 @@ impl Layer for Coupling {
                 .enumerate()
                 .map(|(c, (chunk, g_u))| {
                     let t = &chunk[l];
-                    let g_ld = &g_log_det[c * CHUNK_ROWS..c * CHUNK_ROWS + t.record.rows];
+                    let g_ld = &g_log_det[starts[c]..starts[c] + t.record.rows];
                     coupling.transform_backward(&t.record, &t.input, dim, g_u, g_ld)
                 })
                 .collect();

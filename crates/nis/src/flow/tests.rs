@@ -347,6 +347,74 @@ fn on_policy_tape_gives_the_recomputed_gradient() {
 }
 
 #[test]
+fn a_batch_cut_into_uneven_chunks_has_the_gradient_of_its_pieces() {
+    // 1000 rows run as 7 chunks of 128 and one of 104 (`kernels::chunk_rows`); each 50-row
+    // piece on its own is one chunk. The gradient is a sum over rows, so the pieces' gradients
+    // add up to the batch's, up to f32 rounding, only if every chunk reads its own rows' weights.
+    let n = 1000;
+    assert_eq!(crate::kernels::chunk_rows(n), 128);
+    for t in TRANSFORMS {
+        let flow = random_flow(3, t, 2, 0.3);
+        let x = uniform_points(n, 3, 21);
+        let ctx = uniform_points(n, 2, 22);
+        let mut rng = Pcg64Mcg::seed_from_u64(23);
+        let w: Vec<f32> = (0..n).map(|_| rng.random::<f32>() / n as f32).collect();
+        let eval = flow.log_density_for_training(&x, Some(&ctx)).unwrap();
+        let whole = flow.backward(&eval.tape, &w).unwrap();
+        let mut pieces = vec![0.0f64; whole.len()];
+        for p in 0..n / 50 {
+            let rows = p * 50..(p + 1) * 50;
+            let eval = flow
+                .log_density_for_training(
+                    &x[rows.start * 3..rows.end * 3],
+                    Some(&ctx[rows.start * 2..rows.end * 2]),
+                )
+                .unwrap();
+            let g = flow.backward(&eval.tape, &w[rows]).unwrap();
+            pieces.iter_mut().zip(&g).for_each(|(a, g)| *a += *g as f64);
+        }
+        let scale = pieces.iter().map(|g| g.abs()).fold(0.0f64, f64::max);
+        let worst = whole
+            .iter()
+            .zip(&pieces)
+            .map(|(a, b)| (*a as f64 - b).abs())
+            .fold(0.0f64, f64::max);
+        assert!(
+            worst <= 1e-4 * scale,
+            "{t:?}: worst difference {worst} of {scale}"
+        );
+        // Shifting the weights by one row (what a chunk reading another chunk's weights sees)
+        // is far outside that tolerance.
+        let shifted: Vec<f32> = w.iter().cycle().skip(1).take(n).copied().collect();
+        let other = flow.backward(&eval.tape, &shifted).unwrap();
+        let moved = whole
+            .iter()
+            .zip(&other)
+            .map(|(a, b)| (a - b).abs() as f64)
+            .fold(0.0f64, f64::max);
+        assert!(
+            moved > 1e-2 * scale,
+            "{t:?}: the test cannot see misread weights"
+        );
+    }
+}
+
+#[test]
+fn chunks_depend_on_the_batch_alone_and_spread_small_batches() {
+    use crate::kernels::{chunk_rows, CHUNK_ROWS, MIN_CHUNK_ROWS};
+    assert_eq!(chunk_rows(1), MIN_CHUNK_ROWS);
+    assert_eq!(chunk_rows(1024), 128);
+    assert_eq!(chunk_rows(1022), 128);
+    assert_eq!(chunk_rows(256), MIN_CHUNK_ROWS);
+    assert_eq!(chunk_rows(65_536), CHUNK_ROWS);
+    for rows in [64usize, 100, 512, 1000, 1024, 3000, 4096, 5000] {
+        let c = chunk_rows(rows);
+        assert!(c.is_power_of_two() && (MIN_CHUNK_ROWS..=CHUNK_ROWS).contains(&c));
+        assert!(rows.div_ceil(c) >= 8 || c == MIN_CHUNK_ROWS || c == CHUNK_ROWS);
+    }
+}
+
+#[test]
 fn stale_tapes_and_bad_weights_are_errors() {
     let mut flow = random_flow(2, TransformKind::Quadratic { bins: 4 }, 0, 0.1);
     let mut rng = Pcg64Mcg::seed_from_u64(1);

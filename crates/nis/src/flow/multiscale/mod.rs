@@ -365,7 +365,9 @@ impl MultiScale {
 impl Layer for MsCoupling {
     type Record = NetTape;
     type Config = MultiScaleConfig;
-    const CHUNK_ROWS: usize = IMAGES_PER_CHUNK;
+    fn chunk_rows(_rows: usize) -> usize {
+        IMAGES_PER_CHUNK
+    }
 
     /// Runs the conditioner and transforms the B entries of `n` rows of `u` in place, adding
     /// each row's ln|det| to `log_det`.

@@ -17,7 +17,10 @@ pub struct NisConfig {
     pub flow: FlowConfig,
     /// The training loss.
     pub loss: Loss,
-    /// Samples per adaptive iteration.
+    /// Samples per adaptive iteration (one Adam step each). 256 by default: for the same training
+    /// evaluations, four times the steps of 1024-point batches gave 1.2–3.5× lower variance per
+    /// evaluation on the suite's 4- and 8-d integrands (docs/BENCHMARKS.md, "Training batch").
+    /// Many MPI ranks want larger batches (docs/SCALING.md).
     pub batch: usize,
     /// Adam steps per batch: the first on-policy, the others reuse the batch off-policy (its
     /// points keep the density they were drawn from), trading compute for evaluations.
@@ -93,7 +96,7 @@ impl Default for NisConfig {
                 ..FlowConfig::default()
             },
             loss: Loss::Kl,
-            batch: 1024,
+            batch: 256,
             steps_per_batch: 1,
             replay_batches: 0,
             replay_steps: 0,
