@@ -51,9 +51,15 @@ pub(crate) fn exponentials(logits: &[[f32; LANES]], out: &mut [Lane]) -> Lane {
             max[l] = max[l].max(row[l]);
         }
     }
+    // The exponentials in f32 first, then widened: in one loop the compiler matches the f64
+    // stores' width and runs the f32 arithmetic four lanes at a time instead of eight.
+    let mut e = [0.0f32; LANES];
     for (o, row) in out.iter_mut().zip(logits) {
         for l in 0..LANES {
-            o[l] = exp(row[l] - max[l]) as f64;
+            e[l] = exp(row[l] - max[l]);
+        }
+        for l in 0..LANES {
+            o[l] = e[l] as f64;
         }
     }
     let mut sum = splat(-0.0);

@@ -358,18 +358,22 @@ fn backward_lanes(
             g_w[b][l] = 0.0 + own[2][l] - own[3][l];
         }
         // Y_b = Σ_{i<b} ½(V_i + V_{i+1})W_i and X_b = Σ_{i<b} W_i.
+        // Rows taken before the lane loops, so that no index is checked inside them, and
+        // additions of a selected term (0 above the lane's bin) rather than selected stores, so
+        // that the loops vectorise without masked memory access. The sums start from +0 and never
+        // become −0, so adding +0 leaves them bit for bit as the scalar code's skipped additions.
         for i in 0..k {
+            let (lower, upper) = g_v.split_at_mut(i + 1);
+            let (gv0, gv1, gw) = (&mut lower[i], &mut upper[0], &mut g_w[i]);
+            let (w, v0, v1) = (&kn.w[i], &kn.v[i], &kn.v[i + 1]);
             for l in 0..LANES {
                 let below = (i as f64) < at.b[l];
-                let t = 0.5 * g_y[l] * kn.w[i][l];
-                let g_wi = g_y[l] * 0.5 * (kn.v[i][l] + kn.v[i + 1][l]) + g_edge[l];
-                g_v[i][l] = if below { g_v[i][l] + t } else { g_v[i][l] };
-                g_v[i + 1][l] = if below {
-                    g_v[i + 1][l] + t
-                } else {
-                    g_v[i + 1][l]
-                };
-                g_w[i][l] = if below { g_w[i][l] + g_wi } else { g_w[i][l] };
+                let t = 0.5 * g_y[l] * w[l];
+                let g_wi = g_y[l] * 0.5 * (v0[l] + v1[l]) + g_edge[l];
+                let (t, g_wi) = if below { (t, g_wi) } else { (0.0, 0.0) };
+                gv0[l] += t;
+                gv1[l] += t;
+                gw[l] += g_wi;
             }
         }
         // V_j = m + (1 − m)·E_j/N with N = Σ ½(E_i + E_{i+1})W_i.
@@ -385,16 +389,19 @@ fn backward_lanes(
             s[l] = s[l] * scale[l] / kn.norm[l];
         }
         for i in 0..k {
+            let (gw, e0, e1) = (&mut g_w[i], &kn.e[i], &kn.e[i + 1]);
             for l in 0..LANES {
-                g_w[i][l] -= s[l] * 0.5 * (kn.e[i][l] + kn.e[i + 1][l]);
+                gw[l] -= s[l] * 0.5 * (e0[l] + e1[l]);
             }
         }
+        let zero = splat(0.0);
         for j in 0..=k {
+            let left = if j > 0 { &kn.w[j - 1] } else { &zero };
+            let right = if j < k { &kn.w[j] } else { &zero };
+            let (gv, e, out) = (&g_v[j], &kn.e[j], &mut g_params[k + j]);
             for l in 0..LANES {
-                let left = if j > 0 { kn.w[j - 1][l] } else { 0.0 };
-                let right = if j < k { kn.w[j][l] } else { 0.0 };
-                let dn = 0.5 * (left + right);
-                g_params[k + j][l] = ((g_v[j][l] * scale[l] - s[l] * dn) * kn.e[j][l]) as f32;
+                let dn = 0.5 * (left[l] + right[l]);
+                out[l] = ((gv[l] * scale[l] - s[l] * dn) * e[l]) as f32;
             }
         }
         batch::softmax_floor_backward(&kn.w, &g_w, MIN_BIN_WIDTH, &mut g_params[..k]);
