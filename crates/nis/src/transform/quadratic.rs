@@ -269,40 +269,42 @@ fn run_lanes(
     if n == 0 {
         return;
     }
-    let mut kn = LaneKnots::new(k);
-    for first in (0..n).step_by(LANES) {
-        kn.compute(p, stride, first, n);
-        let tin = batch::load(t, first);
-        let at = kn.locate(&tin, inverse);
-        let (mut out, mut q) = (splat(0.0), splat(0.0));
-        if inverse {
-            for l in 0..LANES {
-                let (w, v0) = (at.w[l], at.v0[l]);
-                let dv = at.v1[l] - v0;
-                // As Quadratic::inverse_in: the cancellation-free root of the bin's quadratic.
-                let a = 0.5 * dv * w;
-                let bq = v0 * w;
-                let c = (tin[l] - at.cdf[l]).max(0.0);
-                let disc = (bq * bq + 4.0 * a * c).max(0.0);
-                let alpha = (2.0 * c / (bq + disc.sqrt())).clamp(0.0, 1.0);
-                out[l] = (at.edge[l] + alpha * w).clamp(0.0, 1.0);
-                q[l] = v0 + alpha * dv;
+    with_lane_scratch(k, |scratch| {
+        let kn = &mut scratch.knots;
+        for first in (0..n).step_by(LANES) {
+            kn.compute(p, stride, first, n);
+            let tin = batch::load(t, first);
+            let at = kn.locate(&tin, inverse);
+            let (mut out, mut q) = (splat(0.0), splat(0.0));
+            if inverse {
+                for l in 0..LANES {
+                    let (w, v0) = (at.w[l], at.v0[l]);
+                    let dv = at.v1[l] - v0;
+                    // As Quadratic::inverse_in: the cancellation-free root of the bin's quadratic.
+                    let a = 0.5 * dv * w;
+                    let bq = v0 * w;
+                    let c = (tin[l] - at.cdf[l]).max(0.0);
+                    let disc = (bq * bq + 4.0 * a * c).max(0.0);
+                    let alpha = (2.0 * c / (bq + disc.sqrt())).clamp(0.0, 1.0);
+                    out[l] = (at.edge[l] + alpha * w).clamp(0.0, 1.0);
+                    q[l] = v0 + alpha * dv;
+                }
+            } else {
+                for l in 0..LANES {
+                    let (w, v0) = (at.w[l], at.v0[l]);
+                    let dv = at.v1[l] - v0;
+                    let alpha = ((tin[l] - at.edge[l]) / w).clamp(0.0, 1.0);
+                    out[l] = (at.cdf[l] + w * alpha * (v0 + 0.5 * alpha * dv)).clamp(0.0, 1.0);
+                    q[l] = v0 + alpha * dv;
+                }
             }
-        } else {
-            for l in 0..LANES {
-                let (w, v0) = (at.w[l], at.v0[l]);
-                let dv = at.v1[l] - v0;
-                let alpha = ((tin[l] - at.edge[l]) / w).clamp(0.0, 1.0);
-                out[l] = (at.cdf[l] + w * alpha * (v0 + 0.5 * alpha * dv)).clamp(0.0, 1.0);
-                q[l] = v0 + alpha * dv;
+            let lanes = LANES.min(n - first);
+            t[first..first + lanes].copy_from_slice(&out[..lanes]);
+            for (ld, q) in log_det[first..first + lanes].iter_mut().zip(&q) {
+                *ld += q.ln();
             }
         }
-        let lanes = LANES.min(n - first);
-        t[first..first + lanes].copy_from_slice(&out[..lanes]);
-        for (ld, q) in log_det[first..first + lanes].iter_mut().zip(&q) {
-            *ld += q.ln();
-        }
-    }
+    });
 }
 
 /// The batched [`Quadratic::backward`], [`LANES`] scalars at a time.
@@ -320,95 +322,132 @@ fn backward_lanes(
     if n == 0 {
         return;
     }
-    let mut kn = LaneKnots::new(k);
-    let mut g_w = vec![splat(0.0); k];
-    let mut g_v = vec![splat(0.0); k + 1];
-    let mut g_params = vec![[0.0f32; LANES]; 2 * k + 1];
-    for first in (0..n).step_by(LANES) {
-        kn.compute(p, stride, first, n);
-        let xl = batch::load(x, first);
-        let g_y = batch::load(g, first);
-        let g_ld = batch::load(g_log_det, first);
-        let at = kn.locate(&xl, false);
-        // The bin's own terms, as Quadratic::backward_in writes them.
-        let mut own = [[0.0f64; LANES]; 4];
-        let (mut g_x, mut g_edge) = (splat(0.0), splat(0.0));
-        for l in 0..LANES {
-            let (w, v0) = (at.w[l], at.v0[l]);
-            let alpha = ((xl[l] - at.edge[l]) / w).clamp(0.0, 1.0);
-            let dv = at.v1[l] - v0;
-            let q = v0 + alpha * dv;
-            let g_q = g_ld[l] / q;
-            let g_alpha = g_y[l] * w * q + g_q * dv;
-            own[0][l] = g_y[l] * w * (alpha - 0.5 * alpha * alpha) + g_q * (1.0 - alpha);
-            own[1][l] = g_y[l] * w * 0.5 * alpha * alpha + g_q * alpha;
-            own[2][l] = g_y[l] * alpha * (v0 + 0.5 * alpha * dv);
-            own[3][l] = g_alpha * alpha / w;
-            g_x[l] = g_alpha / w;
-            g_edge[l] = -g_alpha / w;
-        }
-        // Into the lanes' own bins (b and b + 1 for the vertex heights), zero elsewhere.
-        for row in g_w.iter_mut().chain(g_v.iter_mut()) {
-            *row = splat(0.0);
-        }
-        for l in 0..LANES {
-            let b = at.b[l] as usize;
-            g_v[b][l] = 0.0 + own[0][l];
-            g_v[b + 1][l] = 0.0 + own[1][l];
-            g_w[b][l] = 0.0 + own[2][l] - own[3][l];
-        }
-        // Y_b = Σ_{i<b} ½(V_i + V_{i+1})W_i and X_b = Σ_{i<b} W_i.
-        // Rows taken before the lane loops, so that no index is checked inside them, and
-        // additions of a selected term (0 above the lane's bin) rather than selected stores, so
-        // that the loops vectorise without masked memory access. The sums start from +0 and never
-        // become −0, so adding +0 leaves them bit for bit as the scalar code's skipped additions.
-        for i in 0..k {
-            let (lower, upper) = g_v.split_at_mut(i + 1);
-            let (gv0, gv1, gw) = (&mut lower[i], &mut upper[0], &mut g_w[i]);
-            let (w, v0, v1) = (&kn.w[i], &kn.v[i], &kn.v[i + 1]);
+    with_lane_scratch(k, |scratch| {
+        let LaneScratch {
+            knots: kn,
+            g_w,
+            g_v,
+            g_params,
+        } = scratch;
+        for first in (0..n).step_by(LANES) {
+            kn.compute(p, stride, first, n);
+            let xl = batch::load(x, first);
+            let g_y = batch::load(g, first);
+            let g_ld = batch::load(g_log_det, first);
+            let at = kn.locate(&xl, false);
+            // The bin's own terms, as Quadratic::backward_in writes them.
+            let mut own = [[0.0f64; LANES]; 4];
+            let (mut g_x, mut g_edge) = (splat(0.0), splat(0.0));
             for l in 0..LANES {
-                let below = (i as f64) < at.b[l];
-                let t = 0.5 * g_y[l] * w[l];
-                let g_wi = g_y[l] * 0.5 * (v0[l] + v1[l]) + g_edge[l];
-                let (t, g_wi) = if below { (t, g_wi) } else { (0.0, 0.0) };
-                gv0[l] += t;
-                gv1[l] += t;
-                gw[l] += g_wi;
+                let (w, v0) = (at.w[l], at.v0[l]);
+                let alpha = ((xl[l] - at.edge[l]) / w).clamp(0.0, 1.0);
+                let dv = at.v1[l] - v0;
+                let q = v0 + alpha * dv;
+                let g_q = g_ld[l] / q;
+                let g_alpha = g_y[l] * w * q + g_q * dv;
+                own[0][l] = g_y[l] * w * (alpha - 0.5 * alpha * alpha) + g_q * (1.0 - alpha);
+                own[1][l] = g_y[l] * w * 0.5 * alpha * alpha + g_q * alpha;
+                own[2][l] = g_y[l] * alpha * (v0 + 0.5 * alpha * dv);
+                own[3][l] = g_alpha * alpha / w;
+                g_x[l] = g_alpha / w;
+                g_edge[l] = -g_alpha / w;
             }
-        }
-        // V_j = m + (1 − m)·E_j/N with N = Σ ½(E_i + E_{i+1})W_i.
-        let mut s = splat(-0.0);
-        for j in 0..=k {
+            // Into the lanes' own bins (b and b + 1 for the vertex heights), zero elsewhere.
+            for row in g_w.iter_mut().chain(g_v.iter_mut()) {
+                *row = splat(0.0);
+            }
             for l in 0..LANES {
-                s[l] += g_v[j][l] * kn.e[j][l];
+                let b = at.b[l] as usize;
+                g_v[b][l] = 0.0 + own[0][l];
+                g_v[b + 1][l] = 0.0 + own[1][l];
+                g_w[b][l] = 0.0 + own[2][l] - own[3][l];
             }
-        }
-        let mut scale = splat(0.0);
-        for l in 0..LANES {
-            scale[l] = (1.0 - MIN_DENSITY) / kn.norm[l];
-            s[l] = s[l] * scale[l] / kn.norm[l];
-        }
-        for i in 0..k {
-            let (gw, e0, e1) = (&mut g_w[i], &kn.e[i], &kn.e[i + 1]);
+            // Y_b = Σ_{i<b} ½(V_i + V_{i+1})W_i and X_b = Σ_{i<b} W_i.
+            // Rows taken before the lane loops, so that no index is checked inside them, and
+            // additions of a selected term (0 above the lane's bin) rather than selected stores, so
+            // that the loops vectorise without masked memory access. The sums start from +0 and never
+            // become −0, so adding +0 leaves them bit for bit as the scalar code's skipped additions.
+            for i in 0..k {
+                let (lower, upper) = g_v.split_at_mut(i + 1);
+                let (gv0, gv1, gw) = (&mut lower[i], &mut upper[0], &mut g_w[i]);
+                let (w, v0, v1) = (&kn.w[i], &kn.v[i], &kn.v[i + 1]);
+                for l in 0..LANES {
+                    let below = (i as f64) < at.b[l];
+                    let t = 0.5 * g_y[l] * w[l];
+                    let g_wi = g_y[l] * 0.5 * (v0[l] + v1[l]) + g_edge[l];
+                    let (t, g_wi) = if below { (t, g_wi) } else { (0.0, 0.0) };
+                    gv0[l] += t;
+                    gv1[l] += t;
+                    gw[l] += g_wi;
+                }
+            }
+            // V_j = m + (1 − m)·E_j/N with N = Σ ½(E_i + E_{i+1})W_i.
+            let mut s = splat(-0.0);
+            for j in 0..=k {
+                for l in 0..LANES {
+                    s[l] += g_v[j][l] * kn.e[j][l];
+                }
+            }
+            let mut scale = splat(0.0);
             for l in 0..LANES {
-                gw[l] -= s[l] * 0.5 * (e0[l] + e1[l]);
+                scale[l] = (1.0 - MIN_DENSITY) / kn.norm[l];
+                s[l] = s[l] * scale[l] / kn.norm[l];
             }
-        }
-        let zero = splat(0.0);
-        for j in 0..=k {
-            let left = if j > 0 { &kn.w[j - 1] } else { &zero };
-            let right = if j < k { &kn.w[j] } else { &zero };
-            let (gv, e, out) = (&g_v[j], &kn.e[j], &mut g_params[k + j]);
-            for l in 0..LANES {
-                let dn = 0.5 * (left[l] + right[l]);
-                out[l] = ((gv[l] * scale[l] - s[l] * dn) * e[l]) as f32;
+            for i in 0..k {
+                let (gw, e0, e1) = (&mut g_w[i], &kn.e[i], &kn.e[i + 1]);
+                for l in 0..LANES {
+                    gw[l] -= s[l] * 0.5 * (e0[l] + e1[l]);
+                }
             }
+            let zero = splat(0.0);
+            for j in 0..=k {
+                let left = if j > 0 { &kn.w[j - 1] } else { &zero };
+                let right = if j < k { &kn.w[j] } else { &zero };
+                let (gv, e, out) = (&g_v[j], &kn.e[j], &mut g_params[k + j]);
+                for l in 0..LANES {
+                    let dn = 0.5 * (left[l] + right[l]);
+                    out[l] = ((gv[l] * scale[l] - s[l] * dn) * e[l]) as f32;
+                }
+            }
+            batch::softmax_floor_backward(&kn.w, g_w, MIN_BIN_WIDTH, &mut g_params[..k]);
+            let lanes = LANES.min(n - first);
+            batch::scatter(g_params, stride, first, lanes, 0, g_p);
+            g[first..first + lanes].copy_from_slice(&g_x[..lanes]);
         }
-        batch::softmax_floor_backward(&kn.w, &g_w, MIN_BIN_WIDTH, &mut g_params[..k]);
-        let lanes = LANES.min(n - first);
-        batch::scatter(&g_params, stride, first, lanes, 0, g_p);
-        g[first..first + lanes].copy_from_slice(&g_x[..lanes]);
-    }
+    });
+}
+
+/// A thread's work buffers for the lane kernels of `k` bins: the knots and the backward pass's
+/// per-bin gradients. Every value is written before it is read (`LaneKnots::compute` and the
+/// per-group zeroing), except the running sums' zeroth rows, which stay 0.
+struct LaneScratch {
+    knots: LaneKnots,
+    g_w: Vec<Lane>,
+    g_v: Vec<Lane>,
+    g_params: Vec<[f32; LANES]>,
+}
+
+thread_local! {
+    static LANE_SCRATCH: std::cell::RefCell<Option<LaneScratch>> = const { std::cell::RefCell::new(None) };
+}
+
+/// Runs `op` on this thread's [`LaneScratch`] for `k` bins, made on first use (or when `k` changes)
+/// instead of allocated and zeroed on every call: a call sees one chunk of rows, often a single
+/// group of lanes, and the buffers are tens of kilobytes.
+fn with_lane_scratch<R>(k: usize, op: impl FnOnce(&mut LaneScratch) -> R) -> R {
+    LANE_SCRATCH.with(|slot| {
+        let mut slot = slot.borrow_mut();
+        let scratch = match &mut *slot {
+            Some(s) if s.g_w.len() == k => s,
+            other => other.insert(LaneScratch {
+                knots: LaneKnots::new(k),
+                g_w: vec![splat(0.0); k],
+                g_v: vec![splat(0.0); k + 1],
+                g_params: vec![[0.0f32; LANES]; 2 * k + 1],
+            }),
+        };
+        op(scratch)
+    })
 }
 
 impl Quadratic {
