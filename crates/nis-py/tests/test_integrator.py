@@ -19,7 +19,7 @@ def within(r, exact, sigmas=5.0):
 # The Rust test `results_are_bit_identical_to_the_recorded_ones` (crates/nis/tests/integration.rs):
 # gauss in 2-d, seed 5, 10^5 evaluations, default settings.
 RECORDED = {
-    "nis": ("0.9984810124758622", "0.00041478925580432097"),
+    "nis": ("0.9984055683574075", "0.0004081478715397097"),
     "vegas": ("0.9991300887314856", "0.0001732057132195463"),
     "uniform": ("0.9975623516355743", "0.005446123321194651"),
 }
@@ -37,12 +37,16 @@ def test_results_are_bit_identical_to_the_rust_ones(method):
 
 
 def test_stratify_false_gives_the_i_i_d_final_phase():
-    # Without stratification (and reuse_training at its default 0) the integrator is the one of
-    # before the stratified final phase: the Rust test's bits recorded then. Stratified, the same
-    # flow has about half the error bar on this 2-d Gaussian.
+    # Without stratification and without training in the estimate (reuse_training=0) the
+    # integrator is the one of before the stratified final phase: the Rust test's bits recorded
+    # then. Stratified, the same flow has about half the error bar on this 2-d Gaussian.
     g = nis.integrands.gauss(dim=2)
-    iid = nis.Integrator(2, "nis", seed=5, stratify=False)(g, evals=100_000)
+    iid = nis.Integrator(2, "nis", seed=5, stratify=False, reuse_training=0)(g, evals=100_000)
     assert (repr(iid.mean), repr(iid.sdev)) == ("0.9985264702903238", "0.0008658039878684403")
+    # Stratified with the final phase alone: the bits recorded before training joined the
+    # estimate by default.
+    alone = nis.Integrator(2, "nis", seed=5, stratify=True, reuse_training=0)(g, evals=100_000)
+    assert (repr(alone.mean), repr(alone.sdev)) == ("0.9984810124758622", "0.00041478925580432097")
     strat = nis.Integrator(2, "nis", seed=5, stratify=True)(g, evals=100_000)
     assert (repr(strat.mean), repr(strat.sdev)) == RECORDED["nis"]
     assert strat.sdev < 0.6 * iid.sdev
@@ -66,7 +70,7 @@ def test_a_numpy_integrand_agrees_with_the_rust_result_for_the_same_seed(gauss):
 def test_chi2_loss_on_camel_matches_the_recorded_bits():
     camel = nis.integrands.camel(dim=4)
     r = nis.Integrator(4, "nis", loss="chi2", seed=3)(lambda x: camel(x), evals=200_000)
-    assert (r.mean, r.sdev) == (0.9633959753049646, 0.0007263337158204969)
+    assert (r.mean, r.sdev) == (0.9631900466031081, 0.0006804983203439851)
 
 
 def test_a_numpy_integrand_agrees_with_the_exact_value_and_the_result_reads_well(gauss):
