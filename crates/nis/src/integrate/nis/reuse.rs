@@ -433,13 +433,15 @@ mod tests {
 
     /// A synthetic integration of ∫ = 1 (training batches whose spread falls from 3 to 1, then a
     /// final phase at spread 1), combined by the shares of this module and, for comparison, by
-    /// the naive inverse-variance weighting of the same pieces: (ours, ±, naive).
-    fn run(seed: u64) -> (f64, f64, f64) {
+    /// the naive inverse-variance weighting of the same pieces: (ours, ±, naive). `stratified`:
+    /// the shares predict a stratified final phase from the batches post-stratified on latents
+    /// z that the weights depend on (×(½ + z), mean 1), so g varies with the data.
+    fn run(seed: u64, stratified: bool) -> (f64, f64, f64) {
         let config = NisConfig {
             batch: 256,
             reuse_training: 0.5,
             final_iterations: 4,
-            stratify: None,
+            stratify: stratified.then(Default::default),
             ..NisConfig::default()
         };
         let (batches, final_evals) = (20, 4 * 512);
@@ -448,8 +450,16 @@ mod tests {
         let (mut naive_sum, mut naive_norm) = (0.0, 0.0);
         for b in 0..batches {
             let scale = 1.0 + 2.0 * (batches - 1 - b) as f64 / (batches - 1) as f64;
-            let w = skewed(256, scale, &mut rng);
-            pieces.observe_weights(b, &w, &[], &Comm::default());
+            let mut w = skewed(256, scale, &mut rng);
+            let z: Vec<f32> = if stratified {
+                (0..256).map(|_| rng.random::<f32>()).collect()
+            } else {
+                Vec::new()
+            };
+            w.iter_mut()
+                .zip(&z)
+                .for_each(|(w, z)| *w *= 0.5 + *z as f64);
+            pieces.observe_weights(b, &w, &z, &Comm::default());
             if b >= batches / 2 {
                 let (m, v) = mean_var(&w);
                 (naive_sum, naive_norm) = (naive_sum + m / v, naive_norm + 1.0 / v);
@@ -482,7 +492,7 @@ mod tests {
         // estimates (batches with a large mean have a large variance estimate when the weights
         // are skewed) must fail the same mean-error test: by about −μ₃/(nσ²) = −2/n here.
         let reps = 2000;
-        let runs: Vec<(f64, f64, f64)> = (0..reps).map(run).collect();
+        let runs: Vec<(f64, f64, f64)> = (0..reps).map(|s| run(s, false)).collect();
         let covered = runs
             .iter()
             .filter(|r| (r.0 - 1.0).abs() <= 2.0 * r.1)
@@ -507,6 +517,19 @@ mod tests {
             naive < -3.5,
             "the naive weighting went undetected: {naive:.2}"
         );
+        // The same with shares that predict a stratified final phase from the data.
+        let runs: Vec<(f64, f64, f64)> = (0..reps).map(|s| run(10_000 + s, true)).collect();
+        let covered = runs
+            .iter()
+            .filter(|r| (r.0 - 1.0).abs() <= 2.0 * r.1)
+            .count();
+        let ours = pull_of_mean(runs.iter().map(|r| r.0 - 1.0).collect());
+        eprintln!("stratified: covered {covered}/{reps}, pull of the mean error {ours:.2}");
+        assert!(
+            covered >= 1881,
+            "stratified: only {covered}/{reps} within 2σ"
+        );
+        assert!(ours.abs() <= 3.5, "stratified: mean error {ours:.2} σ");
     }
 
     #[test]
