@@ -80,7 +80,8 @@ class Integrator:
     ``uniform_fraction``, ``anneal_from``, ``final_iterations``, ``stratify`` (the final phase's
     latent cut into adaptive hypercubes, as VEGAS+ does; default True, False draws it i.i.d.),
     ``reuse_training`` (share of
-    the training batches, the last ones, in the estimate; docs/ESTIMATE.md), ``replay_batches``,
+    the training batches, the last ones, in the estimate; default 0.5, 0 the final phase alone;
+    docs/ESTIMATE.md), ``replay_batches``,
     ``replay_steps`` (earlier batches replayed off-policy in training).
     VEGAS+: ``increments``, ``alpha``, ``beta``, ``iterations``, ``warmup``, ``min_per_cube``.
     Plain MC: ``iterations``. NIS and VEGAS+: ``train_on`` (component index or "sum_abs").

@@ -9,7 +9,7 @@
 //! the chunk size depends on the batch's row count only and each layer's backward pass reduces
 //! gradients in a fixed order, so results do not depend on the thread count.
 
-use rand::{Rng, RngCore};
+use rand::RngCore;
 use rayon::prelude::*;
 
 use super::density::{check_context, check_points, next_version};
@@ -191,8 +191,7 @@ impl<L: Layer> Composed<L> {
         record: bool,
     ) -> Result<Samples> {
         check_context(n, self.context_dim, ctx)?;
-        // Uniform latents drawn sequentially: the stream does not depend on the thread count.
-        let mut x: Vec<f32> = (0..n * self.dim).map(|_| rng.random::<f32>()).collect();
+        let mut x = super::uniform_latents(n * self.dim, rng);
         let (log_q, tape) = self.run(&mut x, ctx, Direction::Inverse, record);
         Ok(Samples { x, log_q, tape })
     }

@@ -45,6 +45,14 @@ use crate::nn::encoding::OneBlob;
 use crate::nn::mlp::Mlp;
 use crate::transform::Transform;
 
+/// `len` latent numbers uniform on [0, 1), drawn one after the other from `rng`: how every
+/// [`Composed`] flow starts sampling, so that a copy of the stream taken before a draw gives
+/// back the latents of the points drawn (and the stream does not depend on the thread count).
+pub fn uniform_latents(len: usize, rng: &mut dyn rand::RngCore) -> Vec<f32> {
+    use rand::Rng;
+    (0..len).map(|_| rng.random::<f32>()).collect()
+}
+
 /// The coupling flow on the unit hypercube: a [`Composed`] stack of [`Coupling`] layers with
 /// MLP conditioners.
 pub type Flow = Composed<Coupling>;

@@ -183,6 +183,12 @@ impl NisIntegrator {
                 1.0
             };
             self.trainer.set_temperature(beta);
+            // The flow's latents are the first numbers of the stream (`Flow::sample`): a copy of
+            // it redraws them for the prediction of the stratified final phase.
+            let latent_rng = pieces
+                .as_deref()
+                .is_some_and(TrainingPieces::needs_latents)
+                .then(|| self.streams.train.clone());
             let drawn = draw(
                 self.trainer.flow(),
                 self.config.uniform_fraction,
@@ -195,7 +201,10 @@ impl NisIntegrator {
                 .comm
                 .check(drawn.and_then(|(b, x64)| Ok((b, evaluate(f, &x64, dim)?))))?;
             if let Some(p) = pieces.as_deref_mut() {
-                p.observe(step, &b, &fx, &self.comm);
+                let z = latent_rng.map_or_else(Vec::new, |mut rng| {
+                    crate::flow::uniform_latents(b.density_part.len() * dim, &mut rng)
+                });
+                p.observe(step, &b, &z, &fx, &self.comm);
             }
             let target = self.config.train_on.target(&fx, k);
             self.trained_evals += batch as u64;
@@ -450,9 +459,12 @@ impl Integrator for NisIntegrator {
         let batch = self.config.batch as u64;
         let train = ((evals as f64 * self.config.train_fraction) as u64 / batch) * batch;
         let batches = (train / batch) as usize;
-        let mut pieces = TrainingPieces::plan(&self.config, batches, evals - train, f.components());
+        let dim = self.flow().dim();
+        let final_evals = evals - train;
+        let mut pieces =
+            TrainingPieces::plan(&self.config, dim, batches, final_evals, f.components());
         self.train_keeping(f, train, pieces.as_mut())?;
-        self.final_phase(f, evals - train, train, started, pieces)
+        self.final_phase(f, final_evals, train, started, pieces)
     }
 
     fn save(&self, path: &Path) -> Result<()> {

@@ -33,16 +33,35 @@
 //! early ones come from a nearly uniform, possibly tempered flow) takes from what is left, r, the
 //! part π_b·r with
 //!
-//!   π_b = n_b·ρ_b / (n_b·ρ_b + M_b),   ρ_b = min_{c<b} s_c² / s_{b−1}²  ∈ [0, 1],
+//!   π_b = n_b·ρ_b / (n_b·ρ_b + M_b + g_b·N_F),   ρ_b = min_{c<b} s_c² / s_{b−1}²  ∈ [0, 1],
 //!
-//! where M_b counts the evaluations still to come after b (later kept batches and the final
-//! phase) and s_c² is batch c's per-point variance of f/q. This is inverse-variance weighting of
-//! b against a future assumed as good as the best batch so far, using only earlier batches: with
-//! equal variances every kept evaluation gets weight 1/N (the pooled mean), and a batch whose
-//! predecessor was noisier than the best gets proportionally less. Since the flow only improves on
-//! average, the assumption errs on the side of giving training batches too little rather than too
-//! much. The window matters: with all batches kept (1), the early ones, whose best-so-far is
-//! itself poor, get nearly count shares and the error bar grows (docs/ESTIMATE.md).
+//! where M_b counts the training evaluations still to come after b, N_F the final phase's, s_c²
+//! is batch c's per-point variance of f/q, and g_b ≥ 1 the final phase's predicted gain per
+//! evaluation over a training batch. This is inverse-variance weighting of b (predicted as noisy
+//! as its predecessor) against later batches as good as the best so far and a final phase g_b
+//! times better, using only earlier batches: with equal variances and g = 1 every kept
+//! evaluation gets weight 1/N (the pooled mean), and a batch whose predecessor was noisier than
+//! the best gets proportionally less. Since the flow only improves on average, the assumption
+//! errs on the side of giving training batches too little rather than too much. The window
+//! matters: with all batches kept (1), the early ones, whose best-so-far is itself poor, get
+//! nearly count shares and the error bar grows (docs/ESTIMATE.md).
+//!
+//! g_b: an i.i.d. final phase is no better than a training batch (g = 1). A stratified one
+//! ([`super::strata`]) is, by as much as its latent grid and allocation gain, and the training
+//! batches predict it: their flow share was drawn from uniform latents z (redrawn from a copy
+//! of the training stream), so post-stratifying its weights on the final phase's own grid
+//! (Cochran's post-stratification) measures what stratifying them would have given. A batch of
+//! ~1000 points on the ~7000 hypercubes of a budget of 10⁶ leaves few hypercubes with two
+//! points, but each such pair is an unbiased sample of its hypercube's variance, so the last
+//! batches are pooled until they hold [`POST_STRATIFIED_DF`] within-hypercube degrees of
+//! freedom: g_b = (i.i.d. over within-hypercube mean square) × the allocation's gain estimated
+//! from the pairs' differences ([`PostStratified::allocation_gain`]). Both come from batches
+//! before b, so the shares stay predictable and the estimate unbiased whatever the prediction's
+//! error; the error costs only efficiency. It is asymmetric: a prediction too good hands the
+//! final phase more (at worst everything: the final phase alone), one too poor over-weights
+//! noisier training batches. So where the estimate must guess (the within-hypercube spread from
+//! pairs) it errs towards the final phase; measured on the suite it over-predicts g in 2-d
+//! (where the final phase gains 3–30× and training can add little) and is close in 4–8.
 //!
 //! For display and χ²/dof, consecutive kept batches are pooled into as many groups as the final
 //! phase has iterations (a group's estimate Σ a_b I_b / Σ a_b, its variance Σ a_b² V_b / (Σ a_b)²);
@@ -53,7 +72,10 @@
 use std::collections::VecDeque;
 
 use super::super::diagnostics::WeightTail;
-use super::super::result::{Accumulator, ComponentAccumulator, Iteration, Moments};
+use super::super::result::{
+    bytes_to_f64s, f64s_to_bytes, Accumulator, ComponentAccumulator, Iteration, Moments,
+};
+use super::strata::{self, PostStratified};
 use super::NisConfig;
 use crate::comm::Comm;
 use crate::error::Result;
@@ -126,10 +148,28 @@ pub(super) struct TrainingPieces {
     /// Per-point variance of f/q (component 0) of the previous batch, and the smallest so far.
     previous_var: Option<f64>,
     best_var: f64,
+    /// How the final phase's stratified latent is predicted, when it has one.
+    stratified: Option<StratifiedFinal>,
     groups: Vec<Group>,
     /// This rank's weights (component 0) of the batches that entered.
     tail: WeightTail,
 }
+
+/// What predicts the final phase's variance per evaluation when it stratifies the flow's latent:
+/// the last batches post-stratified on the final phase's own grid.
+struct StratifiedFinal {
+    /// Strata per axis of the final phase's latent grid.
+    grid: Vec<usize>,
+    /// The sums of squares of the last batches, oldest first: as few as hold
+    /// [`POST_STRATIFIED_DF`] within-hypercube degrees of freedom.
+    recent: VecDeque<PostStratified>,
+}
+
+/// Within-hypercube degrees of freedom pooled for the prediction. A batch of n points on H
+/// hypercubes has about n − H·(1 − e^(−n/H)) of them (pairs sharing a hypercube): ~5 for the
+/// default 256 points on the ~7000 of a budget of 10⁶ (~70 for 1024), so a few hundred batches
+/// (a few dozen of 1024) are pooled.
+const POST_STRATIFIED_DF: f64 = 2000.0;
 
 /// Consecutive kept batches: Σ a_b·mean_b, Σ a_b²·Cov_b, Σ a_b and their evaluations.
 struct Group {
@@ -143,9 +183,11 @@ struct Group {
 
 impl TrainingPieces {
     /// The plan for `batches` training batches followed by a final phase of `final_evals`, for an
-    /// integrand of `k` components; `None` when no batch would enter (reuse off, or no batch).
+    /// integrand of `k` components in `dim` dimensions; `None` when no batch would enter (reuse
+    /// off, or no batch).
     pub(super) fn plan(
         config: &NisConfig,
+        dim: usize,
         batches: usize,
         final_evals: u64,
         k: usize,
@@ -157,6 +199,14 @@ impl TrainingPieces {
             return None;
         }
         let batch = config.batch as u64;
+        let stratified = config.stratify.map(|s| {
+            let per_iter = final_evals / config.final_iterations as u64;
+            let lambda = config.uniform_fraction;
+            StratifiedFinal {
+                grid: strata::final_grid(dim, per_iter, lambda, s),
+                recent: VecDeque::new(),
+            }
+        });
         Some(TrainingPieces {
             k,
             batch,
@@ -167,6 +217,7 @@ impl TrainingPieces {
             remaining: 1.0,
             previous_var: None,
             best_var: f64::INFINITY,
+            stratified,
             groups: Vec::new(),
             tail: WeightTail::new(kept as u64 * batch),
         })
@@ -186,21 +237,70 @@ impl TrainingPieces {
         } else {
             1.0
         };
-        let after = (self.batches - 1 - index) as u64 * self.batch + self.final_evals;
+        let later = ((self.batches - 1 - index) as u64 * self.batch) as f64;
         let n = self.batch as f64 * rho;
-        self.remaining * n / (n + after as f64)
+        self.remaining * n / (n + later + self.final_evals as f64 * self.final_gain())
     }
 
-    /// Batch `index` of training, as this rank drew it (`b`) and evaluated it (`fx`, `n × k`):
-    /// its share is fixed from the earlier batches, then its moments (merged over the ranks of
-    /// `comm` in rank order) enter its group and predict the next batch's variance.
-    pub(super) fn observe(&mut self, index: usize, b: &MixtureBatch, fx: &[f64], comm: &Comm) {
-        self.observe_weights(index, &batch_weights(b, fx, self.k), comm);
+    /// g: the predicted variance per evaluation of a training batch over the final phase's: 1
+    /// for an i.i.d. final phase; for a stratified one, the gain of the last batches
+    /// post-stratified on the final phase's grid (proportional stratification times the
+    /// allocation's).
+    fn final_gain(&self) -> f64 {
+        let Some(s) = &self.stratified else {
+            return 1.0;
+        };
+        s.recent
+            .iter()
+            .fold(PostStratified::default(), |a, b| a.plus(*b))
+            .gain()
     }
 
-    /// [`TrainingPieces::observe`] for this rank's weights f/q (`n × k`) of batch `index`.
-    fn observe_weights(&mut self, index: usize, w: &[f64], comm: &Comm) {
+    /// Batch `index` of training, as this rank drew it (`b`, the flow's share from the latents
+    /// `z`) and evaluated it (`fx`, `n × k`): its share is fixed from the earlier batches, then
+    /// its moments (merged over the ranks of `comm` in rank order) enter its group and predict
+    /// the next batch's variance, and its flow share post-stratified on `z` the final phase's.
+    pub(super) fn observe(
+        &mut self,
+        index: usize,
+        b: &MixtureBatch,
+        z: &[f32],
+        fx: &[f64],
+        comm: &Comm,
+    ) {
+        let w = batch_weights(b, fx, self.k);
+        self.observe_weights(index, &w, z, comm);
+    }
+
+    /// Whether [`TrainingPieces::observe`] needs the latents of the flow's share.
+    pub(super) fn needs_latents(&self) -> bool {
+        self.stratified.is_some()
+    }
+
+    /// [`TrainingPieces::observe`] for this rank's weights f/q (`n × k`) of batch `index`, the
+    /// first `z.len()/D` of them drawn by the flow from the latents `z`.
+    fn observe_weights(&mut self, index: usize, w: &[f64], z: &[f32], comm: &Comm) {
         let share = self.share(index);
+        if let Some(s) = self.stratified.as_mut() {
+            let n_q = z.len() / s.grid.len();
+            let flow_share: Vec<f64> = w.iter().step_by(self.k).take(n_q).copied().collect();
+            let mine = strata::post_stratified(z, &flow_share, &s.grid);
+            // Summed over the ranks in rank order: every rank predicts the same.
+            let mut all = PostStratified::default();
+            for part in comm.all_gather_bytes(f64s_to_bytes(&mine.to_array())) {
+                let a = bytes_to_f64s(&part);
+                all = all.plus(PostStratified::from_array(
+                    a.try_into().expect("as many sums on every rank"),
+                ));
+            }
+            s.recent.push_back(all);
+            // Drop the oldest while the rest hold enough degrees of freedom.
+            while s.recent.len() > 1
+                && s.recent.iter().skip(1).map(|p| p.within_df).sum::<f64>() >= POST_STRATIFIED_DF
+            {
+                s.recent.pop_front();
+            }
+        }
         let mut m = Moments::new(self.k);
         m.add(w);
         let m = m.across(comm);
@@ -334,22 +434,33 @@ mod tests {
 
     /// A synthetic integration of ∫ = 1 (training batches whose spread falls from 3 to 1, then a
     /// final phase at spread 1), combined by the shares of this module and, for comparison, by
-    /// the naive inverse-variance weighting of the same pieces: (ours, ±, naive).
-    fn run(seed: u64) -> (f64, f64, f64) {
+    /// the naive inverse-variance weighting of the same pieces: (ours, ±, naive). `stratified`:
+    /// the shares predict a stratified final phase from the batches post-stratified on latents
+    /// z that the weights depend on (×(½ + z), mean 1), so g varies with the data.
+    fn run(seed: u64, stratified: bool) -> (f64, f64, f64) {
         let config = NisConfig {
             batch: 256,
             reuse_training: 0.5,
             final_iterations: 4,
+            stratify: stratified.then(Default::default),
             ..NisConfig::default()
         };
         let (batches, final_evals) = (20, 4 * 512);
         let mut rng = rand_pcg::Pcg64Mcg::seed_from_u64(seed);
-        let mut pieces = TrainingPieces::plan(&config, batches, final_evals, 1).unwrap();
+        let mut pieces = TrainingPieces::plan(&config, 1, batches, final_evals, 1).unwrap();
         let (mut naive_sum, mut naive_norm) = (0.0, 0.0);
         for b in 0..batches {
             let scale = 1.0 + 2.0 * (batches - 1 - b) as f64 / (batches - 1) as f64;
-            let w = skewed(256, scale, &mut rng);
-            pieces.observe_weights(b, &w, &Comm::default());
+            let mut w = skewed(256, scale, &mut rng);
+            let z: Vec<f32> = if stratified {
+                (0..256).map(|_| rng.random::<f32>()).collect()
+            } else {
+                Vec::new()
+            };
+            w.iter_mut()
+                .zip(&z)
+                .for_each(|(w, z)| *w *= 0.5 + *z as f64);
+            pieces.observe_weights(b, &w, &z, &Comm::default());
             if b >= batches / 2 {
                 let (m, v) = mean_var(&w);
                 (naive_sum, naive_norm) = (naive_sum + m / v, naive_norm + 1.0 / v);
@@ -382,7 +493,7 @@ mod tests {
         // estimates (batches with a large mean have a large variance estimate when the weights
         // are skewed) must fail the same mean-error test: by about −μ₃/(nσ²) = −2/n here.
         let reps = 2000;
-        let runs: Vec<(f64, f64, f64)> = (0..reps).map(run).collect();
+        let runs: Vec<(f64, f64, f64)> = (0..reps).map(|s| run(s, false)).collect();
         let covered = runs
             .iter()
             .filter(|r| (r.0 - 1.0).abs() <= 2.0 * r.1)
@@ -407,6 +518,19 @@ mod tests {
             naive < -3.5,
             "the naive weighting went undetected: {naive:.2}"
         );
+        // The same with shares that predict a stratified final phase from the data.
+        let runs: Vec<(f64, f64, f64)> = (0..reps).map(|s| run(10_000 + s, true)).collect();
+        let covered = runs
+            .iter()
+            .filter(|r| (r.0 - 1.0).abs() <= 2.0 * r.1)
+            .count();
+        let ours = pull_of_mean(runs.iter().map(|r| r.0 - 1.0).collect());
+        eprintln!("stratified: covered {covered}/{reps}, pull of the mean error {ours:.2}");
+        assert!(
+            covered >= 1881,
+            "stratified: only {covered}/{reps} within 2σ"
+        );
+        assert!(ours.abs() <= 3.5, "stratified: mean error {ours:.2} σ");
     }
 
     #[test]
@@ -415,22 +539,23 @@ mod tests {
             batch: 100,
             reuse_training: 0.5,
             final_iterations: 2,
+            stratify: None,
             ..NisConfig::default()
         };
         // Too few batches, or none kept: nothing to reuse.
-        assert!(TrainingPieces::plan(&config, 1, 1000, 1).is_none());
+        assert!(TrainingPieces::plan(&config, 1, 1, 1000, 1).is_none());
         let off = NisConfig {
             reuse_training: 0.0,
             ..config.clone()
         };
-        assert!(TrainingPieces::plan(&off, 10, 1000, 1).is_none());
-        let mut p = TrainingPieces::plan(&config, 10, 1000, 1).unwrap();
+        assert!(TrainingPieces::plan(&off, 1, 10, 1000, 1).is_none());
+        let mut p = TrainingPieces::plan(&config, 1, 10, 1000, 1).unwrap();
         assert_eq!(p.first_kept, 5);
         let mut rng = rand_pcg::Pcg64Mcg::seed_from_u64(1);
         for b in 0..10 {
             let before = p.share(b);
             let w = skewed(100, 1.0, &mut rng);
-            p.observe_weights(b, &w, &Comm::default());
+            p.observe_weights(b, &w, &[], &Comm::default());
             if b < 5 {
                 assert_eq!(before, 0.0);
             } else {
@@ -441,15 +566,83 @@ mod tests {
             }
         }
         // Equal weights: every kept evaluation weighs the same, 1/(500 + 1000).
-        let mut p = TrainingPieces::plan(&config, 10, 1000, 1).unwrap();
+        let mut p = TrainingPieces::plan(&config, 1, 10, 1000, 1).unwrap();
         for b in 0..10 {
-            p.observe_weights(b, &[2.0; 100], &Comm::default());
+            p.observe_weights(b, &[2.0; 100], &[], &Comm::default());
         }
         assert!(
             (p.remaining - 1000.0 / 1500.0).abs() < 1e-12,
             "{}",
             p.remaining
         );
+    }
+
+    #[test]
+    fn a_final_phase_predicted_better_by_post_stratification_takes_more_of_the_estimate() {
+        // Weights 1 + z₀ + 3·z₁ of the latents: smooth, so the final phase's stratified latent
+        // (8 × 7 hypercubes for its 500 points per iteration) has ~50× less variance per point.
+        let stratified = NisConfig {
+            batch: 200,
+            reuse_training: 0.5,
+            final_iterations: 2,
+            ..NisConfig::default()
+        };
+        let iid = NisConfig {
+            stratify: None,
+            ..stratified.clone()
+        };
+        let mut rng = rand_pcg::Pcg64Mcg::seed_from_u64(2);
+        let mut with = TrainingPieces::plan(&stratified, 2, 20, 1000, 1).unwrap();
+        let mut without = TrainingPieces::plan(&iid, 2, 20, 1000, 1).unwrap();
+        let grid = with.stratified.as_ref().unwrap().grid.clone();
+        assert_eq!(grid.iter().product::<usize>(), 56, "{grid:?}");
+        for b in 0..20 {
+            // The batch's one uniform point last, as a mixture batch holds it.
+            let z: Vec<f32> = (0..2 * 199).map(|_| rng.random::<f32>()).collect();
+            let mut w: Vec<f64> = z
+                .chunks_exact(2)
+                .map(|p| 1.0 + p[0] as f64 + 3.0 * p[1] as f64)
+                .collect();
+            w.push(2.5);
+            with.observe_weights(b, &w, &z, &Comm::default());
+            without.observe_weights(b, &w, &[], &Comm::default());
+        }
+        let within: f64 = grid
+            .iter()
+            .zip([1.0, 9.0])
+            .map(|(&s, c)| c / (s * s) as f64)
+            .sum::<f64>()
+            / 12.0;
+        let gain = (10.0 / 12.0) / within;
+        // ~20·(199 − 56·(1 − e^(−3.6))) ≈ 2900 degrees of freedom pooled: 4σ ≈ ±11%, and the
+        // total's 199 of each batch a little more.
+        let predicted = with.final_gain();
+        assert!(
+            (predicted / gain - 1.0).abs() < 0.2,
+            "{predicted} vs {gain}"
+        );
+        assert_eq!(without.final_gain(), 1.0);
+        assert!(with.remaining > without.remaining && with.remaining < 1.0);
+        // Inverse-variance shares: the kept 2000 training points against 1000 final ones ~50×
+        // better per point.
+        let expected = 1.0 - 2000.0 / (2000.0 + 1000.0 * gain);
+        assert!((with.remaining - expected).abs() < 0.1 * (1.0 - expected));
+    }
+
+    #[test]
+    fn the_latents_redrawn_from_a_copy_of_the_stream_are_those_the_flow_sampled() {
+        let flow = crate::flow::mixture::tests::noisy_flow();
+        let mut rng = rand_pcg::Pcg64Mcg::seed_from_u64(5);
+        let mut copy = rng.clone();
+        let (b, _) = super::super::draw(&flow, 0.1, 500, &mut rng, true).unwrap();
+        let z = crate::flow::uniform_latents(b.density_part.len() * 2, &mut copy);
+        let (back, _) = crate::flow::Bijection::forward(&flow, &b.density_part.x, None).unwrap();
+        let worst = z
+            .iter()
+            .zip(&back)
+            .map(|(a, b)| (a - b).abs())
+            .fold(0.0f32, f32::max);
+        assert!(worst < 1e-4, "{worst}");
     }
 
     #[test]
