@@ -214,16 +214,27 @@ impl LaneKnots {
         let (w, v) = (&self.w, &self.v);
         let (x_at, y_at) = (&mut self.x_at, &mut self.y_at);
         let mut count = splat(0.0);
-        for j in 1..k {
-            for l in 0..LANES {
-                // The scalar searches' running sums and conditions, literally (the conditions
-                // differ for NaN only).
-                y_at[j][l] = y_at[j - 1][l] + 0.5 * (v[j - 1][l] + v[j][l]) * w[j - 1][l];
-                x_at[j][l] = x_at[j - 1][l] + w[j - 1][l];
-                let below = t[l] < y_at[j][l];
-                let reached = (in_y && !below) || (!in_y && t[l] >= x_at[j][l]);
-                count[l] += if reached { 1.0 } else { 0.0 };
+        // A block of lanes at a time, its running sums and counts in registers across the bins
+        // (bin-major over all 64 lanes, every sum went through memory and back).
+        const BLOCK: usize = 8;
+        for l0 in (0..LANES).step_by(BLOCK) {
+            let (mut y, mut x, mut c) = ([0.0f64; BLOCK], [0.0f64; BLOCK], [0.0f64; BLOCK]);
+            for j in 1..k {
+                let (w0, v0, v1) = (&w[j - 1], &v[j - 1], &v[j]);
+                for l in 0..BLOCK {
+                    let at = l0 + l;
+                    // The scalar searches' running sums and conditions, literally (the
+                    // conditions differ for NaN only).
+                    y[l] += 0.5 * (v0[at] + v1[at]) * w0[at];
+                    x[l] += w0[at];
+                    let below = t[at] < y[l];
+                    let reached = if in_y { !below } else { t[at] >= x[l] };
+                    c[l] += if reached { 1.0 } else { 0.0 };
+                }
+                y_at[j][l0..l0 + BLOCK].copy_from_slice(&y);
+                x_at[j][l0..l0 + BLOCK].copy_from_slice(&x);
             }
+            count[l0..l0 + BLOCK].copy_from_slice(&c);
         }
         let mut at = Located {
             b: count,
