@@ -42,7 +42,7 @@
 use std::collections::VecDeque;
 
 use glam::{Vec2, Vec3};
-use nis::flow::{Density, Direction, Flow, FlowConfig};
+use nis::flow::{Bijection, Density, Direction, Flow, FlowConfig};
 use nis::kernels::elementwise::{one_blob, relu};
 use nis::kernels::{dense, CHUNK_ROWS};
 use nis::nn::mlp::MlpTape;
@@ -54,14 +54,19 @@ use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
 use super::{
-    cylindrical_to_dir, dir_to_cylindrical, Guide, GuideRecord, GuideSample, GuideStatistics,
-    GuideVertex, PdfQuery, SampleQuery, COUNT_WORDS,
+    directions::{self, DirectionMap},
+    Guide, GuideRecord, GuideSample, GuideStatistics, GuideVertex, PdfQuery, SampleQuery,
+    COUNT_WORDS,
 };
 use crate::bvh::Aabb;
 use crate::geometry::luminance;
 
-/// Scalars a vertex is described by: position (3), outgoing direction (2), normal (2).
-const CONTEXT_SCALARS: usize = 7;
+/// Scalars a vertex is described by: position (3), outgoing direction in the local frame (2),
+/// normal (2), whether the material transmits (1).
+const CONTEXT_SCALARS: usize = 8;
+
+/// Where the flag "the material transmits" (0 or 1) sits among the context scalars.
+const TRANSMISSIVE: usize = 7;
 
 /// Mixed into the seed of the selection network's initial weights, so that they are not drawn
 /// from the same stream as the flow's (which [`Flow::new`] seeds with the seed itself).
@@ -71,9 +76,6 @@ const SELECTION_SEED_SALT: u64 = 0x005e_1ec7;
 /// draws its batches from a stream of its own, disjoint from the weights' streams above (whose
 /// salts use only the low bits).
 const PHASE_SEED_SHIFT: u32 = 32;
-
-/// 1/(4π): the Jacobian of the cylindrical map from [0, 1]² to the sphere.
-const INV_FOUR_PI: f32 = 1.0 / (4.0 * std::f32::consts::PI);
 
 /// Which divergence the guide minimises.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
@@ -255,6 +257,18 @@ impl PassSamples {
     }
 }
 
+impl Sample {
+    /// Whether the record's direction is on the hemisphere map.
+    fn hemisphere(&self) -> bool {
+        self.context[TRANSMISSIVE] == 0.0
+    }
+
+    /// Solid-angle density per unit density on the record's square.
+    fn jacobian(&self) -> f32 {
+        directions::jacobian(self.hemisphere())
+    }
+}
+
 impl super::Record for Sample {
     const WORDS: usize = CONTEXT_SCALARS + 5;
     fn write(&self, out: &mut Vec<f32>) {
@@ -328,6 +342,10 @@ pub struct TrainingStats {
     pub loss: f64,
     /// Wall-clock seconds the training phase took.
     pub seconds: f64,
+    /// Share of the flow's probability mass below the surface (directions on the other side
+    /// of the shading normal than `ω_o`) at the last batch's vertices, from one flow sample per
+    /// record drawn after the phase's steps.
+    pub below_surface: f64,
 }
 
 /// The neural guide: a conditional flow plus a selection network, trained while rendering.
@@ -534,11 +552,16 @@ impl NisGuide {
         &self.history
     }
 
-    fn context_scalars(&self, v: &GuideVertex) -> [f32; CONTEXT_SCALARS] {
+    /// Position in the scene box, `ω_o` on the hemisphere map of the local frame (it always
+    /// lies on the normal's side), the frame's normal in world cylindrical coordinates, and the
+    /// transmission flag.
+    fn context_scalars(&self, v: &GuideVertex, map: &DirectionMap) -> [f32; CONTEXT_SCALARS] {
         let p = ((v.p - self.origin) * self.inv_extent).clamp(Vec3::ZERO, Vec3::ONE);
-        let wo = dir_to_cylindrical(v.wo);
-        let n = dir_to_cylindrical(v.n);
-        [p.x, p.y, p.z, wo.x, wo.y, n.x, n.y]
+        let wo = map.to_local(v.wo);
+        let wo = Vec2::new(wo.z.clamp(0.0, 1.0), super::dir_to_cylindrical(wo).y);
+        let n = super::dir_to_cylindrical(map.normal());
+        let t = f32::from(u8::from(!map.is_hemisphere()));
+        [p.x, p.y, p.z, wo.x, wo.y, n.x, n.y, t]
     }
 
     /// One-blob features of context scalars, `rows × 7·bins`.
@@ -585,7 +608,7 @@ impl NisGuide {
         let mut base = Vec::with_capacity(n);
         let mut mix = Vec::with_capacity(n);
         for (i, s) in batch.iter().enumerate() {
-            let q = (evaluated.log_q[i].exp() as f32) * INV_FOUR_PI;
+            let q = (evaluated.log_q[i].exp() as f32) * s.jacobian();
             let q_mix = c[i] * q + (1.0 - c[i]) * s.bsdf_pdf;
             let w = match self.config.loss {
                 GuideLoss::Kl => f64::from(s.f) / f64::from(s.pdf),
@@ -642,6 +665,25 @@ impl NisGuide {
         Ok(stats)
     }
 
+    /// Share of the flow's samples at the opaque vertices of `batch` that fall below the surface.
+    fn below_surface(&self, batch: &[Sample], rng: &mut Pcg64Mcg) -> f64 {
+        let scalars: Vec<_> = batch.iter().map(|s| s.context).collect();
+        let context = self.encode(&scalars);
+        let z: Vec<f32> = (0..2 * batch.len()).map(|_| rng.random()).collect();
+        let Ok((x, _)) = self.flow.inverse(&z, Some(&context)) else {
+            return f64::NAN;
+        };
+        // In the local frame the normal faces ω_o, so a direction is below the surface where its
+        // cos θ is negative: never on the hemisphere map, below ½ on the sphere map.
+        let opaque = batch.iter().filter(|s| s.hemisphere()).count();
+        let below = batch
+            .iter()
+            .zip(x.chunks_exact(2))
+            .filter(|(s, x)| s.hemisphere() && x[0] < 0.0)
+            .count();
+        below as f64 / opaque.max(1) as f64
+    }
+
     /// Train on the records of the pass that just ended (the `iteration`-th training phase).
     fn train(&mut self, new: PassSamples, iteration: usize) {
         let start = std::time::Instant::now();
@@ -678,6 +720,7 @@ impl NisGuide {
             }
             self.trained = true;
             self.refresh_context_weights();
+            stats.below_surface = self.below_surface(&batch, &mut rng);
         }
         stats.seconds = start.elapsed().as_secs_f64();
         self.history.push(stats);
@@ -705,7 +748,10 @@ impl Guide for NisGuide {
             .par_chunks_mut(CHUNK_ROWS * width)
             .zip(vertices.par_chunks(CHUNK_ROWS))
             .for_each(|(out, v)| {
-                let scalars: Vec<f32> = v.iter().flat_map(|v| self.context_scalars(v)).collect();
+                let scalars: Vec<f32> = v
+                    .iter()
+                    .flat_map(|v| self.context_scalars(v, &DirectionMap::new(v)))
+                    .collect();
                 let mut enc = vec![0.0f32; v.len() * cdim];
                 one_blob(&scalars, k, &mut enc);
                 dense::forward(
@@ -769,7 +815,7 @@ impl Guide for NisGuide {
 
     fn sample_batch(
         &self,
-        _: &[GuideVertex],
+        vertices: &[GuideVertex],
         cache: &Vec<f32>,
         queries: &[SampleQuery],
         out: &mut [Option<GuideSample>],
@@ -780,31 +826,49 @@ impl Guide for NisGuide {
             .flat_map(|q| [q.u.x.clamp(0.0, 1.0), q.u.y.clamp(0.0, 1.0)])
             .collect();
         let log_q = self.flow_cached(cache, &vertex, &mut x, Direction::Inverse);
-        for (i, o) in out.iter_mut().enumerate() {
-            let pdf = (log_q[i].exp() as f32) * INV_FOUR_PI;
+        for ((o, q), (x, log_q)) in out
+            .iter_mut()
+            .zip(queries)
+            .zip(x.chunks_exact(2).zip(log_q))
+        {
+            let map = DirectionMap::new(&vertices[q.vertex]);
+            let pdf = (log_q.exp() as f32) * map.jacobian();
             *o = (pdf.is_finite() && pdf > 0.0).then(|| GuideSample {
-                wi: cylindrical_to_dir(Vec2::new(x[2 * i], x[2 * i + 1])),
+                wi: map.to_direction(Vec2::new(x[0], x[1])),
                 pdf,
             });
         }
     }
 
+    /// Directions below the surface of an opaque vertex have density zero (the flow is asked
+    /// about the square's centre in their place, and its answer discarded).
     fn pdf_batch(
         &self,
-        _: &[GuideVertex],
+        vertices: &[GuideVertex],
         cache: &Vec<f32>,
         queries: &[PdfQuery],
         out: &mut [f32],
     ) {
         let vertex: Vec<usize> = queries.iter().map(|q| q.vertex).collect();
-        let mut x: Vec<f32> = queries
+        let squares: Vec<(Option<Vec2>, f32)> = queries
             .iter()
-            .flat_map(|q| dir_to_cylindrical(q.wi).to_array())
+            .map(|q| {
+                let map = DirectionMap::new(&vertices[q.vertex]);
+                (map.to_square(q.wi), map.jacobian())
+            })
+            .collect();
+        let mut x: Vec<f32> = squares
+            .iter()
+            .flat_map(|(x, _)| x.unwrap_or(Vec2::splat(0.5)).to_array())
             .collect();
         let log_q = self.flow_cached(cache, &vertex, &mut x, Direction::Forward);
-        for (o, l) in out.iter_mut().zip(log_q) {
-            let pdf = (l.exp() as f32) * INV_FOUR_PI;
-            *o = if pdf.is_finite() { pdf } else { 0.0 };
+        for ((o, l), (x, jacobian)) in out.iter_mut().zip(log_q).zip(squares) {
+            let pdf = (l.exp() as f32) * jacobian;
+            *o = if x.is_some() && pdf.is_finite() {
+                pdf
+            } else {
+                0.0
+            };
         }
     }
 
@@ -820,9 +884,13 @@ impl Guide for NisGuide {
         let before = pass.samples.len();
         pass.samples.extend(records.iter().filter_map(|r| {
             let f = luminance(r.radiance * r.bsdf_cos);
+            let map = DirectionMap::new(&r.vertex);
+            // A direction off the map carries no light at an opaque vertex (its F is 0 up to
+            // the rounding of the two frames).
+            let x = map.to_square(r.wi)?;
             (f > 0.0 && f.is_finite() && r.pdf > 0.0).then(|| Sample {
-                context: self.context_scalars(&r.vertex),
-                x: dir_to_cylindrical(r.wi).to_array(),
+                context: self.context_scalars(&r.vertex, &map),
+                x: x.to_array(),
                 f,
                 pdf: r.pdf,
                 bsdf_pdf: r.bsdf_pdf,
@@ -850,7 +918,6 @@ impl Guide for NisGuide {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use nis::flow::Bijection;
 
     /// A guide whose networks have random weights everywhere (a new one is uniform), and
     /// vertices, directions and random numbers to query it with.
@@ -883,6 +950,7 @@ mod tests {
                 ),
                 n: unit(),
                 wo: unit(),
+                transmissive: i % 3 == 0,
             })
             .collect();
         let dirs = (0..1500).map(|_| unit()).collect();
@@ -894,7 +962,10 @@ mod tests {
 
     /// The flow's own (uncached) context rows of the vertices `rows` refers to.
     fn uncached_context(guide: &NisGuide, v: &[GuideVertex], rows: &[usize]) -> Vec<f32> {
-        let s: Vec<_> = rows.iter().map(|&r| guide.context_scalars(&v[r])).collect();
+        let s: Vec<_> = rows
+            .iter()
+            .map(|&r| guide.context_scalars(&v[r], &DirectionMap::new(&v[r])))
+            .collect();
         guide.encode(&s)
     }
 
@@ -918,17 +989,33 @@ mod tests {
             .collect();
         let mut cached = vec![0.0; queries.len()];
         guide.pdf_batch(&vertices, &cache, &queries, &mut cached);
-        let x: Vec<f32> = dirs
+        let maps: Vec<DirectionMap> = rows
             .iter()
-            .flat_map(|&w| dir_to_cylindrical(w).to_array())
+            .map(|&r| DirectionMap::new(&vertices[r]))
+            .collect();
+        let squares: Vec<Option<Vec2>> = maps
+            .iter()
+            .zip(&dirs)
+            .map(|(m, &w)| m.to_square(w))
+            .collect();
+        let x: Vec<f32> = squares
+            .iter()
+            .flat_map(|x| x.unwrap_or(Vec2::splat(0.5)).to_array())
             .collect();
         let log_q = guide.flow.log_density(&x, Some(&context)).unwrap();
-        let mut spread = 0.0f64;
-        for (c, l) in cached.iter().zip(&log_q) {
-            let plain = l.exp() * f64::from(INV_FOUR_PI);
+        let (mut spread, mut below) = (0.0f64, 0);
+        for (((c, l), m), x) in cached.iter().zip(&log_q).zip(&maps).zip(&squares) {
+            if x.is_none() {
+                // Below the surface of an opaque vertex.
+                assert_eq!(*c, 0.0);
+                below += 1;
+                continue;
+            }
+            let plain = l.exp() * f64::from(m.jacobian());
             spread = spread.max((l.exp() - 1.0).abs());
             assert!((f64::from(*c) / plain - 1.0).abs() < 1e-4, "{c} vs {plain}");
         }
+        assert!(below > 100, "{below} directions below the surface");
         // The random weights must make the density far from uniform, or the test shows little.
         assert!(spread > 0.5, "density hardly varies: {spread}");
 
@@ -943,9 +1030,9 @@ mod tests {
         let (x, log_det) = guide.flow.inverse(&z, Some(&context)).unwrap();
         for (i, s) in samples.iter().enumerate() {
             let s = s.expect("a sample");
-            let plain = cylindrical_to_dir(Vec2::new(x[2 * i], x[2 * i + 1]));
+            let plain = maps[i].to_direction(Vec2::new(x[2 * i], x[2 * i + 1]));
             assert!((s.wi - plain).length() < 1e-4, "{:?} vs {plain:?}", s.wi);
-            let pdf = (-log_det[i]).exp() * f64::from(INV_FOUR_PI);
+            let pdf = (-log_det[i]).exp() * f64::from(maps[i].jacobian());
             assert!(
                 (f64::from(s.pdf) / pdf - 1.0).abs() < 1e-4,
                 "{} vs {pdf}",
