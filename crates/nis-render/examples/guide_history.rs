@@ -31,11 +31,17 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     };
     let out = render(&scene, &options, &mut guide, &|_| {});
     println!("{name}: {} spp, {:.1} s", out.spp, out.seconds);
-    println!("phase | records F>0 | steps | loss | mean c | mass below");
+    println!("phase | records F>0 | steps | loss | mean c | best constant c | mass below | s");
     for (i, h) in guide.history().iter().enumerate() {
         println!(
-            "{i} | {} | {} | {:.3} | {:.3} | {:.3}",
-            h.new_records, h.steps, h.loss, h.mean_selection, h.below_surface
+            "{i} | {} | {} | {:.3} | {:.3} | {:.3} | {:.3} | {:.2}",
+            h.new_records,
+            h.steps,
+            h.loss,
+            h.mean_selection,
+            h.best_constant_selection,
+            h.below_surface,
+            h.seconds
         );
     }
     Ok(())

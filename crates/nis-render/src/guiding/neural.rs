@@ -346,6 +346,10 @@ pub struct TrainingStats {
     /// of the shading normal than `ω_o`) at the last batch's vertices, from one flow sample per
     /// record drawn after the phase's steps.
     pub below_surface: f64,
+    /// The one selection probability that would minimise the KL divergence of the mixture on
+    /// the last batch, with the flow as it is after the phase (the best constant the selection
+    /// network could have learned; compare [`TrainingStats::mean_selection`]).
+    pub best_constant_selection: f64,
 }
 
 /// The neural guide: a conditional flow plus a selection network, trained while rendering.
@@ -665,6 +669,49 @@ impl NisGuide {
         Ok(stats)
     }
 
+    /// The constant `c ∈ [c_min, 1 − c_min]` that maximises `Σ (F/p_s)·ln(c·p_flow + (1 − c)·p_bsdf)`
+    /// over `batch`, a concave function of `c`: bisection on its derivative.
+    fn best_constant_selection(&self, batch: &[Sample]) -> f64 {
+        let scalars: Vec<_> = batch.iter().map(|s| s.context).collect();
+        let context = self.encode(&scalars);
+        let x: Vec<f32> = batch.iter().flat_map(|s| s.x).collect();
+        let Ok(log_q) = self.flow.log_density(&x, Some(&context)) else {
+            return f64::NAN;
+        };
+        let terms: Vec<(f64, f64, f64)> = batch
+            .iter()
+            .zip(&log_q)
+            .map(|(s, l)| {
+                let q = l.exp() * f64::from(s.jacobian());
+                (f64::from(s.f) / f64::from(s.pdf), q, f64::from(s.bsdf_pdf))
+            })
+            .filter(|(w, q, _)| w.is_finite() && q.is_finite())
+            .collect();
+        let slope = |c: f64| -> f64 {
+            terms
+                .iter()
+                .map(|&(w, q, b)| w * (q - b) / (c * q + (1.0 - c) * b).max(f64::MIN_POSITIVE))
+                .sum()
+        };
+        let m = f64::from(self.config.min_selection);
+        let (mut lo, mut hi) = (m, 1.0 - m);
+        if slope(lo) <= 0.0 {
+            return lo;
+        }
+        if slope(hi) >= 0.0 {
+            return hi;
+        }
+        for _ in 0..40 {
+            let mid = 0.5 * (lo + hi);
+            if slope(mid) > 0.0 {
+                lo = mid;
+            } else {
+                hi = mid;
+            }
+        }
+        0.5 * (lo + hi)
+    }
+
     /// Share of the flow's samples at the opaque vertices of `batch` that fall below the surface.
     fn below_surface(&self, batch: &[Sample], rng: &mut Pcg64Mcg) -> f64 {
         let scalars: Vec<_> = batch.iter().map(|s| s.context).collect();
@@ -721,6 +768,7 @@ impl NisGuide {
             self.trained = true;
             self.refresh_context_weights();
             stats.below_surface = self.below_surface(&batch, &mut rng);
+            stats.best_constant_selection = self.best_constant_selection(&batch);
         }
         stats.seconds = start.elapsed().as_secs_f64();
         self.history.push(stats);
