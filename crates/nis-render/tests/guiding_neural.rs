@@ -5,7 +5,7 @@
 use glam::{Vec2, Vec3};
 use nis_render::bvh::Aabb;
 use nis_render::geometry::Rgb;
-use nis_render::guiding::directions::DirectionMap;
+use nis_render::guiding::directions::{DirectionMap, GuideFrame};
 use nis_render::guiding::gmm::{Gmm, GmmConfig};
 use nis_render::guiding::neural::{NisGuide, NisGuideConfig, PassSamples};
 use nis_render::guiding::ppg::{Ppg, PpgConfig};
@@ -224,11 +224,12 @@ fn guided_render_is_unbiased_and_deterministic() {
     let params = [("res".to_string(), "12".to_string())];
     let scene = nis_render::scenes::load_with("cornell-indirect", &params).unwrap();
     let integrator = Integrator::from_scene(&scene, Strategy::Mis);
-    let guided = |seed: u64| {
+    let guided = |seed: u64, frame: GuideFrame| {
         let config = NisGuideConfig {
             batch: 512,
             min_steps: 10,
             seed,
+            frame,
             ..NisGuideConfig::default()
         };
         let mut guide = NisGuide::new(scene.bounds(), config).unwrap();
@@ -262,12 +263,14 @@ fn guided_render_is_unbiased_and_deterministic() {
         .pixels
     };
     // Determinism: the same seed gives the same image, on one thread or two.
-    let one = rayon::ThreadPoolBuilder::new()
-        .num_threads(1)
-        .build()
-        .unwrap()
-        .install(|| guided(3));
-    assert_eq!(one, guided(3));
+    for frame in [GuideFrame::World, GuideFrame::Local] {
+        let one = rayon::ThreadPoolBuilder::new()
+            .num_threads(1)
+            .build()
+            .unwrap()
+            .install(|| guided(3, frame));
+        assert_eq!(one, guided(3, frame), "{frame:?}");
+    }
 
     // Unbiasedness: the mean radiance over 12 seeds agrees with path tracing within 4σ.
     let mean = |img: &[Rgb]| {
@@ -281,14 +284,17 @@ fn guided_render_is_unbiased_and_deterministic() {
         let var = v.iter().map(|x| (x - m).powi(2)).sum::<f64>() / (v.len() - 1) as f64;
         (m, (var / v.len() as f64).sqrt())
     };
-    let g: Vec<f64> = (0..12).map(|s| mean(&guided(100 + s))).collect();
     let p: Vec<f64> = (0..24).map(|s| mean(&plain(200 + s))).collect();
-    let ((mg, eg), (mp, ep)) = (stats(&g), stats(&p));
-    let sigma = (eg * eg + ep * ep).sqrt();
-    assert!(
-        (mg - mp).abs() < 4.0 * sigma,
-        "guided {mg} ± {eg} vs plain {mp} ± {ep}"
-    );
+    let (mp, ep) = stats(&p);
+    for frame in [GuideFrame::World, GuideFrame::Local] {
+        let g: Vec<f64> = (0..12).map(|s| mean(&guided(100 + s, frame))).collect();
+        let (mg, eg) = stats(&g);
+        let sigma = (eg * eg + ep * ep).sqrt();
+        assert!(
+            (mg - mp).abs() < 4.0 * sigma,
+            "{frame:?}: guided {mg} ± {eg} vs plain {mp} ± {ep}"
+        );
+    }
 }
 
 /// A scene of one diffuse cube and a camera at `origin`, with an area light above it or none.
@@ -373,8 +379,8 @@ fn scenes_without_light_or_with_the_camera_inside_a_mesh_render_black() {
     assert!(out.image.mean() > 0.0);
 }
 
-/// An opaque vertex on a wall seen from its back side (a two-sided material): the guide's
-/// hemisphere is the one on `ω_o`'s side, around `−n`.
+/// An opaque vertex on a wall seen from its back side (a two-sided material): the local
+/// frame's hemisphere is the one on `ω_o`'s side, around `−n`.
 fn opaque_vertex() -> GuideVertex {
     GuideVertex {
         p: Vec3::new(-0.4, 0.3, 0.2),
@@ -393,6 +399,7 @@ fn trained_opaque_guide() -> (NisGuide, Vec3) {
     let config = NisGuideConfig {
         batch: 1024,
         min_steps: 60,
+        frame: GuideFrame::Local,
         ..NisGuideConfig::default()
     };
     let mut guide = NisGuide::new(unit_box(), config).unwrap();

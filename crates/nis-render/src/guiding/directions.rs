@@ -33,6 +33,8 @@
 
 use glam::{Vec2, Vec3};
 
+use serde::{Deserialize, Serialize};
+
 use super::{cylindrical_to_dir, dir_to_cylindrical, GuideVertex, ONE_MINUS_EPSILON};
 
 /// 1/(2π): solid-angle density per unit density on the square, hemisphere map.
@@ -43,6 +45,19 @@ pub const INV_FOUR_PI: f32 = 0.25 * std::f32::consts::FRAC_1_PI;
 /// The reference direction the tangents are projected from: parallel to no axis, so no face of
 /// an axis-aligned scene has it as its normal.
 const TANGENT_REFERENCE: Vec3 = Vec3::new(0.267_261_24, 0.534_522_5, 0.801_783_7);
+
+/// Which frame the neural guide's flow works in.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum GuideFrame {
+    /// World-space cylindrical coordinates on the whole sphere at every vertex
+    /// ([`DirectionMap::WORLD`]): one direction has the same coordinates everywhere.
+    #[default]
+    World,
+    /// The local frame of the vertex, over the hemisphere where the material is opaque
+    /// ([`DirectionMap::new`]).
+    Local,
+}
 
 /// The map of one vertex's incident directions to the unit square (see the module docs).
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -56,7 +71,23 @@ pub struct DirectionMap {
 }
 
 impl DirectionMap {
-    /// The map at vertex `v`.
+    /// World-space cylindrical coordinates `((cos θ + 1)/2, φ/2π)`, θ from +z, on the sphere.
+    pub const WORLD: DirectionMap = DirectionMap {
+        s: Vec3::X,
+        t: Vec3::Y,
+        n: Vec3::Z,
+        hemisphere: false,
+    };
+
+    /// The map at vertex `v` in `frame`.
+    pub fn in_frame(v: &GuideVertex, frame: GuideFrame) -> Self {
+        match frame {
+            GuideFrame::World => Self::WORLD,
+            GuideFrame::Local => Self::new(v),
+        }
+    }
+
+    /// The local map at vertex `v`.
     pub fn new(v: &GuideVertex) -> Self {
         let n = if v.n.dot(v.wo) < 0.0 { -v.n } else { v.n };
         let s = (TANGENT_REFERENCE - TANGENT_REFERENCE.dot(n) * n)

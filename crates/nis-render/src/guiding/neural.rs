@@ -54,7 +54,7 @@ use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
 use super::{
-    directions::{self, DirectionMap},
+    directions::{self, DirectionMap, GuideFrame},
     Guide, GuideRecord, GuideSample, GuideStatistics, GuideVertex, PdfQuery, SampleQuery,
     COUNT_WORDS,
 };
@@ -94,6 +94,9 @@ pub enum GuideLoss {
 pub struct NisGuideConfig {
     /// The divergence to minimise.
     pub loss: GuideLoss,
+    /// The frame of the flow's directions: world-space on the sphere, or the vertex's local
+    /// frame, on the hemisphere where the material is opaque (docs/GUIDING.md compares them).
+    pub frame: GuideFrame,
     /// The coupling transform of the flow.
     pub transform: TransformKind,
     /// Coupling layers of the flow.
@@ -200,6 +203,7 @@ impl Default for NisGuideConfig {
     fn default() -> Self {
         NisGuideConfig {
             loss: GuideLoss::Kl,
+            frame: GuideFrame::World,
             transform: TransformKind::Quadratic { bins: 32 },
             couplings: 2,
             hidden_layers: 2,
@@ -556,14 +560,25 @@ impl NisGuide {
         &self.history
     }
 
-    /// Position in the scene box, `ω_o` on the hemisphere map of the local frame (it always
-    /// lies on the normal's side), the frame's normal in world cylindrical coordinates, and the
-    /// transmission flag.
+    /// The map of `v`'s directions in the configured frame.
+    fn map(&self, v: &GuideVertex) -> DirectionMap {
+        DirectionMap::in_frame(v, self.config.frame)
+    }
+
+    /// Position in the scene box; in the world frame `ω_o` and the shading normal in world
+    /// cylindrical coordinates; in the local frame `ω_o` on the hemisphere map (it always lies
+    /// on the normal's side) and the frame's normal; then whether `map` covers the sphere.
     fn context_scalars(&self, v: &GuideVertex, map: &DirectionMap) -> [f32; CONTEXT_SCALARS] {
         let p = ((v.p - self.origin) * self.inv_extent).clamp(Vec3::ZERO, Vec3::ONE);
-        let wo = map.to_local(v.wo);
-        let wo = Vec2::new(wo.z.clamp(0.0, 1.0), super::dir_to_cylindrical(wo).y);
-        let n = super::dir_to_cylindrical(map.normal());
+        let (wo, n) = match self.config.frame {
+            GuideFrame::World => (super::dir_to_cylindrical(v.wo), v.n),
+            GuideFrame::Local => {
+                let wo = map.to_local(v.wo);
+                let wo = Vec2::new(wo.z.clamp(0.0, 1.0), super::dir_to_cylindrical(wo).y);
+                (wo, map.normal())
+            }
+        };
+        let n = super::dir_to_cylindrical(n);
         let t = f32::from(u8::from(!map.is_hemisphere()));
         [p.x, p.y, p.z, wo.x, wo.y, n.x, n.y, t]
     }
@@ -720,15 +735,25 @@ impl NisGuide {
         let Ok((x, _)) = self.flow.inverse(&z, Some(&context)) else {
             return f64::NAN;
         };
-        // In the local frame the normal faces ω_o, so a direction is below the surface where its
-        // cos θ is negative: never on the hemisphere map, below ½ on the sphere map.
-        let opaque = batch.iter().filter(|s| s.hemisphere()).count();
+        if self.config.frame == GuideFrame::Local {
+            // Nothing of the hemisphere map lies below the surface (and the sphere map is for
+            // the transmissive vertices, where the other side is not below the surface).
+            return 0.0;
+        }
+        // World frame: the context holds ω_o and the normal in world coordinates (this counts
+        // transmission at transmissive vertices too; the built-in scenes have none).
         let below = batch
             .iter()
             .zip(x.chunks_exact(2))
-            .filter(|(s, x)| s.hemisphere() && x[0] < 0.0)
+            .filter(|(s, x)| {
+                let c = &s.context;
+                let n = super::cylindrical_to_dir(Vec2::new(c[5], c[6]));
+                let wo = super::cylindrical_to_dir(Vec2::new(c[3], c[4]));
+                let wi = super::cylindrical_to_dir(Vec2::new(x[0], x[1]));
+                n.dot(wi) * n.dot(wo) < 0.0
+            })
             .count();
-        below as f64 / opaque.max(1) as f64
+        below as f64 / batch.len().max(1) as f64
     }
 
     /// Train on the records of the pass that just ended (the `iteration`-th training phase).
@@ -798,7 +823,7 @@ impl Guide for NisGuide {
             .for_each(|(out, v)| {
                 let scalars: Vec<f32> = v
                     .iter()
-                    .flat_map(|v| self.context_scalars(v, &DirectionMap::new(v)))
+                    .flat_map(|v| self.context_scalars(v, &self.map(v)))
                     .collect();
                 let mut enc = vec![0.0f32; v.len() * cdim];
                 one_blob(&scalars, k, &mut enc);
@@ -879,7 +904,7 @@ impl Guide for NisGuide {
             .zip(queries)
             .zip(x.chunks_exact(2).zip(log_q))
         {
-            let map = DirectionMap::new(&vertices[q.vertex]);
+            let map = self.map(&vertices[q.vertex]);
             let pdf = (log_q.exp() as f32) * map.jacobian();
             *o = (pdf.is_finite() && pdf > 0.0).then(|| GuideSample {
                 wi: map.to_direction(Vec2::new(x[0], x[1])),
@@ -901,7 +926,7 @@ impl Guide for NisGuide {
         let squares: Vec<(Option<Vec2>, f32)> = queries
             .iter()
             .map(|q| {
-                let map = DirectionMap::new(&vertices[q.vertex]);
+                let map = self.map(&vertices[q.vertex]);
                 (map.to_square(q.wi), map.jacobian())
             })
             .collect();
@@ -932,7 +957,7 @@ impl Guide for NisGuide {
         let before = pass.samples.len();
         pass.samples.extend(records.iter().filter_map(|r| {
             let f = luminance(r.radiance * r.bsdf_cos);
-            let map = DirectionMap::new(&r.vertex);
+            let map = self.map(&r.vertex);
             // A direction off the map carries no light at an opaque vertex (its F is 0 up to
             // the rounding of the two frames).
             let x = map.to_square(r.wi)?;
@@ -969,12 +994,16 @@ mod tests {
 
     /// A guide whose networks have random weights everywhere (a new one is uniform), and
     /// vertices, directions and random numbers to query it with.
-    fn random_guide() -> (NisGuide, Vec<GuideVertex>, Vec<Vec3>, Vec<Vec2>) {
+    fn random_guide(frame: GuideFrame) -> (NisGuide, Vec<GuideVertex>, Vec<Vec3>, Vec<Vec2>) {
         let bounds = Aabb {
             min: Vec3::new(-1.0, 0.0, -2.0),
             max: Vec3::new(1.0, 2.0, 0.5),
         };
-        let mut guide = NisGuide::new(bounds, NisGuideConfig::default()).unwrap();
+        let config = NisGuideConfig {
+            frame,
+            ..NisGuideConfig::default()
+        };
+        let mut guide = NisGuide::new(bounds, config).unwrap();
         let mut rng = Pcg64Mcg::seed_from_u64(11);
         for p in guide.flow.params_mut() {
             *p += 0.3 * (rng.random::<f32>() - 0.5);
@@ -1012,17 +1041,23 @@ mod tests {
     fn uncached_context(guide: &NisGuide, v: &[GuideVertex], rows: &[usize]) -> Vec<f32> {
         let s: Vec<_> = rows
             .iter()
-            .map(|&r| guide.context_scalars(&v[r], &DirectionMap::new(&v[r])))
+            .map(|&r| guide.context_scalars(&v[r], &guide.map(&v[r])))
             .collect();
         guide.encode(&s)
     }
 
     #[test]
     fn cached_queries_match_the_uncached_flow() {
+        for frame in [GuideFrame::World, GuideFrame::Local] {
+            cached_queries_match_the_uncached_flow_in(frame);
+        }
+    }
+
+    fn cached_queries_match_the_uncached_flow_in(frame: GuideFrame) {
         // f32 rounding: the first layers' sums run in another order (≈ 1e-6 relative per
         // activation); through two conditioners and the splines' exponentials the density
         // moves by far less than 1e-4 relative, the sampled point by less than 1e-5.
-        let (guide, vertices, dirs, us) = random_guide();
+        let (guide, vertices, dirs, us) = random_guide(frame);
         let mut cache = Vec::new();
         guide.prepare(&vertices, &mut cache);
         let rows: Vec<usize> = (0..dirs.len())
@@ -1037,10 +1072,7 @@ mod tests {
             .collect();
         let mut cached = vec![0.0; queries.len()];
         guide.pdf_batch(&vertices, &cache, &queries, &mut cached);
-        let maps: Vec<DirectionMap> = rows
-            .iter()
-            .map(|&r| DirectionMap::new(&vertices[r]))
-            .collect();
+        let maps: Vec<DirectionMap> = rows.iter().map(|&r| guide.map(&vertices[r])).collect();
         let squares: Vec<Option<Vec2>> = maps
             .iter()
             .zip(&dirs)
@@ -1063,7 +1095,12 @@ mod tests {
             spread = spread.max((l.exp() - 1.0).abs());
             assert!((f64::from(*c) / plain - 1.0).abs() < 1e-4, "{c} vs {plain}");
         }
-        assert!(below > 100, "{below} directions below the surface");
+        // In the local frame, a third of the random directions lie below an opaque surface.
+        assert_eq!(
+            frame == GuideFrame::Local,
+            below > 100,
+            "{below} below the surface"
+        );
         // The random weights must make the density far from uniform, or the test shows little.
         assert!(spread > 0.5, "density hardly varies: {spread}");
 
