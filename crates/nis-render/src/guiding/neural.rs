@@ -54,19 +54,15 @@ use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
 use super::{
-    directions::{self, DirectionMap, GuideFrame},
+    directions::{DirectionMap, GuideFrame},
     Guide, GuideRecord, GuideSample, GuideStatistics, GuideVertex, PdfQuery, SampleQuery,
     COUNT_WORDS,
 };
 use crate::bvh::Aabb;
 use crate::geometry::luminance;
 
-/// Scalars a vertex is described by: position (3), outgoing direction in the local frame (2),
-/// normal (2), whether the material transmits (1).
-const CONTEXT_SCALARS: usize = 8;
-
-/// Where the flag "the material transmits" (0 or 1) sits among the context scalars.
-const TRANSMISSIVE: usize = 7;
+/// Scalars a vertex is described by: position (3), outgoing direction (2), normal (2).
+const CONTEXT_SCALARS: usize = 7;
 
 /// Mixed into the seed of the selection network's initial weights, so that they are not drawn
 /// from the same stream as the flow's (which [`Flow::new`] seeds with the seed itself).
@@ -238,6 +234,8 @@ pub struct Sample {
     pdf: f32,
     /// The BSDF's density of the direction.
     bsdf_pdf: f32,
+    /// Solid-angle density per unit density on the square of the vertex's map.
+    jacobian: f32,
 }
 
 /// The records of a training pass, in the order they were made, of which only the newest `cap`
@@ -261,23 +259,18 @@ impl PassSamples {
     }
 }
 
-impl Sample {
-    /// Whether the record's direction is on the hemisphere map.
-    fn hemisphere(&self) -> bool {
-        self.context[TRANSMISSIVE] == 0.0
-    }
-
-    /// Solid-angle density per unit density on the record's square.
-    fn jacobian(&self) -> f32 {
-        directions::jacobian(self.hemisphere())
-    }
-}
-
 impl super::Record for Sample {
-    const WORDS: usize = CONTEXT_SCALARS + 5;
+    const WORDS: usize = CONTEXT_SCALARS + 6;
     fn write(&self, out: &mut Vec<f32>) {
         out.extend_from_slice(&self.context);
-        out.extend_from_slice(&[self.x[0], self.x[1], self.f, self.pdf, self.bsdf_pdf]);
+        out.extend_from_slice(&[
+            self.x[0],
+            self.x[1],
+            self.f,
+            self.pdf,
+            self.bsdf_pdf,
+            self.jacobian,
+        ]);
     }
     fn read(w: &[f32]) -> Self {
         let c = CONTEXT_SCALARS;
@@ -289,6 +282,7 @@ impl super::Record for Sample {
             f: w[c + 2],
             pdf: w[c + 3],
             bsdf_pdf: w[c + 4],
+            jacobian: w[c + 5],
         }
     }
 }
@@ -567,7 +561,8 @@ impl NisGuide {
 
     /// Position in the scene box; in the world frame `ω_o` and the shading normal in world
     /// cylindrical coordinates; in the local frame `ω_o` on the hemisphere map (it always lies
-    /// on the normal's side) and the frame's normal; then whether `map` covers the sphere.
+    /// on the normal's side) and the frame's normal. (Whether a local map is the hemisphere's
+    /// or the sphere's is not an input: position and normal tell the surfaces apart.)
     fn context_scalars(&self, v: &GuideVertex, map: &DirectionMap) -> [f32; CONTEXT_SCALARS] {
         let p = ((v.p - self.origin) * self.inv_extent).clamp(Vec3::ZERO, Vec3::ONE);
         let (wo, n) = match self.config.frame {
@@ -579,8 +574,7 @@ impl NisGuide {
             }
         };
         let n = super::dir_to_cylindrical(n);
-        let t = f32::from(u8::from(!map.is_hemisphere()));
-        [p.x, p.y, p.z, wo.x, wo.y, n.x, n.y, t]
+        [p.x, p.y, p.z, wo.x, wo.y, n.x, n.y]
     }
 
     /// One-blob features of context scalars, `rows × 7·bins`.
@@ -627,7 +621,7 @@ impl NisGuide {
         let mut base = Vec::with_capacity(n);
         let mut mix = Vec::with_capacity(n);
         for (i, s) in batch.iter().enumerate() {
-            let q = (evaluated.log_q[i].exp() as f32) * s.jacobian();
+            let q = (evaluated.log_q[i].exp() as f32) * s.jacobian;
             let q_mix = c[i] * q + (1.0 - c[i]) * s.bsdf_pdf;
             let w = match self.config.loss {
                 GuideLoss::Kl => f64::from(s.f) / f64::from(s.pdf),
@@ -697,7 +691,7 @@ impl NisGuide {
             .iter()
             .zip(&log_q)
             .map(|(s, l)| {
-                let q = l.exp() * f64::from(s.jacobian());
+                let q = l.exp() * f64::from(s.jacobian);
                 (f64::from(s.f) / f64::from(s.pdf), q, f64::from(s.bsdf_pdf))
             })
             .filter(|(w, q, _)| w.is_finite() && q.is_finite())
@@ -967,6 +961,7 @@ impl Guide for NisGuide {
                 f,
                 pdf: r.pdf,
                 bsdf_pdf: r.bsdf_pdf,
+                jacobian: map.jacobian(),
             })
         }));
         pass.seen += pass.samples.len() - before;
@@ -1144,6 +1139,7 @@ mod tests {
             f: 1.5e-7 * i as f32,
             pdf: 0.3,
             bsdf_pdf: f32::MIN_POSITIVE,
+            jacobian: 0.125,
         };
         let bits = |s: &Sample| {
             let mut w = Vec::new();
