@@ -3,8 +3,11 @@
 //! share of the flow's mass below the surface (docs/GUIDING.md, "Error at equal samples").
 //!
 //! ```text
-//! cargo run --release -p nis-render --example guide_history -- cornell-indirect 128 64 0
+//! cargo run --release -p nis-render --example guide_history -- cornell-indirect 128 64 0 '{"frame": "local"}'
 //! ```
+//!
+//! (scene, resolution, samples per pixel, seed, and the guide's settings as for
+//! `nis render --guide-config`).
 
 use nis_render::guiding::neural::{NisGuide, NisGuideConfig};
 use nis_render::integrator::{Integrator, Strategy};
@@ -18,10 +21,8 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let spp: u32 = arg(2, "64").parse()?;
     let seed: u64 = arg(3, "0").parse()?;
     let scene = nis_render::scenes::load_with(&name, &[("res".to_string(), res)])?;
-    let config = NisGuideConfig {
-        seed,
-        ..NisGuideConfig::default()
-    };
+    let config: NisGuideConfig = serde_json::from_str(&arg(4, "{}"))?;
+    let config = NisGuideConfig { seed, ..config };
     let mut guide = NisGuide::new(scene.bounds(), config)?;
     let options = RenderOptions {
         integrator: Integrator::from_scene(&scene, Strategy::Mis),

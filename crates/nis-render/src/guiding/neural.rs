@@ -2,11 +2,13 @@
 //!
 //! At every path vertex a normalizing flow gives the density of incident directions:
 //! a 2-D flow on [0, 1]² over world-space cylindrical coordinates
-//! `((cos θ + 1)/2, φ/2π)` of the direction ([`dir_to_cylindrical`], the map PPG's quadtrees
-//! use too; area-preserving, so
-//! `p(ω) = q(u, v)/4π`), conditioned on the one-blob-encoded vertex position (normalised
+//! `((cos θ + 1)/2, φ/2π)` of the direction ([`super::dir_to_cylindrical`], the map PPG's
+//! quadtrees use too; area-preserving, so `p(ω) = q(u, v)/4π`), or, with
+//! [`GuideFrame::Local`], over the hemisphere of the vertex's local frame where the material
+//! is opaque (`(cos θ, φ/2π)`, `p(ω) = q/2π`, nothing below the surface; see
+//! [`super::directions`]), conditioned on the one-blob-encoded vertex position (normalised
 //! to the scene box), outgoing direction and shading normal (both in cylindrical
-//! coordinates). A second, small network predicts the selection probability `c(x, ω_o)` of
+//! coordinates; `ω_o` in the local frame with [`GuideFrame::Local`]). A second, small network predicts the selection probability `c(x, ω_o)` of
 //! the one-sample mixture `c·p_flow + (1 − c)·p_bsdf`, kept in `[c_min, 1 − c_min]` so both
 //! techniques always have a share.
 //!
