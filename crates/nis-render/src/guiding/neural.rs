@@ -344,7 +344,8 @@ pub struct TrainingStats {
     pub seconds: f64,
     /// Share of the flow's probability mass below the surface (directions on the other side
     /// of the shading normal than `ω_o`) at the last batch's vertices, from one flow sample per
-    /// record drawn after the phase's steps.
+    /// record drawn after the phase's steps (0 by construction in the local frame, whose
+    /// hemisphere map has no point below the surface).
     pub below_surface: f64,
     /// The one selection probability that would minimise the KL divergence of the mixture on
     /// the last batch, with the flow as it is after the phase (the best constant the selection
