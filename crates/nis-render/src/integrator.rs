@@ -392,12 +392,14 @@ impl Integrator {
                 }
                 let wo_world = -path.ray.dir;
                 let frame = Frame::from_normal(hit.ns);
+                let material = &scene.materials[hit.material as usize];
                 let vertex = GuideVertex {
                     p: hit.p,
                     n: hit.ns,
                     wo: wo_world,
+                    transmissive: material.transmits(),
                 };
-                let delta = scene.materials[hit.material as usize].is_delta();
+                let delta = material.is_delta();
                 bounces.push(Bounce {
                     path: i,
                     wo: frame.to_local(wo_world),

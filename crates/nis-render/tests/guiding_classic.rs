@@ -35,6 +35,7 @@ fn check_unbiased<G: Guide>(scene: &Scene, guide: &mut G, freeze: impl FnOnce(&m
         p: Vec3::new(0.0, 1.0, -1.0),
         n: Vec3::Z,
         wo: Vec3::Z,
+        transmissive: false,
     };
     assert_eq!(guide.selection_probability(&wall), 0.5, "{name} untrained");
     let (plain, plain_err) = mean_over_seeds(scene, Strategy::Mis, &mut NoGuide, 24);

@@ -5,11 +5,14 @@
 use glam::{Vec2, Vec3};
 use nis_render::bvh::Aabb;
 use nis_render::geometry::Rgb;
+use nis_render::guiding::directions::{DirectionMap, GuideFrame};
 use nis_render::guiding::gmm::{Gmm, GmmConfig};
 use nis_render::guiding::neural::{NisGuide, NisGuideConfig, PassSamples};
 use nis_render::guiding::ppg::{Ppg, PpgConfig};
 use nis_render::guiding::{cylindrical_to_dir, dir_to_cylindrical};
-use nis_render::guiding::{Guide, GuideRecord, GuideVertex, NoGuide, PdfQuery, SampleQuery};
+use nis_render::guiding::{
+    Guide, GuideRecord, GuideSample, GuideVertex, NoGuide, PdfQuery, SampleQuery,
+};
 use nis_render::integrator::{Integrator, Strategy};
 use nis_render::render::{render, Budget, RenderOptions, Schedule};
 use nis_render::scene::Scene;
@@ -30,6 +33,9 @@ fn vertex() -> GuideVertex {
         p: Vec3::new(0.2, -0.3, 0.1),
         n: Vec3::Z,
         wo: Vec3::new(0.3, 0.1, 0.9).normalize(),
+        // The whole sphere (the map of a transmissive material), so the records below the
+        // surface count too; the hemisphere of opaque materials has tests of its own below.
+        transmissive: true,
     }
 }
 
@@ -218,11 +224,12 @@ fn guided_render_is_unbiased_and_deterministic() {
     let params = [("res".to_string(), "12".to_string())];
     let scene = nis_render::scenes::load_with("cornell-indirect", &params).unwrap();
     let integrator = Integrator::from_scene(&scene, Strategy::Mis);
-    let guided = |seed: u64| {
+    let guided = |seed: u64, frame: GuideFrame| {
         let config = NisGuideConfig {
             batch: 512,
             min_steps: 10,
             seed,
+            frame,
             ..NisGuideConfig::default()
         };
         let mut guide = NisGuide::new(scene.bounds(), config).unwrap();
@@ -256,12 +263,14 @@ fn guided_render_is_unbiased_and_deterministic() {
         .pixels
     };
     // Determinism: the same seed gives the same image, on one thread or two.
-    let one = rayon::ThreadPoolBuilder::new()
-        .num_threads(1)
-        .build()
-        .unwrap()
-        .install(|| guided(3));
-    assert_eq!(one, guided(3));
+    for frame in [GuideFrame::World, GuideFrame::Local] {
+        let one = rayon::ThreadPoolBuilder::new()
+            .num_threads(1)
+            .build()
+            .unwrap()
+            .install(|| guided(3, frame));
+        assert_eq!(one, guided(3, frame), "{frame:?}");
+    }
 
     // Unbiasedness: the mean radiance over 12 seeds agrees with path tracing within 4σ.
     let mean = |img: &[Rgb]| {
@@ -275,14 +284,17 @@ fn guided_render_is_unbiased_and_deterministic() {
         let var = v.iter().map(|x| (x - m).powi(2)).sum::<f64>() / (v.len() - 1) as f64;
         (m, (var / v.len() as f64).sqrt())
     };
-    let g: Vec<f64> = (0..12).map(|s| mean(&guided(100 + s))).collect();
     let p: Vec<f64> = (0..24).map(|s| mean(&plain(200 + s))).collect();
-    let ((mg, eg), (mp, ep)) = (stats(&g), stats(&p));
-    let sigma = (eg * eg + ep * ep).sqrt();
-    assert!(
-        (mg - mp).abs() < 4.0 * sigma,
-        "guided {mg} ± {eg} vs plain {mp} ± {ep}"
-    );
+    let (mp, ep) = stats(&p);
+    for frame in [GuideFrame::World, GuideFrame::Local] {
+        let g: Vec<f64> = (0..12).map(|s| mean(&guided(100 + s, frame))).collect();
+        let (mg, eg) = stats(&g);
+        let sigma = (eg * eg + ep * ep).sqrt();
+        assert!(
+            (mg - mp).abs() < 4.0 * sigma,
+            "{frame:?}: guided {mg} ± {eg} vs plain {mp} ± {ep}"
+        );
+    }
 }
 
 /// A scene of one diffuse cube and a camera at `origin`, with an area light above it or none.
@@ -365,4 +377,118 @@ fn scenes_without_light_or_with_the_camera_inside_a_mesh_render_black() {
         &|_| {},
     );
     assert!(out.image.mean() > 0.0);
+}
+
+/// An opaque vertex on a wall seen from its back side (a two-sided material): the local
+/// frame's hemisphere is the one on `ω_o`'s side, around `−n`.
+fn opaque_vertex() -> GuideVertex {
+    GuideVertex {
+        p: Vec3::new(-0.4, 0.3, 0.2),
+        n: Vec3::new(0.2, 0.9, -0.3).normalize(),
+        wo: Vec3::new(0.1, -0.8, 0.5).normalize(),
+        transmissive: false,
+    }
+}
+
+/// A guide trained on records at [`opaque_vertex`] whose incident radiance is a lobe (κ = 20)
+/// around a direction on `ω_o`'s side, directions drawn uniformly over that hemisphere.
+fn trained_opaque_guide() -> (NisGuide, Vec3) {
+    let v = opaque_vertex();
+    let up = -v.n;
+    let lobe = (up + Vec3::new(0.6, 0.0, 0.3)).normalize();
+    let config = NisGuideConfig {
+        batch: 1024,
+        min_steps: 60,
+        frame: GuideFrame::Local,
+        ..NisGuideConfig::default()
+    };
+    let mut guide = NisGuide::new(unit_box(), config).unwrap();
+    let mut rng = Pcg64Mcg::seed_from_u64(6);
+    for _ in 0..4 {
+        let batch: Vec<GuideRecord> = (0..16_384)
+            .map(|_| {
+                let w = cylindrical_to_dir(Vec2::new(rng.random(), rng.random()));
+                let wi = if w.dot(up) < 0.0 { -w } else { w };
+                let l = (20.0 * (wi.dot(lobe) - 1.0)).exp();
+                GuideRecord {
+                    vertex: v,
+                    wi,
+                    pdf: 2.0 / FOUR_PI,
+                    bsdf_pdf: 2.0 / FOUR_PI,
+                    bsdf_cos: Rgb::ONE,
+                    radiance: Rgb::splat(l),
+                }
+            })
+            .collect();
+        let mut samples = PassSamples::default();
+        guide.accumulate(&batch, &mut samples);
+        guide.update(samples);
+    }
+    (guide, lobe)
+}
+
+#[test]
+fn opaque_vertices_get_a_normalised_hemisphere_density_and_no_samples_below() {
+    let (guide, lobe) = trained_opaque_guide();
+    let v = opaque_vertex();
+    let up = -v.n;
+    let map = DirectionMap::new(&v);
+    assert!(map.is_hemisphere() && (map.normal() - up).length() < 1e-6);
+    let vertices = [v];
+    let mut cache = Vec::new();
+    guide.prepare(&vertices, &mut cache);
+    let density = |dirs: &[Vec3]| {
+        let queries: Vec<PdfQuery> = dirs.iter().map(|&wi| PdfQuery { vertex: 0, wi }).collect();
+        let mut pdf = vec![0.0; dirs.len()];
+        guide.pdf_batch(&vertices, &cache, &queries, &mut pdf);
+        pdf
+    };
+
+    // Normalised over the sphere (midpoint rule on the world's cylindrical square, which cuts
+    // the horizon obliquely: its error is the horizon's cells, ≈ 1e-3 at 512²), all of it on
+    // ω_o's side of the surface.
+    let m = 512;
+    let dirs: Vec<Vec3> = (0..m * m)
+        .map(|k| {
+            let x = Vec2::new(
+                ((k / m) as f32 + 0.5) / m as f32,
+                ((k % m) as f32 + 0.5) / m as f32,
+            );
+            cylindrical_to_dir(x)
+        })
+        .collect();
+    let pdf = density(&dirs);
+    let cell = f64::from(FOUR_PI) / (m * m) as f64;
+    let total: f64 = pdf.iter().map(|&p| f64::from(p) * cell).sum();
+    assert!((total - 1.0).abs() < 5e-3, "∫ p dω = {total}");
+    for (d, p) in dirs.iter().zip(&pdf) {
+        if d.dot(up) < 0.0 {
+            assert_eq!(*p, 0.0, "density {p} below the surface at {d}");
+        }
+    }
+    // Learned: concentrated on the lobe.
+    assert!(density(&[lobe])[0] > 10.0 / FOUR_PI);
+
+    // Samples: none below the surface, and each one's density is the evaluated one.
+    let n = 100_000;
+    let mut rng = Pcg64Mcg::seed_from_u64(10);
+    let queries: Vec<SampleQuery> = (0..n)
+        .map(|_| SampleQuery {
+            vertex: 0,
+            u: Vec2::new(rng.random(), rng.random()),
+        })
+        .collect();
+    let mut samples = vec![None; n];
+    guide.sample_batch(&vertices, &cache, &queries, &mut samples);
+    let samples: Vec<GuideSample> = samples.into_iter().map(Option::unwrap).collect();
+    let dirs: Vec<Vec3> = samples.iter().map(|s| s.wi).collect();
+    let pdf = density(&dirs);
+    for (s, p) in samples.iter().zip(&pdf) {
+        assert!(s.wi.dot(up) >= 0.0, "sampled {} below the surface", s.wi);
+        assert!(
+            (s.pdf - p).abs() <= 2e-3 * p.max(s.pdf),
+            "sampled {} vs evaluated {p}",
+            s.pdf
+        );
+    }
 }

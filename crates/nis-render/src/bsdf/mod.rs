@@ -120,6 +120,15 @@ impl Material {
         matches!(self.bsdf, Bsdf::Conductor { .. } | Bsdf::Dielectric { .. })
     }
 
+    /// Whether light may pass through the surface (a dielectric); every other BSDF scatters
+    /// only into `wo`'s side of the shading normal (one-sided ones only from the front).
+    pub fn transmits(&self) -> bool {
+        matches!(
+            self.bsdf,
+            Bsdf::Dielectric { .. } | Bsdf::RoughDielectric { .. }
+        )
+    }
+
     /// BSDF value `f(wo, wi)` (zero for delta lobes).
     pub fn f(&self, wo: Vec3, wi: Vec3) -> Rgb {
         if self.flip(wo) {

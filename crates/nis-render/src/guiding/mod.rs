@@ -22,6 +22,7 @@ use glam::{Vec2, Vec3};
 
 use crate::geometry::Rgb;
 
+pub mod directions;
 pub mod gmm;
 pub mod neural;
 pub mod ppg;
@@ -72,6 +73,9 @@ pub struct GuideVertex {
     pub n: Vec3,
     /// Unit direction back along the path (towards the camera).
     pub wo: Vec3,
+    /// Whether the material may transmit light through the surface; where it does not, all
+    /// scattered light leaves on `wo`'s side of the shading normal.
+    pub transmissive: bool,
 }
 
 /// One training sample from a finished path: at `vertex`, direction `wi` was sampled with
@@ -193,13 +197,13 @@ fn vec3_at(w: &[f32], i: usize) -> Vec3 {
 }
 
 impl Record for GuideRecord {
-    const WORDS: usize = 20;
+    const WORDS: usize = 21;
     fn write(&self, out: &mut Vec<f32>) {
         let v = &self.vertex;
         for x in [v.p, v.n, v.wo, self.wi, self.bsdf_cos, self.radiance] {
             out.extend_from_slice(&x.to_array());
         }
-        out.extend_from_slice(&[self.pdf, self.bsdf_pdf]);
+        out.extend_from_slice(&[self.pdf, self.bsdf_pdf, f32::from(u8::from(v.transmissive))]);
     }
     fn read(w: &[f32]) -> Self {
         GuideRecord {
@@ -207,6 +211,7 @@ impl Record for GuideRecord {
                 p: vec3_at(w, 0),
                 n: vec3_at(w, 3),
                 wo: vec3_at(w, 6),
+                transmissive: w[20] != 0.0,
             },
             wi: vec3_at(w, 9),
             bsdf_cos: vec3_at(w, 12),
@@ -261,7 +266,7 @@ impl Record for GuideRecord {
 ///     }
 /// }
 ///
-/// let v = GuideVertex { p: Vec3::ZERO, n: Vec3::Z, wo: Vec3::Z };
+/// let v = GuideVertex { p: Vec3::ZERO, n: Vec3::Z, wo: Vec3::Z, transmissive: false };
 /// assert_eq!(Uniform.selection_probability(&v), 0.5);
 /// assert_eq!(Uniform.sample(&v, Vec2::splat(0.5)).unwrap().pdf, Uniform.pdf(&v, Vec3::X));
 /// ```

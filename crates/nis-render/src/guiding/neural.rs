@@ -2,11 +2,13 @@
 //!
 //! At every path vertex a normalizing flow gives the density of incident directions:
 //! a 2-D flow on [0, 1]² over world-space cylindrical coordinates
-//! `((cos θ + 1)/2, φ/2π)` of the direction ([`dir_to_cylindrical`], the map PPG's quadtrees
-//! use too; area-preserving, so
-//! `p(ω) = q(u, v)/4π`), conditioned on the one-blob-encoded vertex position (normalised
+//! `((cos θ + 1)/2, φ/2π)` of the direction ([`super::dir_to_cylindrical`], the map PPG's
+//! quadtrees use too; area-preserving, so `p(ω) = q(u, v)/4π`), or, with
+//! [`GuideFrame::Local`], over the hemisphere of the vertex's local frame where the material
+//! is opaque (`(cos θ, φ/2π)`, `p(ω) = q/2π`, nothing below the surface; see
+//! [`super::directions`]), conditioned on the one-blob-encoded vertex position (normalised
 //! to the scene box), outgoing direction and shading normal (both in cylindrical
-//! coordinates). A second, small network predicts the selection probability `c(x, ω_o)` of
+//! coordinates; `ω_o` in the local frame with [`GuideFrame::Local`]). A second, small network predicts the selection probability `c(x, ω_o)` of
 //! the one-sample mixture `c·p_flow + (1 − c)·p_bsdf`, kept in `[c_min, 1 − c_min]` so both
 //! techniques always have a share.
 //!
@@ -42,7 +44,7 @@
 use std::collections::VecDeque;
 
 use glam::{Vec2, Vec3};
-use nis::flow::{Density, Direction, Flow, FlowConfig};
+use nis::flow::{Bijection, Density, Direction, Flow, FlowConfig};
 use nis::kernels::elementwise::{one_blob, relu};
 use nis::kernels::{dense, CHUNK_ROWS};
 use nis::nn::mlp::MlpTape;
@@ -54,8 +56,9 @@ use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
 use super::{
-    cylindrical_to_dir, dir_to_cylindrical, Guide, GuideRecord, GuideSample, GuideStatistics,
-    GuideVertex, PdfQuery, SampleQuery, COUNT_WORDS,
+    directions::{DirectionMap, GuideFrame},
+    Guide, GuideRecord, GuideSample, GuideStatistics, GuideVertex, PdfQuery, SampleQuery,
+    COUNT_WORDS,
 };
 use crate::bvh::Aabb;
 use crate::geometry::luminance;
@@ -71,9 +74,6 @@ const SELECTION_SEED_SALT: u64 = 0x005e_1ec7;
 /// draws its batches from a stream of its own, disjoint from the weights' streams above (whose
 /// salts use only the low bits).
 const PHASE_SEED_SHIFT: u32 = 32;
-
-/// 1/(4π): the Jacobian of the cylindrical map from [0, 1]² to the sphere.
-const INV_FOUR_PI: f32 = 1.0 / (4.0 * std::f32::consts::PI);
 
 /// Which divergence the guide minimises.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
@@ -92,6 +92,9 @@ pub enum GuideLoss {
 pub struct NisGuideConfig {
     /// The divergence to minimise.
     pub loss: GuideLoss,
+    /// The frame of the flow's directions: world-space on the sphere, or the vertex's local
+    /// frame, on the hemisphere where the material is opaque (docs/GUIDING.md compares them).
+    pub frame: GuideFrame,
     /// The coupling transform of the flow.
     pub transform: TransformKind,
     /// Coupling layers of the flow.
@@ -198,6 +201,7 @@ impl Default for NisGuideConfig {
     fn default() -> Self {
         NisGuideConfig {
             loss: GuideLoss::Kl,
+            frame: GuideFrame::World,
             transform: TransformKind::Quadratic { bins: 32 },
             couplings: 2,
             hidden_layers: 2,
@@ -232,6 +236,8 @@ pub struct Sample {
     pdf: f32,
     /// The BSDF's density of the direction.
     bsdf_pdf: f32,
+    /// Solid-angle density per unit density on the square of the vertex's map.
+    jacobian: f32,
 }
 
 /// The records of a training pass, in the order they were made, of which only the newest `cap`
@@ -256,10 +262,17 @@ impl PassSamples {
 }
 
 impl super::Record for Sample {
-    const WORDS: usize = CONTEXT_SCALARS + 5;
+    const WORDS: usize = CONTEXT_SCALARS + 6;
     fn write(&self, out: &mut Vec<f32>) {
         out.extend_from_slice(&self.context);
-        out.extend_from_slice(&[self.x[0], self.x[1], self.f, self.pdf, self.bsdf_pdf]);
+        out.extend_from_slice(&[
+            self.x[0],
+            self.x[1],
+            self.f,
+            self.pdf,
+            self.bsdf_pdf,
+            self.jacobian,
+        ]);
     }
     fn read(w: &[f32]) -> Self {
         let c = CONTEXT_SCALARS;
@@ -271,6 +284,7 @@ impl super::Record for Sample {
             f: w[c + 2],
             pdf: w[c + 3],
             bsdf_pdf: w[c + 4],
+            jacobian: w[c + 5],
         }
     }
 }
@@ -328,6 +342,15 @@ pub struct TrainingStats {
     pub loss: f64,
     /// Wall-clock seconds the training phase took.
     pub seconds: f64,
+    /// Share of the flow's probability mass below the surface (directions on the other side
+    /// of the shading normal than `ω_o`) at the last batch's vertices, from one flow sample per
+    /// record drawn after the phase's steps (0 by construction in the local frame, whose
+    /// hemisphere map has no point below the surface).
+    pub below_surface: f64,
+    /// The one selection probability that would minimise the KL divergence of the mixture on
+    /// the last batch, with the flow as it is after the phase (the best constant the selection
+    /// network could have learned; compare [`TrainingStats::mean_selection`]).
+    pub best_constant_selection: f64,
 }
 
 /// The neural guide: a conditional flow plus a selection network, trained while rendering.
@@ -534,10 +557,26 @@ impl NisGuide {
         &self.history
     }
 
-    fn context_scalars(&self, v: &GuideVertex) -> [f32; CONTEXT_SCALARS] {
+    /// The map of `v`'s directions in the configured frame.
+    fn map(&self, v: &GuideVertex) -> DirectionMap {
+        DirectionMap::in_frame(v, self.config.frame)
+    }
+
+    /// Position in the scene box; in the world frame `ω_o` and the shading normal in world
+    /// cylindrical coordinates; in the local frame `ω_o` on the hemisphere map (it always lies
+    /// on the normal's side) and the frame's normal. (Whether a local map is the hemisphere's
+    /// or the sphere's is not an input: position and normal tell the surfaces apart.)
+    fn context_scalars(&self, v: &GuideVertex, map: &DirectionMap) -> [f32; CONTEXT_SCALARS] {
         let p = ((v.p - self.origin) * self.inv_extent).clamp(Vec3::ZERO, Vec3::ONE);
-        let wo = dir_to_cylindrical(v.wo);
-        let n = dir_to_cylindrical(v.n);
+        let (wo, n) = match self.config.frame {
+            GuideFrame::World => (super::dir_to_cylindrical(v.wo), v.n),
+            GuideFrame::Local => {
+                let wo = map.to_local(v.wo);
+                let wo = Vec2::new(wo.z.clamp(0.0, 1.0), super::dir_to_cylindrical(wo).y);
+                (wo, map.normal())
+            }
+        };
+        let n = super::dir_to_cylindrical(n);
         [p.x, p.y, p.z, wo.x, wo.y, n.x, n.y]
     }
 
@@ -585,7 +624,7 @@ impl NisGuide {
         let mut base = Vec::with_capacity(n);
         let mut mix = Vec::with_capacity(n);
         for (i, s) in batch.iter().enumerate() {
-            let q = (evaluated.log_q[i].exp() as f32) * INV_FOUR_PI;
+            let q = (evaluated.log_q[i].exp() as f32) * s.jacobian;
             let q_mix = c[i] * q + (1.0 - c[i]) * s.bsdf_pdf;
             let w = match self.config.loss {
                 GuideLoss::Kl => f64::from(s.f) / f64::from(s.pdf),
@@ -642,6 +681,78 @@ impl NisGuide {
         Ok(stats)
     }
 
+    /// The constant `c ∈ [c_min, 1 − c_min]` that maximises `Σ (F/p_s)·ln(c·p_flow + (1 − c)·p_bsdf)`
+    /// over `batch`, a concave function of `c`: bisection on its derivative.
+    fn best_constant_selection(&self, batch: &[Sample]) -> f64 {
+        let scalars: Vec<_> = batch.iter().map(|s| s.context).collect();
+        let context = self.encode(&scalars);
+        let x: Vec<f32> = batch.iter().flat_map(|s| s.x).collect();
+        let Ok(log_q) = self.flow.log_density(&x, Some(&context)) else {
+            return f64::NAN;
+        };
+        let terms: Vec<(f64, f64, f64)> = batch
+            .iter()
+            .zip(&log_q)
+            .map(|(s, l)| {
+                let q = l.exp() * f64::from(s.jacobian);
+                (f64::from(s.f) / f64::from(s.pdf), q, f64::from(s.bsdf_pdf))
+            })
+            .filter(|(w, q, _)| w.is_finite() && q.is_finite())
+            .collect();
+        let slope = |c: f64| -> f64 {
+            terms
+                .iter()
+                .map(|&(w, q, b)| w * (q - b) / (c * q + (1.0 - c) * b).max(f64::MIN_POSITIVE))
+                .sum()
+        };
+        let m = f64::from(self.config.min_selection);
+        let (mut lo, mut hi) = (m, 1.0 - m);
+        if slope(lo) <= 0.0 {
+            return lo;
+        }
+        if slope(hi) >= 0.0 {
+            return hi;
+        }
+        for _ in 0..40 {
+            let mid = 0.5 * (lo + hi);
+            if slope(mid) > 0.0 {
+                lo = mid;
+            } else {
+                hi = mid;
+            }
+        }
+        0.5 * (lo + hi)
+    }
+
+    /// Share of the flow's samples at the opaque vertices of `batch` that fall below the surface.
+    fn below_surface(&self, batch: &[Sample], rng: &mut Pcg64Mcg) -> f64 {
+        let scalars: Vec<_> = batch.iter().map(|s| s.context).collect();
+        let context = self.encode(&scalars);
+        let z: Vec<f32> = (0..2 * batch.len()).map(|_| rng.random()).collect();
+        let Ok((x, _)) = self.flow.inverse(&z, Some(&context)) else {
+            return f64::NAN;
+        };
+        if self.config.frame == GuideFrame::Local {
+            // Nothing of the hemisphere map lies below the surface (and the sphere map is for
+            // the transmissive vertices, where the other side is not below the surface).
+            return 0.0;
+        }
+        // World frame: the context holds ω_o and the normal in world coordinates (this counts
+        // transmission at transmissive vertices too; the built-in scenes have none).
+        let below = batch
+            .iter()
+            .zip(x.chunks_exact(2))
+            .filter(|(s, x)| {
+                let c = &s.context;
+                let n = super::cylindrical_to_dir(Vec2::new(c[5], c[6]));
+                let wo = super::cylindrical_to_dir(Vec2::new(c[3], c[4]));
+                let wi = super::cylindrical_to_dir(Vec2::new(x[0], x[1]));
+                n.dot(wi) * n.dot(wo) < 0.0
+            })
+            .count();
+        below as f64 / batch.len().max(1) as f64
+    }
+
     /// Train on the records of the pass that just ended (the `iteration`-th training phase).
     fn train(&mut self, new: PassSamples, iteration: usize) {
         let start = std::time::Instant::now();
@@ -678,6 +789,8 @@ impl NisGuide {
             }
             self.trained = true;
             self.refresh_context_weights();
+            stats.below_surface = self.below_surface(&batch, &mut rng);
+            stats.best_constant_selection = self.best_constant_selection(&batch);
         }
         stats.seconds = start.elapsed().as_secs_f64();
         self.history.push(stats);
@@ -705,7 +818,10 @@ impl Guide for NisGuide {
             .par_chunks_mut(CHUNK_ROWS * width)
             .zip(vertices.par_chunks(CHUNK_ROWS))
             .for_each(|(out, v)| {
-                let scalars: Vec<f32> = v.iter().flat_map(|v| self.context_scalars(v)).collect();
+                let scalars: Vec<f32> = v
+                    .iter()
+                    .flat_map(|v| self.context_scalars(v, &self.map(v)))
+                    .collect();
                 let mut enc = vec![0.0f32; v.len() * cdim];
                 one_blob(&scalars, k, &mut enc);
                 dense::forward(
@@ -769,7 +885,7 @@ impl Guide for NisGuide {
 
     fn sample_batch(
         &self,
-        _: &[GuideVertex],
+        vertices: &[GuideVertex],
         cache: &Vec<f32>,
         queries: &[SampleQuery],
         out: &mut [Option<GuideSample>],
@@ -780,31 +896,49 @@ impl Guide for NisGuide {
             .flat_map(|q| [q.u.x.clamp(0.0, 1.0), q.u.y.clamp(0.0, 1.0)])
             .collect();
         let log_q = self.flow_cached(cache, &vertex, &mut x, Direction::Inverse);
-        for (i, o) in out.iter_mut().enumerate() {
-            let pdf = (log_q[i].exp() as f32) * INV_FOUR_PI;
+        for ((o, q), (x, log_q)) in out
+            .iter_mut()
+            .zip(queries)
+            .zip(x.chunks_exact(2).zip(log_q))
+        {
+            let map = self.map(&vertices[q.vertex]);
+            let pdf = (log_q.exp() as f32) * map.jacobian();
             *o = (pdf.is_finite() && pdf > 0.0).then(|| GuideSample {
-                wi: cylindrical_to_dir(Vec2::new(x[2 * i], x[2 * i + 1])),
+                wi: map.to_direction(Vec2::new(x[0], x[1])),
                 pdf,
             });
         }
     }
 
+    /// Directions below the surface of an opaque vertex have density zero (the flow is asked
+    /// about the square's centre in their place, and its answer discarded).
     fn pdf_batch(
         &self,
-        _: &[GuideVertex],
+        vertices: &[GuideVertex],
         cache: &Vec<f32>,
         queries: &[PdfQuery],
         out: &mut [f32],
     ) {
         let vertex: Vec<usize> = queries.iter().map(|q| q.vertex).collect();
-        let mut x: Vec<f32> = queries
+        let squares: Vec<(Option<Vec2>, f32)> = queries
             .iter()
-            .flat_map(|q| dir_to_cylindrical(q.wi).to_array())
+            .map(|q| {
+                let map = self.map(&vertices[q.vertex]);
+                (map.to_square(q.wi), map.jacobian())
+            })
+            .collect();
+        let mut x: Vec<f32> = squares
+            .iter()
+            .flat_map(|(x, _)| x.unwrap_or(Vec2::splat(0.5)).to_array())
             .collect();
         let log_q = self.flow_cached(cache, &vertex, &mut x, Direction::Forward);
-        for (o, l) in out.iter_mut().zip(log_q) {
-            let pdf = (l.exp() as f32) * INV_FOUR_PI;
-            *o = if pdf.is_finite() { pdf } else { 0.0 };
+        for ((o, l), (x, jacobian)) in out.iter_mut().zip(log_q).zip(squares) {
+            let pdf = (l.exp() as f32) * jacobian;
+            *o = if x.is_some() && pdf.is_finite() {
+                pdf
+            } else {
+                0.0
+            };
         }
     }
 
@@ -820,12 +954,17 @@ impl Guide for NisGuide {
         let before = pass.samples.len();
         pass.samples.extend(records.iter().filter_map(|r| {
             let f = luminance(r.radiance * r.bsdf_cos);
+            let map = self.map(&r.vertex);
+            // A direction off the map carries no light at an opaque vertex (its F is 0 up to
+            // the rounding of the two frames).
+            let x = map.to_square(r.wi)?;
             (f > 0.0 && f.is_finite() && r.pdf > 0.0).then(|| Sample {
-                context: self.context_scalars(&r.vertex),
-                x: dir_to_cylindrical(r.wi).to_array(),
+                context: self.context_scalars(&r.vertex, &map),
+                x: x.to_array(),
                 f,
                 pdf: r.pdf,
                 bsdf_pdf: r.bsdf_pdf,
+                jacobian: map.jacobian(),
             })
         }));
         pass.seen += pass.samples.len() - before;
@@ -850,16 +989,19 @@ impl Guide for NisGuide {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use nis::flow::Bijection;
 
     /// A guide whose networks have random weights everywhere (a new one is uniform), and
     /// vertices, directions and random numbers to query it with.
-    fn random_guide() -> (NisGuide, Vec<GuideVertex>, Vec<Vec3>, Vec<Vec2>) {
+    fn random_guide(frame: GuideFrame) -> (NisGuide, Vec<GuideVertex>, Vec<Vec3>, Vec<Vec2>) {
         let bounds = Aabb {
             min: Vec3::new(-1.0, 0.0, -2.0),
             max: Vec3::new(1.0, 2.0, 0.5),
         };
-        let mut guide = NisGuide::new(bounds, NisGuideConfig::default()).unwrap();
+        let config = NisGuideConfig {
+            frame,
+            ..NisGuideConfig::default()
+        };
+        let mut guide = NisGuide::new(bounds, config).unwrap();
         let mut rng = Pcg64Mcg::seed_from_u64(11);
         for p in guide.flow.params_mut() {
             *p += 0.3 * (rng.random::<f32>() - 0.5);
@@ -883,6 +1025,7 @@ mod tests {
                 ),
                 n: unit(),
                 wo: unit(),
+                transmissive: i % 3 == 0,
             })
             .collect();
         let dirs = (0..1500).map(|_| unit()).collect();
@@ -894,16 +1037,25 @@ mod tests {
 
     /// The flow's own (uncached) context rows of the vertices `rows` refers to.
     fn uncached_context(guide: &NisGuide, v: &[GuideVertex], rows: &[usize]) -> Vec<f32> {
-        let s: Vec<_> = rows.iter().map(|&r| guide.context_scalars(&v[r])).collect();
+        let s: Vec<_> = rows
+            .iter()
+            .map(|&r| guide.context_scalars(&v[r], &guide.map(&v[r])))
+            .collect();
         guide.encode(&s)
     }
 
     #[test]
     fn cached_queries_match_the_uncached_flow() {
+        for frame in [GuideFrame::World, GuideFrame::Local] {
+            cached_queries_match_the_uncached_flow_in(frame);
+        }
+    }
+
+    fn cached_queries_match_the_uncached_flow_in(frame: GuideFrame) {
         // f32 rounding: the first layers' sums run in another order (≈ 1e-6 relative per
         // activation); through two conditioners and the splines' exponentials the density
         // moves by far less than 1e-4 relative, the sampled point by less than 1e-5.
-        let (guide, vertices, dirs, us) = random_guide();
+        let (guide, vertices, dirs, us) = random_guide(frame);
         let mut cache = Vec::new();
         guide.prepare(&vertices, &mut cache);
         let rows: Vec<usize> = (0..dirs.len())
@@ -918,17 +1070,35 @@ mod tests {
             .collect();
         let mut cached = vec![0.0; queries.len()];
         guide.pdf_batch(&vertices, &cache, &queries, &mut cached);
-        let x: Vec<f32> = dirs
+        let maps: Vec<DirectionMap> = rows.iter().map(|&r| guide.map(&vertices[r])).collect();
+        let squares: Vec<Option<Vec2>> = maps
             .iter()
-            .flat_map(|&w| dir_to_cylindrical(w).to_array())
+            .zip(&dirs)
+            .map(|(m, &w)| m.to_square(w))
+            .collect();
+        let x: Vec<f32> = squares
+            .iter()
+            .flat_map(|x| x.unwrap_or(Vec2::splat(0.5)).to_array())
             .collect();
         let log_q = guide.flow.log_density(&x, Some(&context)).unwrap();
-        let mut spread = 0.0f64;
-        for (c, l) in cached.iter().zip(&log_q) {
-            let plain = l.exp() * f64::from(INV_FOUR_PI);
+        let (mut spread, mut below) = (0.0f64, 0);
+        for (((c, l), m), x) in cached.iter().zip(&log_q).zip(&maps).zip(&squares) {
+            if x.is_none() {
+                // Below the surface of an opaque vertex.
+                assert_eq!(*c, 0.0);
+                below += 1;
+                continue;
+            }
+            let plain = l.exp() * f64::from(m.jacobian());
             spread = spread.max((l.exp() - 1.0).abs());
             assert!((f64::from(*c) / plain - 1.0).abs() < 1e-4, "{c} vs {plain}");
         }
+        // In the local frame, a third of the random directions lie below an opaque surface.
+        assert_eq!(
+            frame == GuideFrame::Local,
+            below > 100,
+            "{below} below the surface"
+        );
         // The random weights must make the density far from uniform, or the test shows little.
         assert!(spread > 0.5, "density hardly varies: {spread}");
 
@@ -943,9 +1113,9 @@ mod tests {
         let (x, log_det) = guide.flow.inverse(&z, Some(&context)).unwrap();
         for (i, s) in samples.iter().enumerate() {
             let s = s.expect("a sample");
-            let plain = cylindrical_to_dir(Vec2::new(x[2 * i], x[2 * i + 1]));
+            let plain = maps[i].to_direction(Vec2::new(x[2 * i], x[2 * i + 1]));
             assert!((s.wi - plain).length() < 1e-4, "{:?} vs {plain:?}", s.wi);
-            let pdf = (-log_det[i]).exp() * f64::from(INV_FOUR_PI);
+            let pdf = (-log_det[i]).exp() * f64::from(maps[i].jacobian());
             assert!(
                 (f64::from(s.pdf) / pdf - 1.0).abs() < 1e-4,
                 "{} vs {pdf}",
@@ -972,6 +1142,7 @@ mod tests {
             f: 1.5e-7 * i as f32,
             pdf: 0.3,
             bsdf_pdf: f32::MIN_POSITIVE,
+            jacobian: 0.125,
         };
         let bits = |s: &Sample| {
             let mut w = Vec::new();

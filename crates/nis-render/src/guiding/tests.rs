@@ -42,6 +42,7 @@ fn vertex(p: Vec3) -> GuideVertex {
         p,
         n: Vec3::Z,
         wo: Vec3::Z,
+        transmissive: false,
     }
 }
 

@@ -206,7 +206,7 @@ pub struct Lookup {
 /// use nis_render::guiding::{gmm::{Gmm, GmmConfig}, Guide, GuideVertex};
 /// let scene = nis_render::scenes::load("cornell-box").unwrap();
 /// let guide = Gmm::new(scene.bounds(), GmmConfig::default());
-/// let v = GuideVertex { p: glam::Vec3::ZERO, n: glam::Vec3::Z, wo: glam::Vec3::Z };
+/// let v = GuideVertex { p: glam::Vec3::ZERO, n: glam::Vec3::Z, wo: glam::Vec3::Z, transmissive: false };
 /// // Untrained: uniform over the hemisphere, nothing below it.
 /// let up = glam::Vec3::new(0.6, 0.0, 0.8);
 /// assert!((guide.pdf(&v, up) - 0.5 / std::f32::consts::PI).abs() < 1e-6);

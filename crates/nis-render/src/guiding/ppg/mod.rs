@@ -159,7 +159,7 @@ impl Deposit {
 /// use nis_render::guiding::{ppg::{Ppg, PpgConfig}, Guide, GuideVertex};
 /// let scene = nis_render::scenes::load("cornell-box").unwrap();
 /// let guide = Ppg::new(scene.bounds(), PpgConfig::default());
-/// let v = GuideVertex { p: glam::Vec3::ZERO, n: glam::Vec3::Z, wo: glam::Vec3::Z };
+/// let v = GuideVertex { p: glam::Vec3::ZERO, n: glam::Vec3::Z, wo: glam::Vec3::Z, transmissive: false };
 /// // Untrained: uniform over the sphere.
 /// assert!((guide.pdf(&v, glam::Vec3::X) - 0.25 / std::f32::consts::PI).abs() < 1e-6);
 /// ```
@@ -350,6 +350,7 @@ mod tests {
                 p,
                 n: Vec3::Z,
                 wo: Vec3::Z,
+                transmissive: false,
             },
             wi,
             pdf: 1.0,
