@@ -53,17 +53,38 @@ fn trained_guide(iterations: usize, records: usize) -> NisGuide {
         ..NisGuideConfig::default()
     };
     let mut guide = NisGuide::new(unit_box(), config).unwrap();
-    let mut rng = Pcg64Mcg::seed_from_u64(5);
+    train_on_lobe(&mut guide, vertex(), lobe(), None, 5, iterations, records);
+    guide
+}
+
+/// Trains `guide` for `iterations` passes of `records` records at `v` whose incident radiance is
+/// a von Mises–Fisher lobe (κ = 20) around `lobe`, directions drawn uniformly over the sphere, or
+/// over the hemisphere around `up` when given.
+fn train_on_lobe(
+    guide: &mut NisGuide,
+    v: GuideVertex,
+    lobe: Vec3,
+    up: Option<Vec3>,
+    seed: u64,
+    iterations: usize,
+    records: usize,
+) {
+    let pdf = if up.is_some() { 2.0 } else { 1.0 } / FOUR_PI;
+    let mut rng = Pcg64Mcg::seed_from_u64(seed);
     for _ in 0..iterations {
         let batch: Vec<GuideRecord> = (0..records)
             .map(|_| {
-                let wi = cylindrical_to_dir(Vec2::new(rng.random(), rng.random()));
-                let l = (20.0 * (wi.dot(lobe()) - 1.0)).exp();
+                let w = cylindrical_to_dir(Vec2::new(rng.random(), rng.random()));
+                let wi = match up {
+                    Some(up) if w.dot(up) < 0.0 => -w,
+                    _ => w,
+                };
+                let l = (20.0 * (wi.dot(lobe) - 1.0)).exp();
                 GuideRecord {
-                    vertex: vertex(),
+                    vertex: v,
                     wi,
-                    pdf: 1.0 / FOUR_PI,
-                    bsdf_pdf: 1.0 / FOUR_PI,
+                    pdf,
+                    bsdf_pdf: pdf,
                     bsdf_cos: Rgb::ONE,
                     radiance: Rgb::splat(l),
                 }
@@ -73,7 +94,6 @@ fn trained_guide(iterations: usize, records: usize) -> NisGuide {
         guide.accumulate(&batch, &mut samples);
         guide.update(samples);
     }
-    guide
 }
 
 /// The guide's densities of `dirs` at [`vertex`], in one batch.
@@ -403,27 +423,7 @@ fn trained_opaque_guide() -> (NisGuide, Vec3) {
         ..NisGuideConfig::default()
     };
     let mut guide = NisGuide::new(unit_box(), config).unwrap();
-    let mut rng = Pcg64Mcg::seed_from_u64(6);
-    for _ in 0..4 {
-        let batch: Vec<GuideRecord> = (0..16_384)
-            .map(|_| {
-                let w = cylindrical_to_dir(Vec2::new(rng.random(), rng.random()));
-                let wi = if w.dot(up) < 0.0 { -w } else { w };
-                let l = (20.0 * (wi.dot(lobe) - 1.0)).exp();
-                GuideRecord {
-                    vertex: v,
-                    wi,
-                    pdf: 2.0 / FOUR_PI,
-                    bsdf_pdf: 2.0 / FOUR_PI,
-                    bsdf_cos: Rgb::ONE,
-                    radiance: Rgb::splat(l),
-                }
-            })
-            .collect();
-        let mut samples = PassSamples::default();
-        guide.accumulate(&batch, &mut samples);
-        guide.update(samples);
-    }
+    train_on_lobe(&mut guide, v, lobe, Some(up), 6, 4, 16_384);
     (guide, lobe)
 }
 
