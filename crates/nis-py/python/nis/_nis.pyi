@@ -197,7 +197,7 @@ class Flow:
         *,
         evals: int = 100_000,
         loss: str = "kl",
-        batch: int = 256,
+        batch: int = 1024,
         learning_rate: float = 5e-3,
     ) -> List[float]:
         """Learns |f|/∫|f| on-policy (loss "kl" or "chi2"); returns each batch's Var(f/q)/F²."""

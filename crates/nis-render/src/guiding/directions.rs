@@ -37,6 +37,10 @@ use serde::{Deserialize, Serialize};
 
 use super::{cylindrical_to_dir, dir_to_cylindrical, GuideVertex, ONE_MINUS_EPSILON};
 
+/// How far below the surface, in cos θ, a direction still counts as on the horizon: a few
+/// f32 roundings of a unit vector's components.
+const HORIZON: f32 = 1e-6;
+
 /// 1/(2π): solid-angle density per unit density on the square, hemisphere map.
 pub const INV_TWO_PI: f32 = 0.5 * std::f32::consts::FRAC_1_PI;
 /// 1/(4π): solid-angle density per unit density on the square, sphere map.
@@ -131,11 +135,14 @@ impl DirectionMap {
         if !self.hemisphere {
             return Some(dir_to_cylindrical(l));
         }
-        if l.z < 0.0 {
+        // A direction sampled at the horizon (cos θ = u ≈ 0) comes back from the world frame
+        // with a rounding error of the order of 10⁻⁷ in its normal component, of either sign:
+        // read as the horizon, so that the density of what was sampled is what was sampled with.
+        if l.z < -HORIZON {
             return None;
         }
         Some(Vec2::new(
-            l.z.min(ONE_MINUS_EPSILON),
+            l.z.clamp(0.0, ONE_MINUS_EPSILON),
             dir_to_cylindrical(l).y,
         ))
     }

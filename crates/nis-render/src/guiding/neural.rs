@@ -724,19 +724,20 @@ impl NisGuide {
         0.5 * (lo + hi)
     }
 
-    /// Share of the flow's samples at the opaque vertices of `batch` that fall below the surface.
+    /// Share of the flow's samples at the vertices of `batch` that fall on the other side of the
+    /// surface from ω_o (below it at opaque vertices).
     fn below_surface(&self, batch: &[Sample], rng: &mut Pcg64Mcg) -> f64 {
+        if self.config.frame == GuideFrame::Local {
+            // Nothing of the hemisphere map lies below the surface (and the sphere map is for
+            // the transmissive vertices, where the other side is not below the surface).
+            return 0.0;
+        }
         let scalars: Vec<_> = batch.iter().map(|s| s.context).collect();
         let context = self.encode(&scalars);
         let z: Vec<f32> = (0..2 * batch.len()).map(|_| rng.random()).collect();
         let Ok((x, _)) = self.flow.inverse(&z, Some(&context)) else {
             return f64::NAN;
         };
-        if self.config.frame == GuideFrame::Local {
-            // Nothing of the hemisphere map lies below the surface (and the sphere map is for
-            // the transmissive vertices, where the other side is not below the surface).
-            return 0.0;
-        }
         // World frame: the context holds ω_o and the normal in world coordinates (this counts
         // transmission at transmissive vertices too; the built-in scenes have none).
         let below = batch

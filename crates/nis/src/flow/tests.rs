@@ -410,7 +410,15 @@ fn chunks_depend_on_the_batch_alone_and_spread_small_batches() {
     for rows in [64usize, 100, 512, 1000, 1024, 3000, 4096, 5000] {
         let c = chunk_rows(rows);
         assert!(c.is_power_of_two() && (MIN_CHUNK_ROWS..=CHUNK_ROWS).contains(&c));
-        assert!(rows.div_ceil(c) >= 8 || c == MIN_CHUNK_ROWS || c == CHUNK_ROWS);
+        // Between MIN_CHUNKS/2 and MIN_CHUNKS items (the item a power of two) unless an item
+        // would fall below MIN_CHUNK_ROWS rows or rise above CHUNK_ROWS.
+        let (items, most) = (rows.div_ceil(c), crate::kernels::MIN_CHUNKS);
+        assert!(
+            (c == MIN_CHUNK_ROWS && items <= most)
+                || (c == CHUNK_ROWS && items > most / 2)
+                || (most / 2 < items && items <= most),
+            "{rows} rows in {items} chunks of {c}"
+        );
     }
 }
 

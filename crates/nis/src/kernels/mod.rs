@@ -18,10 +18,11 @@ pub const MIN_CHUNK_ROWS: usize = 64;
 /// Work items a batch is cut into when it is too small for [`CHUNK_ROWS`]-row chunks.
 pub const MIN_CHUNKS: usize = 8;
 
-/// Rows per parallel work item in a batch of `rows` rows: [`CHUNK_ROWS`] for large batches, and
-/// small batches (a training batch of 1024 points) cut into at least [`MIN_CHUNKS`] items of a
-/// power of two ≥ [`MIN_CHUNK_ROWS`] rows, so every core gets work. A function of `rows` alone,
-/// so results do not depend on the number of threads.
+/// Rows per parallel work item in a batch of `rows` rows: [`CHUNK_ROWS`] for large batches;
+/// smaller batches are cut into [`MIN_CHUNKS`]/2 to [`MIN_CHUNKS`] items of a power of two of
+/// rows, but never fewer than [`MIN_CHUNK_ROWS`] rows (a training batch of 1024 points: 8 items
+/// of 128; of 256: 4 of 64), so the cores share a training step. A function of `rows` alone, so results do not depend
+/// on the number of threads.
 pub fn chunk_rows(rows: usize) -> usize {
     rows.div_ceil(MIN_CHUNKS)
         .next_power_of_two()

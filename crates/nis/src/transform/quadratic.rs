@@ -217,6 +217,7 @@ impl LaneKnots {
         // A block of lanes at a time, its running sums and counts in registers across the bins
         // (bin-major over all 64 lanes, every sum went through memory and back).
         const BLOCK: usize = 8;
+        const _: () = assert!(LANES % BLOCK == 0);
         for l0 in (0..LANES).step_by(BLOCK) {
             let (mut y, mut x, mut c) = ([0.0f64; BLOCK], [0.0f64; BLOCK], [0.0f64; BLOCK]);
             for j in 1..k {

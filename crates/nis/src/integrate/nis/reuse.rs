@@ -51,8 +51,8 @@
 //! batches predict it: their flow share was drawn from uniform latents z (redrawn from a copy
 //! of the training stream), so post-stratifying its weights on the final phase's own grid
 //! (Cochran's post-stratification) measures what stratifying them would have given. A batch of
-//! ~1000 points on the ~7000 hypercubes of a budget of 10⁶ leaves few hypercubes with two
-//! points, but each such pair is an unbiased sample of its hypercube's variance, so the last
+//! 256 points (the default) on the ~7000 hypercubes of a budget of 10⁶ leaves few hypercubes
+//! with two points, but each such pair is an unbiased sample of its hypercube's variance, so the last
 //! batches are pooled until they hold [`POST_STRATIFIED_DF`] within-hypercube degrees of
 //! freedom: g_b = (i.i.d. over within-hypercube mean square) × the allocation's gain estimated
 //! from the pairs' differences ([`PostStratified::allocation_gain`]). Both come from batches
@@ -72,9 +72,7 @@
 use std::collections::VecDeque;
 
 use super::super::diagnostics::WeightTail;
-use super::super::result::{
-    bytes_to_f64s, f64s_to_bytes, Accumulator, ComponentAccumulator, Iteration, Moments,
-};
+use super::super::result::{Accumulator, ComponentAccumulator, Iteration, Moments};
 use super::strata::{self, PostStratified};
 use super::NisConfig;
 use crate::comm::Comm;
@@ -284,16 +282,11 @@ impl TrainingPieces {
         if let Some(s) = self.stratified.as_mut() {
             let n_q = z.len() / s.grid.len();
             let flow_share: Vec<f64> = w.iter().step_by(self.k).take(n_q).copied().collect();
-            let mine = strata::post_stratified(z, &flow_share, &s.grid);
-            // Summed over the ranks in rank order: every rank predicts the same.
-            let mut all = PostStratified::default();
-            for part in comm.all_gather_bytes(f64s_to_bytes(&mine.to_array())) {
-                let a = bytes_to_f64s(&part);
-                all = all.plus(PostStratified::from_array(
-                    a.try_into().expect("as many sums on every rank"),
-                ));
-            }
-            s.recent.push_back(all);
+            let mut sums = strata::post_stratified(z, &flow_share, &s.grid).to_array();
+            // Plain sums, reduced in the fixed order of the rank count: every rank predicts the
+            // same, with one reduction instead of a gather of every rank's sums.
+            comm.sum_f64(&mut sums);
+            s.recent.push_back(PostStratified::from_array(sums));
             // Drop the oldest while the rest hold enough degrees of freedom.
             while s.recent.len() > 1
                 && s.recent.iter().skip(1).map(|p| p.within_df).sum::<f64>() >= POST_STRATIFIED_DF
