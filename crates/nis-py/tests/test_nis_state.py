@@ -77,7 +77,13 @@ def test_unweighted_points_follow_the_integrand(trained):
     n = 20_000
     x, w = trained.unweighted(gauss_np, n)
     assert x.shape == (n, 2) and w.shape == (n,)
-    assert np.all(np.abs(w) >= 1) and np.mean(w == 1.0) > 0.99
+    assert np.all(np.abs(w) >= 1)
+    # The robust maximum leaves overweight = 1e-3 (the default) of the calibration batch's weight
+    # mass above it; in this sample the excess mass Σ(|w| − 1)/Σ|w| estimates the same share from
+    # the ~1% of points that are overweight (~200: a relative error of about a quarter), so 3×
+    # the share is far outside its noise. How many points are overweight is not bounded by it.
+    excess = (np.abs(w) - 1).sum() / np.abs(w).sum()
+    assert 0 <= excess < 3e-3
     # Points of exp(−|x − ½|²/α²), α = 0.2: per coordinate mean ½ and variance α²/2 (the cube
     # cuts the tails at 3.5σ, which changes neither at this precision).
     var = 0.2**2 / 2
