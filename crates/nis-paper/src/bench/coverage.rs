@@ -16,7 +16,7 @@ use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
 use crate::error::{Error, Result};
-use crate::image::figure::{draw_legend, figure_error, has_font, png_bytes};
+use crate::image::figure::{canvas, draw_legend, figure_error, has_font, png_bytes};
 use crate::report;
 
 /// A budget and how many seeds run at it.
@@ -462,8 +462,7 @@ fn plot(cells: &[Cell], budgets: &[Budget]) -> Result<image::RgbImage> {
     ];
     let mut buffer = vec![255u8; (W * H * 3) as usize];
     {
-        let root = BitMapBackend::with_buffer(&mut buffer, (W, H)).into_drawing_area();
-        root.fill(&WHITE).map_err(figure_error)?;
+        let root = canvas(&mut buffer, (W, H), None)?;
         let panels = root.split_evenly((1, budgets.len()));
         for (panel, b) in panels.iter().zip(budgets) {
             let here: Vec<&Cell> = cells.iter().filter(|c| c.evals == b.evals).collect();

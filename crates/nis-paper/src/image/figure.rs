@@ -204,6 +204,21 @@ pub fn side_by_side(p: &[f64], q: &[f64], nx: usize, ny: usize, model: &str) -> 
     Ok(image)
 }
 
+/// A white drawing area over an RGB `buffer` of `size` pixels, with `title` across its top when
+/// a font is available (the frame every plot here starts from).
+pub fn canvas<'a>(
+    buffer: &'a mut [u8],
+    size: (u32, u32),
+    title: Option<&str>,
+) -> Result<DrawingArea<BitMapBackend<'a>, plotters::coord::Shift>> {
+    let root = BitMapBackend::with_buffer(buffer, size).into_drawing_area();
+    root.fill(&WHITE).map_err(figure_error)?;
+    match title {
+        Some(title) if has_font() => root.titled(title, ("sans-serif", 22)).map_err(figure_error),
+        _ => Ok(root),
+    }
+}
+
 /// The learning curves: D_KL(p‖q) (left) and Var(f/q)/F² (right) against training step, on
 /// logarithmic axes, one line per named series.
 pub fn curves(title: &str, series: &[(String, Vec<CurvePoint>)]) -> Result<RgbImage> {
@@ -211,14 +226,7 @@ pub fn curves(title: &str, series: &[(String, Vec<CurvePoint>)]) -> Result<RgbIm
     const H: u32 = 420;
     let mut buffer = vec![255u8; (W * H * 3) as usize];
     {
-        let root = BitMapBackend::with_buffer(&mut buffer, (W, H)).into_drawing_area();
-        root.fill(&WHITE).map_err(figure_error)?;
-        let root = if has_font() {
-            root.titled(title, ("sans-serif", 22))
-                .map_err(figure_error)?
-        } else {
-            root
-        };
+        let root = canvas(&mut buffer, (W, H), Some(title))?;
         let panels = root.split_evenly((1, 2));
         let last_step = series
             .iter()
@@ -283,14 +291,7 @@ pub fn error_time(title: &str, panels: &[ErrorTimePanel]) -> Result<RgbImage> {
     let w = 360 * panels.len().max(1) as u32 + 40;
     let mut buffer = vec![255u8; (w * H * 3) as usize];
     {
-        let root = BitMapBackend::with_buffer(&mut buffer, (w, H)).into_drawing_area();
-        root.fill(&WHITE).map_err(figure_error)?;
-        let root = if has_font() {
-            root.titled(title, ("sans-serif", 22))
-                .map_err(figure_error)?
-        } else {
-            root
-        };
+        let root = canvas(&mut buffer, (w, H), Some(title))?;
         let areas = root.split_evenly((1, panels.len().max(1)));
         for (area, (scene, budget, series)) in areas.iter().zip(panels) {
             let all = || series.iter().flat_map(|(_, c)| c.iter().copied());

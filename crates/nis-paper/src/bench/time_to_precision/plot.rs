@@ -6,7 +6,7 @@ use plotters::prelude::*;
 
 use super::{CellResult, Contender};
 use crate::error::Result;
-use crate::image::figure::{draw_legend, figure_error, has_font, png_bytes};
+use crate::image::figure::{canvas, draw_legend, figure_error, has_font, png_bytes};
 
 const COLOURS: [RGBColor; 4] = [
     RGBColor(31, 119, 180),
@@ -42,8 +42,7 @@ pub fn png(cell: &CellResult, targets: &[f64]) -> Result<Vec<u8>> {
     };
     let mut buffer = vec![255u8; (W * H * 3) as usize];
     {
-        let root = BitMapBackend::with_buffer(&mut buffer, (W, H)).into_drawing_area();
-        root.fill(&WHITE).map_err(figure_error)?;
+        let root = canvas(&mut buffer, (W, H), None)?;
         let mut builder = ChartBuilder::on(&root);
         builder.margin(14);
         if has_font() {
