@@ -507,8 +507,17 @@ const ROUNDING: f64 = 1e-12;
 /// "± 0", whoever computed them.
 fn check_representable(estimate: f64, variance: f64, max_abs_w: f64) -> Result<()> {
     let square = max_abs_w * max_abs_w;
-    if estimate.is_finite() && variance.is_finite() && (max_abs_w == 0.0 || square.is_normal()) {
+    let representable = max_abs_w == 0.0 || square.is_normal();
+    if estimate.is_finite() && variance.is_finite() && representable {
         return Ok(());
+    }
+    if representable {
+        // Weights whose squares fit cannot make this: a defect of the estimator, named as such.
+        return Err(Error::Config(format!(
+            "an iteration's estimate {estimate:e} or its variance {variance:e} is not finite \
+             although its weights f/q (up to {max_abs_w:.3e}) are representable: please report \
+             this with the command that gave it"
+        )));
     }
     Err(Error::Config(format!(
         "the weights f/q reach {max_abs_w:.3e}: the variance of their mean does not fit in an \

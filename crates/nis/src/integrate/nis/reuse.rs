@@ -169,6 +169,11 @@ struct StratifiedFinal {
 /// (a few dozen of 1024) are pooled.
 const POST_STRATIFIED_DF: f64 = 2000.0;
 
+/// The smallest share a training batch enters with (a prediction that the final phase is
+/// ~10⁹ times better per evaluation, e.g. a stratified one on an integrand its grid resolves
+/// whole, gives shares down to 10⁻¹⁷⁰).
+const MIN_SHARE: f64 = 1e-9;
+
 /// Consecutive kept batches: Σ a_b·mean_b, Σ a_b²·Cov_b, Σ a_b and their evaluations.
 struct Group {
     weighted_mean: Vec<f64>,
@@ -237,7 +242,15 @@ impl TrainingPieces {
         };
         let later = ((self.batches - 1 - index) as u64 * self.batch) as f64;
         let n = self.batch as f64 * rho;
-        self.remaining * n / (n + later + self.final_evals as f64 * self.final_gain())
+        let share = self.remaining * n / (n + later + self.final_evals as f64 * self.final_gain());
+        // A share this small adds nothing measurable, and its square (a group's variance is
+        // Σ a_b²·V_b / (Σ a_b)²) may leave f64's range: 0/0. Dropping it is decided from
+        // earlier batches too, so the estimate stays unbiased.
+        if share >= MIN_SHARE {
+            share
+        } else {
+            0.0
+        }
     }
 
     /// g: the predicted variance per evaluation of a training batch over the final phase's: 1
@@ -524,6 +537,55 @@ mod tests {
             "stratified: only {covered}/{reps} within 2σ"
         );
         assert!(ours.abs() <= 3.5, "stratified: mean error {ours:.2} σ");
+    }
+
+    #[test]
+    fn a_final_phase_predicted_vastly_better_takes_everything_without_a_nan() {
+        // Weights 1 in every other hypercube of the final phase's grid and ~10⁻¹⁰⁰ in the rest
+        // (as an integrand that vanishes off a ridge): the post-stratified prediction makes the
+        // final phase ~10²⁰⁰ times better, so a batch's share would be ~10⁻²⁰⁰, its square 0,
+        // and a group's variance 0/0 (found on ridge d8 at 10⁶ evaluations, seed 3: shares of
+        // 10⁻¹⁷⁰). Such batches must not enter.
+        let config = NisConfig {
+            batch: 256,
+            reuse_training: 0.5,
+            final_iterations: 4,
+            stratify: Some(Default::default()),
+            ..NisConfig::default()
+        };
+        let (batches, final_evals) = (20, 4 * 4096);
+        let mut pieces = TrainingPieces::plan(&config, 1, batches, final_evals, 1).unwrap();
+        let cells = pieces.stratified.as_ref().unwrap().grid[0] as f64;
+        assert!(cells > 1.0, "{cells}");
+        let mut rng = rand_pcg::Pcg64Mcg::seed_from_u64(3);
+        for b in 0..batches {
+            let z: Vec<f32> = (0..256).map(|_| rng.random::<f32>()).collect();
+            let w: Vec<f64> = z
+                .iter()
+                .map(|&z| {
+                    let cube = (z as f64 * cells).floor() as u64;
+                    if cube % 2 == 0 {
+                        1e-100 * z as f64
+                    } else {
+                        1.0
+                    }
+                })
+                .collect();
+            pieces.observe_weights(b, &w, &z, &Comm::default());
+        }
+        assert!(pieces.final_gain() > 1e160, "{}", pieces.final_gain());
+        let mut acc = Accumulator::new(final_evals);
+        let mut comps = ComponentAccumulator::new(1);
+        pieces.add_to(&mut acc, &mut comps).unwrap();
+        for _ in 0..4 {
+            let w = skewed(4096, 1.0, &mut rng);
+            acc.add_weights(&w).unwrap();
+        }
+        let shares = pieces.shares(&acc.iterations);
+        assert_eq!(shares.len(), 4, "no training group entered: {shares:?}");
+        assert!((shares.iter().sum::<f64>() - 1.0).abs() < 1e-12);
+        let r = acc.finish_weighted(&shares, 0, Instant::now(), Vec::new());
+        assert!(r.value.is_finite() && r.std_err.is_finite() && r.std_err > 0.0);
     }
 
     #[test]
