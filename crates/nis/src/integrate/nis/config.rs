@@ -14,6 +14,10 @@ use crate::transform::TransformKind;
 #[serde(default, deny_unknown_fields)]
 pub struct NisConfig {
     /// The flow (its `dim` is set from the integrator's; its `seed` initialises the weights).
+    /// By default 2×32 conditioners on a one-blob encoding of 8 bins per input and
+    /// piecewise-quadratic couplings of 16 bins: 8 encoding bins rather than 16 gave lower
+    /// variance per evaluation on most of the suite at 3.2·10⁵ and 10⁶ evaluations, in ~10% less
+    /// time (docs/BENCHMARKS.md, "One-blob bins").
     pub flow: FlowConfig,
     /// The training loss.
     pub loss: Loss,
@@ -93,7 +97,7 @@ impl Default for NisConfig {
                 transform: TransformKind::Quadratic { bins: 16 },
                 hidden_layers: 2,
                 hidden_width: 32,
-                blob_bins: 16,
+                blob_bins: 8,
                 ..FlowConfig::default()
             },
             loss: Loss::Kl,
