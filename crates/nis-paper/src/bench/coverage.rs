@@ -234,17 +234,22 @@ pub fn run_cell(f: &Builtin, method: &str, budget: Budget) -> Cell {
     cell
 }
 
-/// The cache file of a cell.
-/// NIS cells also name whether the final phase stratifies the flow's latent (the default since
-/// it does), so that a cache of cells run before cannot pass for them.
+/// The cache file of a cell, named by the cell and by a hash of the default settings of every
+/// method, so that cells run under other defaults (a training batch, an encoding, i.i.d.
+/// latents) cannot pass for this run's. (The hash changes with the Rust version too; that only
+/// costs a rerun.)
 fn cache_path(dir: &Path, name: &str, dim: usize, method: &str, budget: Budget) -> PathBuf {
-    let mut method = method.replace("χ²", "chi2").to_lowercase();
-    if method.starts_with("nis") && Settings::default().nis.stratify.is_some() {
-        method.push_str("-strata");
-    }
+    use std::hash::{DefaultHasher, Hash, Hasher};
+    let method = method.replace("χ²", "chi2").to_lowercase();
+    let mut hasher = DefaultHasher::new();
+    serde_json::to_string(&Settings::default())
+        .expect("settings serialise")
+        .hash(&mut hasher);
     dir.join(format!(
-        "{name}-d{dim}-{method}-{}-{}.json",
-        budget.evals, budget.seeds
+        "{name}-d{dim}-{method}-{}-{}-{:016x}.json",
+        budget.evals,
+        budget.seeds,
+        hasher.finish()
     ))
 }
 
