@@ -53,7 +53,7 @@ def parse_settings(items):
     return named
 
 
-def main(argv=None, defaults=None):
+def main():
     root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--section", required=True, help="id of the docs section it writes")
@@ -65,9 +65,7 @@ def main(argv=None, defaults=None):
     ap.add_argument("--cells", nargs="+", default=CELLS)
     ap.add_argument("--nis", default=os.path.join(root, "target", "release", "nis"))
     ap.add_argument("--docs", default=os.path.join(root, "docs", "BENCHMARKS.md"))
-    if defaults:
-        ap.set_defaults(**defaults)
-    args = ap.parse_args(argv)
+    args = ap.parse_args()
     named = parse_settings(args.settings)
     base = named[0][0]
     rows = []

@@ -169,9 +169,9 @@ struct StratifiedFinal {
 /// (a few dozen of 1024) are pooled.
 const POST_STRATIFIED_DF: f64 = 2000.0;
 
-/// The smallest share a training batch enters with (a prediction that the final phase is
-/// ~10⁹ times better per evaluation, e.g. a stratified one on an integrand its grid resolves
-/// whole, gives shares down to 10⁻¹⁷⁰).
+/// The smallest share a training batch enters with. Smaller ones come from a predicted final
+/// phase ~10⁹ or more times better per evaluation (ridge d8: pairs in a hypercube mostly two
+/// zeros, a gain of ~10¹⁷⁰, shares of ~10⁻¹⁷⁰ whose squares underflow).
 const MIN_SHARE: f64 = 1e-9;
 
 /// Consecutive kept batches: Σ a_b·mean_b, Σ a_b²·Cov_b, Σ a_b and their evaluations.
