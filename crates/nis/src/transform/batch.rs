@@ -1,24 +1,24 @@
 //! Lanes for the batched spline kernels: a group of [`LANES`] scalars is processed together, each
-//! per-bin quantity stored as one `[f64; LANES]` (structure of arrays: bin-major, scalar-minor),
+//! per-bin quantity stored as one `[f32; LANES]` (structure of arrays: bin-major, scalar-minor),
 //! so every step of knot normalisation, bin search and evaluation is a fixed-width loop over the
 //! lanes that the compiler vectorises (the kernels calling these are compiled per instruction set
 //! with `multiversion`; everything here is `#[inline(always)]` to be compiled with them).
 //!
 //! The lane helpers repeat the scalar helpers' arithmetic operation for operation, in the same
-//! order (sums start, as `Iterator::sum` does, from −0), so a batched kernel gives bit for bit the
+//! order (sums start from −0, as the scalar code's folds and `Iterator::sum` do), so a batched kernel gives bit for bit the
 //! numbers of the per-scalar reference: the integrator's results do not depend on which ran.
 
 use crate::kernels::elementwise::exp;
 
-/// Scalars per group: one AVX-512 register of f64, two of AVX2.
+/// Scalars per group: four AVX-512 registers of f32, eight of AVX2.
 pub(crate) const LANES: usize = 64;
 
 /// One value per lane.
-pub(crate) type Lane = [f64; LANES];
+pub(crate) type Lane = [f32; LANES];
 
 /// A lane of `v`.
 #[inline(always)]
-pub(crate) fn splat(v: f64) -> Lane {
+pub(crate) fn splat(v: f32) -> Lane {
     [v; LANES]
 }
 
@@ -53,13 +53,9 @@ pub(crate) fn exponentials(logits: &[[f32; LANES]], out: &mut [Lane]) -> Lane {
     }
     // The exponentials in f32 first, then widened: in one loop the compiler matches the f64
     // stores' width and runs the f32 arithmetic four lanes at a time instead of eight.
-    let mut e = [0.0f32; LANES];
     for (o, row) in out.iter_mut().zip(logits) {
         for l in 0..LANES {
-            e[l] = exp(row[l] - max[l]);
-        }
-        for l in 0..LANES {
-            o[l] = e[l] as f64;
+            o[l] = exp(row[l] - max[l]);
         }
     }
     let mut sum = splat(-0.0);
@@ -73,10 +69,10 @@ pub(crate) fn exponentials(logits: &[[f32; LANES]], out: &mut [Lane]) -> Lane {
 
 /// [`super::softmax_floor`] per lane.
 #[inline(always)]
-pub(crate) fn softmax_floor(logits: &[[f32; LANES]], floor: f64, out: &mut [Lane]) {
+pub(crate) fn softmax_floor(logits: &[[f32; LANES]], floor: f32, out: &mut [Lane]) {
     let k = logits.len();
     let sum = exponentials(logits, &mut out[..k]);
-    let base = floor / k as f64;
+    let base = floor / k as f32;
     let mut scale = splat(0.0);
     for l in 0..LANES {
         scale[l] = (1.0 - floor) / sum[l];
@@ -93,11 +89,11 @@ pub(crate) fn softmax_floor(logits: &[[f32; LANES]], floor: f64, out: &mut [Lane
 pub(crate) fn softmax_floor_backward(
     out: &[Lane],
     g_out: &[Lane],
-    floor: f64,
+    floor: f32,
     g_logits: &mut [[f32; LANES]],
 ) {
     let k = g_logits.len();
-    let base = floor / k as f64;
+    let base = floor / k as f32;
     let inv = 1.0 / (1.0 - floor);
     let mut dot = splat(-0.0);
     for i in 0..k {
@@ -107,7 +103,7 @@ pub(crate) fn softmax_floor_backward(
     }
     for j in 0..k {
         for l in 0..LANES {
-            g_logits[j][l] = ((out[j][l] - base) * (g_out[j][l] - dot[l])) as f32;
+            g_logits[j][l] = (out[j][l] - base) * (g_out[j][l] - dot[l]);
         }
     }
 }
@@ -137,7 +133,7 @@ pub(crate) fn load(v: &[f64], first: usize) -> Lane {
     let n = v.len();
     let mut out = splat(0.0);
     for (l, o) in out.iter_mut().enumerate() {
-        *o = v[(first + l).min(n - 1)];
+        *o = v[(first + l).min(n - 1)] as f32;
     }
     out
 }
