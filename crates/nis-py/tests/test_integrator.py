@@ -229,8 +229,14 @@ def test_ctrl_c_interrupts_a_run_between_batches(gauss, threads):
         return gauss(x)
 
     integ = nis.Integrator(2, seed=0, threads=threads)
-    with pytest.raises(KeyboardInterrupt):
-        integ(f, evals=50_000_000)  # minutes if not interrupted
+    # Python's own handler, whatever the parent left: a process started in the background by a
+    # non-interactive shell inherits SIGINT ignored, and then Ctrl-C reaches nobody.
+    previous = signal.signal(signal.SIGINT, signal.default_int_handler)
+    try:
+        with pytest.raises(KeyboardInterrupt):
+            integ(f, evals=50_000_000)  # minutes if not interrupted
+    finally:
+        signal.signal(signal.SIGINT, previous)
     assert after[0] < 1000, "the run went on long after Ctrl-C"
 
 
