@@ -309,22 +309,46 @@ fn softmax_floor_backward(out: &[f64], g_out: &[f64], floor: f64, g_logits: &mut
     }
 }
 
+/// Element types with a per-thread scratch buffer (see [`with_scratch`]).
+trait Scratch: Copy + Default + 'static {
+    fn buffer() -> &'static std::thread::LocalKey<std::cell::RefCell<Vec<Self>>>;
+}
+
 thread_local! {
-    static SCRATCH: std::cell::RefCell<Vec<f64>> = const { std::cell::RefCell::new(Vec::new()) };
+    static SCRATCH_F64: std::cell::RefCell<Vec<f64>> = const { std::cell::RefCell::new(Vec::new()) };
+    static SCRATCH_F32: std::cell::RefCell<Vec<f32>> = const { std::cell::RefCell::new(Vec::new()) };
+}
+
+impl Scratch for f64 {
+    fn buffer() -> &'static std::thread::LocalKey<std::cell::RefCell<Vec<f64>>> {
+        &SCRATCH_F64
+    }
+}
+
+impl Scratch for f32 {
+    fn buffer() -> &'static std::thread::LocalKey<std::cell::RefCell<Vec<f32>>> {
+        &SCRATCH_F32
+    }
 }
 
 /// Runs `f` on a per-thread scratch buffer of `len` values (contents unspecified). Splines need a
 /// few arrays of K values per scalar; stack arrays of the maximum size would be zeroed on every
 /// call (kilobytes per scalar), and a heap allocation per call is worse. Not re-entrant.
 #[inline]
-fn with_scratch<R>(len: usize, f: impl FnOnce(&mut [f64]) -> R) -> R {
-    SCRATCH.with(|s| {
+fn with_scratch_of<E: Scratch, R>(len: usize, f: impl FnOnce(&mut [E]) -> R) -> R {
+    E::buffer().with(|s| {
         let mut v = s.borrow_mut();
         if v.len() < len {
-            v.resize(len, 0.0);
+            v.resize(len, E::default());
         }
         f(&mut v[..len])
     })
+}
+
+/// [`with_scratch_of`] in f64, the working precision of all but the piecewise-quadratic spline.
+#[inline]
+fn with_scratch<R>(len: usize, f: impl FnOnce(&mut [f64]) -> R) -> R {
+    with_scratch_of(len, f)
 }
 
 /// Bin edges 0, w₀, w₀ + w₁, …, 1 from bin widths (the last edge exactly 1).

@@ -10,7 +10,7 @@
 use multiversion::multiversion;
 
 use super::batch::{self, splat, Lane, LANES};
-use super::Transform;
+use super::{with_scratch_of, Transform};
 use crate::kernels::elementwise::exp;
 
 /// Smallest bin width as a fraction of the mean width 1/K: no bin collapses to zero.
@@ -162,22 +162,6 @@ fn softmax_floor_backward<R: Real>(out: &[R], g_out: &[R], floor: R, g_logits: &
     for j in 0..k {
         g_logits[j] = ((out[j] - base) * (g_out[j] - dot)).widen() as f32;
     }
-}
-
-thread_local! {
-    static SCRATCH32: std::cell::RefCell<Vec<f32>> = const { std::cell::RefCell::new(Vec::new()) };
-}
-
-/// [`super::with_scratch`] in f32.
-#[inline]
-fn with_scratch32<T>(len: usize, f: impl FnOnce(&mut [f32]) -> T) -> T {
-    SCRATCH32.with(|s| {
-        let mut v = s.borrow_mut();
-        if v.len() < len {
-            v.resize(len, 0.0);
-        }
-        f(&mut v[..len])
-    })
 }
 
 /// The per-scalar spline in precision `R`: [`Quadratic`]'s methods (R = f32) and the tests'
@@ -367,25 +351,25 @@ impl Transform for Quadratic {
     #[inline]
     fn forward(&self, p: &[f32], x: f64) -> (f64, f64) {
         let s = Spline { bins: self.bins };
-        let (y, q) = with_scratch32(s.scratch(), |buf| s.forward(p, x as f32, buf));
+        let (y, q) = with_scratch_of::<f32, _>(s.scratch(), |buf| s.forward(p, x as f32, buf));
         (y as f64, (q as f64).ln())
     }
 
     #[inline]
     fn inverse(&self, p: &[f32], y: f64) -> (f64, f64) {
         let s = Spline { bins: self.bins };
-        let (x, q) = with_scratch32(s.scratch(), |buf| s.inverse(p, y as f32, buf));
+        let (x, q) = with_scratch_of::<f32, _>(s.scratch(), |buf| s.inverse(p, y as f32, buf));
         (x as f64, (q as f64).ln())
     }
 
     fn bin_edges(&self, p: &[f32]) -> Vec<f64> {
         let s = Spline { bins: self.bins };
-        with_scratch32(s.scratch(), |buf| s.bin_edges(p, buf))
+        with_scratch_of::<f32, _>(s.scratch(), |buf| s.bin_edges(p, buf))
     }
 
     fn backward(&self, p: &[f32], x: f64, g_y: f64, g_log_det: f64, g_p: &mut [f32]) -> f64 {
         let s = Spline { bins: self.bins };
-        with_scratch32(s.scratch(), |buf| {
+        with_scratch_of::<f32, _>(s.scratch(), |buf| {
             s.backward(p, x as f32, g_y as f32, g_log_det as f32, g_p, buf) as f64
         })
     }
