@@ -5,8 +5,9 @@
 //! with `multiversion`; everything here is `#[inline(always)]` to be compiled with them).
 //!
 //! The lane helpers repeat the scalar helpers' arithmetic operation for operation, in the same
-//! order (sums start from −0, as the scalar code's folds and `Iterator::sum` do), so a batched kernel gives bit for bit the
-//! numbers of the per-scalar reference: the integrator's results do not depend on which ran.
+//! order (sums start from −0, as the scalar code's folds do), so a batched kernel gives bit for
+//! bit the numbers of the per-scalar reference: the integrator's results do not depend on which
+//! ran.
 
 use crate::kernels::elementwise::exp;
 
@@ -42,7 +43,8 @@ pub(crate) fn gather(
     }
 }
 
-/// e^(l − max l) per lane, as [`super::exponentials`]: writes `out` and returns the lanes' sums.
+/// e^(l − max l) per lane, as [`super::Real::exponentials`] for f32: writes `out` and returns
+/// the lanes' sums.
 #[inline(always)]
 pub(crate) fn exponentials(logits: &[[f32; LANES]], out: &mut [Lane]) -> Lane {
     let mut max = [f32::NEG_INFINITY; LANES];
@@ -51,8 +53,6 @@ pub(crate) fn exponentials(logits: &[[f32; LANES]], out: &mut [Lane]) -> Lane {
             max[l] = max[l].max(row[l]);
         }
     }
-    // The exponentials in f32 first, then widened: in one loop the compiler matches the f64
-    // stores' width and runs the f32 arithmetic four lanes at a time instead of eight.
     for (o, row) in out.iter_mut().zip(logits) {
         for l in 0..LANES {
             o[l] = exp(row[l] - max[l]);
@@ -67,7 +67,7 @@ pub(crate) fn exponentials(logits: &[[f32; LANES]], out: &mut [Lane]) -> Lane {
     sum
 }
 
-/// [`super::softmax_floor`] per lane.
+/// [`super::softmax_floor`] per lane, in f32.
 #[inline(always)]
 pub(crate) fn softmax_floor(logits: &[[f32; LANES]], floor: f32, out: &mut [Lane]) {
     let k = logits.len();

@@ -273,45 +273,30 @@ impl Transform for TransformKind {
     }
 }
 
-/// Softmax with a floor: `out_k = floor/K + (1 − floor)·softmax(logits)_k`, so the entries sum to
-/// one and none is below `floor` times their mean. Shifting by the maximum keeps exp finite.
-///
-/// The exponentials run through the vectorised f32 kernel
-/// ([`crate::kernels::elementwise::exp_shifted`]); its relative error (< 4e-7) only perturbs which
-/// spline the parameters denote, and forward, inverse and gradient all see the same one. (libm's
-/// scalar f64 exp took a third of the integrator's time.)
-fn softmax_floor(logits: &[f32], floor: f64, out: &mut [f64]) {
-    let k = logits.len();
-    let sum = exponentials(logits, &mut out[..k]);
-    let scale = (1.0 - floor) / sum;
-    let base = floor / k as f64;
-    for o in out[..k].iter_mut() {
-        *o = base + scale * *o;
-    }
-}
-
-/// e^(l − max l) for each logit into `out`; returns their sum.
-#[inline]
-fn exponentials(logits: &[f32], out: &mut [f64]) -> f64 {
-    let max = logits.iter().fold(f32::NEG_INFINITY, |m, &l| m.max(l));
-    crate::kernels::elementwise::exp_shifted(logits, max, out)
-}
-
-/// Reverse mode of [`softmax_floor`]: from ∂L/∂out and out, writes ∂L/∂logits.
-fn softmax_floor_backward(out: &[f64], g_out: &[f64], floor: f64, g_logits: &mut [f32]) {
-    let k = g_logits.len();
-    let base = floor / k as f64;
-    let inv = 1.0 / (1.0 - floor);
-    // softmax σ_k = (out_k − base)/(1 − floor); ∂L/∂logit_j = (1 − floor)·σ_j·(g_j − Σ σ_k g_k).
-    let dot: f64 = (0..k).map(|i| (out[i] - base) * inv * g_out[i]).sum();
-    for j in 0..k {
-        g_logits[j] = ((out[j] - base) * (g_out[j] - dot)) as f32;
-    }
-}
-
-/// Element types with a per-thread scratch buffer (see [`with_scratch`]).
-trait Scratch: Copy + Default + 'static {
-    fn buffer() -> &'static std::thread::LocalKey<std::cell::RefCell<Vec<Self>>>;
+/// The arithmetic a spline's per-scalar code runs in: f64 for all but the piecewise-quadratic
+/// spline, f32 for it (the precision of its lanes, so that both give the same bits).
+trait Real:
+    Copy
+    + Default
+    + PartialOrd
+    + std::ops::Add<Output = Self>
+    + std::ops::Sub<Output = Self>
+    + std::ops::Mul<Output = Self>
+    + std::ops::Div<Output = Self>
+    + std::ops::Neg<Output = Self>
+    + std::ops::AddAssign
+    + std::ops::SubAssign
+    + 'static
+{
+    fn of(v: f64) -> Self;
+    fn widen(self) -> f64;
+    fn sqrt(self) -> Self;
+    fn max(self, other: Self) -> Self;
+    fn clamp01(self) -> Self;
+    /// e^(l − max l) for each logit into `out`; returns their sum (from −0, in order).
+    fn exponentials(logits: &[f32], out: &mut [Self]) -> Self;
+    /// This thread's scratch buffer of the type (see [`with_scratch_of`]).
+    fn scratch() -> &'static std::thread::LocalKey<std::cell::RefCell<Vec<Self>>>;
 }
 
 thread_local! {
@@ -319,15 +304,85 @@ thread_local! {
     static SCRATCH_F32: std::cell::RefCell<Vec<f32>> = const { std::cell::RefCell::new(Vec::new()) };
 }
 
-impl Scratch for f64 {
-    fn buffer() -> &'static std::thread::LocalKey<std::cell::RefCell<Vec<f64>>> {
-        &SCRATCH_F64
+/// The methods f32 and f64 share, by name.
+macro_rules! real_common {
+    ($t:ty, $scratch:ident) => {
+        #[inline(always)]
+        fn of(v: f64) -> $t {
+            v as $t
+        }
+        #[inline(always)]
+        fn widen(self) -> f64 {
+            self as f64
+        }
+        #[inline(always)]
+        fn sqrt(self) -> $t {
+            <$t>::sqrt(self)
+        }
+        #[inline(always)]
+        fn max(self, other: $t) -> $t {
+            <$t>::max(self, other)
+        }
+        #[inline(always)]
+        fn clamp01(self) -> $t {
+            self.clamp(0.0, 1.0)
+        }
+        fn scratch() -> &'static std::thread::LocalKey<std::cell::RefCell<Vec<$t>>> {
+            &$scratch
+        }
+    };
+}
+
+impl Real for f64 {
+    real_common!(f64, SCRATCH_F64);
+
+    /// Through the vectorised f32 kernel ([`crate::kernels::elementwise::exp_shifted`]); its
+    /// relative error (< 4e-7) only perturbs which spline the parameters denote, and forward,
+    /// inverse and gradient all see the same one. (libm's scalar f64 exp took a third of the
+    /// integrator's time.)
+    #[inline]
+    fn exponentials(logits: &[f32], out: &mut [f64]) -> f64 {
+        let max = logits.iter().fold(f32::NEG_INFINITY, |m, &l| m.max(l));
+        crate::kernels::elementwise::exp_shifted(logits, max, out)
     }
 }
 
-impl Scratch for f32 {
-    fn buffer() -> &'static std::thread::LocalKey<std::cell::RefCell<Vec<f32>>> {
-        &SCRATCH_F32
+impl Real for f32 {
+    real_common!(f32, SCRATCH_F32);
+
+    /// The same f32 exponentials as [`Real::exponentials`] for f64, kept in f32, summed as the
+    /// lanes sum them ([`batch::exponentials`]).
+    #[inline]
+    fn exponentials(logits: &[f32], out: &mut [f32]) -> f32 {
+        let max = logits.iter().fold(f32::NEG_INFINITY, |m, &l| m.max(l));
+        for (o, &l) in out.iter_mut().zip(logits) {
+            *o = crate::kernels::elementwise::exp(l - max);
+        }
+        out[..logits.len()].iter().fold(-0.0, |s, &o| s + o)
+    }
+}
+
+/// Softmax with a floor: `out_k = floor/K + (1 − floor)·softmax(logits)_k`, so the entries sum to
+/// one and none is below `floor` times their mean. Shifting by the maximum keeps exp finite.
+fn softmax_floor<R: Real>(logits: &[f32], floor: R, out: &mut [R]) {
+    let k = logits.len();
+    let sum = R::exponentials(logits, &mut out[..k]);
+    let scale = (R::of(1.0) - floor) / sum;
+    let base = floor / R::of(k as f64);
+    for o in out[..k].iter_mut() {
+        *o = base + scale * *o;
+    }
+}
+
+/// Reverse mode of [`softmax_floor`]: from ∂L/∂out and out, writes ∂L/∂logits.
+fn softmax_floor_backward<R: Real>(out: &[R], g_out: &[R], floor: R, g_logits: &mut [f32]) {
+    let k = g_logits.len();
+    let base = floor / R::of(k as f64);
+    let inv = R::of(1.0) / (R::of(1.0) - floor);
+    // softmax σ_k = (out_k − base)/(1 − floor); ∂L/∂logit_j = (1 − floor)·σ_j·(g_j − Σ σ_k g_k).
+    let dot = (0..k).fold(R::of(-0.0), |d, i| d + (out[i] - base) * inv * g_out[i]);
+    for j in 0..k {
+        g_logits[j] = ((out[j] - base) * (g_out[j] - dot)).widen() as f32;
     }
 }
 
@@ -335,8 +390,8 @@ impl Scratch for f32 {
 /// few arrays of K values per scalar; stack arrays of the maximum size would be zeroed on every
 /// call (kilobytes per scalar), and a heap allocation per call is worse. Not re-entrant.
 #[inline]
-fn with_scratch_of<E: Scratch, R>(len: usize, f: impl FnOnce(&mut [E]) -> R) -> R {
-    E::buffer().with(|s| {
+fn with_scratch_of<E: Real, R>(len: usize, f: impl FnOnce(&mut [E]) -> R) -> R {
+    E::scratch().with(|s| {
         let mut v = s.borrow_mut();
         if v.len() < len {
             v.resize(len, E::default());

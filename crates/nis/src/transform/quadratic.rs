@@ -10,8 +10,7 @@
 use multiversion::multiversion;
 
 use super::batch::{self, splat, Lane, LANES};
-use super::{with_scratch_of, Transform};
-use crate::kernels::elementwise::exp;
+use super::{softmax_floor, softmax_floor_backward, with_scratch_of, Real, Transform};
 
 /// Smallest bin width as a fraction of the mean width 1/K: no bin collapses to zero.
 pub const MIN_BIN_WIDTH: f64 = 1e-3;
@@ -38,82 +37,6 @@ pub struct Quadratic {
     pub bins: usize,
 }
 
-/// The arithmetic the per-scalar code runs in: f32 for [`Quadratic`] (the lanes' precision, so
-/// that both give the same bits), f64 for the tests' reference.
-trait Real:
-    Copy
-    + PartialOrd
-    + std::ops::Add<Output = Self>
-    + std::ops::Sub<Output = Self>
-    + std::ops::Mul<Output = Self>
-    + std::ops::Div<Output = Self>
-    + std::ops::Neg<Output = Self>
-    + std::ops::AddAssign
-    + std::ops::SubAssign
-{
-    fn of(v: f64) -> Self;
-    fn widen(self) -> f64;
-    fn exp(self) -> Self;
-    fn sqrt(self) -> Self;
-    fn max(self, other: Self) -> Self;
-    fn clamp01(self) -> Self;
-}
-
-impl Real for f32 {
-    #[inline(always)]
-    fn of(v: f64) -> f32 {
-        v as f32
-    }
-    #[inline(always)]
-    fn widen(self) -> f64 {
-        self as f64
-    }
-    /// The lanes' vectorisable exp (relative error < 4e-7).
-    #[inline(always)]
-    fn exp(self) -> f32 {
-        exp(self)
-    }
-    #[inline(always)]
-    fn sqrt(self) -> f32 {
-        f32::sqrt(self)
-    }
-    #[inline(always)]
-    fn max(self, other: f32) -> f32 {
-        f32::max(self, other)
-    }
-    #[inline(always)]
-    fn clamp01(self) -> f32 {
-        self.clamp(0.0, 1.0)
-    }
-}
-
-impl Real for f64 {
-    #[inline(always)]
-    fn of(v: f64) -> f64 {
-        v
-    }
-    #[inline(always)]
-    fn widen(self) -> f64 {
-        self
-    }
-    #[inline(always)]
-    fn exp(self) -> f64 {
-        f64::exp(self)
-    }
-    #[inline(always)]
-    fn sqrt(self) -> f64 {
-        f64::sqrt(self)
-    }
-    #[inline(always)]
-    fn max(self, other: f64) -> f64 {
-        f64::max(self, other)
-    }
-    #[inline(always)]
-    fn clamp01(self) -> f64 {
-        self.clamp(0.0, 1.0)
-    }
-}
-
 /// Normalised widths W, vertex heights V and the pieces needed to differentiate them.
 struct Knots<'a, R> {
     w: &'a mut [R],
@@ -123,55 +46,14 @@ struct Knots<'a, R> {
     norm: R,
     /// The totals Σ W_k and Σ ½(V_k + V_{k+1})W_k as computed: one in exact arithmetic, off by
     /// the sums' rounding here. x and y are scaled by them, so that the spline as computed maps
-    /// [0, 1] onto [0, 1] and its density integrates to one (see [`Spline::forward`]).
+    /// [0, 1] onto [0, 1] and its density integrates to one (see [`Quadratic::forward_in`]).
     x_tot: R,
     y_tot: R,
 }
 
-/// e^(l − max l) for each logit into `out`, returning their sum (from −0, in order, as the lanes
-/// sum).
-#[inline]
-fn exponentials<R: Real>(logits: &[f32], out: &mut [R]) -> R {
-    let max = logits.iter().fold(f32::NEG_INFINITY, |m, &l| m.max(l));
-    for (o, &l) in out.iter_mut().zip(logits) {
-        *o = R::exp(R::of((l - max) as f64));
-    }
-    out[..logits.len()].iter().fold(R::of(-0.0), |s, &o| s + o)
-}
-
-/// Softmax with a floor, `out_k = floor/K + (1 − floor)·softmax(logits)_k`, as
-/// [`super::softmax_floor`] in the precision `R`.
-#[inline]
-fn softmax_floor<R: Real>(logits: &[f32], floor: R, out: &mut [R]) {
-    let k = logits.len();
-    let sum = exponentials(logits, &mut out[..k]);
-    let base = floor / R::of(k as f64);
-    let scale = (R::of(1.0) - floor) / sum;
-    for o in out[..k].iter_mut() {
-        *o = base + scale * *o;
-    }
-}
-
-/// Reverse mode of [`softmax_floor`] (as [`super::softmax_floor_backward`]).
-#[inline]
-fn softmax_floor_backward<R: Real>(out: &[R], g_out: &[R], floor: R, g_logits: &mut [f32]) {
-    let k = g_logits.len();
-    let base = floor / R::of(k as f64);
-    let inv = R::of(1.0) / (R::of(1.0) - floor);
-    let dot = (0..k).fold(R::of(-0.0), |d, i| d + (out[i] - base) * inv * g_out[i]);
-    for j in 0..k {
-        g_logits[j] = ((out[j] - base) * (g_out[j] - dot)).widen() as f32;
-    }
-}
-
-/// The per-scalar spline in precision `R`: [`Quadratic`]'s methods (R = f32) and the tests'
-/// f64 reference.
-#[derive(Clone, Copy, Debug)]
-struct Spline {
-    bins: usize,
-}
-
-impl Spline {
+/// The per-scalar spline in precision `R`: f32 for the [`Transform`] methods, f64 for the tests'
+/// reference.
+impl Quadratic {
     /// Scratch values one call needs: the knots and the backward pass's gradient buffers.
     fn scratch(&self) -> usize {
         5 * self.bins + 3
@@ -185,12 +67,12 @@ impl Spline {
         let (v, rest) = rest.split_at_mut(k + 1);
         let (e, rest) = rest.split_at_mut(k + 1);
         softmax_floor(&p[..k], R::of(MIN_BIN_WIDTH), w);
-        exponentials(&p[k..2 * k + 1], e);
+        R::exponentials(&p[k..2 * k + 1], e);
         let half = R::of(0.5);
         let norm = (0..k).fold(R::of(-0.0), |n, i| n + half * (e[i] + e[i + 1]) * w[i]);
-        let (m, one) = (R::of(MIN_DENSITY), R::of(1.0));
+        let m = R::of(MIN_DENSITY);
+        let scale = (R::of(1.0) - m) / norm;
         for j in 0..=k {
-            let scale = (one - m) / norm;
             v[j] = m + scale * e[j];
         }
         let (mut x_tot, mut y_tot) = (R::of(0.0), R::of(0.0));
@@ -235,7 +117,7 @@ impl Spline {
     /// [0, Σ W] and y from [0, Σ mass] (and the density by their ratio), so that C(1) = 1 and the
     /// density integrates to one as computed. In exact arithmetic both totals are one.
     #[inline]
-    fn forward<R: Real>(&self, p: &[f32], x: R, buf: &mut [R]) -> (R, R) {
+    fn forward_in<R: Real>(&self, p: &[f32], x: R, buf: &mut [R]) -> (R, R) {
         let (kn, _) = self.knots(p, buf);
         let xs = x * kn.x_tot;
         let (b, edge, cdf) = self.locate(&kn, xs, false);
@@ -248,7 +130,7 @@ impl Spline {
 
     /// x = C⁻¹(y) and C'(x).
     #[inline]
-    fn inverse<R: Real>(&self, p: &[f32], y: R, buf: &mut [R]) -> (R, R) {
+    fn inverse_in<R: Real>(&self, p: &[f32], y: R, buf: &mut [R]) -> (R, R) {
         let (kn, _) = self.knots(p, buf);
         let ys = y * kn.y_tot;
         let (b, edge, cdf) = self.locate(&kn, ys, true);
@@ -268,7 +150,7 @@ impl Spline {
     }
 
     /// The bin edges as the bin search sums them (the last exactly 1).
-    fn bin_edges<R: Real>(&self, p: &[f32], buf: &mut [R]) -> Vec<f64> {
+    fn bin_edges_in<R: Real>(&self, p: &[f32], buf: &mut [R]) -> Vec<f64> {
         let (kn, _) = self.knots(p, buf);
         let mut edges = vec![0.0];
         let mut x = R::of(0.0);
@@ -283,7 +165,7 @@ impl Spline {
     /// Reverse mode at x: writes ∂L/∂p into `g_p` and returns ∂L/∂x, for L with ∂L/∂y = `g_y`
     /// and ∂L/∂ln C' = `g_log_det`.
     #[inline]
-    fn backward<R: Real>(
+    fn backward_in<R: Real>(
         &self,
         p: &[f32],
         x: R,
@@ -350,27 +232,24 @@ impl Transform for Quadratic {
 
     #[inline]
     fn forward(&self, p: &[f32], x: f64) -> (f64, f64) {
-        let s = Spline { bins: self.bins };
-        let (y, q) = with_scratch_of::<f32, _>(s.scratch(), |buf| s.forward(p, x as f32, buf));
+        let (y, q) = with_scratch_of(self.scratch(), |buf| self.forward_in(p, x as f32, buf));
         (y as f64, (q as f64).ln())
     }
 
     #[inline]
     fn inverse(&self, p: &[f32], y: f64) -> (f64, f64) {
-        let s = Spline { bins: self.bins };
-        let (x, q) = with_scratch_of::<f32, _>(s.scratch(), |buf| s.inverse(p, y as f32, buf));
+        let (x, q) = with_scratch_of(self.scratch(), |buf| self.inverse_in(p, y as f32, buf));
         (x as f64, (q as f64).ln())
     }
 
     fn bin_edges(&self, p: &[f32]) -> Vec<f64> {
-        let s = Spline { bins: self.bins };
-        with_scratch_of::<f32, _>(s.scratch(), |buf| s.bin_edges(p, buf))
+        with_scratch_of(self.scratch(), |buf| self.bin_edges_in::<f32>(p, buf))
     }
 
     fn backward(&self, p: &[f32], x: f64, g_y: f64, g_log_det: f64, g_p: &mut [f32]) -> f64 {
-        let s = Spline { bins: self.bins };
-        with_scratch_of::<f32, _>(s.scratch(), |buf| {
-            s.backward(p, x as f32, g_y as f32, g_log_det as f32, g_p, buf) as f64
+        with_scratch_of(self.scratch(), |buf| {
+            let g_x = self.backward_in(p, x as f32, g_y as f32, g_log_det as f32, g_p, buf);
+            g_x as f64
         })
     }
 
@@ -395,7 +274,7 @@ impl Transform for Quadratic {
     }
 }
 
-/// The knots of a group of scalars ([`Spline::knots`] per lane) and their work buffers.
+/// The knots of a group of scalars ([`Quadratic::knots`] per lane) and their work buffers.
 struct LaneKnots {
     /// The group's parameters, transposed: `p[j][lane]`.
     p: Vec<[f32; LANES]>,
@@ -439,10 +318,13 @@ impl LaneKnots {
                 norm[l] += 0.5 * (self.e[i][l] + self.e[i + 1][l]) * self.w[i][l];
             }
         }
+        let mut scale = splat(0.0);
+        for l in 0..LANES {
+            scale[l] = (1.0 - MIN_V) / norm[l];
+        }
         for j in 0..=k {
             for l in 0..LANES {
-                let scale = (1.0 - MIN_V) / norm[l];
-                self.v[j][l] = MIN_V + scale * self.e[j][l];
+                self.v[j][l] = MIN_V + scale[l] * self.e[j][l];
             }
         }
         self.norm = norm;
@@ -457,7 +339,7 @@ impl LaneKnots {
         self.y_tot = y_tot;
     }
 
-    /// Each lane's bin (as [`Spline::locate`]): the last
+    /// Each lane's bin (as [`Quadratic::locate`]): the last
     /// bin whose left edge (in x) or left CDF value (in y) the point reaches. Edges and CDF values
     /// rise with the bin, so that is the count of edges reached: counted without a branch, then
     /// the bin's quantities are gathered lane by lane.
@@ -477,7 +359,7 @@ impl LaneKnots {
                 let (w0, v0, v1) = (&w[j - 1], &v[j - 1], &v[j]);
                 for l in 0..BLOCK {
                     let at = l0 + l;
-                    // Spline::locate's running sums and conditions, literally.
+                    // Quadratic::locate's running sums and conditions, literally.
                     y[l] += 0.5 * (v0[at] + v1[at]) * w0[at];
                     x[l] += w0[at];
                     let below = t[at] < y[l];
@@ -537,7 +419,7 @@ fn run_lanes(
         let kn = &mut scratch.knots;
         for first in (0..n).step_by(LANES) {
             kn.compute(p, stride, first, n);
-            // Scaled as in Spline::forward and Spline::inverse.
+            // Scaled as in Quadratic::forward_in and Quadratic::inverse_in.
             let mut ts = batch::load(t, first);
             let total = if inverse { &kn.y_tot } else { &kn.x_tot };
             for l in 0..LANES {
@@ -550,7 +432,7 @@ fn run_lanes(
                 for l in 0..LANES {
                     let (w, v0) = (at.w[l], at.v0[l]);
                     let dv = at.v1[l] - v0;
-                    // As Spline::inverse: the cancellation-free root of the bin's quadratic.
+                    // As Quadratic::inverse_in: the cancellation-free root of the bin's quadratic.
                     let a = 0.5 * dv * w;
                     let bq = v0 * w;
                     let c = (ts[l] - at.cdf[l]).max(0.0);
@@ -580,7 +462,7 @@ fn run_lanes(
     });
 }
 
-/// The batched [`Spline::backward`], [`LANES`] scalars at a time.
+/// The batched [`Quadratic::backward_in`], [`LANES`] scalars at a time.
 #[multiversion(targets = "simd")]
 fn backward_lanes(
     k: usize,
@@ -611,7 +493,7 @@ fn backward_lanes(
             let g_y = batch::load(g, first);
             let g_ld = batch::load(g_log_det, first);
             let at = kn.locate(&xl, false);
-            // The bin's own terms, as Spline::backward writes them.
+            // The bin's own terms, as Quadratic::backward_in writes them.
             let mut own = [[0.0f32; LANES]; 4];
             let (mut g_x, mut g_edge) = (splat(0.0), splat(0.0));
             for l in 0..LANES {
@@ -733,15 +615,16 @@ mod tests {
     use super::*;
     use crate::transform::testing;
 
-    /// The same spline computed in f64 (libm's exp): the reference the f32 transform is checked
-    /// against, itself checked by finite differences.
+    /// The same spline computed in f64 (from the same f32 exponentials, widened, as the other
+    /// f64 splines take them): the reference the f32 transform is checked against, itself
+    /// checked by finite differences.
     struct Reference {
         bins: usize,
     }
 
     impl Reference {
-        fn run<T>(&self, op: impl FnOnce(&Spline, &mut [f64]) -> T) -> T {
-            let s = Spline { bins: self.bins };
+        fn run<T>(&self, op: impl FnOnce(&Quadratic, &mut [f64]) -> T) -> T {
+            let s = Quadratic { bins: self.bins };
             op(&s, &mut vec![0.0; s.scratch()])
         }
     }
@@ -751,18 +634,18 @@ mod tests {
             2 * self.bins + 1
         }
         fn forward(&self, p: &[f32], x: f64) -> (f64, f64) {
-            let (y, q) = self.run(|s, buf| s.forward(p, x, buf));
+            let (y, q) = self.run(|s, buf| s.forward_in(p, x, buf));
             (y, q.ln())
         }
         fn inverse(&self, p: &[f32], y: f64) -> (f64, f64) {
-            let (x, q) = self.run(|s, buf| s.inverse(p, y, buf));
+            let (x, q) = self.run(|s, buf| s.inverse_in(p, y, buf));
             (x, q.ln())
         }
         fn bin_edges(&self, p: &[f32]) -> Vec<f64> {
-            self.run(|s, buf| s.bin_edges(p, buf))
+            self.run(|s, buf| s.bin_edges_in(p, buf))
         }
         fn backward(&self, p: &[f32], x: f64, g_y: f64, g_ld: f64, g_p: &mut [f32]) -> f64 {
-            self.run(|s, buf| s.backward(p, x, g_y, g_ld, g_p, buf))
+            self.run(|s, buf| s.backward_in(p, x, g_y, g_ld, g_p, buf))
         }
     }
 
@@ -783,10 +666,12 @@ mod tests {
 
     /// The f32 transform against the f64 reference at points away from the bin edges, on
     /// parameters of the scales a trained conditioner puts out. The two denote slightly different
-    /// splines. The f32 exp's relative error ε < 4e-7 reaches a width through its softmax (2ε), a
-    /// height through the normaliser N (3ε) and its own exp (ε), a bin's mass ½(V_b + V_{b+1})W_b
-    /// as 6ε; the f32 roundings of the K-term sums add ≤ (2K + 10)·u. So y, a sum of bin masses
-    /// ≤ 1, moves by at most δ = 6ε + (2K + 10)·u; the density at a point ≥ 1e-3 from the
+    /// splines. The two share their exponentials, so the f32 roundings of the K-term sums and of
+    /// what follows, ≤ (2K + 10)·u, separate them; δ also allows 6ε, the reach of the f32 exp's
+    /// relative error ε < 4e-7 into a bin's mass ½(V_b + V_{b+1})W_b (2ε through the widths'
+    /// softmax, 3ε through the normaliser N, ε its own), so the same bound holds against an f64
+    /// spline with exact exponentials. So y, a sum of bin masses ≤ 1, moves by at most
+    /// δ = 6ε + (2K + 10)·u; the density at a point ≥ 1e-3 from the
     /// nearest edge by its knots' relative error δ plus its slope times the edges' shift (≤ δ);
     /// each gradient entry by a like relative amount of the largest.
     #[test]
