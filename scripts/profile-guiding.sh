@@ -4,6 +4,7 @@
 # guide's stages and the kernels they run in.
 #
 #   scripts/profile-guiding.sh [SCENE] [RES] [SPP] [GUIDE]   (default: cornell-box 128 64 nis-kl)
+#   GUIDE_CONFIG='{"hidden_width": 16}' scripts/profile-guiding.sh   (a --guide-config for the render)
 #
 # Needs `perf` (Debian: apt-get install linux-perf) and a release build of `nis`.
 set -euo pipefail
@@ -13,7 +14,7 @@ nis=${NIS:-$root/target/release/nis}
 work=$(mktemp -d /tmp/profile-guiding-XXXXXX)
 trap 'rm -rf "$work"' EXIT
 perf record -q -F 250 --call-graph dwarf,32768 -o "$work/perf.data" \
-  "$nis" render "$scene" --res "$res" --spp "$spp" --guide "$guide" --threads 1 \
+  "$nis" render "$scene" --res "$res" --spp "$spp" --guide "$guide" --threads 1 ${GUIDE_CONFIG:+--guide-config "$GUIDE_CONFIG"} \
   --out "$work/render.exr" >/dev/null
 perf script -i "$work/perf.data" -F comm,tid,ip,sym 2>/dev/null > "$work/stacks.txt"
 python3 "$root/scripts/profile_breakdown.py" "$work/stacks.txt"

@@ -92,8 +92,32 @@ pub fn relu_backward(a: &[f32], g: &mut [f32]) {
 /// One-blob encoding (Müller et al. 2019, "Neural Importance Sampling", Sec. 4.3): each scalar
 /// s ∈ [0, 1] becomes `k` values e_j = exp(−(k²/2)·((j + ½)/k − s)²), a Gaussian blob of width 1/k
 /// centred on s. `out` receives the `k` values of every scalar in `s`, one after another.
-#[multiversion(targets = "simd")]
 pub fn one_blob(s: &[f32], k: usize, out: &mut [f32]) {
+    // The usual bin counts get a copy with `k` known at compile time: its bins fill whole
+    // vector registers and the constants stay in registers across scalars (the same numbers).
+    match k {
+        8 => one_blob_of::<8>(s, out),
+        16 => one_blob_of::<16>(s, out),
+        32 => one_blob_of::<32>(s, out),
+        _ => one_blob_any(s, k, out),
+    }
+}
+
+#[multiversion(targets = "simd")]
+fn one_blob_of<const K: usize>(s: &[f32], out: &mut [f32]) {
+    let kf = K as f32;
+    let c = -0.5 * kf * kf;
+    let centre: [f32; K] = std::array::from_fn(|j| (j as f32 + 0.5) / kf);
+    for (&s, e) in s.iter().zip(out.chunks_exact_mut(K)) {
+        for (e, &m) in e.iter_mut().zip(&centre) {
+            let d = m - s;
+            *e = exp(c * d * d);
+        }
+    }
+}
+
+#[multiversion(targets = "simd")]
+fn one_blob_any(s: &[f32], k: usize, out: &mut [f32]) {
     let kf = k as f32;
     let c = -0.5 * kf * kf;
     for (&s, e) in s.iter().zip(out.chunks_exact_mut(k)) {
@@ -194,6 +218,33 @@ mod tests {
             );
             let want = 1.0 / (1.0 + (-v).exp());
             assert!((sg[i] - want).abs() <= 4e-7 * want, "sigmoid({v})");
+        }
+    }
+
+    #[test]
+    fn one_blob_is_the_same_for_every_bin_count_path() {
+        let s: Vec<f32> = (0..=40)
+            .map(|i| i as f32 / 40.0)
+            .chain([-0.1, 1.1])
+            .collect();
+        for k in [1, 5, 8, 16, 32] {
+            let mut fast = vec![0.0; s.len() * k];
+            let mut plain = vec![0.0; s.len() * k];
+            one_blob(&s, k, &mut fast);
+            one_blob_any(&s, k, &mut plain);
+            assert_eq!(fast, plain, "k = {k}");
+            for (i, &v) in s.iter().enumerate() {
+                for j in 0..k {
+                    let d = (j as f64 + 0.5) / k as f64 - v as f64;
+                    let want = (-((k * k) as f64) / 2.0 * d * d).exp();
+                    // f32 rounding of d (a few ulps, amplified by the exponent's size) and exp's 2e-7
+                    let tol = 4e-7 * want * (1.0 + (k * k) as f64 * d.abs() * d.abs());
+                    assert!(
+                        (fast[i * k + j] as f64 - want).abs() <= tol.max(1e-37),
+                        "k = {k}, s = {v}, j = {j}"
+                    );
+                }
+            }
         }
     }
 
