@@ -37,8 +37,8 @@
 //! to the first dense layer of every conditioner and of the selection network. That layer is
 //! `W·[enc(x_A); enc(ctx)] + b = W_A·enc(x_A) + (W_ctx·enc(ctx) + b)`, so [`Guide::prepare`]
 //! one-blob encodes the context once per vertex and computes the second term of all those
-//! layers in one matrix product (the guide's [`Guide::Prepared`]); a query then adds only `W_A·enc(x_A)`, 16
-//! inputs instead of 128 at the default sizes. The result is the flow's own density up to f32
+//! layers in one matrix product (the guide's [`Guide::Prepared`]); a query then adds only `W_A·enc(x_A)`, 8
+//! inputs instead of 64 at the default sizes. The result is the flow's own density up to f32
 //! rounding (tested against [`Flow`]'s uncached evaluation).
 
 use std::collections::VecDeque;
@@ -202,15 +202,16 @@ impl Default for NisGuideConfig {
         NisGuideConfig {
             loss: GuideLoss::Kl,
             frame: GuideFrame::World,
-            transform: TransformKind::Quadratic { bins: 32 },
+            // Small networks: 16 bins, width 16 and 8 one-blob bins gave the same mean MAPE
+            // over 9 seeds as 32 bins, width 32 and 16 one-blob bins, in 55% of the time
+            // (docs/GUIDING.md, "Network size"); width 64 was slower and no better.
+            transform: TransformKind::Quadratic { bins: 16 },
             couplings: 2,
             hidden_layers: 2,
-            // 64 was slower and no better (MAPE 0.249 vs 0.219 on cornell-indirect, 0.313 vs
-            // 0.308 on two-rooms-door, 128², 64 spp).
-            hidden_width: 32,
-            blob_bins: 16,
-            context_bins: 16,
-            selection_width: 32,
+            hidden_width: 16,
+            blob_bins: 8,
+            context_bins: 8,
+            selection_width: 16,
             min_selection: 0.05,
             selection_warmup: 1,
             batch: 4096,
