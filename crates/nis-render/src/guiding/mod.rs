@@ -76,15 +76,8 @@ fn atan2(y: f32, x: f32) -> f32 {
     }
     let a = lo / hi;
     let t = a * a;
-    let p = C[7];
-    let p = p * t + C[6];
-    let p = p * t + C[5];
-    let p = p * t + C[4];
-    let p = p * t + C[3];
-    let p = p * t + C[2];
-    let p = p * t + C[1];
-    let p = p * t + C[0];
-    let mut r = a * p;
+    // Horner's scheme from the highest coefficient (0·t + C[7] is exactly C[7]).
+    let mut r = a * C.iter().rev().fold(0.0, |p, &c| p * t + c);
     if ay > ax {
         r = FRAC_PI_2 - r;
     }

@@ -105,19 +105,17 @@ pub fn one_blob(s: &[f32], k: usize, out: &mut [f32]) {
 
 #[multiversion(targets = "simd")]
 fn one_blob_of<const K: usize>(s: &[f32], out: &mut [f32]) {
-    let kf = K as f32;
-    let c = -0.5 * kf * kf;
-    let centre: [f32; K] = std::array::from_fn(|j| (j as f32 + 0.5) / kf);
-    for (&s, e) in s.iter().zip(out.chunks_exact_mut(K)) {
-        for (e, &m) in e.iter_mut().zip(&centre) {
-            let d = m - s;
-            *e = exp(c * d * d);
-        }
-    }
+    one_blob_rows(s, K, out);
 }
 
 #[multiversion(targets = "simd")]
 fn one_blob_any(s: &[f32], k: usize, out: &mut [f32]) {
+    one_blob_rows(s, k, out);
+}
+
+/// The body of both copies of [`one_blob`].
+#[inline(always)]
+fn one_blob_rows(s: &[f32], k: usize, out: &mut [f32]) {
     let kf = k as f32;
     let c = -0.5 * kf * kf;
     for (&s, e) in s.iter().zip(out.chunks_exact_mut(k)) {
