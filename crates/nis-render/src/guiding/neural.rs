@@ -28,6 +28,9 @@
 //! normalised by their batch mean, which only rescales the step. Records of all training
 //! passes stay in a bounded replay buffer (each is an unbiased sample of the same gradient,
 //! whatever mixture drew it), so early passes with few paths still get enough steps.
+//! The guide renders with an exponential moving average of the weights over the Adam steps
+//! ([`NisGuideConfig::average`]), not with the last step's, whose noise would otherwise be
+//! part of every image; training goes on from the last step's.
 //!
 //! The integrator traces thousands of paths as one wavefront ([`Guide::batch_paths`]), so
 //! every query below runs the networks on large batches.
@@ -124,6 +127,10 @@ pub struct NisGuideConfig {
     pub buffer: usize,
     /// Adam's learning rate (both networks).
     pub learning_rate: f32,
+    /// Decay `β` of the exponential moving average of both networks' weights over the Adam
+    /// steps, which the guide renders with (bias-corrected, as Adam's moments); 0 renders with
+    /// the last step's weights.
+    pub average: f32,
     /// Seed of the weights and of the training batches.
     pub seed: u64,
 }
@@ -159,6 +166,12 @@ impl NisGuideConfig {
             return bad(format!(
                 "minimum selection probability must be in [0, 0.5), context bins 1..={} and the selection width 1..={}, got {}, {} and {}",
                 Self::MAX_CONTEXT_BINS, Self::MAX_SELECTION_WIDTH, self.min_selection, self.context_bins, self.selection_width
+            ));
+        }
+        if !(0.0..1.0).contains(&self.average) {
+            return bad(format!(
+                "the weights' average needs a decay in [0, 1), got {}",
+                self.average
             ));
         }
         if self.min_steps > self.max_steps || self.max_steps > Self::MAX_STEPS {
@@ -219,6 +232,10 @@ impl Default for NisGuideConfig {
             max_steps: 400,
             buffer: 1 << 21,
             learning_rate: 5e-3,
+            // Rendering with the average of the last ~20 steps' weights rather than the last
+            // step's: 2–8% lower mean MAPE over 9 seeds on all four scenes, and a third of the
+            // spread over seeds on cornell-indirect (docs/GUIDING.md, "Weight average").
+            average: 0.95,
             seed: 0,
         }
     }
@@ -378,6 +395,74 @@ pub struct NisGuide {
     first_offsets: Vec<usize>,
     /// Numbers per vertex in a cache row.
     first_width: usize,
+    /// The moving average of the weights ([`NisGuideConfig::average`]), if any.
+    average: Option<WeightAverage>,
+}
+
+/// An exponential moving average of both networks' weights over the Adam steps. Between
+/// training phases the networks hold the bias-corrected averages, which render; the Adam
+/// iterates wait here for the next phase to go on from.
+struct WeightAverage {
+    decay: f32,
+    /// Adam steps averaged so far.
+    steps: i32,
+    /// `Σ_t (1 − β)·β^(T−t)·θ_t` of the flow's and of the selection network's weights.
+    flow: Vec<f32>,
+    selection: Vec<f32>,
+    /// The last Adam iterates.
+    flow_iterate: Vec<f32>,
+    selection_iterate: Vec<f32>,
+}
+
+impl WeightAverage {
+    fn new(decay: f32, flow: &[f32], selection: &[f32]) -> Self {
+        WeightAverage {
+            decay,
+            steps: 0,
+            flow: vec![0.0; flow.len()],
+            selection: vec![0.0; selection.len()],
+            flow_iterate: flow.to_vec(),
+            selection_iterate: selection.to_vec(),
+        }
+    }
+
+    /// Adds the weights after one more step.
+    fn add(&mut self, flow: &[f32], selection: &[f32]) {
+        let b = self.decay;
+        for (a, &p) in self
+            .flow
+            .iter_mut()
+            .zip(flow)
+            .chain(self.selection.iter_mut().zip(selection))
+        {
+            *a = b * *a + (1.0 - b) * p;
+        }
+        self.steps += 1;
+    }
+
+    /// Keeps the iterates in `flow` and `selection` and writes the averages there in their place
+    /// (nothing to average before the first step).
+    fn render_with_average(&mut self, flow: &mut [f32], selection: &mut [f32]) {
+        self.flow_iterate.copy_from_slice(flow);
+        self.selection_iterate.copy_from_slice(selection);
+        if self.steps == 0 {
+            return;
+        }
+        let scale = 1.0 / (1.0 - f64::from(self.decay).powi(self.steps));
+        for (p, &a) in flow
+            .iter_mut()
+            .zip(&self.flow)
+            .chain(selection.iter_mut().zip(&self.selection))
+        {
+            *p = (f64::from(a) * scale) as f32;
+        }
+    }
+
+    /// Puts the iterates back into `flow` and `selection`, for training to go on from.
+    fn resume_training(&self, flow: &mut [f32], selection: &mut [f32]) {
+        flow.copy_from_slice(&self.flow_iterate);
+        selection.copy_from_slice(&self.selection_iterate);
+    }
 }
 
 fn sigmoid(z: f32) -> f32 {
@@ -422,7 +507,15 @@ impl NisGuide {
             context_bias: Vec::new(),
             first_offsets: Vec::new(),
             first_width: 0,
+            average: None,
         };
+        if guide.config.average > 0.0 {
+            guide.average = Some(WeightAverage::new(
+                guide.config.average,
+                guide.flow.params(),
+                &guide.selection_params,
+            ));
+        }
         guide.refresh_context_weights();
         Ok(guide)
     }
@@ -769,6 +862,9 @@ impl NisGuide {
             ..TrainingStats::default()
         };
         if !self.buffer.is_empty() {
+            if let Some(a) = &self.average {
+                a.resume_training(self.flow.params_mut(), &mut self.selection_params);
+            }
             let steps = (new_records / self.config.batch)
                 .clamp(self.config.min_steps, self.config.max_steps);
             let phase = iteration as u64 + 1;
@@ -784,12 +880,18 @@ impl NisGuide {
                         stats.mean_selection = s.mean_selection;
                         stats.loss = s.loss;
                         stats.steps += 1;
+                        if let Some(a) = &mut self.average {
+                            a.add(self.flow.params(), &self.selection_params);
+                        }
                     }
                     // A non-finite gradient (a rare huge weight) skips the step.
                     Err(_) => continue,
                 }
             }
             self.trained = true;
+            if let Some(a) = &mut self.average {
+                a.render_with_average(self.flow.params_mut(), &mut self.selection_params);
+            }
             self.refresh_context_weights();
             stats.below_surface = self.below_surface(&batch, &mut rng);
             stats.best_constant_selection = self.best_constant_selection(&batch);
@@ -1131,6 +1233,94 @@ mod tests {
         guide.selection_probabilities(&vertices, &cache, &mut cached);
         for (c, p) in cached.iter().zip(&plain) {
             assert!((c - p).abs() < 1e-5, "{c} vs {p}");
+        }
+    }
+
+    #[test]
+    fn the_weight_average_is_adams_bias_corrected_moving_average() {
+        // Iterates θ_t (t = 1..T) of 3 + 2 weights, split over two phases; after each phase
+        // the networks must hold Σ_t (1 − β)β^(T−t)θ_t / (1 − β^T) (in f64 here; f32 sums of
+        // ≤ 12 terms are within 1e-6 relative), and the iterate must come back for training.
+        let beta = 0.8f32;
+        let theta = |t: usize, i: usize| ((t * 7 + i * 3) % 11) as f32 * 0.25 - 1.0;
+        let (mut flow, mut sel) = (vec![9.0f32; 3], vec![9.0f32; 2]);
+        let mut avg = WeightAverage::new(beta, &flow, &sel);
+        let mut t = 0;
+        for phase_steps in [5, 7] {
+            avg.resume_training(&mut flow, &mut sel);
+            for _ in 0..phase_steps {
+                t += 1;
+                for (i, p) in flow.iter_mut().chain(sel.iter_mut()).enumerate() {
+                    *p = theta(t, i);
+                }
+                avg.add(&flow, &sel);
+            }
+            avg.render_with_average(&mut flow, &mut sel);
+            let b = f64::from(beta);
+            for (i, &p) in flow.iter().chain(&sel).enumerate() {
+                let sum: f64 = (1..=t)
+                    .map(|s| (1.0 - b) * b.powi((t - s) as i32) * f64::from(theta(s, i)))
+                    .sum();
+                let want = sum / (1.0 - b.powi(t as i32));
+                assert!((f64::from(p) - want).abs() < 1e-6, "{p} vs {want}");
+            }
+            let mut back = (flow.clone(), sel.clone());
+            avg.resume_training(&mut back.0, &mut back.1);
+            let last: Vec<f32> = (0..5).map(|i| theta(t, i)).collect();
+            assert_eq!([back.0, back.1].concat(), last);
+        }
+        // Constant weights average to themselves.
+        let mut avg = WeightAverage::new(0.99, &[0.3], &[]);
+        for _ in 0..3 {
+            avg.add(&[0.3], &[]);
+        }
+        let mut w = [0.3f32];
+        avg.render_with_average(&mut w, &mut []);
+        assert!((w[0] - 0.3).abs() < 1e-6, "{}", w[0]);
+    }
+
+    #[test]
+    fn averaging_the_weights_leaves_the_training_alone() {
+        // Two guides, with and without the average, trained on the same records: the Adam
+        // iterates must agree bit for bit after every phase, and the averaged guide must render
+        // with other weights than its iterate.
+        let sample = |i: usize| Sample {
+            context: std::array::from_fn(|j| ((i * 13 + j * 5) % 17) as f32 / 17.0),
+            x: [(i as f32 * 0.37).fract(), (i as f32 * 0.71).fract()],
+            f: 0.1 + (i % 5) as f32,
+            pdf: 1.0 / (4.0 * std::f32::consts::PI),
+            bsdf_pdf: 0.1,
+            jacobian: 1.0 / (4.0 * std::f32::consts::PI),
+        };
+        let bounds = Aabb {
+            min: Vec3::ZERO,
+            max: Vec3::ONE,
+        };
+        let config = |average| NisGuideConfig {
+            batch: 64,
+            buffer: 1024,
+            min_steps: 6,
+            max_steps: 6,
+            selection_warmup: 0,
+            average,
+            ..NisGuideConfig::default()
+        };
+        let mut plain = NisGuide::new(bounds, config(0.0)).unwrap();
+        let mut averaged = NisGuide::new(bounds, config(0.9)).unwrap();
+        for phase in 0..2 {
+            for guide in [&mut plain, &mut averaged] {
+                guide.update(PassSamples {
+                    samples: (phase * 300..phase * 300 + 300).map(sample).collect(),
+                    seen: 300,
+                    cap: None,
+                });
+            }
+            let a = averaged.average.as_ref().unwrap();
+            assert_eq!(a.steps, 6 * (phase as i32 + 1));
+            assert_eq!(a.flow_iterate, plain.flow.params());
+            assert_eq!(a.selection_iterate, plain.selection_params);
+            assert_ne!(averaged.flow.params(), plain.flow.params());
+            assert_ne!(averaged.selection_params, plain.selection_params);
         }
     }
 
