@@ -19,7 +19,7 @@ def within(r, exact, sigmas=5.0):
 # The Rust test `results_are_bit_identical_to_the_recorded_ones` (crates/nis/tests/integration.rs):
 # gauss in 2-d, seed 5, 10^5 evaluations, default settings.
 RECORDED = {
-    "nis": ("0.9990489017058266", "0.0001572627912866081"),
+    "nis": ("0.9991586592339212", "0.0001698706639840739"),
     "vegas": ("0.9991289316819392", "0.00017338791639042743"),
     "uniform": ("0.9975623516355743", "0.005446123321194651"),
 }
@@ -70,7 +70,7 @@ def test_a_numpy_integrand_agrees_with_the_rust_result_for_the_same_seed(gauss):
 def test_chi2_loss_on_camel_matches_the_recorded_bits():
     camel = nis.integrands.camel(dim=4)
     r = nis.Integrator(4, "nis", loss="chi2", seed=3)(lambda x: camel(x), evals=200_000)
-    assert (r.mean, r.sdev) == (0.9628847131086422, 0.00042789217982081864)
+    assert (r.mean, r.sdev) == (0.9633826823335423, 0.00043209302903242846)
 
 
 def test_a_numpy_integrand_agrees_with_the_exact_value_and_the_result_reads_well(gauss):
@@ -120,6 +120,8 @@ def test_a_thread_pool_of_one_gives_the_same_bits(gauss):
         dict(bins=0),
         dict(train_fraction=1.5),
         dict(uniform_fraction=float("nan")),
+        dict(average=1.0),
+        dict(method="vegas", average=0.9),
         dict(loss="nll"),
         dict(batch=1),
         dict(train_on="everything"),

@@ -88,6 +88,11 @@ impl<D: Density> Trainer<D> {
         &self.flow
     }
 
+    /// The density's parameters, to be changed between steps (Adam's state stays as it is).
+    pub fn params_mut(&mut self) -> &mut [f32] {
+        self.flow.params_mut()
+    }
+
     /// Gives the trained density back.
     pub fn into_flow(self) -> D {
         self.flow

@@ -77,7 +77,8 @@ class Integrator:
     NIS: ``coupling`` ("pq", "pl", "rq", "affine"), ``bins``, ``layers`` (coupling layers),
     ``hidden_layers``, ``hidden_width``, ``blob_bins``, ``loss`` ("kl", "chi2"), ``batch``,
     ``steps_per_batch``, ``train_fraction``, ``learning_rate``, ``learning_rate_end``,
-    ``uniform_fraction``, ``anneal_from``, ``final_iterations``, ``stratify`` (the final phase's
+    ``average`` (decay of the moving average of the flow's weights the final phase samples;
+    default 0.98, 0 the last training step's weights), ``uniform_fraction``, ``anneal_from``, ``final_iterations``, ``stratify`` (the final phase's
     latent cut into adaptive hypercubes, as VEGAS+ does; default True, False draws it i.i.d.),
     ``reuse_training`` (share of
     the training batches, the last ones, in the estimate; default 0.5, 0 the final phase alone;
@@ -105,6 +106,7 @@ class Integrator:
         train_fraction: Optional[float] = None,
         learning_rate: Optional[float] = None,
         learning_rate_end: Optional[float] = None,
+        average: Optional[float] = None,
         uniform_fraction: Optional[float] = None,
         anneal_from: Optional[float] = None,
         final_iterations: Optional[int] = None,

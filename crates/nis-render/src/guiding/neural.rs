@@ -51,7 +51,7 @@ use nis::flow::{Bijection, Density, Direction, Flow, FlowConfig};
 use nis::kernels::elementwise::{one_blob, relu};
 use nis::kernels::{dense, CHUNK_ROWS};
 use nis::nn::mlp::MlpTape;
-use nis::nn::{Adam, AdamConfig, Mlp};
+use nis::nn::{Adam, AdamConfig, Mlp, ParamAverage};
 use nis::{Transform, TransformKind};
 use rand::{Rng, SeedableRng};
 use rand_pcg::Pcg64Mcg;
@@ -395,74 +395,9 @@ pub struct NisGuide {
     first_offsets: Vec<usize>,
     /// Numbers per vertex in a cache row.
     first_width: usize,
-    /// The moving average of the weights ([`NisGuideConfig::average`]), if any.
-    average: Option<WeightAverage>,
-}
-
-/// An exponential moving average of both networks' weights over the Adam steps. Between
-/// training phases the networks hold the bias-corrected averages, which render; the Adam
-/// iterates wait here for the next phase to go on from.
-struct WeightAverage {
-    decay: f32,
-    /// Adam steps averaged so far.
-    steps: i32,
-    /// `Σ_t (1 − β)·β^(T−t)·θ_t` of the flow's and of the selection network's weights.
-    flow: Vec<f32>,
-    selection: Vec<f32>,
-    /// The last Adam iterates.
-    flow_iterate: Vec<f32>,
-    selection_iterate: Vec<f32>,
-}
-
-impl WeightAverage {
-    fn new(decay: f32, flow: &[f32], selection: &[f32]) -> Self {
-        WeightAverage {
-            decay,
-            steps: 0,
-            flow: vec![0.0; flow.len()],
-            selection: vec![0.0; selection.len()],
-            flow_iterate: flow.to_vec(),
-            selection_iterate: selection.to_vec(),
-        }
-    }
-
-    /// Adds the weights after one more step.
-    fn add(&mut self, flow: &[f32], selection: &[f32]) {
-        let b = self.decay;
-        for (a, &p) in self
-            .flow
-            .iter_mut()
-            .zip(flow)
-            .chain(self.selection.iter_mut().zip(selection))
-        {
-            *a = b * *a + (1.0 - b) * p;
-        }
-        self.steps += 1;
-    }
-
-    /// Keeps the iterates in `flow` and `selection` and writes the averages there in their place
-    /// (nothing to average before the first step).
-    fn render_with_average(&mut self, flow: &mut [f32], selection: &mut [f32]) {
-        self.flow_iterate.copy_from_slice(flow);
-        self.selection_iterate.copy_from_slice(selection);
-        if self.steps == 0 {
-            return;
-        }
-        let scale = 1.0 / (1.0 - f64::from(self.decay).powi(self.steps));
-        for (p, &a) in flow
-            .iter_mut()
-            .zip(&self.flow)
-            .chain(selection.iter_mut().zip(&self.selection))
-        {
-            *p = (f64::from(a) * scale) as f32;
-        }
-    }
-
-    /// Puts the iterates back into `flow` and `selection`, for training to go on from.
-    fn resume_training(&self, flow: &mut [f32], selection: &mut [f32]) {
-        flow.copy_from_slice(&self.flow_iterate);
-        selection.copy_from_slice(&self.selection_iterate);
-    }
+    /// The moving average of both networks' weights, flow first ([`NisGuideConfig::average`]),
+    /// if any: between training phases the networks hold it, and it holds the Adam iterates.
+    average: Option<ParamAverage>,
 }
 
 fn sigmoid(z: f32) -> f32 {
@@ -510,10 +445,9 @@ impl NisGuide {
             average: None,
         };
         if guide.config.average > 0.0 {
-            guide.average = Some(WeightAverage::new(
+            guide.average = Some(ParamAverage::new(
                 guide.config.average,
-                guide.flow.params(),
-                &guide.selection_params,
+                &[guide.flow.params(), &guide.selection_params],
             ));
         }
         guide.refresh_context_weights();
@@ -863,7 +797,7 @@ impl NisGuide {
         };
         if !self.buffer.is_empty() {
             if let Some(a) = &self.average {
-                a.resume_training(self.flow.params_mut(), &mut self.selection_params);
+                a.resume(&mut [self.flow.params_mut(), &mut self.selection_params]);
             }
             let steps = (new_records / self.config.batch)
                 .clamp(self.config.min_steps, self.config.max_steps);
@@ -881,7 +815,7 @@ impl NisGuide {
                         stats.loss = s.loss;
                         stats.steps += 1;
                         if let Some(a) = &mut self.average {
-                            a.add(self.flow.params(), &self.selection_params);
+                            a.add(&[self.flow.params(), &self.selection_params]);
                         }
                     }
                     // A non-finite gradient (a rare huge weight) skips the step.
@@ -890,7 +824,7 @@ impl NisGuide {
             }
             self.trained = true;
             if let Some(a) = &mut self.average {
-                a.render_with_average(self.flow.params_mut(), &mut self.selection_params);
+                a.use_average(&mut [self.flow.params_mut(), &mut self.selection_params]);
             }
             self.refresh_context_weights();
             stats.below_surface = self.below_surface(&batch, &mut rng);
@@ -1237,49 +1171,6 @@ mod tests {
     }
 
     #[test]
-    fn the_weight_average_is_adams_bias_corrected_moving_average() {
-        // Iterates θ_t (t = 1..T) of 3 + 2 weights, split over two phases; after each phase
-        // the networks must hold Σ_t (1 − β)β^(T−t)θ_t / (1 − β^T) (in f64 here; f32 sums of
-        // ≤ 12 terms are within 1e-6 relative), and the iterate must come back for training.
-        let beta = 0.8f32;
-        let theta = |t: usize, i: usize| ((t * 7 + i * 3) % 11) as f32 * 0.25 - 1.0;
-        let (mut flow, mut sel) = (vec![9.0f32; 3], vec![9.0f32; 2]);
-        let mut avg = WeightAverage::new(beta, &flow, &sel);
-        let mut t = 0;
-        for phase_steps in [5, 7] {
-            avg.resume_training(&mut flow, &mut sel);
-            for _ in 0..phase_steps {
-                t += 1;
-                for (i, p) in flow.iter_mut().chain(sel.iter_mut()).enumerate() {
-                    *p = theta(t, i);
-                }
-                avg.add(&flow, &sel);
-            }
-            avg.render_with_average(&mut flow, &mut sel);
-            let b = f64::from(beta);
-            for (i, &p) in flow.iter().chain(&sel).enumerate() {
-                let sum: f64 = (1..=t)
-                    .map(|s| (1.0 - b) * b.powi((t - s) as i32) * f64::from(theta(s, i)))
-                    .sum();
-                let want = sum / (1.0 - b.powi(t as i32));
-                assert!((f64::from(p) - want).abs() < 1e-6, "{p} vs {want}");
-            }
-            let mut back = (flow.clone(), sel.clone());
-            avg.resume_training(&mut back.0, &mut back.1);
-            let last: Vec<f32> = (0..5).map(|i| theta(t, i)).collect();
-            assert_eq!([back.0, back.1].concat(), last);
-        }
-        // Constant weights average to themselves.
-        let mut avg = WeightAverage::new(0.99, &[0.3], &[]);
-        for _ in 0..3 {
-            avg.add(&[0.3], &[]);
-        }
-        let mut w = [0.3f32];
-        avg.render_with_average(&mut w, &mut []);
-        assert!((w[0] - 0.3).abs() < 1e-6, "{}", w[0]);
-    }
-
-    #[test]
     fn averaging_the_weights_leaves_the_training_alone() {
         // Two guides, with and without the average, trained on the same records: the Adam
         // iterates must agree bit for bit after every phase, and the averaged guide must render
@@ -1316,9 +1207,9 @@ mod tests {
                 });
             }
             let a = averaged.average.as_ref().unwrap();
-            assert_eq!(a.steps, 6 * (phase as i32 + 1));
-            assert_eq!(a.flow_iterate, plain.flow.params());
-            assert_eq!(a.selection_iterate, plain.selection_params);
+            assert_eq!(a.steps(), 6 * (phase as i32 + 1));
+            let iterate = [plain.flow.params(), &plain.selection_params].concat();
+            assert_eq!(a.iterate(), &iterate[..]);
             assert_ne!(averaged.flow.params(), plain.flow.params());
             assert_ne!(averaged.selection_params, plain.selection_params);
         }

@@ -9,6 +9,8 @@
 //! The estimate is the final phase's, joined by the second half of the training batches with
 //! shares fixed before each batch is drawn, so it stays unbiased (`reuse_training`; `reuse.rs`,
 //! docs/ESTIMATE.md).
+//! The final phase samples an exponential moving average of the flow's weights over the training
+//! steps (`average`); training samples from, and goes on from, the last step's.
 //! Early training optionally targets the tempered |f|^β with β rising to 1 (annealing), so that a
 //! flow which has only seen the far tails of several modes is pulled toward all of them.
 
@@ -29,6 +31,7 @@ use crate::comm::Comm;
 use crate::error::{Error, Result};
 use crate::flow::mixture::{self, MixtureBatch};
 use crate::flow::{Density, Flow, FlowConfig};
+use crate::nn::ParamAverage;
 use crate::train::Trainer;
 use reuse::{ReplayBuffer, TrainingPieces};
 
@@ -49,6 +52,9 @@ pub struct NisIntegrator {
     trained_evals: u64,
     /// Whether this object has set the learning-rate schedule (its first training does).
     scheduled: bool,
+    /// The moving average of the flow's weights (`NisConfig::average`), if any: between
+    /// trainings the flow holds the average, and this the last training step's weights.
+    average: Option<ParamAverage>,
     streams: Streams,
     /// The ranks that share every batch (one process by default).
     comm: Comm,
@@ -91,6 +97,7 @@ impl NisIntegrator {
         let trainer = Trainer::new(flow, config.loss, config.adam)?;
         Ok(NisIntegrator {
             streams: Streams::new(config.seed),
+            average: average_of(&config, &trainer),
             config,
             trainer,
             trained_evals: 0,
@@ -140,8 +147,26 @@ impl NisIntegrator {
     }
 
     /// [`NisIntegrator::train`], handing every batch to `pieces` (training reused in the
-    /// estimate) when given.
+    /// estimate) when given. Trains from the last step's weights and leaves the average in the
+    /// flow, also when a step fails.
     fn train_keeping(
+        &mut self,
+        f: &dyn Integrand,
+        evals: u64,
+        pieces: Option<&mut TrainingPieces>,
+    ) -> Result<()> {
+        if let Some(a) = &self.average {
+            a.resume(&mut [self.trainer.params_mut()]);
+        }
+        let trained = self.train_steps(f, evals, pieces);
+        if let Some(a) = &mut self.average {
+            a.use_average(&mut [self.trainer.params_mut()]);
+        }
+        trained
+    }
+
+    /// The batches and steps of [`NisIntegrator::train_keeping`].
+    fn train_steps(
         &mut self,
         f: &dyn Integrand,
         evals: u64,
@@ -228,6 +253,9 @@ impl NisIntegrator {
                 if let Some(r) = replay.next() {
                     self.trainer.step(&r.x, None, &r.target, &r.log_q)?;
                 }
+            }
+            if let Some(a) = &mut self.average {
+                a.add(&[self.trainer.flow().params()]);
             }
             if self.comm.any(target[..n_f].iter().any(|v| *v != 0.0)) {
                 replay.push(
@@ -425,6 +453,7 @@ impl NisIntegrator {
         let trainer = Trainer::new(flow, config.loss, config.adam)?;
         Ok(NisIntegrator {
             streams: Streams::new(config.seed),
+            average: average_of(&config, &trainer),
             config,
             trainer,
             trained_evals,
@@ -472,6 +501,11 @@ impl Integrator for NisIntegrator {
     }
 }
 
+/// The moving average of `trainer`'s weights that `config` asks for, starting from them.
+fn average_of(config: &NisConfig, trainer: &Trainer) -> Option<ParamAverage> {
+    (config.average > 0.0).then(|| ParamAverage::new(config.average, &[trainer.flow().params()]))
+}
+
 /// `n` points of the defensive mixture of `flow` with a share `lambda` of uniform ones, with the
 /// points also as f64 for the integrand.
 fn draw(
@@ -512,4 +546,44 @@ fn weights(
         })
         .collect();
     Ok((x64, w))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::TransformKind;
+
+    #[test]
+    fn averaging_the_weights_leaves_the_training_alone() {
+        // Two integrators, with and without the average, trained twice on the same stream: the
+        // Adam iterates must agree bit for bit after each training, while the averaged one
+        // holds other weights for its estimates.
+        let f = crate::integrands::by_name("camel", Some(2)).unwrap();
+        let config = |average| {
+            NisConfig::builder()
+                .flow(FlowConfig {
+                    transform: TransformKind::Quadratic { bins: 4 },
+                    hidden_layers: 1,
+                    hidden_width: 8,
+                    blob_bins: 4,
+                    ..FlowConfig::default()
+                })
+                .batch(64)
+                .average(average)
+                .seed(3)
+                .build()
+                .unwrap()
+        };
+        let mut plain = NisIntegrator::new(2, config(0.0)).unwrap();
+        let mut averaged = NisIntegrator::new(2, config(0.9)).unwrap();
+        assert!(plain.average.is_none());
+        for round in 1..=2 {
+            plain.train(&f, 640).unwrap();
+            averaged.train(&f, 640).unwrap();
+            let a = averaged.average.as_ref().unwrap();
+            assert_eq!(a.steps(), 10 * round);
+            assert_eq!(a.iterate(), plain.flow().params());
+            assert_ne!(averaged.flow().params(), plain.flow().params());
+        }
+    }
 }
