@@ -79,7 +79,7 @@ impl PyIntegrator {
         dim, method = "nis", *, seed = 0, coupling = None, bins = None, layers = None,
         hidden_layers = None, hidden_width = None, blob_bins = None, loss = None, batch = None,
         steps_per_batch = None, train_fraction = None, learning_rate = None,
-        learning_rate_end = None, average = None, uniform_fraction = None, anneal_from = None,
+        learning_rate_end = None, average_span = None, uniform_fraction = None, anneal_from = None,
         final_iterations = None, stratify = None, reuse_training = None, replay_batches = None,
         replay_steps = None, increments = None, alpha = None, beta = None,
         iterations = None, warmup = None, min_per_cube = None, train_on = None, threads = None
@@ -103,7 +103,7 @@ impl PyIntegrator {
         train_fraction: Option<f64>,
         learning_rate: Option<f32>,
         learning_rate_end: Option<f32>,
-        average: Option<f32>,
+        average_span: Option<f64>,
         uniform_fraction: Option<f64>,
         anneal_from: Option<f64>,
         final_iterations: Option<i64>,
@@ -165,7 +165,7 @@ impl PyIntegrator {
         set!(nis, train_fraction, n.train_fraction, same);
         set!(nis, learning_rate, n.adam.learning_rate, same);
         set!(nis, learning_rate_end, n.learning_rate_end, same);
-        set!(nis, average, n.average, same);
+        set!(nis, average_span, n.average_span, same);
         set!(nis, uniform_fraction, n.uniform_fraction, same);
         set!(nis, anneal_from, n.anneal_from, same);
         set!(

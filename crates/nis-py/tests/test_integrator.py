@@ -19,7 +19,7 @@ def within(r, exact, sigmas=5.0):
 # The Rust test `results_are_bit_identical_to_the_recorded_ones` (crates/nis/tests/integration.rs):
 # gauss in 2-d, seed 5, 10^5 evaluations, default settings.
 RECORDED = {
-    "nis": ("0.9991586592339212", "0.0001698706639840739"),
+    "nis": ("0.9990956460590507", "0.00015733138761886862"),
     "vegas": ("0.9991289316819392", "0.00017338791639042743"),
     "uniform": ("0.9975623516355743", "0.005446123321194651"),
 }
@@ -43,10 +43,10 @@ def test_stratify_false_gives_the_i_i_d_final_phase():
     # same flow has less than half the error bar on this 2-d Gaussian.
     g = nis.integrands.gauss(dim=2)
     iid = nis.Integrator(2, "nis", seed=5, stratify=False, reuse_training=0)(g, evals=100_000)
-    assert (repr(iid.mean), repr(iid.sdev)) == ("0.9991617413287168", "0.00036305591672867446")
+    assert (repr(iid.mean), repr(iid.sdev)) == ("0.9989264161900435", "0.0003675489275197983")
     # Stratified with the final phase alone.
     alone = nis.Integrator(2, "nis", seed=5, stratify=True, reuse_training=0)(g, evals=100_000)
-    assert (repr(alone.mean), repr(alone.sdev)) == ("0.99905024463877", "0.00015849237376687635")
+    assert (repr(alone.mean), repr(alone.sdev)) == ("0.9990974168222485", "0.00015856168951298977")
     strat = nis.Integrator(2, "nis", seed=5, stratify=True)(g, evals=100_000)
     assert (repr(strat.mean), repr(strat.sdev)) == RECORDED["nis"]
     assert strat.sdev < 0.6 * iid.sdev
@@ -70,7 +70,7 @@ def test_a_numpy_integrand_agrees_with_the_rust_result_for_the_same_seed(gauss):
 def test_chi2_loss_on_camel_matches_the_recorded_bits():
     camel = nis.integrands.camel(dim=4)
     r = nis.Integrator(4, "nis", loss="chi2", seed=3)(lambda x: camel(x), evals=200_000)
-    assert (r.mean, r.sdev) == (0.9633826823335423, 0.00043209302903242846)
+    assert (r.mean, r.sdev) == (0.9636228957670196, 0.00042528498456387314)
 
 
 def test_a_numpy_integrand_agrees_with_the_exact_value_and_the_result_reads_well(gauss):
@@ -120,8 +120,8 @@ def test_a_thread_pool_of_one_gives_the_same_bits(gauss):
         dict(bins=0),
         dict(train_fraction=1.5),
         dict(uniform_fraction=float("nan")),
-        dict(average=1.0),
-        dict(method="vegas", average=0.9),
+        dict(average_span=1.5),
+        dict(method="vegas", average_span=0.5),
         dict(loss="nll"),
         dict(batch=1),
         dict(train_on="everything"),

@@ -77,8 +77,9 @@ class Integrator:
     NIS: ``coupling`` ("pq", "pl", "rq", "affine"), ``bins``, ``layers`` (coupling layers),
     ``hidden_layers``, ``hidden_width``, ``blob_bins``, ``loss`` ("kl", "chi2"), ``batch``,
     ``steps_per_batch``, ``train_fraction``, ``learning_rate``, ``learning_rate_end``,
-    ``average`` (decay of the moving average of the flow's weights the final phase samples;
-    default 0.98, 0 the last training step's weights), ``uniform_fraction``, ``anneal_from``, ``final_iterations``, ``stratify`` (the final phase's
+    ``average_span`` (the moving average of the flow's weights that the final phase samples
+    spans this share of the first training's batches; default 0.1, 0 the last training step's
+    weights), ``uniform_fraction``, ``anneal_from``, ``final_iterations``, ``stratify`` (the final phase's
     latent cut into adaptive hypercubes, as VEGAS+ does; default True, False draws it i.i.d.),
     ``reuse_training`` (share of
     the training batches, the last ones, in the estimate; default 0.5, 0 the final phase alone;
@@ -106,7 +107,7 @@ class Integrator:
         train_fraction: Optional[float] = None,
         learning_rate: Optional[float] = None,
         learning_rate_end: Optional[float] = None,
-        average: Optional[float] = None,
+        average_span: Optional[float] = None,
         uniform_fraction: Optional[float] = None,
         anneal_from: Optional[float] = None,
         final_iterations: Optional[int] = None,

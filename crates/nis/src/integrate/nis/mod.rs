@@ -10,7 +10,7 @@
 //! shares fixed before each batch is drawn, so it stays unbiased (`reuse_training`; `reuse.rs`,
 //! docs/ESTIMATE.md).
 //! The final phase samples an exponential moving average of the flow's weights over the training
-//! steps (`average`); training samples from, and goes on from, the last step's.
+//! batches (`average_span`); training samples from, and goes on from, the last step's.
 //! Early training optionally targets the tempered |f|^β with β rising to 1 (annealing), so that a
 //! flow which has only seen the far tails of several modes is pulled toward all of them.
 
@@ -52,8 +52,9 @@ pub struct NisIntegrator {
     trained_evals: u64,
     /// Whether this object has set the learning-rate schedule (its first training does).
     scheduled: bool,
-    /// The moving average of the flow's weights (`NisConfig::average`), if any: between
-    /// trainings the flow holds the average, and this the last training step's weights.
+    /// The moving average of the flow's weights (`NisConfig::average_span`), from the first
+    /// training on unless the span is 0: between trainings the flow holds the average, and this
+    /// the last training step's weights.
     average: Option<ParamAverage>,
     streams: Streams,
     /// The ranks that share every batch (one process by default).
@@ -97,7 +98,7 @@ impl NisIntegrator {
         let trainer = Trainer::new(flow, config.loss, config.adam)?;
         Ok(NisIntegrator {
             streams: Streams::new(config.seed),
-            average: average_of(&config, &trainer),
+            average: None,
             config,
             trainer,
             trained_evals: 0,
@@ -155,6 +156,14 @@ impl NisIntegrator {
         evals: u64,
         pieces: Option<&mut TrainingPieces>,
     ) -> Result<()> {
+        if self.average.is_none() && self.config.average_span > 0.0 {
+            // The first training sets the decay from its own length, as it sets the learning
+            // rate's (a loaded integrator's first training starts an average of its own).
+            let batches = (evals / self.config.batch as u64) as f64;
+            let horizon = (self.config.average_span * batches).max(1.0);
+            let decay = (1.0 - 1.0 / horizon) as f32;
+            self.average = Some(ParamAverage::new(decay, &[self.trainer.flow().params()]));
+        }
         if let Some(a) = &self.average {
             a.resume(&mut [self.trainer.params_mut()]);
         }
@@ -453,7 +462,7 @@ impl NisIntegrator {
         let trainer = Trainer::new(flow, config.loss, config.adam)?;
         Ok(NisIntegrator {
             streams: Streams::new(config.seed),
-            average: average_of(&config, &trainer),
+            average: None,
             config,
             trainer,
             trained_evals,
@@ -499,11 +508,6 @@ impl Integrator for NisIntegrator {
     fn save(&self, path: &Path) -> Result<()> {
         NisIntegrator::save(self, path)
     }
-}
-
-/// The moving average of `trainer`'s weights that `config` asks for, starting from them.
-fn average_of(config: &NisConfig, trainer: &Trainer) -> Option<ParamAverage> {
-    (config.average > 0.0).then(|| ParamAverage::new(config.average, &[trainer.flow().params()]))
 }
 
 /// `n` points of the defensive mixture of `flow` with a share `lambda` of uniform ones, with the
@@ -569,17 +573,17 @@ mod tests {
                     ..FlowConfig::default()
                 })
                 .batch(64)
-                .average(average)
+                .average_span(average)
                 .seed(3)
                 .build()
                 .unwrap()
         };
         let mut plain = NisIntegrator::new(2, config(0.0)).unwrap();
-        let mut averaged = NisIntegrator::new(2, config(0.9)).unwrap();
-        assert!(plain.average.is_none());
+        let mut averaged = NisIntegrator::new(2, config(0.5)).unwrap();
         for round in 1..=2 {
             plain.train(&f, 640).unwrap();
             averaged.train(&f, 640).unwrap();
+            assert!(plain.average.is_none());
             let a = averaged.average.as_ref().unwrap();
             assert_eq!(a.steps(), 10 * round);
             assert_eq!(a.iterate(), plain.flow().params());
