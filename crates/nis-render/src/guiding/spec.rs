@@ -137,8 +137,8 @@ mod tests {
             r#"{"context_bins": 1000000000000}"#,
             r#"{"hidden_width": 65536, "hidden_layers": 64}"#,
             r#"{"learning_rate": -1.0}"#,
-            r#"{"average": 1.0}"#,
-            r#"{"average": -0.5}"#,
+            r#"{"average_span": 1.5}"#,
+            r#"{"average_span": -0.5}"#,
         ] {
             let e = GuideSpec::parse("nis-kl", Some(json), 0).unwrap_err();
             assert!(e.to_string().starts_with("guide settings"), "{json}: {e}");
@@ -146,6 +146,6 @@ mod tests {
         assert!(
             GuideSpec::parse("nis-chi2", Some(r#"{"min_steps": 5, "max_steps": 5}"#), 0).is_ok()
         );
-        assert!(GuideSpec::parse("nis-kl", Some(r#"{"average": 0.0}"#), 0).is_ok());
+        assert!(GuideSpec::parse("nis-kl", Some(r#"{"average_span": 0.0}"#), 0).is_ok());
     }
 }

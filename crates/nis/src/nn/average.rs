@@ -1,7 +1,9 @@
 //! An exponential moving average of parameters over optimiser steps (Polyak averaging with
 //! exponential weights), bias-corrected as Adam's moments are: after `T` steps with iterates
 //! `θ_1 … θ_T` it is `Σ_t (1 − β)·β^(T−t)·θ_t / (1 − β^T)`, so the first steps are not pulled
-//! towards the zero it starts from. A network trained with a constant or slowly decaying rate on
+//! towards the zero it starts from. The decay may change between steps
+//! ([`ParamAverage::set_decay`]): step `t` then enters with `(1 − β_t)·Π_{s>t} β_s`, and the
+//! correction divides by `1 − Π_t β_t`, the sum of those weights. A network trained with a constant or slowly decaying rate on
 //! noisy Monte Carlo gradients wanders around its optimum; the average sits closer to it.
 //!
 //! The owner keeps one set of parameters: during training the optimiser's iterates, between
@@ -14,6 +16,8 @@ pub struct ParamAverage {
     decay: f32,
     /// Steps averaged so far.
     steps: i32,
+    /// `Π_t β_t` over the steps so far: the average's weights sum to one minus it.
+    decayed: f64,
     /// `Σ_t (1 − β)·β^(T−t)·θ_t`.
     sum: Vec<f32>,
     /// The last iterates, while the owner holds the average.
@@ -21,15 +25,21 @@ pub struct ParamAverage {
 }
 
 impl ParamAverage {
-    /// An average with decay `β ∈ (0, 1)` of parameters that start at `parts`.
+    /// An average with decay `β ∈ [0, 1)` of parameters that start at `parts`.
     pub fn new(decay: f32, parts: &[&[f32]]) -> ParamAverage {
         let iterate = parts.concat();
         ParamAverage {
             decay,
             steps: 0,
+            decayed: 1.0,
             sum: vec![0.0; iterate.len()],
             iterate,
         }
+    }
+
+    /// The decay `β ∈ [0, 1)` of the steps from now on.
+    pub fn set_decay(&mut self, decay: f32) {
+        self.decay = decay;
     }
 
     /// Steps averaged so far.
@@ -50,6 +60,7 @@ impl ParamAverage {
             *a = b * *a + (1.0 - b) * p;
         }
         self.steps = self.steps.saturating_add(1);
+        self.decayed *= f64::from(b);
     }
 
     /// Keeps the iterates in `parts` and writes the average there in their place (leaves them
@@ -66,7 +77,7 @@ impl ParamAverage {
         if self.steps == 0 {
             return;
         }
-        let scale = 1.0 / (1.0 - f64::from(self.decay).powi(self.steps));
+        let scale = 1.0 / (1.0 - self.decayed);
         for (p, &a) in parts.iter_mut().flat_map(|p| p.iter_mut()).zip(&self.sum) {
             *p = (f64::from(a) * scale) as f32;
         }
@@ -129,6 +140,35 @@ mod tests {
             avg.resume(&mut [&mut a2, &mut b2]);
             assert_eq!([a2, b2].concat(), last);
         }
+    }
+
+    #[test]
+    fn a_decay_that_changes_between_steps_weighs_each_step_by_its_own() {
+        // β_t = 0.5 for two steps, then 0.9 for three: step t enters with (1 − β_t)·Π_{s>t} β_s
+        // and the weights are divided by their sum 1 − Π β_t.
+        let betas = [0.5f32, 0.5, 0.9, 0.9, 0.9];
+        let theta = |t: usize| (t * t) as f32 * 0.1 - 0.7;
+        let mut w = [0.0f32];
+        let mut avg = ParamAverage::new(betas[0], &[&w]);
+        for (t, &b) in betas.iter().enumerate() {
+            avg.set_decay(b);
+            w[0] = theta(t);
+            avg.add(&[&w]);
+        }
+        avg.use_average(&mut [&mut w]);
+        let (mut num, mut den) = (0.0f64, 0.0f64);
+        for t in 0..betas.len() {
+            let later: f64 = betas[t + 1..].iter().map(|&b| f64::from(b)).product();
+            let weight = (1.0 - f64::from(betas[t])) * later;
+            num += weight * f64::from(theta(t));
+            den += weight;
+        }
+        assert!(
+            (f64::from(w[0]) - num / den).abs() < 1e-6,
+            "{} vs {}",
+            w[0],
+            num / den
+        );
     }
 
     #[test]
