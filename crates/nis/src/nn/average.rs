@@ -54,7 +54,7 @@ impl ParamAverage {
 
     /// Adds the parameters after one more step.
     pub fn add(&mut self, parts: &[&[f32]]) {
-        debug_assert_eq!(len(parts.iter().map(|p| p.len())), self.sum.len());
+        debug_assert_eq!(total(parts), self.sum.len());
         let b = self.decay;
         for (a, &p) in self.sum.iter_mut().zip(parts.iter().flat_map(|p| p.iter())) {
             *a = b * *a + (1.0 - b) * p;
@@ -66,7 +66,7 @@ impl ParamAverage {
     /// Keeps the iterates in `parts` and writes the average there in their place (leaves them
     /// as they are before the first step).
     pub fn use_average(&mut self, parts: &mut [&mut [f32]]) {
-        debug_assert_eq!(len(parts.iter().map(|p| p.len())), self.sum.len());
+        debug_assert_eq!(total(parts), self.sum.len());
         for (i, &p) in self
             .iterate
             .iter_mut()
@@ -85,7 +85,7 @@ impl ParamAverage {
 
     /// Puts the iterates back into `parts`, for training to go on from.
     pub fn resume(&self, parts: &mut [&mut [f32]]) {
-        debug_assert_eq!(len(parts.iter().map(|p| p.len())), self.sum.len());
+        debug_assert_eq!(total(parts), self.sum.len());
         for (p, &i) in parts
             .iter_mut()
             .flat_map(|p| p.iter_mut())
@@ -96,8 +96,9 @@ impl ParamAverage {
     }
 }
 
-fn len(parts: impl Iterator<Item = usize>) -> usize {
-    parts.sum()
+/// Parameters in all of `parts`.
+fn total<P: AsRef<[f32]>>(parts: &[P]) -> usize {
+    parts.iter().map(|p| p.as_ref().len()).sum()
 }
 
 #[cfg(test)]

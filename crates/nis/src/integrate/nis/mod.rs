@@ -52,9 +52,9 @@ pub struct NisIntegrator {
     trained_evals: u64,
     /// Whether this object has set the learning-rate schedule (its first training does).
     scheduled: bool,
-    /// The moving average of the flow's weights (`NisConfig::average_span`), from the first
-    /// training on unless the span is 0: between trainings the flow holds the average, and this
-    /// the last training step's weights.
+    /// The moving average of the flow's weights (`NisConfig::average_span`), set up with the
+    /// learning-rate schedule by the first training unless the span is 0: between trainings
+    /// the flow holds the average, and this the last training step's weights.
     average: Option<ParamAverage>,
     streams: Streams,
     /// The ranks that share every batch (one process by default).
@@ -156,14 +156,6 @@ impl NisIntegrator {
         evals: u64,
         pieces: Option<&mut TrainingPieces>,
     ) -> Result<()> {
-        if self.average.is_none() && self.config.average_span > 0.0 {
-            // The first training sets the decay from its own length, as it sets the learning
-            // rate's (a loaded integrator's first training starts an average of its own).
-            let batches = (evals / self.config.batch as u64) as f64;
-            let horizon = (self.config.average_span * batches).max(1.0);
-            let decay = (1.0 - 1.0 / horizon) as f32;
-            self.average = Some(ParamAverage::new(decay, &[self.trainer.flow().params()]));
-        }
         if let Some(a) = &self.average {
             a.resume(&mut [self.trainer.params_mut()]);
         }
@@ -204,6 +196,13 @@ impl NisIntegrator {
                 .powf(1.0 / adam_steps.max(1) as f32);
             self.trainer
                 .set_learning_rate_decay(decay * self.config.adam.decay)?;
+            // The average spans a share of the same steps (a loaded integrator's first
+            // training starts an average of its own).
+            if self.config.average_span > 0.0 {
+                let horizon = (self.config.average_span * steps as f64).max(1.0);
+                let decay = (1.0 - 1.0 / horizon) as f32;
+                self.average = Some(ParamAverage::new(decay, &[self.trainer.flow().params()]));
+            }
             self.scheduled = true;
         }
         let anneal = self.trained_evals == 0 && steps > 1;
