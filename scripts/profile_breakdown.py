@@ -10,7 +10,7 @@ import sys
 STAGES = [
     ("training (Adam steps)", ("NisGuide::train", "NisGuide::step", "nis::train::descend")),
     ("record handling", ("as nis_render::guiding::Guide>::accumulate", "PassSamples::trim")),
-    ("density queries (NEE and BSDF directions)", ("pdf_batch",)),
+    ("density queries (BSDF-sampled directions)", ("pdf_batch",)),
     ("sample queries", ("sample_batch",)),
     ("selection network", ("selection_probabilities",)),
     ("per-vertex cache (context one-blob, first layers)", (">::prepare", "vertex_context")),

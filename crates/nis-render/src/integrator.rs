@@ -3,7 +3,9 @@
 //!
 //! This is the standard estimator of Kajiya's rendering equation as described by Veach (thesis,
 //! 1997, ch. 9) and Pharr et al. (*PBR* 4th ed., §13.4): at every non-delta vertex one light
-//! sample and one BSDF sample are taken and weighted with the power heuristic. Depth counting,
+//! sample and one BSDF sample are taken and weighted with the power heuristic. A path guide
+//! replaces the BSDF sample by one from a guide–BSDF mixture; the weights stay those of light
+//! against BSDF sampling (see [`Integrator::light_contribution`]). Depth counting,
 //! `max_depth` and `rr_depth` follow Mitsuba 3's `path` integrator: `max_depth = 1` shows only
 //! directly visible emitters, `2` adds direct lighting, `-1` is unbounded; Russian roulette
 //! continues with probability `min(max(throughput · η²), 0.95)` once `rr_depth` bounces are done.
@@ -106,7 +108,9 @@ struct PathState {
     l: Rgb,
     beta: Rgb,
     eta: f32,
-    prev_pdf: f32,
+    /// The BSDF's density of the direction the path left its previous vertex in, which MIS
+    /// weighs against light sampling (guided or not: see [`Integrator::light_contribution`]).
+    prev_bsdf_pdf: f32,
     prev_delta: bool,
     /// The previous vertex itself (not the offset ray origin), for light densities that must
     /// match the ones next-event estimation computed there.
@@ -123,7 +127,7 @@ impl PathState {
             l: Rgb::ZERO,
             beta: Rgb::ONE,
             eta: 1.0,
-            prev_pdf: 0.0,
+            prev_bsdf_pdf: 0.0,
             prev_delta: true,
             prev_p: ray.origin,
             depth: 0,
@@ -195,8 +199,6 @@ struct Bounce {
     alpha: f32,
     /// An unoccluded light sample.
     light: Option<LightContribution>,
-    /// Index of the guide-density query for the light sample's direction.
-    light_query: Option<usize>,
     technique: Technique,
 }
 
@@ -409,7 +411,6 @@ impl Integrator {
                     guided: (!delta).then(|| batch.push(vertex)),
                     alpha: 0.0,
                     light: None,
-                    light_query: None,
                     technique: Technique::Pending,
                 });
             }
@@ -425,11 +426,8 @@ impl Integrator {
                     b.alpha = batch.alphas[g];
                 }
                 let rng = &mut rngs[b.path];
-                if let Some(g) = b.guided {
+                if b.guided.is_some() {
                     b.light = self.sample_light(scene, b, material, rng, stats);
-                    if let Some(light) = b.light.filter(|_| self.strategy == Strategy::Mis) {
-                        b.light_query = (b.alpha > 0.0).then(|| batch.pdf(g, light.wi));
-                    }
                 }
                 let u_select = uniform(rng);
                 let u_lobe = uniform(rng);
@@ -456,8 +454,7 @@ impl Integrator {
                 let material = &scene.materials[b.hit.material as usize];
                 let path = &mut paths[b.path];
                 if let Some(light) = b.light {
-                    let guide_pdf = b.light_query.map_or(0.0, |q| batch.pdfs[q]);
-                    path.add(self.light_contribution(path.beta, b, &light, guide_pdf));
+                    path.add(self.light_contribution(path.beta, &light, b));
                 }
                 let Some(scatter) = Self::scatter(b, material, &batch) else {
                     path.alive = false;
@@ -483,7 +480,7 @@ impl Integrator {
                         throughput: path.beta,
                     });
                 }
-                path.prev_pdf = scatter.pdf;
+                path.prev_bsdf_pdf = scatter.bsdf_pdf;
                 path.prev_p = b.hit.p;
                 path.prev_delta = scatter.delta;
                 path.depth += 1;
@@ -525,8 +522,11 @@ impl Integrator {
         let lights = &scene.lights;
         let Some(hit) = hit else {
             let env = lights.environment?;
-            let weight =
-                self.emitter_weight(path.prev_delta, path.prev_pdf, lights.pdf_environment());
+            let weight = self.emitter_weight(
+                path.prev_delta,
+                path.prev_bsdf_pdf,
+                lights.pdf_environment(),
+            );
             return Some(Emission {
                 radiance: env,
                 weight,
@@ -543,9 +543,9 @@ impl Integrator {
         let weight = if self.strategy == Strategy::Mis && !path.prev_delta {
             let distance = (hit.p - path.prev_p).length();
             let light_pdf = lights.pdf_area(hit.light as usize, distance, cos_light);
-            power_heuristic(path.prev_pdf, light_pdf)
+            power_heuristic(path.prev_bsdf_pdf, light_pdf)
         } else {
-            self.emitter_weight(path.prev_delta, path.prev_pdf, 0.0)
+            self.emitter_weight(path.prev_delta, path.prev_bsdf_pdf, 0.0)
         };
         Some(Emission {
             radiance: light.radiance,
@@ -601,17 +601,17 @@ impl Integrator {
     }
 
     /// The light sample's contribution to a path of throughput `beta`, weighted by the power
-    /// heuristic against the guide–BSDF mixture whose guide density of the direction is
-    /// `guide_pdf`.
-    fn light_contribution(
-        &self,
-        beta: Rgb,
-        b: &Bounce,
-        light: &LightContribution,
-        guide_pdf: f32,
-    ) -> Rgb {
+    /// heuristic against the BSDF's density of the direction, guided or not. The emitter that a
+    /// continuation reaches is weighted by the same two densities ([`Integrator::emitted`]), so
+    /// the two weights of every direction sum to one whatever density the continuation was
+    /// drawn from: the guide–BSDF mixture only divides the continuation's throughput, and the
+    /// guide's density of the light sample's direction (a network query per light sample for
+    /// the neural guide) is never needed. Weighing against the mixture's density instead, as
+    /// this renderer did before, gave the same error at equal samples in 4–11% more time
+    /// (docs/GUIDING.md, "MIS against the BSDF").
+    fn light_contribution(&self, beta: Rgb, light: &LightContribution, b: &Bounce) -> Rgb {
         let w = if self.strategy == Strategy::Mis {
-            power_heuristic(light.light_pdf, b.mixture_pdf(guide_pdf, light.bsdf_pdf))
+            power_heuristic(light.light_pdf, light.bsdf_pdf)
         } else {
             1.0
         };

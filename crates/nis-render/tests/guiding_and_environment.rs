@@ -119,18 +119,31 @@ fn diffuse_sphere_under_a_uniform_sky_reflects_albedo_times_sky() {
     </scene>"#;
     let scene = load_scene_str(xml, Path::new("."), "sky.xml", &[]).unwrap();
     let expected = [0.6, 1.0, 1.2];
-    for strategy in [Strategy::Mis, Strategy::Nee, Strategy::Bsdf] {
-        let (mean, err) = mean_over_seeds(&scene, strategy, &mut NoGuide, 16);
+    let check = |(mean, err): ([f64; 3], [f64; 3]), what: &str| {
         for c in 0..3 {
             let tol = 4.0 * err[c] + 1e-5;
             assert!(
                 (mean[c] - expected[c]).abs() < tol,
-                "{strategy:?} channel {c}: {} vs {} (4σ = {tol})",
+                "{what} channel {c}: {} vs {} (4σ = {tol})",
                 mean[c],
                 expected[c]
             );
         }
+    };
+    for strategy in [Strategy::Mis, Strategy::Nee, Strategy::Bsdf] {
+        check(
+            mean_over_seeds(&scene, strategy, &mut NoGuide, 16),
+            &format!("{strategy:?}"),
+        );
     }
+    // With a guide mixed in, the sky reached by the mixture's sample and the sky sampled by
+    // next-event estimation must be weighed by the same pair of densities. Weighing one against
+    // the BSDF's density and the other against the mixture's loses 8% of the light here.
+    let mut guide = UniformGuide::default();
+    check(
+        mean_over_seeds(&scene, Strategy::Mis, &mut guide, 16),
+        "guided MIS",
+    );
 }
 
 #[test]

@@ -36,8 +36,8 @@
 //! every query below runs the networks on large batches.
 //!
 //! **Per-vertex cache.** Every query at a vertex (its selection probability, the guide's sample,
-//! the densities of the light sample's and the BSDF sample's directions) feeds the same context
-//! to the first dense layer of every conditioner and of the selection network. That layer is
+//! the density of the BSDF sample's direction) feeds the same context to the first dense layer
+//! of every conditioner and of the selection network. That layer is
 //! `W·[enc(x_A); enc(ctx)] + b = W_A·enc(x_A) + (W_ctx·enc(ctx) + b)`, so [`Guide::prepare`]
 //! one-blob encodes the context once per vertex and computes the second term of all those
 //! layers in one matrix product (the guide's [`Guide::Prepared`]); a query then adds only `W_A·enc(x_A)`, 8
