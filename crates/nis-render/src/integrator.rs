@@ -5,7 +5,7 @@
 //! 1997, ch. 9) and Pharr et al. (*PBR* 4th ed., §13.4): at every non-delta vertex one light
 //! sample and one BSDF sample are taken and weighted with the power heuristic. A path guide
 //! replaces the BSDF sample by one from a guide–BSDF mixture; the weights stay those of light
-//! against BSDF sampling (see [`Integrator::light_contribution`]). Depth counting,
+//! against BSDF sampling (see [`Integrator::sample_light`]). Depth counting,
 //! `max_depth` and `rr_depth` follow Mitsuba 3's `path` integrator: `max_depth = 1` shows only
 //! directly visible emitters, `2` adds direct lighting, `-1` is unbounded; Russian roulette
 //! continues with probability `min(max(throughput · η²), 0.95)` once `rr_depth` bounces are done.
@@ -109,7 +109,7 @@ struct PathState {
     beta: Rgb,
     eta: f32,
     /// The BSDF's density of the direction the path left its previous vertex in, which MIS
-    /// weighs against light sampling (guided or not: see [`Integrator::light_contribution`]).
+    /// weighs against light sampling (guided or not: see [`Integrator::sample_light`]).
     prev_bsdf_pdf: f32,
     prev_delta: bool,
     /// The previous vertex itself (not the offset ray origin), for light densities that must
@@ -152,22 +152,6 @@ struct Emission {
     weight: f32,
 }
 
-/// An unoccluded light sample at a vertex: the parts of its contribution that do not depend on
-/// the guide (whose density enters the MIS weight once the batch of guide queries is answered).
-#[derive(Clone, Copy, Debug)]
-struct LightContribution {
-    /// Direction to the light (world).
-    wi: Vec3,
-    /// Light-sampling density of `wi`.
-    light_pdf: f32,
-    /// Radiance arriving along `wi`.
-    radiance: Rgb,
-    /// BSDF value for `(wo, wi)`.
-    f: Rgb,
-    /// BSDF sampling density of `wi`.
-    bsdf_pdf: f32,
-}
-
 /// How a vertex continues its path: the sampled direction and what the estimator needs of it.
 #[derive(Clone, Copy, Debug)]
 struct Scatter {
@@ -197,8 +181,6 @@ struct Bounce {
     guided: Option<usize>,
     /// Selection probability of the guide here.
     alpha: f32,
-    /// An unoccluded light sample.
-    light: Option<LightContribution>,
     technique: Technique,
 }
 
@@ -410,7 +392,6 @@ impl Integrator {
                     vertex,
                     guided: (!delta).then(|| batch.push(vertex)),
                     alpha: 0.0,
-                    light: None,
                     technique: Technique::Pending,
                 });
             }
@@ -427,7 +408,10 @@ impl Integrator {
                 }
                 let rng = &mut rngs[b.path];
                 if b.guided.is_some() {
-                    b.light = self.sample_light(scene, b, material, rng, stats);
+                    let path = &mut paths[b.path];
+                    if let Some(c) = self.sample_light(scene, b, material, path.beta, rng, stats) {
+                        path.add(c);
+                    }
                 }
                 let u_select = uniform(rng);
                 let u_lobe = uniform(rng);
@@ -453,9 +437,6 @@ impl Integrator {
             for b in &bounces {
                 let material = &scene.materials[b.hit.material as usize];
                 let path = &mut paths[b.path];
-                if let Some(light) = b.light {
-                    path.add(self.light_contribution(path.beta, &light, b));
-                }
                 let Some(scatter) = Self::scatter(b, material, &batch) else {
                     path.alive = false;
                     continue;
@@ -553,18 +534,28 @@ impl Integrator {
         })
     }
 
-    /// Next-event estimation at a non-delta vertex up to its shadow ray (pbrt's `SampleLd`
-    /// without the MIS weight, which needs the guide's density): a light sample, if the
-    /// strategy uses light sampling, its BSDF value is non-zero and it is unoccluded. Draws
-    /// three random numbers whenever the strategy samples lights and the scene has any.
+    /// Next-event estimation at a non-delta vertex (pbrt's `SampleLd`): the contribution of one
+    /// light sample to a path of throughput `beta`, if the strategy uses light sampling, the
+    /// BSDF value is non-zero and the sample is unoccluded. Draws three random numbers whenever
+    /// the strategy samples lights and the scene has any.
+    ///
+    /// The sample is weighted by the power heuristic against the BSDF's density of its
+    /// direction, guided or not, and the emitter that a continuation reaches by the same two
+    /// densities ([`Integrator::emitted`]), so the two weights of every direction sum to one
+    /// whatever density the continuation was drawn from: the guide–BSDF mixture only divides
+    /// the continuation's throughput, and the guide's density of the light sample's direction
+    /// (a network query per light sample for the neural guide) is never needed. Weighing
+    /// against the mixture's density instead, as this renderer did before, gave the same error
+    /// at equal samples in 4–11% more time (docs/GUIDING.md, "MIS against the BSDF").
     fn sample_light(
         &self,
         scene: &Scene,
         b: &Bounce,
         material: &Material,
+        beta: Rgb,
         rng: &mut Pcg32,
         stats: &mut PathStats,
-    ) -> Option<LightContribution> {
+    ) -> Option<Rgb> {
         let lights = &scene.lights;
         if self.strategy == Strategy::Bsdf || lights.is_empty() {
             return None;
@@ -591,32 +582,12 @@ impl Integrator {
         if scene.occluded(&shadow, t_max) {
             return None;
         }
-        Some(LightContribution {
-            wi: ls.wi,
-            light_pdf: ls.pdf,
-            radiance: ls.radiance,
-            f,
-            bsdf_pdf: material.pdf(b.wo, wi),
-        })
-    }
-
-    /// The light sample's contribution to a path of throughput `beta`, weighted by the power
-    /// heuristic against the BSDF's density of the direction, guided or not. The emitter that a
-    /// continuation reaches is weighted by the same two densities ([`Integrator::emitted`]), so
-    /// the two weights of every direction sum to one whatever density the continuation was
-    /// drawn from: the guide–BSDF mixture only divides the continuation's throughput, and the
-    /// guide's density of the light sample's direction (a network query per light sample for
-    /// the neural guide) is never needed. Weighing against the mixture's density instead, as
-    /// this renderer did before, gave the same error at equal samples in 4–11% more time
-    /// (docs/GUIDING.md, "MIS against the BSDF").
-    fn light_contribution(&self, beta: Rgb, light: &LightContribution, b: &Bounce) -> Rgb {
         let w = if self.strategy == Strategy::Mis {
-            power_heuristic(light.light_pdf, light.bsdf_pdf)
+            power_heuristic(ls.pdf, material.pdf(b.wo, wi))
         } else {
             1.0
         };
-        let cos = b.frame.to_local(light.wi).z.abs();
-        beta * light.f * cos * light.radiance * (w / light.light_pdf)
+        Some(beta * f * wi.z.abs() * ls.radiance * (w / ls.pdf))
     }
 
     /// The direction a vertex continues in, from the technique it chose (`None`: the
