@@ -803,8 +803,10 @@ impl NisGuide {
                 .clamp(self.config.min_steps, self.config.max_steps);
             if let Some(a) = &mut self.average {
                 a.resume(&mut [self.flow.params_mut(), &mut self.selection_params]);
-                let horizon = (f64::from(self.config.average_span) * steps as f64).max(1.0);
-                a.set_decay((1.0 - 1.0 / horizon) as f32);
+                a.set_decay(ParamAverage::span_decay(
+                    f64::from(self.config.average_span),
+                    steps,
+                ));
             }
             let phase = iteration as u64 + 1;
             let mut rng = Pcg64Mcg::seed_from_u64(self.config.seed ^ phase << PHASE_SEED_SHIFT);

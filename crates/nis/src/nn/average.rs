@@ -18,7 +18,7 @@ pub struct ParamAverage {
     steps: i32,
     /// `Π_t β_t` over the steps so far: the average's weights sum to one minus it.
     decayed: f64,
-    /// `Σ_t (1 − β)·β^(T−t)·θ_t`.
+    /// `Σ_t (1 − β_t)·Π_{s>t} β_s·θ_t`.
     sum: Vec<f32>,
     /// The last iterates, while the owner holds the average.
     iterate: Vec<f32>,
@@ -35,6 +35,14 @@ impl ParamAverage {
             sum: vec![0.0; iterate.len()],
             iterate,
         }
+    }
+
+    /// The decay `β = 1 − 1/(span·steps) ∈ [0, 1)` of an average that spans a share `span` of
+    /// `steps` steps (a horizon of at least one step), the rule both the integrator and the
+    /// path guide set their averages by.
+    pub fn span_decay(span: f64, steps: usize) -> f32 {
+        let horizon = (span * steps as f64).max(1.0);
+        (1.0 - 1.0 / horizon) as f32
     }
 
     /// The decay `β ∈ [0, 1)` of the steps from now on.
@@ -141,6 +149,14 @@ mod tests {
             avg.resume(&mut [&mut a2, &mut b2]);
             assert_eq!([a2, b2].concat(), last);
         }
+    }
+
+    #[test]
+    fn a_span_gives_the_decay_of_its_horizon_and_never_less_than_one_step() {
+        // A tenth of 1000 steps is a horizon of 100: β = 0.99.
+        assert_eq!(ParamAverage::span_decay(0.1, 1000), 0.99);
+        // Half of one step rounds up to a horizon of one: β = 0, the last step alone.
+        assert_eq!(ParamAverage::span_decay(0.5, 1), 0.0);
     }
 
     #[test]

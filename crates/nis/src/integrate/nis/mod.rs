@@ -199,8 +199,7 @@ impl NisIntegrator {
             // The average spans a share of the same steps (a loaded integrator's first
             // training starts an average of its own).
             if self.config.average_span > 0.0 {
-                let horizon = (self.config.average_span * steps as f64).max(1.0);
-                let decay = (1.0 - 1.0 / horizon) as f32;
+                let decay = ParamAverage::span_decay(self.config.average_span, steps);
                 self.average = Some(ParamAverage::new(decay, &[self.trainer.flow().params()]));
             }
             self.scheduled = true;
