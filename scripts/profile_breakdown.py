@@ -8,7 +8,8 @@ import sys
 
 # Stage: the first rule whose names occur anywhere on the stack.
 STAGES = [
-    ("training (Adam steps)", ("NisGuide::train", "NisGuide::step", "nis::train::descend")),
+    ("training (Adam steps)",
+     ("NisGuide::train", "NisGuide::step", "nis::train::descend", "NisGuide as nis_render::guiding::Guide>::update")),
     ("record handling", ("as nis_render::guiding::Guide>::accumulate", "PassSamples::trim")),
     ("density queries (BSDF-sampled directions)", ("pdf_batch",)),
     ("sample queries", ("sample_batch",)),

@@ -197,7 +197,12 @@ pub fn check_points(x: &[f32], dim: usize, what: &'static str) -> Result<usize> 
             got: x.len(),
         });
     }
-    if let Some(i) = x.iter().position(|v| !(0.0..=1.0).contains(v)) {
+    // A fold without early exit vectorises; the position is looked for only on failure.
+    if !x.iter().fold(true, |ok, v| ok & (0.0..=1.0).contains(v)) {
+        let i = x
+            .iter()
+            .position(|v| !(0.0..=1.0).contains(v))
+            .expect("a point outside [0, 1]");
         return Err(Error::OutOfDomain {
             index: i / dim,
             coord: i % dim,
@@ -217,7 +222,11 @@ pub fn check_context(n: usize, cdim: usize, ctx: Option<&[f32]>) -> Result<()> {
             got,
         });
     }
-    if let Some((i, v)) = ctx.and_then(|c| c.iter().enumerate().find(|(_, v)| !v.is_finite())) {
+    let finite = |c: &[f32]| c.iter().fold(true, |ok, v| ok & v.is_finite());
+    if let Some((i, v)) = ctx
+        .filter(|c| !finite(c))
+        .and_then(|c| c.iter().enumerate().find(|(_, v)| !v.is_finite()))
+    {
         return Err(Error::NonFinite {
             what: "context feature",
             index: i / cdim,
