@@ -15,7 +15,7 @@ STAGES = [
     ("sample queries", ("sample_batch",)),
     ("selection network", ("selection_probabilities",)),
     ("per-vertex cache (context one-blob, first layers)", (">::prepare", "vertex_context")),
-    ("path tracing, and network work whose stack perf cut short", ("Integrator", "render::")),
+    ("path tracing (BVH, BSDF, lights, the wavefront)", ("Integrator", "render::")),
 ]
 
 # Kernel: the first of the innermost twelve frames that names one.
@@ -26,7 +26,7 @@ KERNELS = [
     ("ReLU", ("relu",)),
     ("allocation, zeroing, copies",
      ("memset", "memmove", "memcpy", "malloc", "_int_free", "cfree", "unlink_chunk",
-      "from_iter", "realloc", "alloc::")),
+      "from_iter", "realloc", "alloc::", "clear_page", "page_fault")),
     ("input checks", ("check_context", "check_points")),
     ("BVH traversal", ("bvh", "Bvh")),
     ("cylindrical map (atan2, sincos)", ("atan", "sincos", "cylindrical")),
@@ -49,7 +49,7 @@ def main(path):
         if len(lines) < 2:
             continue
         frames = [re.sub(r"^[0-9a-f]+\s+", "", l) for l in lines[1:]]
-        stages[first_match(STAGES, "\n".join(frames), "other (start-up, I/O)")] += 1
+        stages[first_match(STAGES, "\n".join(frames), "other (start-up, I/O; allocator frames whose callers perf cannot see)")] += 1
         kernel = "other"
         for f in frames[:12]:
             k = first_match(KERNELS, f, None)
