@@ -164,9 +164,11 @@ impl Layer for Coupling {
         tape
     }
 
-    /// Layer by layer from the last, over all chunks at once: the transforms' reverse mode per
-    /// chunk, then the conditioner's over every chunk's tape (its weight gradients reduced in a
-    /// fixed order on large matrices), then the encoding's per chunk.
+    /// Layer by layer from the last: each chunk's reverse chain through the layer (the
+    /// transforms' reverse mode, the conditioner's without its parameter gradients, the
+    /// encoding's) runs alongside the parameter gradients of the layer after it, from all
+    /// chunks (reduced in a fixed order on large matrices): one parallel loop per layer, and
+    /// the gradients at the conditioners' layers of at most two couplings held at a time.
     fn backward_stack(
         stack: &Composed<Coupling>,
         chunks: &[ChunkTape<MlpTape>],
@@ -186,37 +188,53 @@ impl Layer for Coupling {
                 Some(start)
             })
             .collect();
-        for (l, coupling) in stack.layers.iter().enumerate().rev() {
-            let g_out: Vec<Vec<f32>> = chunks
+        // The chunks' reverse chains through layer `l`: per chunk, the gradients at the outputs
+        // of the conditioner's layers.
+        let chains = |l: usize, g_u: &mut [Vec<f32>]| -> Vec<Vec<Vec<f32>>> {
+            let coupling = &stack.layers[l];
+            let params = coupling.params(&stack.params);
+            chunks
                 .par_iter()
                 .zip(g_u.par_iter_mut())
-                .enumerate()
-                .map(|(c, (chunk, g_u))| {
+                .zip(&starts)
+                .map(|((chunk, g_u), &start)| {
                     let t = &chunk[l];
-                    let g_ld = &g_log_det[starts[c]..starts[c] + t.record.rows];
-                    coupling.transform_backward(&t.record, &t.input, dim, g_u, g_ld)
+                    let g_ld = &g_log_det[start..start + t.record.rows];
+                    let g_out = coupling.transform_backward(&t.record, &t.input, dim, g_u, g_ld);
+                    // The first layer's input is the fixed x: no gradient needed below it.
+                    let want = l > 0 && !coupling.a.is_empty();
+                    let (deltas, g_enc) =
+                        coupling.mlp.backward_deltas(params, &t.record, g_out, want);
+                    if let Some(g_enc) = g_enc {
+                        coupling.encoding_backward(&t.record, &t.input, dim, &g_enc, g_u);
+                    }
+                    deltas
                 })
-                .collect();
+                .collect()
+        };
+        // Layer `l`'s parameter gradients from its chains, into its slice of `grads`.
+        let params_of = |l: usize, deltas: Vec<Vec<Vec<f32>>>, part: &mut [f32]| {
             let tapes: Vec<&MlpTape> = chunks.iter().map(|c| &c[l].record).collect();
-            let range = coupling.offset..coupling.offset + coupling.mlp.param_count();
-            // The first layer's input is the fixed x: no gradient needed below it.
-            let g_enc = coupling.mlp.backward(
-                coupling.params(&stack.params),
-                &tapes,
-                g_out,
-                &mut grads[range],
-                l > 0 && !coupling.a.is_empty(),
-            );
-            if let Some(g_enc) = g_enc {
-                chunks
-                    .par_iter()
-                    .zip(g_u.par_iter_mut())
-                    .zip(g_enc.par_iter())
-                    .for_each(|((chunk, g_u), g_enc)| {
-                        let t = &chunk[l];
-                        coupling.encoding_backward(&t.record, &t.input, dim, g_enc, g_u);
-                    });
-            }
+            let deltas: Vec<&[Vec<f32>]> = deltas.iter().map(Vec::as_slice).collect();
+            stack.layers[l].mlp.param_gradients(&tapes, &deltas, part);
+        };
+        let range = |l: usize| {
+            let c = &stack.layers[l];
+            c.offset..c.offset + c.mlp.param_count()
+        };
+        let mut pending: Option<(usize, Vec<Vec<Vec<f32>>>)> = None;
+        for l in (0..stack.layers.len()).rev() {
+            let deltas = match pending.take() {
+                None => chains(l, &mut g_u),
+                Some((after, d)) => {
+                    let part = &mut grads[range(after)];
+                    rayon::join(|| chains(l, &mut g_u), || params_of(after, d, part)).0
+                }
+            };
+            pending = Some((l, deltas));
+        }
+        if let Some((l, d)) = pending {
+            params_of(l, d, &mut grads[range(l)]);
         }
     }
 }

@@ -106,17 +106,70 @@ impl Mlp {
         &self,
         params: &[f32],
         tapes: &[&MlpTape],
-        mut g: Vec<Vec<f32>>,
+        g_out: Vec<Vec<f32>>,
         grads: &mut [f32],
         want_input_grad: bool,
     ) -> Option<Vec<Vec<f32>>> {
+        let chains: Vec<_> = g_out
+            .into_par_iter()
+            .zip(tapes.par_iter())
+            .map(|(g, tape)| self.backward_deltas(params, tape, g, want_input_grad))
+            .collect();
+        let deltas: Vec<&[Vec<f32>]> = chains.iter().map(|(d, _)| d.as_slice()).collect();
+        self.param_gradients(tapes, &deltas, grads);
+        if !want_input_grad {
+            return None;
+        }
+        chains.into_iter().map(|(_, g_in)| g_in).collect()
+    }
+
+    /// Reverse mode of one chunk through the layers, without the parameter gradients (which
+    /// need every chunk: [`Mlp::param_gradients`]): `deltas[j]`, ∂L/∂(output of layer `j`)
+    /// through its activation, for every layer, and ∂L/∂input when asked. A chunk's whole chain
+    /// runs in one work item, so a backward pass over many layers is two parallel loops, not
+    /// two per layer.
+    pub fn backward_deltas(
+        &self,
+        params: &[f32],
+        tape: &MlpTape,
+        g_out: Vec<f32>,
+        want_input_grad: bool,
+    ) -> (Vec<Vec<f32>>, Option<Vec<f32>>) {
+        let mut deltas = vec![Vec::new(); self.layers()];
+        let mut g = g_out;
         for j in (0..self.layers()).rev() {
+            if j == 0 && !want_input_grad {
+                deltas[0] = g;
+                return (deltas, None);
+            }
             let (i, o) = (self.dims[j], self.dims[j + 1]);
             let (wo, bo) = self.offsets(j);
-            let (g_w, rest) = grads[wo..].split_at_mut(bo - wo);
-            let g_b = &mut rest[..o];
-            let g_ref = &g;
-            // Weight and bias gradients: each block walks the chunks in order.
+            // Gradient with respect to this layer's input, through the previous ReLU.
+            let mut g_in = vec![0.0; tape.rows * i];
+            dense::backward_input(&g, &params[wo..bo], &mut g_in, tape.rows, i, o);
+            if j > 0 {
+                elementwise::relu_backward(&tape.acts[j], &mut g_in);
+            }
+            deltas[j] = std::mem::replace(&mut g, g_in);
+        }
+        (deltas, Some(g))
+    }
+
+    /// ∂L/∂parameters into `grads` (overwriting) from every chunk's tape and
+    /// [`Mlp::backward_deltas`]: each block of a weight gradient, and each bias, walks the
+    /// chunks in order, so the sums do not depend on how the blocks are scheduled.
+    pub fn param_gradients(&self, tapes: &[&MlpTape], deltas: &[&[Vec<f32>]], grads: &mut [f32]) {
+        let mut layers = Vec::with_capacity(self.layers());
+        let mut rest = grads;
+        for j in 0..self.layers() {
+            let (i, o) = (self.dims[j], self.dims[j + 1]);
+            let (g_w, tail) = std::mem::take(&mut rest).split_at_mut(i * o);
+            let (g_b, tail) = tail.split_at_mut(o);
+            rest = tail;
+            layers.push((j, g_w, g_b));
+        }
+        layers.into_par_iter().for_each(|(j, g_w, g_b)| {
+            let (i, o) = (self.dims[j], self.dims[j + 1]);
             rayon::join(
                 || {
                     g_w.par_chunks_mut(weight_block_rows(i) * o)
@@ -128,7 +181,7 @@ impl Mlp {
                                 let shape = dense::Shape { n: tape.rows, i, o };
                                 dense::backward_weights_block(
                                     &tape.acts[j],
-                                    &g_ref[c],
+                                    &deltas[c][j],
                                     g_w,
                                     shape,
                                     r0..r0 + m,
@@ -141,32 +194,14 @@ impl Mlp {
                     g_b.fill(0.0);
                     let mut sums = vec![0.0; o];
                     for (c, tape) in tapes.iter().enumerate() {
-                        elementwise::column_sums(&g_ref[c][..tape.rows * o], o, 0, &mut sums);
+                        elementwise::column_sums(&deltas[c][j][..tape.rows * o], o, 0, &mut sums);
                         for (a, s) in g_b.iter_mut().zip(&sums) {
                             *a += s;
                         }
                     }
                 },
             );
-            if j == 0 && !want_input_grad {
-                return None;
-            }
-            // Gradient with respect to this layer's input, through the previous ReLU.
-            let w = &params[wo..bo];
-            g = g
-                .par_iter()
-                .zip(tapes.par_iter())
-                .map(|(g, tape)| {
-                    let mut g_in = vec![0.0; tape.rows * i];
-                    dense::backward_input(g, w, &mut g_in, tape.rows, i, o);
-                    if j > 0 {
-                        elementwise::relu_backward(&tape.acts[j], &mut g_in);
-                    }
-                    g_in
-                })
-                .collect();
-        }
-        Some(g)
+        });
     }
 }
 
