@@ -693,22 +693,26 @@ impl NisGuide {
             }
         }
         stats.loss = loss / n as f64;
-        nis::train::descend(
-            &mut self.flow,
-            &mut self.flow_adam,
-            &evaluated.tape,
-            &w_flow,
-        )?;
-        if !selection {
-            return Ok(stats);
+        // The two networks' gradients side by side; the selection network steps only if the
+        // flow did.
+        let (g_flow, g_sel) = rayon::join(
+            || self.flow.backward(&evaluated.tape, &w_flow),
+            || {
+                selection.then(|| {
+                    let g_out = g_logit.chunks(CHUNK_ROWS).map(<[f32]>::to_vec).collect();
+                    let refs: Vec<&MlpTape> = tapes.iter().collect();
+                    let mut g = vec![0.0; self.selection_params.len()];
+                    self.selection
+                        .backward(&self.selection_params, &refs, g_out, &mut g, false);
+                    g
+                })
+            },
+        );
+        self.flow_adam.step(self.flow.params_mut(), &g_flow?)?;
+        if let Some(g_sel) = g_sel {
+            self.selection_adam
+                .step(&mut self.selection_params, &g_sel)?;
         }
-        let g_out: Vec<Vec<f32>> = g_logit.chunks(CHUNK_ROWS).map(<[f32]>::to_vec).collect();
-        let refs: Vec<&MlpTape> = tapes.iter().collect();
-        let mut g_sel = vec![0.0; self.selection_params.len()];
-        self.selection
-            .backward(&self.selection_params, &refs, g_out, &mut g_sel, false);
-        self.selection_adam
-            .step(&mut self.selection_params, &g_sel)?;
         Ok(stats)
     }
 
@@ -813,9 +817,13 @@ impl NisGuide {
             let size = self.config.batch.min(self.buffer.len());
             let mut batch = Vec::with_capacity(size);
             for _ in 0..steps {
+                // The indices from the phase's stream in order; the gather, a cache miss per
+                // record in a large buffer, in parallel.
+                let picks: Vec<usize> = (0..size)
+                    .map(|_| rng.random_range(0..self.buffer.len()))
+                    .collect();
                 batch.clear();
-                batch
-                    .extend((0..size).map(|_| self.buffer[rng.random_range(0..self.buffer.len())]));
+                batch.par_extend(picks.par_iter().map(|&i| self.buffer[i]));
                 match self.step(&batch, self.history.len() >= self.config.selection_warmup) {
                     Ok(s) => {
                         stats.mean_selection = s.mean_selection;
