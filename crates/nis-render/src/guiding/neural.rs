@@ -649,8 +649,11 @@ impl NisGuide {
         let scalars: Vec<_> = batch.iter().map(|s| s.context).collect();
         let context = self.encode(&scalars);
         let x: Vec<f32> = batch.iter().flat_map(|s| s.x).collect();
-        let evaluated = self.flow.log_density_for_training(&x, Some(&context))?;
-        let (tapes, c) = self.select(&context);
+        let (evaluated, (tapes, c)) = rayon::join(
+            || self.flow.log_density_for_training(&x, Some(&context)),
+            || self.select(&context),
+        );
+        let evaluated = evaluated?;
         let m = self.config.min_selection;
         let mut base = Vec::with_capacity(n);
         let mut mix = Vec::with_capacity(n);
