@@ -253,4 +253,95 @@ mod tests {
             }
         }
     }
+
+    /// The loss Σ_c Σ g_c · output_c over chunks of the given inputs, in f64.
+    fn linear_loss(mlp: &Mlp, params: &[f32], inputs: &[Vec<f32>], g: &[Vec<f32>]) -> f64 {
+        let i = mlp.dims[0];
+        inputs
+            .iter()
+            .zip(g)
+            .map(|(x, g)| {
+                let mut tape = mlp.tape(x.len() / i);
+                tape.acts[0].copy_from_slice(x);
+                mlp.forward(params, &mut tape);
+                let out = tape.acts.last().unwrap();
+                out.iter()
+                    .zip(g)
+                    .map(|(&o, &g)| o as f64 * g as f64)
+                    .sum::<f64>()
+            })
+            .sum()
+    }
+
+    #[test]
+    fn backward_over_chunks_matches_finite_differences() {
+        // Three layers over two chunks of different sizes: every parameter's gradient and every
+        // input's, against central differences of a loss linear in the outputs.
+        let mlp = Mlp {
+            dims: vec![4, 6, 5, 3],
+        };
+        let mut rng = rand_pcg::Pcg64Mcg::seed_from_u64(11);
+        let mut params = vec![0.0; mlp.param_count()];
+        mlp.init(&mut params, &mut rng);
+        for p in params.iter_mut() {
+            *p += 0.5 * (rng.random::<f32>() - 0.5);
+        }
+        let rows = [3, 5];
+        let inputs: Vec<Vec<f32>> = rows
+            .iter()
+            .map(|&n| (0..n * 4).map(|_| rng.random::<f32>()).collect())
+            .collect();
+        let g: Vec<Vec<f32>> = rows
+            .iter()
+            .map(|&n| (0..n * 3).map(|_| rng.random::<f32>() - 0.5).collect())
+            .collect();
+        let tapes: Vec<MlpTape> = inputs
+            .iter()
+            .map(|x| {
+                let mut tape = mlp.tape(x.len() / 4);
+                tape.acts[0].copy_from_slice(x);
+                mlp.forward(&params, &mut tape);
+                tape
+            })
+            .collect();
+        let refs: Vec<&MlpTape> = tapes.iter().collect();
+        let mut grads = vec![f32::NAN; params.len()];
+        let g_in = mlp
+            .backward(&params, &refs, g.clone(), &mut grads, true)
+            .unwrap();
+        // h well above f32 rounding of the O(1) loss and below the ReLU kinks' reach here.
+        let h = 1e-3f32;
+        let tol = |fd: f64| 2e-3 + 1e-2 * fd.abs();
+        for k in 0..params.len() {
+            let (mut up, mut down) = (params.clone(), params.clone());
+            up[k] += h;
+            down[k] -= h;
+            let fd = (linear_loss(&mlp, &up, &inputs, &g) - linear_loss(&mlp, &down, &inputs, &g))
+                / (2.0 * h as f64);
+            assert!(
+                (grads[k] as f64 - fd).abs() < tol(fd),
+                "param {k}: {} vs {fd}",
+                grads[k]
+            );
+        }
+        for c in 0..inputs.len() {
+            for k in 0..inputs[c].len() {
+                let (mut up, mut down) = (inputs.clone(), inputs.clone());
+                up[c][k] += h;
+                down[c][k] -= h;
+                let fd = (linear_loss(&mlp, &params, &up, &g)
+                    - linear_loss(&mlp, &params, &down, &g))
+                    / (2.0 * h as f64);
+                let got = g_in[c][k] as f64;
+                assert!((got - fd).abs() < tol(fd), "input {c}/{k}: {got} vs {fd}");
+            }
+        }
+        // Without input gradients: the same parameter gradients, bit for bit.
+        let mut again = vec![f32::NAN; params.len()];
+        assert!(mlp.backward(&params, &refs, g, &mut again, false).is_none());
+        assert!(grads
+            .iter()
+            .zip(&again)
+            .all(|(a, b)| a.to_bits() == b.to_bits()));
+    }
 }
