@@ -187,6 +187,15 @@ pub fn next_version() -> u64 {
     NEXT.fetch_add(1, Ordering::Relaxed)
 }
 
+/// The index of the first value of `v` that fails `ok`. The check of every value is a fold
+/// without early exit, which vectorises; the index is looked for only when one fails.
+fn first_failing(v: &[f32], ok: impl Fn(f32) -> bool) -> Option<usize> {
+    if v.iter().fold(true, |all, &x| all & ok(x)) {
+        return None;
+    }
+    v.iter().position(|&x| !ok(x))
+}
+
 /// Checks that `x` holds whole rows of `dim` values inside [0, 1] (`what` names the rows in the
 /// error); returns the number of rows.
 pub fn check_points(x: &[f32], dim: usize, what: &'static str) -> Result<usize> {
@@ -197,12 +206,7 @@ pub fn check_points(x: &[f32], dim: usize, what: &'static str) -> Result<usize> 
             got: x.len(),
         });
     }
-    // A fold without early exit vectorises; the position is looked for only on failure.
-    if !x.iter().fold(true, |ok, v| ok & (0.0..=1.0).contains(v)) {
-        let i = x
-            .iter()
-            .position(|v| !(0.0..=1.0).contains(v))
-            .expect("a point outside [0, 1]");
+    if let Some(i) = first_failing(x, |v| (0.0..=1.0).contains(&v)) {
         return Err(Error::OutOfDomain {
             index: i / dim,
             coord: i % dim,
@@ -222,15 +226,11 @@ pub fn check_context(n: usize, cdim: usize, ctx: Option<&[f32]>) -> Result<()> {
             got,
         });
     }
-    let finite = |c: &[f32]| c.iter().fold(true, |ok, v| ok & v.is_finite());
-    if let Some((i, v)) = ctx
-        .filter(|c| !finite(c))
-        .and_then(|c| c.iter().enumerate().find(|(_, v)| !v.is_finite()))
-    {
+    if let Some((i, c)) = ctx.and_then(|c| Some((first_failing(c, f32::is_finite)?, c))) {
         return Err(Error::NonFinite {
             what: "context feature",
             index: i / cdim,
-            value: *v as f64,
+            value: c[i] as f64,
         });
     }
     Ok(())

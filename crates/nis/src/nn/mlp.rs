@@ -128,7 +128,7 @@ impl Mlp {
     /// through its activation, for every layer, and ∂L/∂input when asked. A chunk's whole chain
     /// runs in one work item, so a backward pass over many layers is two parallel loops, not
     /// two per layer.
-    pub fn backward_deltas(
+    pub(crate) fn backward_deltas(
         &self,
         params: &[f32],
         tape: &MlpTape,
@@ -158,7 +158,7 @@ impl Mlp {
     /// ∂L/∂parameters into `grads` (overwriting) from every chunk's tape and
     /// [`Mlp::backward_deltas`]: each block of a weight gradient, and each bias, walks the
     /// chunks in order, so the sums do not depend on how the blocks are scheduled.
-    pub fn param_gradients(&self, tapes: &[&MlpTape], deltas: &[&[Vec<f32>]], grads: &mut [f32]) {
+    pub(crate) fn param_gradients(&self, tapes: &[&MlpTape], deltas: &[&[Vec<f32>]], grads: &mut [f32]) {
         let mut layers = Vec::with_capacity(self.layers());
         let mut rest = grads;
         for j in 0..self.layers() {
