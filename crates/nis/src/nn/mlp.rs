@@ -158,7 +158,12 @@ impl Mlp {
     /// ∂L/∂parameters into `grads` (overwriting) from every chunk's tape and
     /// [`Mlp::backward_deltas`]: each block of a weight gradient, and each bias, walks the
     /// chunks in order, so the sums do not depend on how the blocks are scheduled.
-    pub(crate) fn param_gradients(&self, tapes: &[&MlpTape], deltas: &[&[Vec<f32>]], grads: &mut [f32]) {
+    pub(crate) fn param_gradients(
+        &self,
+        tapes: &[&MlpTape],
+        deltas: &[&[Vec<f32>]],
+        grads: &mut [f32],
+    ) {
         let mut layers = Vec::with_capacity(self.layers());
         let mut rest = grads;
         for j in 0..self.layers() {
