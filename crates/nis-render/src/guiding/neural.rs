@@ -819,12 +819,12 @@ impl NisGuide {
             let mut rng = Pcg64Mcg::seed_from_u64(self.config.seed ^ phase << PHASE_SEED_SHIFT);
             let size = self.config.batch.min(self.buffer.len());
             let mut batch = Vec::with_capacity(size);
+            let mut picks = Vec::with_capacity(size);
             for _ in 0..steps {
                 // The indices from the phase's stream in order; the gather, a cache miss per
                 // record in a large buffer, in parallel.
-                let picks: Vec<usize> = (0..size)
-                    .map(|_| rng.random_range(0..self.buffer.len()))
-                    .collect();
+                picks.clear();
+                picks.extend((0..size).map(|_| rng.random_range(0..self.buffer.len())));
                 batch.clear();
                 batch.par_extend(picks.par_iter().map(|&i| self.buffer[i]));
                 match self.step(&batch, self.history.len() >= self.config.selection_warmup) {
