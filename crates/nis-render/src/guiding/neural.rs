@@ -48,8 +48,9 @@ use std::collections::VecDeque;
 
 use glam::{Vec2, Vec3};
 use nis::flow::{Bijection, Density, Direction, Flow, FlowConfig};
+use nis::kernels::dense::{self, Layout, Shape};
 use nis::kernels::elementwise::{one_blob, relu};
-use nis::kernels::{dense, CHUNK_ROWS};
+use nis::kernels::CHUNK_ROWS;
 use nis::nn::mlp::MlpTape;
 use nis::nn::{Adam, AdamConfig, Mlp, ParamAverage};
 use nis::{Transform, TransformKind};
@@ -420,6 +421,7 @@ impl NisGuide {
                 config.selection_width,
                 1,
             ],
+            output: Layout::Rows,
         };
         let mut selection_params = vec![0.0; selection.param_count()];
         let mut rng = Pcg64Mcg::seed_from_u64(config.seed ^ SELECTION_SEED_SALT);
@@ -547,7 +549,7 @@ impl NisGuide {
                         c.encoding.encode(&s, e);
                     }
                     let (w, _) = mlp.layer_params(p, 0);
-                    dense::accumulate(&enc, &w[..enc_w * h], first, n, enc_w, h);
+                    dense::accumulate(&enc, &w[..enc_w * h], first, Shape::rows(n, enc_w, h));
                     if mlp.layers() > 1 {
                         relu(first);
                     }
@@ -885,9 +887,7 @@ impl Guide for NisGuide {
                     &self.context_weights,
                     &self.context_bias,
                     out,
-                    v.len(),
-                    cdim,
-                    width,
+                    Shape::rows(v.len(), cdim, width),
                 );
             });
     }

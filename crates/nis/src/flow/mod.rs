@@ -41,6 +41,7 @@ use rand::SeedableRng;
 use rand_pcg::Pcg64Mcg;
 
 use crate::error::Result;
+use crate::kernels::dense::Layout;
 use crate::nn::encoding::OneBlob;
 use crate::nn::mlp::Mlp;
 use crate::transform::Transform;
@@ -75,7 +76,10 @@ impl Flow {
                 config.hidden_layers,
             ));
             dims.push(b.len() * np);
-            let mlp = Mlp { dims };
+            let mlp = Mlp {
+                dims,
+                output: Layout::Rows,
+            };
             let len = mlp.param_count();
             couplings.push(Coupling {
                 a,

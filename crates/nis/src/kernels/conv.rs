@@ -111,12 +111,14 @@ pub fn forward(
     col: &mut [f32],
 ) {
     im2col(x, s, col);
-    dense::forward(col, weight, bias, out, s.pixels(), TAPS * s.c_in, s.c_out);
+    let shape = dense::Shape::rows(s.pixels(), TAPS * s.c_in, s.c_out);
+    dense::forward(col, weight, bias, out, shape);
 }
 
 /// ∂L/∂x from ∂L/∂out (overwrites `g_x`); `col` is scratch of at least [`Shape::col_len`].
 pub fn backward_input(g_out: &[f32], weight: &[f32], g_x: &mut [f32], s: Shape, col: &mut [f32]) {
-    dense::backward_input(g_out, weight, col, s.pixels(), TAPS * s.c_in, s.c_out);
+    let shape = dense::Shape::rows(s.pixels(), TAPS * s.c_in, s.c_out);
+    dense::backward_input(g_out, weight, col, shape);
     col2im(col, s, g_x);
 }
 
@@ -133,11 +135,7 @@ pub fn backward_weights(
 ) {
     im2col(x, s, col);
     let k = TAPS * s.c_in;
-    let shape = dense::Shape {
-        n: s.pixels(),
-        i: k,
-        o: s.c_out,
-    };
+    let shape = dense::Shape::rows(s.pixels(), k, s.c_out);
     dense::backward_weights_block(col, g_out, g_w, shape, 0..k, accumulate);
     let mut sums = vec![0.0; s.c_out];
     elementwise::column_sums(&g_out[..s.pixels() * s.c_out], s.c_out, 0, &mut sums);

@@ -1,13 +1,15 @@
 //! A multilayer perceptron with ReLU hidden layers whose weights live in a slice of the flow's
-//! flat parameter vector. Activations are row-major `[rows, features]` and kept per chunk of
-//! rows (the tape), so a backward pass can reuse what the forward pass computed.
+//! flat parameter vector. Activations are row-major `[rows, features]` (the output layer's in
+//! the MLP's [`Layout`]) and kept per chunk of rows (the tape), so a backward pass can reuse
+//! what the forward pass computed.
 //!
 //! Layout of one layer's parameters: weights `[in, out]` row-major, then the `out` biases.
 
 use rand::Rng;
 use rayon::prelude::*;
 
-use crate::kernels::{dense, elementwise};
+use crate::kernels::dense::{self, Layout, Shape};
+use crate::kernels::elementwise;
 
 /// Rows of an `i`-row weight gradient computed by one work item: two blocks for wide layers (so
 /// two threads share them), each large enough that its gemm calls are efficient — 32-row blocks
@@ -21,6 +23,9 @@ fn weight_block_rows(i: usize) -> usize {
 #[derive(Clone, Debug, PartialEq)]
 pub struct Mlp {
     pub dims: Vec<usize>,
+    /// How the output layer's activations (and the gradients at them) are laid out; the hidden
+    /// layers' are row-major.
+    pub output: Layout,
 }
 
 /// Activations of one chunk of rows: `acts[0]` is the input, `acts[last]` the output.
@@ -34,6 +39,21 @@ impl Mlp {
     /// Number of layers with weights.
     pub fn layers(&self) -> usize {
         self.dims.len() - 1
+    }
+
+    /// Layer `j`'s shape at `rows` rows.
+    fn shape(&self, j: usize, rows: usize) -> Shape {
+        let out = if j + 1 == self.layers() {
+            self.output
+        } else {
+            Layout::Rows
+        };
+        Shape {
+            n: rows,
+            i: self.dims[j],
+            o: self.dims[j + 1],
+            out,
+        }
     }
 
     /// Offsets of layer `j`'s weights and biases within this MLP's parameters.
@@ -87,20 +107,21 @@ impl Mlp {
     /// caller that computed the first layers some other way (e.g. with a part of the input shared
     /// by many rows precomputed) runs the rest.
     pub fn forward_from(&self, params: &[f32], tape: &mut MlpTape, first: usize) {
-        let n = tape.rows;
         for j in first..self.layers() {
-            let (i, o) = (self.dims[j], self.dims[j + 1]);
+            let shape = self.shape(j, tape.rows);
             let (wo, bo) = self.offsets(j);
             let (prev, next) = tape.acts.split_at_mut(j + 1);
             let out = &mut next[0];
-            dense::forward(&prev[j], &params[wo..bo], &params[bo..bo + o], out, n, i, o);
+            let b = &params[bo..bo + shape.o];
+            dense::forward(&prev[j], &params[wo..bo], b, out, shape);
             if j + 1 < self.layers() {
                 elementwise::relu(out);
             }
         }
     }
 
-    /// Backward pass over all chunks of a batch. `g_out[c]` is ∂L/∂output of chunk `c`. Writes
+    /// Backward pass over all chunks of a batch. `g_out[c]` is ∂L/∂output of chunk `c` (laid out
+    /// as the output). Writes
     /// ∂L/∂parameters into `grads` (overwriting) and returns ∂L/∂input per chunk when asked.
     pub fn backward(
         &self,
@@ -142,11 +163,11 @@ impl Mlp {
                 deltas[0] = g;
                 return (deltas, None);
             }
-            let (i, o) = (self.dims[j], self.dims[j + 1]);
+            let shape = self.shape(j, tape.rows);
             let (wo, bo) = self.offsets(j);
             // Gradient with respect to this layer's input, through the previous ReLU.
-            let mut g_in = vec![0.0; tape.rows * i];
-            dense::backward_input(&g, &params[wo..bo], &mut g_in, tape.rows, i, o);
+            let mut g_in = vec![0.0; tape.rows * shape.i];
+            dense::backward_input(&g, &params[wo..bo], &mut g_in, shape);
             if j > 0 {
                 elementwise::relu_backward(&tape.acts[j], &mut g_in);
             }
@@ -183,7 +204,7 @@ impl Mlp {
                             let r0 = blk * weight_block_rows(i);
                             let m = g_w.len() / o.max(1);
                             for (c, tape) in tapes.iter().enumerate() {
-                                let shape = dense::Shape { n: tape.rows, i, o };
+                                let shape = self.shape(j, tape.rows);
                                 dense::backward_weights_block(
                                     &tape.acts[j],
                                     &deltas[c][j],
@@ -199,7 +220,11 @@ impl Mlp {
                     g_b.fill(0.0);
                     let mut sums = vec![0.0; o];
                     for (c, tape) in tapes.iter().enumerate() {
-                        elementwise::column_sums(&deltas[c][j][..tape.rows * o], o, 0, &mut sums);
+                        let g = &deltas[c][j][..tape.rows * o];
+                        match self.shape(j, tape.rows).out {
+                            Layout::Rows => elementwise::column_sums(g, o, 0, &mut sums),
+                            Layout::Features => elementwise::row_sums(g, tape.rows, &mut sums),
+                        }
                         for (a, s) in g_b.iter_mut().zip(&sums) {
                             *a += s;
                         }
@@ -221,6 +246,7 @@ mod tests {
         // then the first inputs' accumulated onto it), the rest by `forward_from`.
         let mlp = Mlp {
             dims: vec![7, 5, 4, 3],
+            output: Layout::Features,
         };
         let mut params = vec![0.0; mlp.param_count()];
         let mut rng = rand_pcg::Pcg64Mcg::seed_from_u64(3);
@@ -240,16 +266,10 @@ mod tests {
         let first: Vec<f32> = x.chunks_exact(7).flat_map(|r| r[..head].to_vec()).collect();
         let rest: Vec<f32> = x.chunks_exact(7).flat_map(|r| r[head..].to_vec()).collect();
         let mut split = mlp.tape(rows);
-        dense::forward(
-            &rest,
-            &w[head * o..],
-            b,
-            &mut split.acts[1],
-            rows,
-            7 - head,
-            o,
-        );
-        dense::accumulate(&first, &w[..head * o], &mut split.acts[1], rows, head, o);
+        let (rest_shape, first_shape) =
+            (Shape::rows(rows, 7 - head, o), Shape::rows(rows, head, o));
+        dense::forward(&rest, &w[head * o..], b, &mut split.acts[1], rest_shape);
+        dense::accumulate(&first, &w[..head * o], &mut split.acts[1], first_shape);
         elementwise::relu(&mut split.acts[1]);
         mlp.forward_from(&params, &mut split, 1);
         for (a, b) in whole.acts.iter().zip(&split.acts).skip(1) {
@@ -280,10 +300,17 @@ mod tests {
 
     #[test]
     fn backward_over_chunks_matches_finite_differences() {
-        // Three layers over two chunks of different sizes: every parameter's gradient and every
-        // input's, against central differences of a loss linear in the outputs.
+        check_backward_over_chunks(Layout::Rows);
+        check_backward_over_chunks(Layout::Features);
+    }
+
+    /// Three layers over two chunks of different sizes: every parameter's gradient and every
+    /// input's, against central differences of a loss linear in the outputs (laid out as
+    /// `output`, as are the gradients at them).
+    fn check_backward_over_chunks(output: Layout) {
         let mlp = Mlp {
             dims: vec![4, 6, 5, 3],
+            output,
         };
         let mut rng = rand_pcg::Pcg64Mcg::seed_from_u64(11);
         let mut params = vec![0.0; mlp.param_count()];
