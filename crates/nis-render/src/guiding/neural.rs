@@ -556,20 +556,16 @@ impl NisGuide {
                     mlp.forward_from(p, &mut tape, 1);
                     let out = tape.acts.last().expect("an MLP has an output layer");
                     let np = c.transform.param_count();
-                    let ow = c.b.len() * np;
                     // A column at a time, through the transform's batched kernel (the same
                     // numbers as its per-scalar methods, which the couplings' tests check).
                     for (k, &d) in c.b.iter().enumerate() {
                         column.clear();
                         column.extend((0..n).map(|r| f64::from(u[r * dim + d])));
-                        let p = &out[k * np..];
+                        // Feature-major, as the coupling's conditioner writes it.
+                        let p = &out[k * np * n..(k + 1) * np * n];
                         match direction {
-                            Direction::Forward => {
-                                c.transform.forward_batch(p, ow, &mut column, log_q)
-                            }
-                            Direction::Inverse => {
-                                c.transform.inverse_batch(p, ow, &mut column, log_q)
-                            }
+                            Direction::Forward => c.transform.forward_batch(p, &mut column, log_q),
+                            Direction::Inverse => c.transform.inverse_batch(p, &mut column, log_q),
                         }
                         for (r, &v) in column.iter().enumerate() {
                             u[r * dim + d] = v as f32;

@@ -77,8 +77,7 @@ impl Coupling {
         let rows = tape.rows;
         let out = tape.acts.last().expect("an MLP has an output layer");
         let np = self.transform.param_count();
-        let width = self.b.len() * np;
-        let mut g_out = vec![0.0f32; rows * width];
+        let mut g_out = vec![0.0f32; rows * self.b.len() * np];
         // One B dimension at a time over all rows: the transform's batched kernel sees a column.
         let (mut x, mut g) = (vec![0.0f64; rows], vec![0.0f64; rows]);
         let g_ld: Vec<f64> = g_log_det.iter().map(|&v| v as f64).collect();
@@ -87,9 +86,10 @@ impl Coupling {
                 x[r] = input[r * dim + d] as f64;
                 g[r] = g_u[r * dim + d] as f64;
             }
-            let (p, g_p) = (&out[k * np..], &mut g_out[k * np..]);
-            self.transform
-                .backward_batch(p, width, &x, &mut g, &g_ld, g_p);
+            // The conditioner's output is feature-major: dimension k's parameters, then the next's.
+            let part = k * np * rows..(k + 1) * np * rows;
+            let (p, g_p) = (&out[part.clone()], &mut g_out[part]);
+            self.transform.backward_batch(p, &x, &mut g, &g_ld, g_p);
             for r in 0..rows {
                 g_u[r * dim + d] = g[r] as f32;
             }
@@ -146,16 +146,16 @@ impl Layer for Coupling {
         self.mlp.forward(self.params(params), &mut tape);
         let out = tape.acts.last().expect("an MLP has an output layer");
         let np = self.transform.param_count();
-        let width = self.b.len() * np;
         let mut v = vec![0.0f64; n];
         for (k, &d) in self.b.iter().enumerate() {
             for r in 0..n {
                 v[r] = u[r * dim + d] as f64;
             }
-            let p = &out[k * np..];
+            // The conditioner's output is feature-major: dimension k's parameters, then the next's.
+            let p = &out[k * np * n..(k + 1) * np * n];
             match direction {
-                Direction::Forward => self.transform.forward_batch(p, width, &mut v, log_det),
-                Direction::Inverse => self.transform.inverse_batch(p, width, &mut v, log_det),
+                Direction::Forward => self.transform.forward_batch(p, &mut v, log_det),
+                Direction::Inverse => self.transform.inverse_batch(p, &mut v, log_det),
             }
             for r in 0..n {
                 u[r * dim + d] = v[r] as f32;

@@ -76,9 +76,10 @@ impl Flow {
                 config.hidden_layers,
             ));
             dims.push(b.len() * np);
+            // Feature-major output: the transforms' kernels read each parameter across rows.
             let mlp = Mlp {
                 dims,
-                output: Layout::Rows,
+                output: Layout::Features,
             };
             let len = mlp.param_count();
             couplings.push(Coupling {

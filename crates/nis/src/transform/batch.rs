@@ -23,22 +23,21 @@ pub(crate) fn splat(v: f32) -> Lane {
     [v; LANES]
 }
 
-/// Transposes entries `from..from + out.len()` of the parameters of scalars `first..first + LANES`
-/// (scalar i's at `p[i·stride..]`) into `out[j][lane]`. Lanes past the last of `n` scalars repeat
-/// the last one, so they compute something finite that the caller discards.
+/// Copies parameters `from..from + out.len()` of scalars `first..first + LANES` of `n` into
+/// `out[j][lane]`, from the feature-major `p` (parameter j of scalar i at `p[j·n + i]`, as
+/// [`super::Transform::forward_batch`] takes them): a row of lanes is a slice of `p`. Lanes past
+/// the last scalar repeat it, so they compute something finite that the caller discards.
 #[inline(always)]
-pub(crate) fn gather(
-    p: &[f32],
-    stride: usize,
-    first: usize,
-    n: usize,
-    from: usize,
-    out: &mut [[f32; LANES]],
-) {
-    for l in 0..LANES {
-        let at = (first + l).min(n - 1) * stride + from;
-        for (j, o) in out.iter_mut().enumerate() {
-            o[l] = p[at + j];
+pub(crate) fn gather(p: &[f32], first: usize, n: usize, from: usize, out: &mut [[f32; LANES]]) {
+    let full = first + LANES <= n;
+    for (j, o) in out.iter_mut().enumerate() {
+        let row = &p[(from + j) * n..(from + j + 1) * n];
+        if full {
+            o.copy_from_slice(&row[first..first + LANES]);
+        } else {
+            for (l, o) in o.iter_mut().enumerate() {
+                *o = row[(first + l).min(n - 1)];
+            }
         }
     }
 }
@@ -108,22 +107,20 @@ pub(crate) fn softmax_floor_backward(
     }
 }
 
-/// Writes `g[j][lane]` back to entries `from..` of the parameter gradients of the group's real
-/// scalars (the first `lanes`), the transpose of [`gather`].
+/// Writes `g[j][lane]` back to parameter gradients `from..` of the group's real scalars (the
+/// first `lanes` from `first`, of `n`) in the feature-major `g_p`: the reverse of [`gather`].
 #[inline(always)]
 pub(crate) fn scatter(
     g: &[[f32; LANES]],
-    stride: usize,
     first: usize,
     lanes: usize,
+    n: usize,
     from: usize,
     g_p: &mut [f32],
 ) {
-    for l in 0..lanes {
-        let at = (first + l) * stride + from;
-        for (j, v) in g.iter().enumerate() {
-            g_p[at + j] = v[l];
-        }
+    for (j, v) in g.iter().enumerate() {
+        let at = (from + j) * n + first;
+        g_p[at..at + lanes].copy_from_slice(&v[..lanes]);
     }
 }
 

@@ -48,74 +48,65 @@ pub trait Transform {
     /// and returns ∂L/∂x.
     fn backward(&self, p: &[f32], x: f64, g_y: f64, g_log_det: f64, g_p: &mut [f32]) -> f64;
 
-    /// [`Transform::forward`] of `x.len()` scalars at once: scalar i has its parameters at
-    /// `p[i·stride..]`, `x[i]` becomes y_i and ln C'(x_i) is added to `log_det[i]`. A transform
-    /// may override it with a kernel that works across scalars; it must give the same numbers as
-    /// the per-scalar method (the default, and the reference the overrides are tested against).
-    fn forward_batch(&self, p: &[f32], stride: usize, x: &mut [f64], log_det: &mut [f64]) {
-        forward_each(self, p, stride, x, log_det);
+    /// [`Transform::forward`] of `x.len()` scalars at once, their parameters feature-major:
+    /// parameter j of scalar i at `p[j·n + i]` with n = `x.len()` (as a conditioner's output
+    /// layer writes them, [`crate::kernels::dense::Layout::Features`], so a kernel working across
+    /// scalars reads each parameter's values side by side). `x[i]` becomes y_i and ln C'(x_i)
+    /// is added to `log_det[i]`. A transform may override it with a kernel that works across
+    /// scalars; it must give the same numbers as the per-scalar method (the default, and the
+    /// reference the overrides are tested against).
+    fn forward_batch(&self, p: &[f32], x: &mut [f64], log_det: &mut [f64]) {
+        forward_each(self, p, x, log_det);
     }
 
     /// [`Transform::inverse`] of `y.len()` scalars at once, laid out as in
     /// [`Transform::forward_batch`]: `y[i]` becomes x_i and ln C'(x_i) is added to `log_det[i]`.
-    fn inverse_batch(&self, p: &[f32], stride: usize, y: &mut [f64], log_det: &mut [f64]) {
-        inverse_each(self, p, stride, y, log_det);
+    fn inverse_batch(&self, p: &[f32], y: &mut [f64], log_det: &mut [f64]) {
+        inverse_each(self, p, y, log_det);
     }
 
-    /// [`Transform::backward`] of `x.len()` scalars at once: `g[i]` holds ∂L/∂y_i on entry and
-    /// ∂L/∂x_i on exit; ∂L/∂p of scalar i is written to `g_p[i·stride..]` (overwriting it).
+    /// [`Transform::backward`] of `x.len()` scalars at once, laid out as in
+    /// [`Transform::forward_batch`]: `g[i]` holds ∂L/∂y_i on entry and ∂L/∂x_i on exit; ∂L/∂p
+    /// is written to `g_p` (overwriting it) in the layout of `p`.
     fn backward_batch(
         &self,
         p: &[f32],
-        stride: usize,
         x: &[f64],
         g: &mut [f64],
         g_log_det: &[f64],
         g_p: &mut [f32],
     ) {
-        backward_each(self, p, stride, x, g, g_log_det, g_p);
+        backward_each(self, p, x, g, g_log_det, g_p);
     }
 }
 
 /// [`Transform::forward_batch`] by the per-scalar method: the reference the batched kernels are
 /// tested and benchmarked against.
-pub fn forward_each<T: Transform + ?Sized>(
-    t: &T,
-    p: &[f32],
-    stride: usize,
-    x: &mut [f64],
-    log_det: &mut [f64],
-) {
-    map_each(t.param_count(), p, stride, x, log_det, |p, x| {
-        t.forward(p, x)
-    });
+pub fn forward_each<T: Transform + ?Sized>(t: &T, p: &[f32], x: &mut [f64], log_det: &mut [f64]) {
+    map_each(t.param_count(), p, x, log_det, |p, x| t.forward(p, x));
 }
 
 /// [`Transform::inverse_batch`] by the per-scalar method.
-pub fn inverse_each<T: Transform + ?Sized>(
-    t: &T,
-    p: &[f32],
-    stride: usize,
-    y: &mut [f64],
-    log_det: &mut [f64],
-) {
-    map_each(t.param_count(), p, stride, y, log_det, |p, y| {
-        t.inverse(p, y)
-    });
+pub fn inverse_each<T: Transform + ?Sized>(t: &T, p: &[f32], y: &mut [f64], log_det: &mut [f64]) {
+    map_each(t.param_count(), p, y, log_det, |p, y| t.inverse(p, y));
 }
 
 /// Replaces each `v[i]` by the first value of `map(p_i, v[i])` and adds the second to
-/// `log_det[i]`, `p_i` being the `n` parameters at `p[i·stride..]`.
+/// `log_det[i]`, `p_i` being scalar i's `np` parameters gathered from the feature-major `p`.
 fn map_each(
-    n: usize,
+    np: usize,
     p: &[f32],
-    stride: usize,
     v: &mut [f64],
     log_det: &mut [f64],
     map: impl Fn(&[f32], f64) -> (f64, f64),
 ) {
+    let n = v.len();
+    let mut p_i = vec![0.0f32; np];
     for (i, (v, ld)) in v.iter_mut().zip(log_det.iter_mut()).enumerate() {
-        let (w, l) = map(&p[i * stride..i * stride + n], *v);
+        for (j, q) in p_i.iter_mut().enumerate() {
+            *q = p[j * n + i];
+        }
+        let (w, l) = map(&p_i, *v);
         *v = w;
         *ld += l;
     }
@@ -125,16 +116,21 @@ fn map_each(
 pub fn backward_each<T: Transform + ?Sized>(
     t: &T,
     p: &[f32],
-    stride: usize,
     x: &[f64],
     g: &mut [f64],
     g_log_det: &[f64],
     g_p: &mut [f32],
 ) {
-    let n = t.param_count();
+    let (n, np) = (x.len(), t.param_count());
+    let (mut p_i, mut g_i) = (vec![0.0f32; np], vec![0.0f32; np]);
     for (i, (&x, g)) in x.iter().zip(g.iter_mut()).enumerate() {
-        let at = i * stride;
-        *g = t.backward(&p[at..at + n], x, *g, g_log_det[i], &mut g_p[at..at + n]);
+        for (j, q) in p_i.iter_mut().enumerate() {
+            *q = p[j * n + i];
+        }
+        *g = t.backward(&p_i, x, *g, g_log_det[i], &mut g_i);
+        for (j, &v) in g_i.iter().enumerate() {
+            g_p[j * n + i] = v;
+        }
     }
 }
 
@@ -242,33 +238,32 @@ impl Transform for TransformKind {
     }
     // The batched methods of the enum honour [`scalar_reference`]: every caller (couplings, the
     // neural guide) gets the per-scalar reference when it is set.
-    fn forward_batch(&self, p: &[f32], stride: usize, x: &mut [f64], log_det: &mut [f64]) {
+    fn forward_batch(&self, p: &[f32], x: &mut [f64], log_det: &mut [f64]) {
         if scalar_reference() {
-            with_transform!(*self, s => forward_each(&s, p, stride, x, log_det))
+            with_transform!(*self, s => forward_each(&s, p, x, log_det))
         } else {
-            with_transform!(*self, s => s.forward_batch(p, stride, x, log_det))
+            with_transform!(*self, s => s.forward_batch(p, x, log_det))
         }
     }
-    fn inverse_batch(&self, p: &[f32], stride: usize, y: &mut [f64], log_det: &mut [f64]) {
+    fn inverse_batch(&self, p: &[f32], y: &mut [f64], log_det: &mut [f64]) {
         if scalar_reference() {
-            with_transform!(*self, s => inverse_each(&s, p, stride, y, log_det))
+            with_transform!(*self, s => inverse_each(&s, p, y, log_det))
         } else {
-            with_transform!(*self, s => s.inverse_batch(p, stride, y, log_det))
+            with_transform!(*self, s => s.inverse_batch(p, y, log_det))
         }
     }
     fn backward_batch(
         &self,
         p: &[f32],
-        stride: usize,
         x: &[f64],
         g: &mut [f64],
         g_log_det: &[f64],
         g_p: &mut [f32],
     ) {
         if scalar_reference() {
-            with_transform!(*self, s => backward_each(&s, p, stride, x, g, g_log_det, g_p))
+            with_transform!(*self, s => backward_each(&s, p, x, g, g_log_det, g_p))
         } else {
-            with_transform!(*self, s => s.backward_batch(p, stride, x, g, g_log_det, g_p))
+            with_transform!(*self, s => s.backward_batch(p, x, g, g_log_det, g_p))
         }
     }
 }

@@ -253,24 +253,23 @@ impl Transform for Quadratic {
         })
     }
 
-    fn forward_batch(&self, p: &[f32], stride: usize, x: &mut [f64], log_det: &mut [f64]) {
-        run_lanes(self.bins, p, stride, x, log_det, false);
+    fn forward_batch(&self, p: &[f32], x: &mut [f64], log_det: &mut [f64]) {
+        run_lanes(self.bins, p, x, log_det, false);
     }
 
-    fn inverse_batch(&self, p: &[f32], stride: usize, y: &mut [f64], log_det: &mut [f64]) {
-        run_lanes(self.bins, p, stride, y, log_det, true);
+    fn inverse_batch(&self, p: &[f32], y: &mut [f64], log_det: &mut [f64]) {
+        run_lanes(self.bins, p, y, log_det, true);
     }
 
     fn backward_batch(
         &self,
         p: &[f32],
-        stride: usize,
         x: &[f64],
         g: &mut [f64],
         g_log_det: &[f64],
         g_p: &mut [f32],
     ) {
-        backward_lanes(self.bins, p, stride, x, g, g_log_det, g_p);
+        backward_lanes(self.bins, p, x, g, g_log_det, g_p);
     }
 }
 
@@ -307,9 +306,9 @@ impl LaneKnots {
 
     /// Loads scalars `first..first + LANES` of `n` and normalises their knots.
     #[inline(always)]
-    fn compute(&mut self, p: &[f32], stride: usize, first: usize, n: usize) {
+    fn compute(&mut self, p: &[f32], first: usize, n: usize) {
         let k = self.w.len();
-        batch::gather(p, stride, first, n, 0, &mut self.p);
+        batch::gather(p, first, n, 0, &mut self.p);
         batch::softmax_floor(&self.p[..k], MIN_W, &mut self.w);
         batch::exponentials(&self.p[k..], &mut self.e);
         let mut norm = splat(-0.0);
@@ -403,14 +402,7 @@ struct Located {
 
 /// The batched forward (`inverse` false) or inverse of [`Quadratic`], [`LANES`] scalars at a time.
 #[multiversion(targets = "simd")]
-fn run_lanes(
-    k: usize,
-    p: &[f32],
-    stride: usize,
-    t: &mut [f64],
-    log_det: &mut [f64],
-    inverse: bool,
-) {
+fn run_lanes(k: usize, p: &[f32], t: &mut [f64], log_det: &mut [f64], inverse: bool) {
     let n = t.len();
     if n == 0 {
         return;
@@ -418,7 +410,7 @@ fn run_lanes(
     with_lane_scratch(k, |scratch| {
         let kn = &mut scratch.knots;
         for first in (0..n).step_by(LANES) {
-            kn.compute(p, stride, first, n);
+            kn.compute(p, first, n);
             // Scaled as in Quadratic::forward_in and Quadratic::inverse_in.
             let mut ts = batch::load(t, first);
             let total = if inverse { &kn.y_tot } else { &kn.x_tot };
@@ -467,7 +459,6 @@ fn run_lanes(
 fn backward_lanes(
     k: usize,
     p: &[f32],
-    stride: usize,
     x: &[f64],
     g: &mut [f64],
     g_log_det: &[f64],
@@ -485,7 +476,7 @@ fn backward_lanes(
             g_params,
         } = scratch;
         for first in (0..n).step_by(LANES) {
-            kn.compute(p, stride, first, n);
+            kn.compute(p, first, n);
             let mut xl = batch::load(x, first);
             for l in 0..LANES {
                 xl[l] *= kn.x_tot[l];
@@ -569,7 +560,7 @@ fn backward_lanes(
             }
             batch::softmax_floor_backward(&kn.w, g_w, MIN_W, &mut g_params[..k]);
             let lanes = LANES.min(n - first);
-            batch::scatter(g_params, stride, first, lanes, 0, g_p);
+            batch::scatter(g_params, first, lanes, n, 0, g_p);
             for (g, v) in g[first..first + lanes].iter_mut().zip(&g_x) {
                 *g = *v as f64;
             }
