@@ -8,7 +8,7 @@
 
 use std::path::Path;
 
-use exr::prelude::{SpecificChannels, Vec2, WritableImage};
+use exr::prelude::{Encoding, LineOrder, SpecificChannels, Vec2, WritableImage};
 use image::codecs::png::PngEncoder;
 use image::ImageEncoder;
 use nis::io::AtomicFile;
@@ -52,14 +52,22 @@ impl Image {
         s / (3.0 * self.pixels.len().max(1) as f64)
     }
 
-    /// Write as OpenEXR with 32-bit float RGB channels.
+    /// Write as OpenEXR with 32-bit float RGB channels. The tiles are compressed in parallel
+    /// and written in increasing order, so the same image gives the same bytes (with the
+    /// crate's default, unspecified order, the file held the tiles in the order their
+    /// compression finished).
     pub fn write_exr(&self, path: &Path) -> Result<(), Error> {
         let w = self.width as usize;
         let channels = SpecificChannels::rgb(|pos: Vec2<usize>| {
             let p = self.pixels[pos.y() * w + pos.x()];
             (p.x, p.y, p.z)
         });
-        let image = exr::prelude::Image::from_channels((w, self.height as usize), channels);
+        let encoding = Encoding {
+            line_order: LineOrder::Increasing,
+            ..Encoding::FAST_LOSSLESS
+        };
+        let size = (w, self.height as usize);
+        let image = exr::prelude::Image::from_encoded_channels(size, encoding, channels);
         write_atomically(path, |file| {
             image.write().to_buffered(file).map_err(|e| e.to_string())
         })
@@ -242,6 +250,27 @@ mod tests {
         std::fs::write(&path, &bytes).unwrap();
         let e = super::Image::read_exr(&path).unwrap_err().to_string();
         assert!(e.contains("claims blocks of"), "{e}");
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
+
+    #[test]
+    fn exr_files_hold_their_tiles_in_order() {
+        // 200 × 150 pixels are 4 × 3 tiles, compressed on several threads: in increasing order
+        // the bytes do not depend on which finished first.
+        let dir =
+            std::env::temp_dir().join(format!("nis-render-film-order-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let mut img = Image::new(200, 150);
+        for (i, p) in img.pixels.iter_mut().enumerate() {
+            *p = Rgb::splat((i % 97) as f32 / 7.0);
+        }
+        let (a, b) = (dir.join("a.exr"), dir.join("b.exr"));
+        img.write_exr(&a).unwrap();
+        img.write_exr(&b).unwrap();
+        let meta = exr::meta::MetaData::read_from_file(&a, false).unwrap();
+        assert_eq!(meta.headers[0].line_order, LineOrder::Increasing);
+        assert_eq!(std::fs::read(&a).unwrap(), std::fs::read(&b).unwrap());
+        assert_eq!(Image::read_exr(&a).unwrap(), img);
         std::fs::remove_dir_all(&dir).unwrap();
     }
 
