@@ -11,7 +11,9 @@ pub enum Layout {
     #[default]
     Rows,
     /// `[features, rows]`: one feature's values over the rows side by side, so a kernel that
-    /// works across rows (the spline lanes) reads them without a transpose.
+    /// works across rows (the spline lanes) reads them without a transpose. `gemm` runs
+    /// [`backward_weights_block`] from a gradient in this layout at about half its row-major
+    /// speed; [`crate::nn::Mlp`] transposes its output's gradient for it.
     Features,
 }
 

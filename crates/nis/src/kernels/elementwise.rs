@@ -156,23 +156,6 @@ pub fn column_sums(m: &[f32], o: usize, c0: usize, out: &mut [f32]) {
     }
 }
 
-/// Row sums of a row-major `[rows, n]` matrix (`out.len()` rows): each row summed in a fixed
-/// order, in lanes that vectorise, so the result is independent of scheduling.
-#[multiversion(targets = "simd")]
-pub fn row_sums(m: &[f32], n: usize, out: &mut [f32]) {
-    const W: usize = 16;
-    for (acc, row) in out.iter_mut().zip(m.chunks_exact(n.max(1))) {
-        let mut lanes = [0.0f32; W];
-        let mut blocks = row.chunks_exact(W);
-        for b in &mut blocks {
-            for (l, v) in lanes.iter_mut().zip(b) {
-                *l += v;
-            }
-        }
-        *acc = lanes.iter().sum::<f32>() + blocks.remainder().iter().sum::<f32>();
-    }
-}
-
 /// The scalars of one Adam update: `lr_t` already includes the bias corrections,
 /// lr·√(1 − β₂ᵗ)/(1 − β₁ᵗ); the gradient is multiplied by `grad_scale` (clipping) first.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -302,21 +285,6 @@ mod tests {
         for (j, &v) in out.iter().enumerate() {
             let want: f32 = (0..n).map(|r| m[r * o + 3 + j]).sum();
             assert_eq!(v, want);
-        }
-    }
-
-    #[test]
-    fn row_sums_match_a_plain_loop() {
-        // Sums of quarters stay exact in f32, so the lanes' order must give the plain sum.
-        let (rows, n) = (9, 37);
-        let m: Vec<f32> = (0..rows * n)
-            .map(|i| (i % 11) as f32 * 0.25 - 1.0)
-            .collect();
-        let mut out = vec![f32::NAN; rows];
-        row_sums(&m, n, &mut out);
-        for (r, &v) in out.iter().enumerate() {
-            let want: f32 = m[r * n..(r + 1) * n].iter().sum();
-            assert_eq!(v, want, "row {r}");
         }
     }
 }
