@@ -19,11 +19,21 @@ fn weight_block_rows(i: usize) -> usize {
     i.div_ceil(2).clamp(16, 128)
 }
 
-/// The row-major `[n, o]` copy of the feature-major `[o, n]` matrix `m`, a block of rows at a
-/// time: each feature's values for the block are read as one short run.
+/// The row-major `[n, o]` copy of the feature-major `[o, n]` matrix `m`. For a chunk of a few
+/// rows a row at a time (contiguous stores, and the reads a few cache lines per feature); for
+/// many rows, whose features lie whole pages apart (the reads of a row would thrash the
+/// cache), a block of rows at a time, each feature's values for the block read as one run.
 fn rows_of_features(m: &[f32], n: usize, o: usize) -> Vec<f32> {
-    const BLOCK: usize = 8;
     let mut out = vec![0.0f32; n * o];
+    if n <= 128 {
+        for (r, row) in out.chunks_exact_mut(o).enumerate() {
+            for (v, column) in row.iter_mut().zip(m.chunks_exact(n)) {
+                *v = column[r];
+            }
+        }
+        return out;
+    }
+    const BLOCK: usize = 8;
     for r0 in (0..n).step_by(BLOCK) {
         let r1 = (r0 + BLOCK).min(n);
         for (c, column) in m.chunks_exact(n).take(o).enumerate() {
@@ -320,6 +330,21 @@ mod tests {
                     .sum::<f64>()
             })
             .sum()
+    }
+
+    #[test]
+    fn rows_of_features_transposes_few_and_many_rows() {
+        // Both loops: up to 128 rows a row at a time, more a block of rows at a time (with a
+        // partial last block).
+        for (n, o) in [(5, 3), (128, 33), (301, 17)] {
+            let m: Vec<f32> = (0..n * o).map(|k| k as f32).collect();
+            let rows = rows_of_features(&m, n, o);
+            for r in 0..n {
+                for c in 0..o {
+                    assert_eq!(rows[r * o + c], m[c * n + r], "{n} × {o}: ({r}, {c})");
+                }
+            }
+        }
     }
 
     #[test]
