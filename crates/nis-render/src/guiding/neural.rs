@@ -518,7 +518,8 @@ impl NisGuide {
                     Direction::Inverse => (0..layers.len()).rev().collect(),
                 };
                 // Buffers shared by the layers: every activation is overwritten before it is
-                // read (the first layer's by the cache rows, the others by their dense layer).
+                // read (the first layer's by the cache rows, the others by their dense layer,
+                // which sizes them).
                 let mut tape = MlpTape {
                     rows: n,
                     acts: Vec::new(),
@@ -532,10 +533,8 @@ impl NisGuide {
                     let h = mlp.dims[1];
                     let off = self.first_offsets[l];
                     tape.acts.resize_with(mlp.dims.len(), Vec::new);
-                    for (a, &d) in tape.acts.iter_mut().zip(&mlp.dims).skip(1) {
-                        a.resize(n * d, 0.0);
-                    }
                     let first = &mut tape.acts[1];
+                    first.resize(n * h, 0.0);
                     for (row, &v) in first.chunks_exact_mut(h).zip(vertex) {
                         row.copy_from_slice(&cache[v * width + off..v * width + off + h]);
                     }
@@ -903,21 +902,12 @@ impl Guide for NisGuide {
         out.par_chunks_mut(CHUNK_ROWS)
             .zip(cache.par_chunks(CHUNK_ROWS * width))
             .for_each(|(out, first)| {
+                // The first layer comes from the cache; the dense layers size the others.
+                let mut acts = vec![Vec::new(); self.selection.dims.len()];
+                acts[1] = vec![0.0; out.len() * h];
                 let mut tape = MlpTape {
                     rows: out.len(),
-                    acts: self
-                        .selection
-                        .dims
-                        .iter()
-                        .enumerate()
-                        .map(|(j, &d)| {
-                            if j == 0 {
-                                Vec::new()
-                            } else {
-                                vec![0.0; out.len() * d]
-                            }
-                        })
-                        .collect(),
+                    acts,
                 };
                 for (row, f) in tape.acts[1]
                     .chunks_exact_mut(h)

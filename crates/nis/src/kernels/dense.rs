@@ -76,6 +76,31 @@ pub fn forward(x: &[f32], w: &[f32], b: &[f32], out: &mut [f32], shape: Shape) {
     accumulate(x, w, out, shape);
 }
 
+/// [`forward`] into a vector, resized to `n × o` without first zeroing what the bias then
+/// overwrites (a chunk's activations are allocated afresh for every pass).
+pub fn forward_into(x: &[f32], w: &[f32], b: &[f32], out: &mut Vec<f32>, shape: Shape) {
+    let Shape { n, o, .. } = shape;
+    assert!(b.len() == o);
+    out.clear();
+    out.reserve(n * o);
+    match shape.out {
+        // As in `forward`: the first row, then doubling copies.
+        Layout::Rows if n > 0 => {
+            out.extend_from_slice(b);
+            while out.len() < n * o {
+                out.extend_from_within(..out.len().min(n * o - out.len()));
+            }
+        }
+        Layout::Rows => {}
+        Layout::Features => {
+            for &b in b {
+                out.resize(out.len() + n, b);
+            }
+        }
+    }
+    accumulate(x, w, out, shape);
+}
+
 /// `out[n×o] += x[n×i] · w[i×o]`: a dense layer whose output already holds a part computed
 /// elsewhere (e.g. the bias plus the contribution of inputs shared by many rows).
 pub fn accumulate(x: &[f32], w: &[f32], out: &mut [f32], shape: Shape) {

@@ -109,12 +109,12 @@ impl Mlp {
         }
     }
 
-    /// A tape for `rows` rows with the input `acts[0]` allocated (to be filled by the caller).
+    /// A tape for `rows` rows with the input `acts[0]` allocated (to be filled by the caller);
+    /// the forward pass allocates the other layers' activations.
     pub fn tape(&self, rows: usize) -> MlpTape {
-        MlpTape {
-            rows,
-            acts: self.dims.iter().map(|&d| vec![0.0; rows * d]).collect(),
-        }
+        let mut acts = vec![Vec::new(); self.dims.len()];
+        acts[0] = vec![0.0; rows * self.dims[0]];
+        MlpTape { rows, acts }
     }
 
     /// Layer `j`'s weights (`[in, out]` row-major) and biases within this MLP's parameters.
@@ -139,7 +139,7 @@ impl Mlp {
             let (prev, next) = tape.acts.split_at_mut(j + 1);
             let out = &mut next[0];
             let b = &params[bo..bo + shape.o];
-            dense::forward(&prev[j], &params[wo..bo], b, out, shape);
+            dense::forward_into(&prev[j], &params[wo..bo], b, out, shape);
             if j + 1 < self.layers() {
                 elementwise::relu(out);
             }
@@ -300,6 +300,7 @@ mod tests {
         let first: Vec<f32> = x.chunks_exact(7).flat_map(|r| r[..head].to_vec()).collect();
         let rest: Vec<f32> = x.chunks_exact(7).flat_map(|r| r[head..].to_vec()).collect();
         let mut split = mlp.tape(rows);
+        split.acts[1] = vec![0.0; rows * o];
         let (rest_shape, first_shape) =
             (Shape::rows(rows, 7 - head, o), Shape::rows(rows, head, o));
         dense::forward(&rest, &w[head * o..], b, &mut split.acts[1], rest_shape);
