@@ -156,6 +156,27 @@ pub fn column_sums(m: &[f32], o: usize, c0: usize, out: &mut [f32]) {
     }
 }
 
+/// Σ g², accumulated in f64 over eight interleaved lanes and summed lane by lane at the end:
+/// a fixed order (the result does not depend on scheduling) that vectorises, where one running
+/// sum is a chain of dependent additions (Adam's gradient norm over 39k parameters took 50 µs).
+#[multiversion(targets = "simd")]
+pub fn sum_of_squares(g: &[f32]) -> f64 {
+    const W: usize = 8;
+    let mut lanes = [0.0f64; W];
+    let mut blocks = g.chunks_exact(W);
+    for b in &mut blocks {
+        for (l, &v) in lanes.iter_mut().zip(b) {
+            *l += f64::from(v) * f64::from(v);
+        }
+    }
+    let tail: f64 = blocks
+        .remainder()
+        .iter()
+        .map(|&v| f64::from(v) * f64::from(v))
+        .sum();
+    lanes.iter().sum::<f64>() + tail
+}
+
 /// The scalars of one Adam update: `lr_t` already includes the bias corrections,
 /// lr·√(1 − β₂ᵗ)/(1 − β₁ᵗ); the gradient is multiplied by `grad_scale` (clipping) first.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -286,5 +307,19 @@ mod tests {
             let want: f32 = (0..n).map(|r| m[r * o + 3 + j]).sum();
             assert_eq!(v, want);
         }
+    }
+
+    #[test]
+    fn sum_of_squares_matches_the_f64_sum() {
+        // 8·k + 5 values (a partial block): the lanes' sum against a plain sum in f64, to the
+        // rounding of either order (a few ulps of the total).
+        let g: Vec<f32> = (0..8 * 37 + 5)
+            .map(|i| (i as f32 * 0.37).sin() * 3.0)
+            .collect();
+        let plain: f64 = g.iter().map(|&v| f64::from(v) * f64::from(v)).sum();
+        let got = sum_of_squares(&g);
+        assert!((got - plain).abs() <= 1e-14 * plain, "{got} vs {plain}");
+        assert_eq!(sum_of_squares(&[]), 0.0);
+        assert_eq!(sum_of_squares(&[2.0, -3.0]), 13.0);
     }
 }

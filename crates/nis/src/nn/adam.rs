@@ -110,11 +110,7 @@ impl Adam {
                 got: grad.len().min(params.len()),
             });
         }
-        let norm = grad
-            .iter()
-            .map(|&g| g as f64 * g as f64)
-            .sum::<f64>()
-            .sqrt();
+        let norm = elementwise::sum_of_squares(grad).sqrt();
         if !norm.is_finite() {
             return Err(Error::NonFinite {
                 what: "gradient norm",
