@@ -172,9 +172,9 @@ impl Mlp {
 
     /// Reverse mode of one chunk through the layers, without the parameter gradients (which
     /// need every chunk: [`Mlp::param_gradients`]): `deltas[j]`, ∂L/∂(output of layer `j`)
-    /// through its activation, row-major, for every layer, and ∂L/∂input when asked. A chunk's whole chain
-    /// runs in one work item, so a backward pass over many layers is two parallel loops, not
-    /// two per layer.
+    /// through its activation, row-major, for every layer, and ∂L/∂input when asked. A chunk's
+    /// whole chain runs in one work item, so a backward pass over many layers is two parallel
+    /// loops, not two per layer.
     pub(crate) fn backward_deltas(
         &self,
         params: &[f32],
