@@ -53,7 +53,7 @@ use nis::kernels::elementwise::{one_blob, relu};
 use nis::kernels::CHUNK_ROWS;
 use nis::nn::mlp::MlpTape;
 use nis::nn::{Adam, AdamConfig, Mlp, ParamAverage};
-use nis::{Transform, TransformKind};
+use nis::TransformKind;
 use rand::{Rng, SeedableRng};
 use rand_pcg::Pcg64Mcg;
 use rayon::prelude::*;
@@ -525,7 +525,6 @@ impl NisGuide {
                     acts: Vec::new(),
                 };
                 let mut enc = Vec::new();
-                let mut column = Vec::with_capacity(n);
                 for l in order {
                     let c = &layers[l];
                     let mlp = &c.mlp;
@@ -554,22 +553,7 @@ impl NisGuide {
                     }
                     mlp.forward_from(p, &mut tape, 1);
                     let out = tape.acts.last().expect("an MLP has an output layer");
-                    let np = c.transform.param_count();
-                    // A column at a time, through the transform's batched kernel (the same
-                    // numbers as its per-scalar methods, which the couplings' tests check).
-                    for (k, &d) in c.b.iter().enumerate() {
-                        column.clear();
-                        column.extend((0..n).map(|r| f64::from(u[r * dim + d])));
-                        // Feature-major, as the coupling's conditioner writes it.
-                        let p = &out[k * np * n..(k + 1) * np * n];
-                        match direction {
-                            Direction::Forward => c.transform.forward_batch(p, &mut column, log_q),
-                            Direction::Inverse => c.transform.inverse_batch(p, &mut column, log_q),
-                        }
-                        for (r, &v) in column.iter().enumerate() {
-                            u[r * dim + d] = v as f32;
-                        }
-                    }
+                    c.transform_rows(out, u, dim, log_q, direction);
                 }
             });
         log_q

@@ -62,6 +62,37 @@ impl Coupling {
         }
     }
 
+    /// Transforms the B dimensions of the `log_det.len()` rows of `u` (`dim` values each) in
+    /// place in `direction`, with the conditioner's output `out` for those rows, adding each
+    /// row's log C' to `log_det`. One B dimension at a time over all rows: the transform's
+    /// batched kernel sees a column.
+    pub fn transform_rows(
+        &self,
+        out: &[f32],
+        u: &mut [f32],
+        dim: usize,
+        log_det: &mut [f64],
+        direction: Direction,
+    ) {
+        let n = log_det.len();
+        let np = self.transform.param_count();
+        let mut v = vec![0.0f64; n];
+        for (k, &d) in self.b.iter().enumerate() {
+            for r in 0..n {
+                v[r] = u[r * dim + d] as f64;
+            }
+            // The conditioner's output is feature-major: dimension k's parameters, then the next's.
+            let p = &out[k * np * n..(k + 1) * np * n];
+            match direction {
+                Direction::Forward => self.transform.forward_batch(p, &mut v, log_det),
+                Direction::Inverse => self.transform.inverse_batch(p, &mut v, log_det),
+            }
+            for r in 0..n {
+                u[r * dim + d] = v[r] as f32;
+            }
+        }
+    }
+
     /// Reverse mode through the transforms of one chunk. `input` is the layer's input (x side),
     /// `g_u` holds ∂L/∂output on entry and ∂L/∂input for the B dimensions on exit (the A part is
     /// completed by [`Coupling::encoding_backward`]); `g_log_det[r]` is ∂L/∂log C' of row r.
@@ -145,22 +176,7 @@ impl Layer for Coupling {
         self.encode(u, dim, ctx, &mut tape);
         self.mlp.forward(self.params(params), &mut tape);
         let out = tape.acts.last().expect("an MLP has an output layer");
-        let np = self.transform.param_count();
-        let mut v = vec![0.0f64; n];
-        for (k, &d) in self.b.iter().enumerate() {
-            for r in 0..n {
-                v[r] = u[r * dim + d] as f64;
-            }
-            // The conditioner's output is feature-major: dimension k's parameters, then the next's.
-            let p = &out[k * np * n..(k + 1) * np * n];
-            match direction {
-                Direction::Forward => self.transform.forward_batch(p, &mut v, log_det),
-                Direction::Inverse => self.transform.inverse_batch(p, &mut v, log_det),
-            }
-            for r in 0..n {
-                u[r * dim + d] = v[r] as f32;
-            }
-        }
+        self.transform_rows(out, u, dim, log_det, direction);
         tape
     }
 

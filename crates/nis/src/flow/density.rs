@@ -226,12 +226,13 @@ pub fn check_context(n: usize, cdim: usize, ctx: Option<&[f32]>) -> Result<()> {
             got,
         });
     }
-    if let Some((i, c)) = ctx.and_then(|c| Some((first_failing(c, f32::is_finite)?, c))) {
-        return Err(Error::NonFinite {
+    let Some(c) = ctx else { return Ok(()) };
+    match first_failing(c, f32::is_finite) {
+        Some(i) => Err(Error::NonFinite {
             what: "context feature",
             index: i / cdim,
             value: c[i] as f64,
-        });
+        }),
+        None => Ok(()),
     }
-    Ok(())
 }
