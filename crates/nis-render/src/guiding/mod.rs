@@ -25,6 +25,7 @@ use crate::geometry::Rgb;
 pub mod directions;
 pub mod gmm;
 pub mod neural;
+mod picks;
 pub mod ppg;
 pub mod spatial;
 pub mod spec;

@@ -27,7 +27,10 @@
 //! `∂ ln q/∂c = (p_flow − p_bsdf)/q` for the selection network. The per-sample weights are
 //! normalised by their batch mean, which only rescales the step. Records of all training
 //! passes stay in a bounded replay buffer (each is an unbiased sample of the same gradient,
-//! whatever mixture drew it), so early passes with few paths still get enough steps.
+//! whatever mixture drew it), so early passes with few paths still get enough steps. A step's
+//! batch is drawn from the buffer with probabilities ∝ (F/p_s)^α, each record's weight divided
+//! by (F/p_s)^α, which keeps the expected gradient ([`NisGuideConfig::pick_by_weight`],
+//! `picks.rs`).
 //! The guide renders with an exponential moving average of the weights over the Adam steps
 //! ([`NisGuideConfig::average_span`]), not with the last step's, whose noise would otherwise be
 //! part of every image; training goes on from the last step's.
@@ -61,6 +64,7 @@ use serde::{Deserialize, Serialize};
 
 use super::{
     directions::{DirectionMap, GuideFrame},
+    picks::RecordPicker,
     Guide, GuideRecord, GuideSample, GuideStatistics, GuideVertex, PdfQuery, SampleQuery,
     COUNT_WORDS,
 };
@@ -133,6 +137,11 @@ pub struct NisGuideConfig {
     /// steps enter with the decay `β = 1 − 1/(span·steps)` (bias-corrected, as Adam's moments);
     /// 0 renders with the last step's weights.
     pub average_span: f32,
+    /// Exponent α by which training batches favour records that carry light: each record of
+    /// the buffer is drawn with probability ∝ (F/p_s)^α and enters its step with its weight
+    /// divided by (F/p_s)^α, so every α follows the same expected gradient (`guiding/picks.rs`);
+    /// 0 draws uniformly.
+    pub pick_by_weight: f32,
     /// Seed of the weights and of the training batches.
     pub seed: u64,
 }
@@ -168,6 +177,12 @@ impl NisGuideConfig {
             return bad(format!(
                 "minimum selection probability must be in [0, 0.5), context bins 1..={} and the selection width 1..={}, got {}, {} and {}",
                 Self::MAX_CONTEXT_BINS, Self::MAX_SELECTION_WIDTH, self.min_selection, self.context_bins, self.selection_width
+            ));
+        }
+        if !(0.0..=1.0).contains(&self.pick_by_weight) {
+            return bad(format!(
+                "records are drawn by their weight to a power in [0, 1], got {}",
+                self.pick_by_weight
             ));
         }
         if !(0.0..=1.0).contains(&self.average_span) {
@@ -239,6 +254,11 @@ impl Default for NisGuideConfig {
             // the spread over seeds on cornell-indirect, and 1–3% lower again at 256², 256 spp
             // than a fixed β = 0.95 (docs/GUIDING.md, "Weight average").
             average_span: 0.5,
+            // Batches drawn by √(F/p_s): over 9 seeds at 128², 64 spp, 2.4–4.9% lower mean MAPE
+            // on cornell-box, -glossy and -indirect (3.3% at 256², 256 spp on the last),
+            // 2.9% higher on two-rooms-door (level at 256²), for 2–3% more wall time
+            // (docs/GUIDING.md, "Records drawn by weight").
+            pick_by_weight: 0.5,
             seed: 0,
         }
     }
@@ -259,6 +279,13 @@ pub struct Sample {
     bsdf_pdf: f32,
     /// Solid-angle density per unit density on the square of the vertex's map.
     jacobian: f32,
+}
+
+impl Sample {
+    /// F/p_s: the record's weight in the KL gradient (in f64, where it cannot overflow).
+    fn kl_weight(&self) -> f64 {
+        f64::from(self.f) / f64::from(self.pdf)
+    }
 }
 
 /// The records of a training pass, in the order they were made, of which only the newest `cap`
@@ -624,8 +651,14 @@ impl NisGuide {
         (tapes, c)
     }
 
-    /// One Adam step on `batch`: of the flow, and of the selection network when `selection`.
-    fn step(&mut self, batch: &[Sample], selection: bool) -> nis::Result<TrainingStats> {
+    /// One Adam step on `batch`, whose records were favoured by the factors `scales`
+    /// ([`RecordPicker::scale`]): of the flow, and of the selection network when `selection`.
+    fn step(
+        &mut self,
+        batch: &[Sample],
+        scales: &[f64],
+        selection: bool,
+    ) -> nis::Result<TrainingStats> {
         let n = batch.len();
         let scalars: Vec<_> = batch.iter().map(|s| s.context).collect();
         let context = self.encode(&scalars);
@@ -642,11 +675,11 @@ impl NisGuide {
             let q = (evaluated.log_q[i].exp() as f32) * s.jacobian;
             let q_mix = c[i] * q + (1.0 - c[i]) * s.bsdf_pdf;
             let w = match self.config.loss {
-                GuideLoss::Kl => f64::from(s.f) / f64::from(s.pdf),
+                GuideLoss::Kl => s.kl_weight(),
                 GuideLoss::ChiSquare => {
                     f64::from(s.f) * f64::from(s.f) / (f64::from(s.pdf) * f64::from(q_mix))
                 }
-            };
+            } / scales[i];
             base.push(if w.is_finite() { w } else { 0.0 });
             mix.push((q, q_mix));
         }
@@ -701,8 +734,9 @@ impl NisGuide {
     }
 
     /// The constant `c ∈ [c_min, 1 − c_min]` that maximises `Σ (F/p_s)·ln(c·p_flow + (1 − c)·p_bsdf)`
-    /// over `batch`, a concave function of `c`: bisection on its derivative.
-    fn best_constant_selection(&self, batch: &[Sample]) -> f64 {
+    /// over the records `batch` stands for (favoured by `scales`), a concave function of `c`:
+    /// bisection on its derivative.
+    fn best_constant_selection(&self, batch: &[Sample], scales: &[f64]) -> f64 {
         let scalars: Vec<_> = batch.iter().map(|s| s.context).collect();
         let context = self.encode(&scalars);
         let x: Vec<f32> = batch.iter().flat_map(|s| s.x).collect();
@@ -712,9 +746,10 @@ impl NisGuide {
         let terms: Vec<(f64, f64, f64)> = batch
             .iter()
             .zip(&log_q)
-            .map(|(s, l)| {
+            .zip(scales)
+            .map(|((s, l), scale)| {
                 let q = l.exp() * f64::from(s.jacobian);
-                (f64::from(s.f) / f64::from(s.pdf), q, f64::from(s.bsdf_pdf))
+                (s.kl_weight() / scale, q, f64::from(s.bsdf_pdf))
             })
             .filter(|(w, q, _)| w.is_finite() && q.is_finite())
             .collect();
@@ -743,9 +778,10 @@ impl NisGuide {
         0.5 * (lo + hi)
     }
 
-    /// Share of the flow's samples at the vertices of `batch` that fall on the other side of the
-    /// surface from ω_o (below it at opaque vertices).
-    fn below_surface(&self, batch: &[Sample], rng: &mut Pcg64Mcg) -> f64 {
+    /// Share of the flow's samples at the vertices of the records `batch` stands for (favoured
+    /// by `scales`, so each counts 1/s) that fall on the other side of the surface from ω_o
+    /// (below it at opaque vertices).
+    fn below_surface(&self, batch: &[Sample], scales: &[f64], rng: &mut Pcg64Mcg) -> f64 {
         if self.config.frame == GuideFrame::Local {
             // Nothing of the hemisphere map lies below the surface (and the sphere map is for
             // the transmissive vertices, where the other side is not below the surface).
@@ -759,18 +795,23 @@ impl NisGuide {
         };
         // World frame: the context holds ω_o and the normal in world coordinates (this counts
         // transmission at transmissive vertices too; the built-in scenes have none).
-        let below = batch
-            .iter()
-            .zip(x.chunks_exact(2))
-            .filter(|(s, x)| {
+        let (below, all) = batch.iter().zip(x.chunks_exact(2)).zip(scales).fold(
+            (0.0, 0.0),
+            |(below, all), ((s, x), scale)| {
                 let c = &s.context;
                 let n = super::cylindrical_to_dir(Vec2::new(c[5], c[6]));
                 let wo = super::cylindrical_to_dir(Vec2::new(c[3], c[4]));
                 let wi = super::cylindrical_to_dir(Vec2::new(x[0], x[1]));
-                n.dot(wi) * n.dot(wo) < 0.0
-            })
-            .count();
-        below as f64 / batch.len().max(1) as f64
+                let count = 1.0 / scale;
+                let under = n.dot(wi) * n.dot(wo) < 0.0;
+                (below + if under { count } else { 0.0 }, all + count)
+            },
+        );
+        if all > 0.0 {
+            below / all
+        } else {
+            0.0
+        }
     }
 
     /// Train on the records of the pass that just ended (the `iteration`-th training phase).
@@ -799,16 +840,23 @@ impl NisGuide {
             let phase = iteration as u64 + 1;
             let mut rng = Pcg64Mcg::seed_from_u64(self.config.seed ^ phase << PHASE_SEED_SHIFT);
             let size = self.config.batch.min(self.buffer.len());
+            let picker = RecordPicker::new(
+                self.buffer.par_iter().map(Sample::kl_weight),
+                f64::from(self.config.pick_by_weight),
+            );
+            let mut scales: Vec<f64> = Vec::with_capacity(size);
             let mut batch = Vec::with_capacity(size);
             let mut picks = Vec::with_capacity(size);
             for _ in 0..steps {
                 // The indices from the phase's stream in order; the gather, a cache miss per
                 // record in a large buffer, in parallel.
-                picks.clear();
-                picks.extend((0..size).map(|_| rng.random_range(0..self.buffer.len())));
+                picker.pick(size, &mut rng, &mut picks);
                 batch.clear();
                 batch.par_extend(picks.par_iter().map(|&i| self.buffer[i]));
-                match self.step(&batch, self.history.len() >= self.config.selection_warmup) {
+                scales.clear();
+                scales.par_extend(batch.par_iter().map(|s| picker.scale(s.kl_weight())));
+                let selection = self.history.len() >= self.config.selection_warmup;
+                match self.step(&batch, &scales, selection) {
                     Ok(s) => {
                         stats.mean_selection = s.mean_selection;
                         stats.loss = s.loss;
@@ -826,8 +874,8 @@ impl NisGuide {
                 a.use_average(&mut [self.flow.params_mut(), &mut self.selection_params]);
             }
             self.refresh_context_weights();
-            stats.below_surface = self.below_surface(&batch, &mut rng);
-            stats.best_constant_selection = self.best_constant_selection(&batch);
+            stats.below_surface = self.below_surface(&batch, &scales, &mut rng);
+            stats.best_constant_selection = self.best_constant_selection(&batch, &scales);
         }
         stats.seconds = start.elapsed().as_secs_f64();
         self.history.push(stats);

@@ -139,6 +139,8 @@ mod tests {
             r#"{"learning_rate": -1.0}"#,
             r#"{"average_span": 1.5}"#,
             r#"{"average_span": -0.5}"#,
+            r#"{"pick_by_weight": 1.5}"#,
+            r#"{"pick_by_weight": -0.1}"#,
         ] {
             let e = GuideSpec::parse("nis-kl", Some(json), 0).unwrap_err();
             assert!(e.to_string().starts_with("guide settings"), "{json}: {e}");
@@ -147,5 +149,6 @@ mod tests {
             GuideSpec::parse("nis-chi2", Some(r#"{"min_steps": 5, "max_steps": 5}"#), 0).is_ok()
         );
         assert!(GuideSpec::parse("nis-kl", Some(r#"{"average_span": 0.0}"#), 0).is_ok());
+        assert!(GuideSpec::parse("nis-kl", Some(r#"{"pick_by_weight": 0.0}"#), 0).is_ok());
     }
 }
