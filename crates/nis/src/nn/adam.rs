@@ -1,10 +1,11 @@
 //! Adam (Kingma & Ba 2014) over a flat parameter vector, with optional clipping of the global
 //! gradient norm and exponential learning-rate decay.
 
+use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
 use crate::error::{Error, Result};
-use crate::kernels::elementwise;
+use crate::kernels::elementwise::{self, PAR_BLOCK};
 
 /// Optimiser settings.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
@@ -110,7 +111,19 @@ impl Adam {
                 got: grad.len().min(params.len()),
             });
         }
-        let norm = elementwise::sum_of_squares(grad).sqrt();
+        // Per-block sums added in block order: the same bits serial or parallel.
+        let sq: f64 = if grad.len() > 2 * PAR_BLOCK {
+            let parts: Vec<f64> = grad
+                .par_chunks(PAR_BLOCK)
+                .map(elementwise::sum_of_squares)
+                .collect();
+            parts.iter().sum()
+        } else {
+            grad.chunks(PAR_BLOCK)
+                .map(elementwise::sum_of_squares)
+                .sum()
+        };
+        let norm = sq.sqrt();
         if !norm.is_finite() {
             return Err(Error::NonFinite {
                 what: "gradient norm",
@@ -134,7 +147,19 @@ impl Adam {
             eps: c.eps,
             grad_scale: scale,
         };
-        elementwise::adam(params, grad, &mut self.m, &mut self.v, step);
+        if params.len() > 2 * PAR_BLOCK {
+            // Each parameter's update is independent: blocks in parallel, same bits. The
+            // gradient was just summed on the pool's threads, and a serial update on the
+            // calling thread would pull all of it across cores.
+            params
+                .par_chunks_mut(PAR_BLOCK)
+                .zip(grad.par_chunks(PAR_BLOCK))
+                .zip(self.m.par_chunks_mut(PAR_BLOCK))
+                .zip(self.v.par_chunks_mut(PAR_BLOCK))
+                .for_each(|(((p, g), m), v)| elementwise::adam(p, g, m, v, step));
+        } else {
+            elementwise::adam(params, grad, &mut self.m, &mut self.v, step);
+        }
         Ok(norm)
     }
 }
@@ -184,5 +209,51 @@ mod tests {
         let mut p = vec![0.0; 2];
         assert!(adam.step(&mut p, &[f32::NAN, 0.0]).is_err());
         assert!(adam.step(&mut p, &[1.0]).is_err());
+    }
+
+    #[test]
+    fn a_large_update_in_parallel_blocks_matches_the_serial_kernel_bit_for_bit() {
+        // 2.5 blocks' worth of parameters, so the step runs in parallel; the reference is the
+        // serial kernel with the clipping scale from the exact norm. The returned norm must
+        // match the f64 norm to rounding, and the bits must not depend on the thread count.
+        let n = 2 * PAR_BLOCK + PAR_BLOCK / 2;
+        let grad: Vec<f32> = (0..n)
+            .map(|i| ((i * 37 % 101) as f32 - 50.0) * 0.01)
+            .collect();
+        let exact = grad
+            .iter()
+            .map(|&g| f64::from(g) * f64::from(g))
+            .sum::<f64>()
+            .sqrt();
+        let config = AdamConfig {
+            clip_norm: Some((exact / 2.0) as f32),
+            ..Default::default()
+        };
+        let run = |threads: usize| {
+            let pool = rayon::ThreadPoolBuilder::new()
+                .num_threads(threads)
+                .build()
+                .unwrap();
+            pool.install(|| {
+                let mut adam = Adam::new(config, n).unwrap();
+                let mut p = vec![0.5f32; n];
+                let norm = adam.step(&mut p, &grad).unwrap();
+                (p, norm)
+            })
+        };
+        let (p1, norm) = run(1);
+        assert!((norm - exact).abs() < 1e-12 * exact, "{norm} vs {exact}");
+        assert_eq!(run(3).0, p1);
+        let (mut p, mut m, mut v) = (vec![0.5f32; n], vec![0.0; n], vec![0.0; n]);
+        let c = config;
+        let step = elementwise::AdamStep {
+            lr_t: c.learning_rate * (1.0 - c.beta2).sqrt() / (1.0 - c.beta1),
+            beta1: c.beta1,
+            beta2: c.beta2,
+            eps: c.eps,
+            grad_scale: (f64::from(c.clip_norm.unwrap()) / norm) as f32,
+        };
+        elementwise::adam(&mut p, &grad, &mut m, &mut v, step);
+        assert_eq!(p, p1);
     }
 }

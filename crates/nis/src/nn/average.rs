@@ -10,6 +10,10 @@
 //! trainings the average ([`ParamAverage::use_average`]), and back to the iterates before training
 //! goes on ([`ParamAverage::resume`]), so averaging never changes how the network learns.
 
+use rayon::prelude::*;
+
+use crate::kernels::elementwise::PAR_BLOCK;
+
 /// The moving average of one or more parameter vectors, taken as one concatenation.
 #[derive(Clone, Debug)]
 pub struct ParamAverage {
@@ -64,8 +68,22 @@ impl ParamAverage {
     pub fn add(&mut self, parts: &[&[f32]]) {
         debug_assert_eq!(total(parts), self.sum.len());
         let b = self.decay;
-        for (a, &p) in self.sum.iter_mut().zip(parts.iter().flat_map(|p| p.iter())) {
-            *a = b * *a + (1.0 - b) * p;
+        let update = |sum: &mut [f32], part: &[f32]| {
+            for (a, &p) in sum.iter_mut().zip(part) {
+                *a = b * *a + (1.0 - b) * p;
+            }
+        };
+        let mut rest = self.sum.as_mut_slice();
+        for part in parts {
+            let (sum, after) = rest.split_at_mut(part.len());
+            rest = after;
+            if part.len() > 2 * PAR_BLOCK {
+                sum.par_chunks_mut(PAR_BLOCK)
+                    .zip(part.par_chunks(PAR_BLOCK))
+                    .for_each(|(s, p)| update(s, p));
+            } else {
+                update(sum, part);
+            }
         }
         self.steps = self.steps.saturating_add(1);
         self.decayed *= f64::from(b);
@@ -115,14 +133,15 @@ mod tests {
 
     #[test]
     fn the_average_is_adams_bias_corrected_moving_average() {
-        // Iterates θ_t (t = 1..T) of 3 + 2 weights in two parts, over two trainings; after each
-        // the parts must hold Σ_t (1 − β)β^(T−t)θ_t / (1 − β^T) (in f64 here; f32 sums of ≤ 12
-        // terms are within 1e-6), and the iterates must come back for training.
+        // Iterates θ_t (t = 1..T) of two parts, one updated in parallel blocks and one serially,
+        // over two trainings; after each the parts must hold Σ_t (1 − β)β^(T−t)θ_t / (1 − β^T)
+        // (in f64 here; f32 sums of ≤ 12 terms are within 1e-6), and the iterates must come back
+        // for training.
         let beta = 0.8f32;
         let theta = |t: usize, i: usize| ((t * 7 + i * 3) % 11) as f32 * 0.25 - 1.0;
-        let (mut a, mut b) = (vec![9.0f32; 3], vec![9.0f32; 2]);
+        let (mut a, mut b) = (vec![9.0f32; 2 * PAR_BLOCK + 3], vec![9.0f32; 2]);
         let mut avg = ParamAverage::new(beta, &[&a, &b]);
-        assert_eq!(avg.iterate(), &[9.0; 5]);
+        assert_eq!(avg.iterate(), vec![9.0; a.len() + 2]);
         let mut t = 0;
         for steps in [5, 7] {
             avg.resume(&mut [&mut a, &mut b]);
@@ -143,9 +162,9 @@ mod tests {
                 let want = sum / (1.0 - bd.powi(t as i32));
                 assert!((f64::from(p) - want).abs() < 1e-6, "{p} vs {want}");
             }
-            let last: Vec<f32> = (0..5).map(|i| theta(t, i)).collect();
+            let last: Vec<f32> = (0..a.len() + 2).map(|i| theta(t, i)).collect();
             assert_eq!(avg.iterate(), &last[..]);
-            let (mut a2, mut b2) = (vec![0.0; 3], vec![0.0; 2]);
+            let (mut a2, mut b2) = (vec![0.0; a.len()], vec![0.0; 2]);
             avg.resume(&mut [&mut a2, &mut b2]);
             assert_eq!([a2, b2].concat(), last);
         }
