@@ -15,14 +15,7 @@ use rayon::prelude::*;
 use super::density::{check_context, check_points, next_version};
 use super::{Bijection, Density, Evaluated, Samples, Tape};
 use crate::error::Result;
-
-/// Runs `op` on a worker thread of rayon's pool. Called from outside the pool, every parallel
-/// loop is handed to the pool under a lock and waited for with a wake-up; a training step runs
-/// dozens of small loops (per coupling, per dense layer), and on a batch of a few hundred points
-/// those hand-overs cost a fifth of the step. Inside, the loops are scheduled by work stealing.
-fn in_pool<R: Send>(op: impl FnOnce() -> R + Send) -> R {
-    rayon::scope(|_| op())
-}
+use crate::kernels::in_pool;
 
 /// Which way a chunk goes through a layer.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]

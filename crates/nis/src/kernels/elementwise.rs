@@ -156,10 +156,6 @@ pub fn column_sums(m: &[f32], o: usize, c0: usize, out: &mut [f32]) {
     }
 }
 
-/// Parameters per block where an optimiser's or an average's elementwise update runs in
-/// parallel (large enough that a block amortises the hand-over to a thread).
-pub const PAR_BLOCK: usize = 4096;
-
 /// Σ g², accumulated in f64 over eight interleaved lanes and summed lane by lane at the end:
 /// a fixed order (the result does not depend on scheduling) that vectorises, where one running
 /// sum is a chain of dependent additions (Adam's gradient norm over 39k parameters took 50 µs).

@@ -8,6 +8,19 @@ pub mod conv;
 pub mod dense;
 pub mod elementwise;
 
+/// Parameters per parallel work item of an optimiser's or an average's elementwise update
+/// (large enough to pay for the hand-over to a thread); vectors of up to two blocks stay on the
+/// calling thread.
+pub const PAR_BLOCK: usize = 4096;
+
+/// Runs `op` on a worker thread of rayon's pool. Called from outside the pool, every parallel
+/// loop is handed to the pool under a lock and waited for with a wake-up; a training step runs
+/// dozens of small loops (per coupling, per dense layer), and on a batch of a few hundred points
+/// those hand-overs cost a fifth of the step. Inside, the loops are scheduled by work stealing.
+pub(crate) fn in_pool<R: Send>(op: impl FnOnce() -> R + Send) -> R {
+    rayon::scope(|_| op())
+}
+
 /// Rows per parallel work item of a large batch. Fixed, so results do not depend on the number
 /// of threads.
 pub const CHUNK_ROWS: usize = 512;

@@ -5,7 +5,7 @@ use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
 use crate::error::{Error, Result};
-use crate::kernels::elementwise::{self, PAR_BLOCK};
+use crate::kernels::{elementwise, PAR_BLOCK};
 
 /// Optimiser settings.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]

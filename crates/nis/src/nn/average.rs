@@ -12,7 +12,7 @@
 
 use rayon::prelude::*;
 
-use crate::kernels::elementwise::PAR_BLOCK;
+use crate::kernels::PAR_BLOCK;
 
 /// The moving average of one or more parameter vectors, taken as one concatenation.
 #[derive(Clone, Debug)]

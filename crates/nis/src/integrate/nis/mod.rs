@@ -31,6 +31,7 @@ use crate::comm::Comm;
 use crate::error::{Error, Result};
 use crate::flow::mixture::{self, MixtureBatch};
 use crate::flow::{Density, Flow, FlowConfig};
+use crate::kernels::in_pool;
 use crate::nn::ParamAverage;
 use crate::train::Trainer;
 use reuse::{ReplayBuffer, TrainingPieces};
@@ -499,8 +500,14 @@ impl Integrator for NisIntegrator {
         let final_evals = evals - train;
         let mut pieces =
             TrainingPieces::plan(&self.config, dim, batches, final_evals, f.components());
-        self.train_keeping(f, train, pieces.as_mut())?;
-        self.final_phase(f, final_evals, train, started, pieces)
+        // Both phases on one worker thread: the serial work between parallel loops (the
+        // loss, the optimiser's and the average's set-up, the moments) then stays on a core of
+        // the pool, and each loop starts without a hand-over from outside it. Communication
+        // stays on that one thread (MPI is initialised Serialized).
+        in_pool(|| {
+            self.train_keeping(f, train, pieces.as_mut())?;
+            self.final_phase(f, final_evals, train, started, pieces)
+        })
     }
 
     fn save(&self, path: &Path) -> Result<()> {
