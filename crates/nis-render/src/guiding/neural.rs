@@ -64,7 +64,7 @@ use serde::{Deserialize, Serialize};
 
 use super::{
     directions::{DirectionMap, GuideFrame},
-    picks::RecordPicker,
+    picks::{self, RecordPicker},
     Guide, GuideRecord, GuideSample, GuideStatistics, GuideVertex, PdfQuery, SampleQuery,
     COUNT_WORDS,
 };
@@ -140,7 +140,8 @@ pub struct NisGuideConfig {
     /// Exponent α by which training batches favour records that carry light: each record of
     /// the buffer is drawn with probability ∝ (F/p_s)^α and enters its step with its weight
     /// divided by (F/p_s)^α, so every α follows the same expected gradient (`guiding/picks.rs`);
-    /// 0 draws uniformly.
+    /// 0 draws uniformly. A phase whose steps read its buffer more than once over draws by
+    /// α/(reads per record) instead (`picks::phase_alpha`).
     pub pick_by_weight: f32,
     /// Seed of the weights and of the training batches.
     pub seed: u64,
@@ -840,10 +841,12 @@ impl NisGuide {
             let phase = iteration as u64 + 1;
             let mut rng = Pcg64Mcg::seed_from_u64(self.config.seed ^ phase << PHASE_SEED_SHIFT);
             let size = self.config.batch.min(self.buffer.len());
-            let picker = RecordPicker::new(
-                self.buffer.par_iter().map(Sample::kl_weight),
+            let alpha = picks::phase_alpha(
                 f64::from(self.config.pick_by_weight),
+                steps * size,
+                self.buffer.len(),
             );
+            let picker = RecordPicker::new(self.buffer.par_iter().map(Sample::kl_weight), alpha);
             let mut scales: Vec<f64> = Vec::with_capacity(size);
             let mut batch = Vec::with_capacity(size);
             let mut picks = Vec::with_capacity(size);

@@ -85,6 +85,21 @@ impl RecordPicker {
     }
 }
 
+/// The exponent a training phase draws by: the configured `alpha` while the phase's `picks`
+/// (steps × batch) read each of the buffer's `records` at most once on average, and
+/// `alpha · records/picks` when they read it over and over. Drawn with replacement from a
+/// small buffer by weight, the extra reads go to the same bright records again and again,
+/// while a uniform draw spreads them over every record; at 128², 64 spp the first training
+/// phases read their buffer 5–40 times over, and the full α there cost two-rooms-door 3% of
+/// MAPE (docs/GUIDING.md, "Records drawn by weight"). Any α keeps the expected gradient.
+pub(super) fn phase_alpha(alpha: f64, picks: usize, records: usize) -> f64 {
+    if picks <= records {
+        alpha
+    } else {
+        alpha * records as f64 / picks as f64
+    }
+}
+
 /// (F/p_s)^α (a square root for the default ½), 0 where the weight is not finite and positive
 /// (such a record adds nothing to a gradient, so it is never drawn).
 fn scale(w: f64, alpha: f64) -> f64 {
@@ -137,6 +152,17 @@ mod tests {
     use super::*;
     use rand::SeedableRng;
     use rand_pcg::Pcg64Mcg;
+
+    #[test]
+    fn a_phase_that_rereads_its_buffer_draws_closer_to_uniform() {
+        // Read at most once: the configured exponent.
+        assert_eq!(phase_alpha(0.5, 40 * 4096, 227_250), 0.5);
+        assert_eq!(phase_alpha(0.5, 4096, 4096), 0.5);
+        // Read 40 times over (two-rooms-door's first phase): a fortieth of it.
+        assert_eq!(phase_alpha(0.5, 40 * 3640, 3640), 0.5 / 40.0);
+        // The uniform draw stays uniform.
+        assert_eq!(phase_alpha(0.0, 40 * 3640, 3640), 0.0);
+    }
 
     /// The weighted mean Σ w·h / Σ w over a buffer, estimated from picks that enter with
     /// w/s (the ratio of their sums, as a step normalises by its batch's mean weight), is the
