@@ -484,7 +484,8 @@ fn a_trainer_trains_any_density_the_defensive_mixture_included() {
     );
 }
 
-fn run_threads<T: Send>(threads: usize, f: impl FnOnce() -> T + Send) -> T {
+/// Runs `f` in a pool of `threads` threads (for the tests that compare thread counts).
+pub(crate) fn run_threads<T: Send>(threads: usize, f: impl FnOnce() -> T + Send) -> T {
     rayon::ThreadPoolBuilder::new()
         .num_threads(threads)
         .build()

@@ -167,6 +167,7 @@ impl Adam {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::flow::tests::run_threads;
 
     #[test]
     fn adam_minimises_a_quadratic() {
@@ -230,11 +231,7 @@ mod tests {
             ..Default::default()
         };
         let run = |threads: usize| {
-            let pool = rayon::ThreadPoolBuilder::new()
-                .num_threads(threads)
-                .build()
-                .unwrap();
-            pool.install(|| {
+            run_threads(threads, || {
                 let mut adam = Adam::new(config, n).unwrap();
                 let mut p = vec![0.5f32; n];
                 let norm = adam.step(&mut p, &grad).unwrap();
