@@ -145,7 +145,7 @@ impl NisIntegrator {
     /// untrained flow anneals its target from |f|^`anneal_from` — later ones continue Adam as it
     /// stands on the plain target.
     pub fn train(&mut self, f: &dyn Integrand, evals: u64) -> Result<()> {
-        self.train_keeping(f, evals, None)
+        in_pool(|| self.train_keeping(f, evals, None))
     }
 
     /// [`NisIntegrator::train`], handing every batch to `pieces` (training reused in the
@@ -280,7 +280,8 @@ impl NisIntegrator {
     /// The final phase alone: the flow frozen, `evals` evaluations in `final_iterations`
     /// iterations. For a trained or loaded integrator; the result counts only these evaluations.
     pub fn estimate(&mut self, f: &dyn Integrand, evals: u64) -> Result<IntegrationResult> {
-        self.final_phase(f, evals, 0, Instant::now(), None)
+        let started = Instant::now();
+        in_pool(|| self.final_phase(f, evals, 0, started, None))
     }
 
     /// The final phase, after `trained` evaluations of training in the same call (for the
@@ -500,10 +501,11 @@ impl Integrator for NisIntegrator {
         let final_evals = evals - train;
         let mut pieces =
             TrainingPieces::plan(&self.config, dim, batches, final_evals, f.components());
-        // Both phases on one worker thread: the serial work between parallel loops (the
-        // loss, the optimiser's and the average's set-up, the moments) then stays on a core of
-        // the pool, and each loop starts without a hand-over from outside it. Communication
-        // stays on that one thread (MPI is initialised Serialized).
+        // Both phases on one worker thread (as `train` and `estimate` alone): the serial work
+        // between parallel loops (the loss, the optimiser's and the average's set-up, the
+        // moments) then stays on a core of the pool, and each loop starts without a hand-over
+        // from outside it. Communication stays on that one thread (MPI is initialised
+        // Serialized).
         in_pool(|| {
             self.train_keeping(f, train, pieces.as_mut())?;
             self.final_phase(f, final_evals, train, started, pieces)
