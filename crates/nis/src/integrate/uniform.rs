@@ -14,6 +14,7 @@ use super::{
 };
 use crate::comm::Comm;
 use crate::error::{Error, Result};
+use crate::kernels::in_pool;
 
 /// Points drawn and evaluated at once: an iteration's memory, whatever the budget.
 const CHUNK: usize = 1 << 16;
@@ -128,7 +129,15 @@ impl Integrator for PlainMc {
     }
 
     /// `evals` uniform points in `iterations` equal iterations.
+    /// Runs on a worker of rayon's pool (`kernels::in_pool`), as the NIS integrator does.
     fn integrate(&mut self, f: &dyn Integrand, evals: u64) -> Result<IntegrationResult> {
+        in_pool(|| self.run(f, evals))
+    }
+}
+
+impl PlainMc {
+    /// The iterations of [`Integrator::integrate`].
+    fn run(&mut self, f: &dyn Integrand, evals: u64) -> Result<IntegrationResult> {
         let dim = self.dim;
         check_dim(f, dim)?;
         let k = f.components();

@@ -31,6 +31,7 @@ use super::{
 };
 use crate::comm::Comm;
 use crate::error::{Error, Result};
+use crate::kernels::in_pool;
 use map::Map;
 use strata::Strata;
 
@@ -258,7 +259,15 @@ impl Integrator for Vegas {
 
     /// `evals` evaluations in all: the first `warmup` iterations only adapt the map and strata,
     /// the others also make the estimate (and keep adapting them for the next call).
+    /// Runs on a worker of rayon's pool (`kernels::in_pool`), as the NIS integrator does.
     fn integrate(&mut self, f: &dyn Integrand, evals: u64) -> Result<IntegrationResult> {
+        in_pool(|| self.run(f, evals))
+    }
+}
+
+impl Vegas {
+    /// The iterations of [`Integrator::integrate`].
+    fn run(&mut self, f: &dyn Integrand, evals: u64) -> Result<IntegrationResult> {
         let dim = self.dim;
         check_dim(f, dim)?;
         let k = f.components();
