@@ -54,11 +54,19 @@ pub trait Integrand: Sync {
     }
 }
 
+/// Points per parallel work item when evaluating a batch of `n` points: 256 for large batches,
+/// and a sixteenth of a smaller one (a training batch of 256 points: 16 items of 16), so that an
+/// expensive integrand keeps every core busy while the flow trains on small batches. Each value
+/// is computed independently, so the split affects speed only, never the values.
+pub fn points_per_task(n: usize) -> usize {
+    n.div_ceil(16).clamp(1, 256)
+}
+
 impl<F: Fn(&[f64]) -> f64 + Sync> Integrand for F {
     fn eval_batch(&self, x: &[f64], dim: usize, out: &mut [f64]) -> Result<()> {
-        // Fixed-size chunks: each value is computed independently, so the split only affects speed.
-        out.par_chunks_mut(256)
-            .zip(x.par_chunks(256 * dim))
+        let chunk = points_per_task(out.len());
+        out.par_chunks_mut(chunk)
+            .zip(x.par_chunks(chunk * dim))
             .for_each(|(out, x)| {
                 for (o, p) in out.iter_mut().zip(x.chunks_exact(dim)) {
                     *o = self(p);
@@ -97,8 +105,9 @@ impl<F: Fn(&[f64], &mut [f64]) + Sync> VectorFn<F> {
 impl<F: Fn(&[f64], &mut [f64]) + Sync> Integrand for VectorFn<F> {
     fn eval_batch(&self, x: &[f64], dim: usize, out: &mut [f64]) -> Result<()> {
         let k = self.components;
-        out.par_chunks_mut(256 * k)
-            .zip(x.par_chunks(256 * dim))
+        let chunk = points_per_task(out.len() / k.max(1));
+        out.par_chunks_mut(chunk * k)
+            .zip(x.par_chunks(chunk * dim))
             .for_each(|(out, x)| {
                 for (o, p) in out.chunks_exact_mut(k).zip(x.chunks_exact(dim)) {
                     (self.f)(p, o);
@@ -215,4 +224,40 @@ pub(crate) fn column(v: &[f64], k: usize, j: usize) -> Vec<f64> {
         return v.to_vec();
     }
     v.iter().skip(j).step_by(k).copied().collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn small_batches_are_split_for_every_core_and_any_split_gives_the_same_values() {
+        // A training batch of 256 points: 16 work items; large batches: 256 points each; an
+        // empty batch still gets a valid (non-zero) chunk size.
+        assert_eq!(points_per_task(256), 16);
+        assert_eq!(256usize.div_ceil(points_per_task(256)), 16);
+        assert_eq!(points_per_task(1 << 20), 256);
+        assert_eq!(points_per_task(5), 1);
+        assert_eq!(points_per_task(0), 1);
+        // The values of a batch do not depend on how it is split: a batch of 300 evaluated
+        // at once (items of 19) and point by point.
+        let f = |x: &[f64]| (x[0] * 3.0).sin() + x[1] * x[1];
+        let x: Vec<f64> = (0..600).map(|i| (i as f64 * 0.618_034).fract()).collect();
+        let mut whole = vec![0.0; 300];
+        f.eval_batch(&x, 2, &mut whole).unwrap();
+        for (i, w) in whole.iter().enumerate() {
+            let mut one = [0.0];
+            f.eval_batch(&x[2 * i..2 * i + 2], 2, &mut one).unwrap();
+            assert_eq!(*w, one[0]);
+        }
+        let g = VectorFn::new(2, |x: &[f64], out: &mut [f64]| {
+            out[0] = x[0];
+            out[1] = x[0] + x[1];
+        });
+        let mut both = vec![0.0; 600];
+        g.eval_batch(&x, 2, &mut both).unwrap();
+        for (i, v) in both.chunks_exact(2).enumerate() {
+            assert_eq!(v, [x[2 * i], x[2 * i] + x[2 * i + 1]]);
+        }
+    }
 }

@@ -29,7 +29,7 @@ use crate::comm::Comm;
 use crate::error::{Error, Result};
 
 pub use diagnostics::{Reliability, PARETO_K_LIMIT};
-pub use integrand::{check_dim, evaluate, Integrand, TrainOn, VectorFn};
+pub use integrand::{check_dim, evaluate, points_per_task, Integrand, TrainOn, VectorFn};
 pub use result::{
     disagreements, Accumulator, ComponentEstimates, IntegrationResult, Iteration,
     DISAGREEMENT_SIGMAS,

@@ -9,10 +9,7 @@ use std::time::Instant;
 
 use rayon::prelude::*;
 
-use nis::integrate::Integrand;
-
-/// Points per parallel chunk of the spin loop (the same split as closures' `eval_batch`).
-const CHUNK: usize = 256;
+use nis::integrate::{points_per_task, Integrand};
 
 /// Points timed when calibrating.
 const CALIBRATION_POINTS: usize = 1 << 15;
@@ -48,11 +45,13 @@ impl<F: Integrand> Integrand for SyntheticCost<'_, F> {
     fn eval_batch(&self, x: &[f64], dim: usize, out: &mut [f64]) -> nis::Result<()> {
         self.inner.eval_batch(x, dim, out)?;
         if self.spins > 0 {
-            out.par_chunks(CHUNK).for_each(|values| {
-                for &v in values {
-                    spin(v, self.spins);
-                }
-            });
+            // The same split as closures' `eval_batch`.
+            out.par_chunks(points_per_task(out.len()))
+                .for_each(|values| {
+                    for &v in values {
+                        spin(v, self.spins);
+                    }
+                });
         }
         Ok(())
     }
