@@ -13,6 +13,12 @@ pub mod elementwise;
 /// calling thread.
 pub const PAR_BLOCK: usize = 4096;
 
+/// Whether an elementwise update of `len` parameters runs in parallel blocks of [`PAR_BLOCK`]
+/// (more than two blocks) or on the calling thread.
+pub(crate) fn in_parallel_blocks(len: usize) -> bool {
+    len > 2 * PAR_BLOCK
+}
+
 /// Runs `op` on a worker thread of rayon's pool. Called from outside the pool, every parallel
 /// loop is handed to the pool under a lock and waited for with a wake-up; a training step runs
 /// dozens of small loops (per coupling, per dense layer), and on a batch of a few hundred points

@@ -5,7 +5,7 @@ use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
 use crate::error::{Error, Result};
-use crate::kernels::{elementwise, PAR_BLOCK};
+use crate::kernels::{elementwise, in_parallel_blocks, PAR_BLOCK};
 
 /// Optimiser settings.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
@@ -112,7 +112,7 @@ impl Adam {
             });
         }
         // Per-block sums added in block order: the same bits serial or parallel.
-        let sq: f64 = if grad.len() > 2 * PAR_BLOCK {
+        let sq: f64 = if in_parallel_blocks(grad.len()) {
             let parts: Vec<f64> = grad
                 .par_chunks(PAR_BLOCK)
                 .map(elementwise::sum_of_squares)
@@ -147,7 +147,7 @@ impl Adam {
             eps: c.eps,
             grad_scale: scale,
         };
-        if params.len() > 2 * PAR_BLOCK {
+        if in_parallel_blocks(params.len()) {
             // Each parameter's update is independent: blocks in parallel, same bits. The
             // gradient was just summed on the pool's threads, and a serial update on the
             // calling thread would pull all of it across cores.

@@ -12,7 +12,7 @@
 
 use rayon::prelude::*;
 
-use crate::kernels::PAR_BLOCK;
+use crate::kernels::{in_parallel_blocks, PAR_BLOCK};
 
 /// The moving average of one or more parameter vectors, taken as one concatenation.
 #[derive(Clone, Debug)]
@@ -77,7 +77,7 @@ impl ParamAverage {
         for part in parts {
             let (sum, after) = rest.split_at_mut(part.len());
             rest = after;
-            if part.len() > 2 * PAR_BLOCK {
+            if in_parallel_blocks(part.len()) {
                 sum.par_chunks_mut(PAR_BLOCK)
                     .zip(part.par_chunks(PAR_BLOCK))
                     .for_each(|(s, p)| update(s, p));
