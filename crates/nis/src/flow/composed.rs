@@ -66,8 +66,8 @@ pub trait Layer: Clone + std::fmt::Debug + Send + Sync + 'static {
 
     /// The gradient of L = −Σ w_i ln q(x_i) through a whole stack of these layers, written into
     /// `grads`, from the chunks' tapes and ∂L/∂ln q = −w. A stack reduces gradients in its own
-    /// fixed order (the coupling flow layer by layer over all chunks, so its dense layers run on
-    /// large matrices; the multi-scale flow chunk by chunk).
+    /// fixed order (both flows chunk by chunk, the coupling flow in groups of consecutive
+    /// chunks, then summed in chunk or group order).
     fn backward_stack(
         stack: &Composed<Self>,
         chunks: &[ChunkTape<Self::Record>],

@@ -180,11 +180,12 @@ impl Layer for Coupling {
         tape
     }
 
-    /// Layer by layer from the last: each chunk's reverse chain through the layer (the
-    /// transforms' reverse mode, the conditioner's without its parameter gradients, the
-    /// encoding's) runs alongside the parameter gradients of the layer after it, from all
-    /// chunks (reduced in a fixed order on large matrices): one parallel loop per layer, and
-    /// the gradients at the conditioners' layers of at most two couplings held at a time.
+    /// Each group of consecutive chunks in one work item: a chunk's whole reverse chain
+    /// through the stack (the transforms' reverse mode, the conditioner's, the encoding's) with
+    /// its parameter gradients added into the group's own vector as it goes; then the groups'
+    /// vectors are summed in group order. One parallel loop per backward pass, where a loop per
+    /// coupling made a 256-point training step wait for its slowest chunk six times. The groups
+    /// depend on the number of chunks alone, so the sums do not depend on the thread count.
     fn backward_stack(
         stack: &Composed<Coupling>,
         chunks: &[ChunkTape<MlpTape>],
@@ -192,9 +193,6 @@ impl Layer for Coupling {
         grads: &mut [f32],
     ) {
         let dim = stack.dim;
-        let g_log_det: Vec<f32> = weights.iter().map(|w| -w).collect();
-        // ∂L/∂u per chunk; the latent's density is constant, so it starts at zero.
-        let mut g_u: Vec<Vec<f32>> = chunks.iter().map(|c| vec![0.0; c[0].input.len()]).collect();
         // Each chunk's first row in the batch.
         let starts: Vec<usize> = chunks
             .iter()
@@ -204,53 +202,44 @@ impl Layer for Coupling {
                 Some(start)
             })
             .collect();
-        // The chunks' reverse chains through layer `l`: per chunk, the gradients at the outputs
-        // of the conditioner's layers.
-        let chains = |l: usize, g_u: &mut [Vec<f32>]| -> Vec<Vec<Vec<f32>>> {
-            let coupling = &stack.layers[l];
-            let params = coupling.params(&stack.params);
-            chunks
-                .par_iter()
-                .zip(g_u.par_iter_mut())
-                .zip(&starts)
-                .map(|((chunk, g_u), &start)| {
-                    let t = &chunk[l];
-                    let g_ld = &g_log_det[start..start + t.record.rows];
-                    let g_out = coupling.transform_backward(&t.record, &t.input, dim, g_u, g_ld);
-                    // The first layer's input is the fixed x: no gradient needed below it.
-                    let want = l > 0 && !coupling.a.is_empty();
-                    let (deltas, g_enc) =
-                        coupling.mlp.backward_deltas(params, &t.record, g_out, want);
-                    if let Some(g_enc) = g_enc {
-                        coupling.encoding_backward(&t.record, &t.input, dim, &g_enc, g_u);
-                    }
-                    deltas
-                })
-                .collect()
-        };
-        // Layer `l`'s parameter gradients from its chains, into its slice of `grads`.
-        let params_of = |l: usize, deltas: Vec<Vec<Vec<f32>>>, part: &mut [f32]| {
-            let tapes: Vec<&MlpTape> = chunks.iter().map(|c| &c[l].record).collect();
-            let deltas: Vec<&[Vec<f32>]> = deltas.iter().map(Vec::as_slice).collect();
-            stack.layers[l].mlp.param_gradients(&tapes, &deltas, part);
-        };
-        let range = |l: usize| {
-            let c = &stack.layers[l];
-            c.offset..c.offset + c.mlp.param_count()
-        };
-        let mut pending: Option<(usize, Vec<Vec<Vec<f32>>>)> = None;
-        for l in (0..stack.layers.len()).rev() {
-            let deltas = match pending.take() {
-                None => chains(l, &mut g_u),
-                Some((after, d)) => {
-                    let part = &mut grads[range(after)];
-                    rayon::join(|| chains(l, &mut g_u), || params_of(after, d, part)).0
+        let per_group = chunks.len().div_ceil(kernels::GRADIENT_GROUPS).max(1);
+        let chain = |c: usize, part: &mut [f32]| {
+            let tape = &chunks[c];
+            let rows = tape[0].record.rows;
+            let g_ld: Vec<f32> = weights[starts[c]..starts[c] + rows]
+                .iter()
+                .map(|w| -w)
+                .collect();
+            // ∂L/∂u; the latent's density is constant, so it starts at zero.
+            let mut g_u = vec![0.0f32; tape[0].input.len()];
+            for (l, coupling) in stack.layers.iter().enumerate().rev() {
+                let params = coupling.params(&stack.params);
+                let t = &tape[l];
+                let g_out = coupling.transform_backward(&t.record, &t.input, dim, &mut g_u, &g_ld);
+                // The first layer's input is the fixed x: no gradient needed below it.
+                let want = l > 0 && !coupling.a.is_empty();
+                let (deltas, g_enc) = coupling.mlp.backward_deltas(params, &t.record, g_out, want);
+                let range = coupling.offset..coupling.offset + coupling.mlp.param_count();
+                coupling
+                    .mlp
+                    .add_param_gradients(&t.record, &deltas, &mut part[range]);
+                if let Some(g_enc) = g_enc {
+                    coupling.encoding_backward(&t.record, &t.input, dim, &g_enc, &mut g_u);
                 }
-            };
-            pending = Some((l, deltas));
-        }
-        if let Some((l, d)) = pending {
-            params_of(l, d, &mut grads[range(l)]);
-        }
+            }
+        };
+        let parts: Vec<Vec<f32>> = (0..chunks.len())
+            .step_by(per_group)
+            .collect::<Vec<_>>()
+            .into_par_iter()
+            .map(|first| {
+                let mut part = vec![0.0f32; grads.len()];
+                for c in first..(first + per_group).min(chunks.len()) {
+                    chain(c, &mut part);
+                }
+                part
+            })
+            .collect();
+        kernels::sum_in_order(&parts, grads);
     }
 }

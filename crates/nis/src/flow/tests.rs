@@ -351,8 +351,22 @@ fn a_batch_cut_into_uneven_chunks_has_the_gradient_of_its_pieces() {
     // 1000 rows run as 7 chunks of 128 and one of 104 (`kernels::chunk_rows`); each 50-row
     // piece on its own is one chunk. The gradient is a sum over rows, so the pieces' gradients
     // add up to the batch's, up to f32 rounding, only if every chunk reads its own rows' weights.
-    let n = 1000;
-    assert_eq!(crate::kernels::chunk_rows(n), 128);
+    assert_eq!(crate::kernels::chunk_rows(1000), 128);
+    gradient_of_pieces(1000, 50);
+}
+
+#[test]
+fn a_batch_of_more_chunks_than_gradient_groups_has_the_gradient_of_its_pieces() {
+    // 9000 rows: 17 chunks of 512 and one of 296, more than `kernels::GRADIENT_GROUPS`, so the
+    // backward pass sums two chunks per group (the last group holds the short chunk).
+    let n = 9000;
+    assert_eq!(crate::kernels::chunk_rows(n), 512);
+    assert!(n.div_ceil(512) > crate::kernels::GRADIENT_GROUPS);
+    gradient_of_pieces(n, 1000);
+}
+
+/// The gradient of `n` rows in one batch against the sum of its `piece`-row pieces' gradients.
+fn gradient_of_pieces(n: usize, piece: usize) {
     for t in TRANSFORMS {
         let flow = random_flow(3, t, 2, 0.3);
         let x = uniform_points(n, 3, 21);
@@ -362,8 +376,8 @@ fn a_batch_cut_into_uneven_chunks_has_the_gradient_of_its_pieces() {
         let eval = flow.log_density_for_training(&x, Some(&ctx)).unwrap();
         let whole = flow.backward(&eval.tape, &w).unwrap();
         let mut pieces = vec![0.0f64; whole.len()];
-        for p in 0..n / 50 {
-            let rows = p * 50..(p + 1) * 50;
+        for p in 0..n / piece {
+            let rows = p * piece..(p + 1) * piece;
             let eval = flow
                 .log_density_for_training(
                     &x[rows.start * 3..rows.end * 3],

@@ -19,6 +19,31 @@ pub(crate) fn in_parallel_blocks(len: usize) -> bool {
     len > 2 * PAR_BLOCK
 }
 
+/// The most vectors of parameter gradients a backward pass keeps at once: a batch's chunks are
+/// cut into at most this many groups of consecutive chunks, each summing into its own vector
+/// (a 256-point training step: 4 chunks, 4 groups; 16,384 points: 32 chunks, 16 groups of 2).
+pub const GRADIENT_GROUPS: usize = 16;
+
+/// `out[i] = Σ_g parts[g][i]`, summed in the order of `parts` for every `i` (so the result does
+/// not depend on scheduling); in parallel blocks of [`PAR_BLOCK`] for long vectors.
+pub(crate) fn sum_in_order(parts: &[Vec<f32>], out: &mut [f32]) {
+    use rayon::prelude::*;
+    let block = |(b, out): (usize, &mut [f32])| {
+        let (at, len) = (b * PAR_BLOCK, out.len());
+        out.fill(0.0);
+        for part in parts {
+            for (o, p) in out.iter_mut().zip(&part[at..at + len]) {
+                *o += p;
+            }
+        }
+    };
+    if in_parallel_blocks(out.len()) {
+        out.par_chunks_mut(PAR_BLOCK).enumerate().for_each(block);
+    } else {
+        out.chunks_mut(PAR_BLOCK).enumerate().for_each(block);
+    }
+}
+
 /// Runs `op` on a worker thread of rayon's pool. Called from outside the pool, every parallel
 /// loop is handed to the pool under a lock and waited for with a wake-up; a training step runs
 /// dozens of small loops (per coupling, per dense layer), and on a batch of a few hundred points

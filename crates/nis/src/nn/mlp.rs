@@ -170,8 +170,9 @@ impl Mlp {
         chains.into_iter().map(|(_, g_in)| g_in).collect()
     }
 
-    /// Reverse mode of one chunk through the layers, without the parameter gradients (which
-    /// need every chunk: [`Mlp::param_gradients`]): `deltas[j]`, ∂L/∂(output of layer `j`)
+    /// Reverse mode of one chunk through the layers, without the parameter gradients (a
+    /// chunk's own by [`Mlp::add_param_gradients`], every chunk's by [`Mlp::param_gradients`]):
+    /// `deltas[j]`, ∂L/∂(output of layer `j`)
     /// through its activation, row-major, for every layer, and ∂L/∂input when asked. A chunk's
     /// whole chain runs in one work item, so a backward pass over many layers is two parallel
     /// loops, not two per layer.
@@ -212,6 +213,35 @@ impl Mlp {
             deltas[j] = rows(j, std::mem::replace(&mut g, g_in));
         }
         (deltas, Some(g))
+    }
+
+    /// Adds one chunk's ∂L/∂parameters into `grads`, from its tape and its
+    /// [`Mlp::backward_deltas`]: one weight-gradient product and one column sum per layer.
+    pub(crate) fn add_param_gradients(
+        &self,
+        tape: &MlpTape,
+        deltas: &[Vec<f32>],
+        grads: &mut [f32],
+    ) {
+        let mut sums = Vec::new();
+        for (j, delta) in deltas.iter().enumerate() {
+            let (i, o) = (self.dims[j], self.dims[j + 1]);
+            let (wo, bo) = self.offsets(j);
+            let shape = Shape::rows(tape.rows, i, o);
+            dense::backward_weights_block(
+                &tape.acts[j],
+                delta,
+                &mut grads[wo..bo],
+                shape,
+                0..i,
+                true,
+            );
+            sums.resize(o, 0.0);
+            elementwise::column_sums(&delta[..tape.rows * o], o, 0, &mut sums);
+            for (g, s) in grads[bo..bo + o].iter_mut().zip(&sums) {
+                *g += s;
+            }
+        }
     }
 
     /// ∂L/∂parameters into `grads` (overwriting) from every chunk's tape and

@@ -25,6 +25,7 @@ use serde::{Deserialize, Serialize};
 
 use super::composed::{ChunkTape, Composed, Direction, Layer, LayerTape, Rows};
 use crate::error::{Error, Result};
+use crate::kernels;
 use crate::transform::{with_transform, Transform, TransformKind};
 
 pub use crate::nn::conv_net::{ConvNet, NetTape};
@@ -437,11 +438,7 @@ impl Layer for MsCoupling {
                 grads
             })
             .collect();
-        for g in per_chunk {
-            for (a, b) in grads.iter_mut().zip(&g) {
-                *a += b;
-            }
-        }
+        kernels::sum_in_order(&per_chunk, grads);
     }
 }
 
