@@ -8,16 +8,9 @@
 use rand::Rng;
 use rayon::prelude::*;
 
+use crate::kernels;
 use crate::kernels::dense::{self, Layout, Shape};
 use crate::kernels::elementwise;
-
-/// Rows of an `i`-row weight gradient computed by one work item: two blocks for wide layers (so
-/// two threads share them), each large enough that its gemm calls are efficient — 32-row blocks
-/// cost R1's training step a quarter of its speed. Depends on the shape only, never on the
-/// thread count, so the reduction order is fixed.
-fn weight_block_rows(i: usize) -> usize {
-    i.div_ceil(2).clamp(16, 128)
-}
 
 /// The row-major `[n, o]` copy of the feature-major `[o, n]` matrix `m`. For a chunk of a few
 /// rows a row at a time (contiguous stores, and the reads a few cache lines per feature); for
@@ -147,8 +140,10 @@ impl Mlp {
     }
 
     /// Backward pass over all chunks of a batch. `g_out[c]` is ∂L/∂output of chunk `c` (laid out
-    /// as the output). Writes
-    /// ∂L/∂parameters into `grads` (overwriting) and returns ∂L/∂input per chunk when asked.
+    /// as the output). Writes ∂L/∂parameters into `grads` (overwriting) and returns ∂L/∂input
+    /// per chunk when asked. Each group of consecutive chunks (at most
+    /// [`kernels::GRADIENT_GROUPS`]) is one work item that adds its chunks' parameter gradients
+    /// into its own vector; the vectors are summed in group order, whatever the thread count.
     pub fn backward(
         &self,
         params: &[f32],
@@ -157,25 +152,34 @@ impl Mlp {
         grads: &mut [f32],
         want_input_grad: bool,
     ) -> Option<Vec<Vec<f32>>> {
-        let chains: Vec<_> = g_out
+        let per_group = tapes.len().div_ceil(kernels::GRADIENT_GROUPS).max(1);
+        let groups: Vec<(Vec<f32>, Vec<Vec<f32>>)> = g_out
             .into_par_iter()
             .zip(tapes.par_iter())
-            .map(|(g, tape)| self.backward_deltas(params, tape, g, want_input_grad))
+            .chunks(per_group)
+            .map(|group| {
+                let mut part = vec![0.0f32; grads.len()];
+                let g_in = group
+                    .into_iter()
+                    .filter_map(|(g, tape)| {
+                        let (deltas, g_in) = self.backward_deltas(params, tape, g, want_input_grad);
+                        self.add_param_gradients(tape, &deltas, &mut part);
+                        g_in
+                    })
+                    .collect();
+                (part, g_in)
+            })
             .collect();
-        let deltas: Vec<&[Vec<f32>]> = chains.iter().map(|(d, _)| d.as_slice()).collect();
-        self.param_gradients(tapes, &deltas, grads);
-        if !want_input_grad {
-            return None;
-        }
-        chains.into_iter().map(|(_, g_in)| g_in).collect()
+        let (parts, g_in): (Vec<_>, Vec<_>) = groups.into_iter().unzip();
+        kernels::sum_in_order(&parts, grads);
+        want_input_grad.then(|| g_in.into_iter().flatten().collect())
     }
 
-    /// Reverse mode of one chunk through the layers, without the parameter gradients (a
-    /// chunk's own by [`Mlp::add_param_gradients`], every chunk's by [`Mlp::param_gradients`]):
-    /// `deltas[j]`, ∂L/∂(output of layer `j`)
+    /// Reverse mode of one chunk through the layers, without the parameter gradients (those
+    /// are [`Mlp::add_param_gradients`]'s): `deltas[j]`, ∂L/∂(output of layer `j`)
     /// through its activation, row-major, for every layer, and ∂L/∂input when asked. A chunk's
-    /// whole chain runs in one work item, so a backward pass over many layers is two parallel
-    /// loops, not two per layer.
+    /// whole chain runs in one work item, so a backward pass over many layers is one parallel
+    /// loop, not one per layer.
     pub(crate) fn backward_deltas(
         &self,
         params: &[f32],
@@ -242,60 +246,6 @@ impl Mlp {
                 *g += s;
             }
         }
-    }
-
-    /// ∂L/∂parameters into `grads` (overwriting) from every chunk's tape and
-    /// [`Mlp::backward_deltas`]: each block of a weight gradient, and each bias, walks the
-    /// chunks in order, so the sums do not depend on how the blocks are scheduled.
-    pub(crate) fn param_gradients(
-        &self,
-        tapes: &[&MlpTape],
-        deltas: &[&[Vec<f32>]],
-        grads: &mut [f32],
-    ) {
-        let mut layers = Vec::with_capacity(self.layers());
-        let mut rest = grads;
-        for j in 0..self.layers() {
-            let (i, o) = (self.dims[j], self.dims[j + 1]);
-            let (g_w, tail) = std::mem::take(&mut rest).split_at_mut(i * o);
-            let (g_b, tail) = tail.split_at_mut(o);
-            rest = tail;
-            layers.push((j, g_w, g_b));
-        }
-        layers.into_par_iter().for_each(|(j, g_w, g_b)| {
-            let (i, o) = (self.dims[j], self.dims[j + 1]);
-            rayon::join(
-                || {
-                    g_w.par_chunks_mut(weight_block_rows(i) * o)
-                        .enumerate()
-                        .for_each(|(blk, g_w)| {
-                            let r0 = blk * weight_block_rows(i);
-                            let m = g_w.len() / o.max(1);
-                            for (c, tape) in tapes.iter().enumerate() {
-                                let shape = Shape::rows(tape.rows, i, o);
-                                dense::backward_weights_block(
-                                    &tape.acts[j],
-                                    &deltas[c][j],
-                                    g_w,
-                                    shape,
-                                    r0..r0 + m,
-                                    c > 0,
-                                );
-                            }
-                        })
-                },
-                || {
-                    g_b.fill(0.0);
-                    let mut sums = vec![0.0; o];
-                    for (c, tape) in tapes.iter().enumerate() {
-                        elementwise::column_sums(&deltas[c][j][..tape.rows * o], o, 0, &mut sums);
-                        for (a, s) in g_b.iter_mut().zip(&sums) {
-                            *a += s;
-                        }
-                    }
-                },
-            );
-        });
     }
 }
 
