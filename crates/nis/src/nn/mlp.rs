@@ -314,6 +314,48 @@ mod tests {
     }
 
     #[test]
+    fn more_chunks_than_gradient_groups_sum_to_the_chunks_gradients_on_any_thread_count() {
+        // 40 chunks: groups of three (the last of one), more groups than a pool has threads.
+        let rows: Vec<usize> = (0..40).map(|c| 1 + (c * 7) % 11).collect();
+        assert!(rows.len() > 2 * crate::kernels::GRADIENT_GROUPS);
+        let (mlp, params, _, g, tapes) = random_chunks(Layout::Rows, &rows, 12);
+        let refs: Vec<&MlpTape> = tapes.iter().collect();
+        let run = |threads| {
+            crate::flow::tests::run_threads(threads, || {
+                let mut grads = vec![f32::NAN; params.len()];
+                let g_in = mlp.backward(&params, &refs, g.clone(), &mut grads, true);
+                (grads, g_in.unwrap())
+            })
+        };
+        let (grads, g_in) = run(1);
+        let (grads3, g_in3) = run(3);
+        assert!(grads
+            .iter()
+            .zip(&grads3)
+            .all(|(a, b)| a.to_bits() == b.to_bits()));
+        assert_eq!(g_in, g_in3);
+        // Each chunk on its own: its input gradient bit for bit, in chunk order, and the
+        // parameter gradients summing (in f64) to the batch's up to f32 rounding.
+        let mut sum = vec![0.0f64; params.len()];
+        for c in 0..rows.len() {
+            let mut one = vec![f32::NAN; params.len()];
+            let g_one = mlp.backward(&params, &refs[c..=c], vec![g[c].clone()], &mut one, true);
+            assert_eq!(g_one.unwrap()[0], g_in[c], "chunk {c}");
+            for (s, v) in sum.iter_mut().zip(&one) {
+                *s += f64::from(*v);
+            }
+        }
+        let scale = sum.iter().fold(0.0f64, |m, v| m.max(v.abs()));
+        for (k, (a, b)) in grads.iter().zip(&sum).enumerate() {
+            // 40 f32 additions of terms up to `scale`: a few dozen ulps of it at most.
+            assert!(
+                (f64::from(*a) - b).abs() <= 64.0 * f64::from(f32::EPSILON) * scale,
+                "param {k}: {a} vs {b}"
+            );
+        }
+    }
+
+    #[test]
     fn rows_of_features_transposes_few_and_many_rows() {
         // Both loops: up to 128 rows a row at a time, more a block of rows at a time (with a
         // partial last block).
@@ -334,21 +376,20 @@ mod tests {
         check_backward_over_chunks(Layout::Features);
     }
 
-    /// Three layers over two chunks of different sizes: every parameter's gradient and every
-    /// input's, against central differences of a loss linear in the outputs (laid out as
-    /// `output`, as are the gradients at them).
-    fn check_backward_over_chunks(output: Layout) {
+    /// A 4 → 6 → 5 → 3 MLP with perturbed initial weights, chunks of `rows` random inputs, a
+    /// random gradient at each chunk's outputs, and the chunks' forward tapes.
+    type Chunks = (Mlp, Vec<f32>, Vec<Vec<f32>>, Vec<Vec<f32>>, Vec<MlpTape>);
+    fn random_chunks(output: Layout, rows: &[usize], seed: u64) -> Chunks {
         let mlp = Mlp {
             dims: vec![4, 6, 5, 3],
             output,
         };
-        let mut rng = rand_pcg::Pcg64Mcg::seed_from_u64(11);
+        let mut rng = rand_pcg::Pcg64Mcg::seed_from_u64(seed);
         let mut params = vec![0.0; mlp.param_count()];
         mlp.init(&mut params, &mut rng);
         for p in params.iter_mut() {
             *p += 0.5 * (rng.random::<f32>() - 0.5);
         }
-        let rows = [3, 5];
         let inputs: Vec<Vec<f32>> = rows
             .iter()
             .map(|&n| (0..n * 4).map(|_| rng.random::<f32>()).collect())
@@ -366,6 +407,14 @@ mod tests {
                 tape
             })
             .collect();
+        (mlp, params, inputs, g, tapes)
+    }
+
+    /// Three layers over two chunks of different sizes: every parameter's gradient and every
+    /// input's, against central differences of a loss linear in the outputs (laid out as
+    /// `output`, as are the gradients at them).
+    fn check_backward_over_chunks(output: Layout) {
+        let (mlp, params, inputs, g, tapes) = random_chunks(output, &[3, 5], 11);
         let refs: Vec<&MlpTape> = tapes.iter().collect();
         let mut grads = vec![f32::NAN; params.len()];
         let g_in = mlp
