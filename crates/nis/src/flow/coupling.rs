@@ -5,8 +5,6 @@
 //! unnormalised parameters) and its kind of 1-D transform C. Everything here works on one chunk
 //! of rows; [`super::composed::Composed`] runs chunks in parallel.
 
-use rayon::prelude::*;
-
 use super::composed::{ChunkTape, Composed, Direction, Layer, Rows};
 use super::config::FlowConfig;
 use crate::kernels;
@@ -180,12 +178,11 @@ impl Layer for Coupling {
         tape
     }
 
-    /// Each group of consecutive chunks in one work item: a chunk's whole reverse chain
-    /// through the stack (the transforms' reverse mode, the conditioner's, the encoding's) with
-    /// its parameter gradients added into the group's own vector as it goes; then the groups'
-    /// vectors are summed in group order. One parallel loop per backward pass, where a loop per
-    /// coupling made a 256-point training step wait for its slowest chunk six times. The groups
-    /// depend on the number of chunks alone, so the sums do not depend on the thread count.
+    /// Each chunk's whole reverse chain through the stack (the transforms' reverse mode, the
+    /// conditioner's, the encoding's), adding its parameter gradients as it goes, in the groups
+    /// of consecutive chunks of [`kernels::sum_in_groups`]: one parallel loop per backward
+    /// pass, where a loop per coupling made a 256-point training step wait for its slowest
+    /// chunk six times, and sums that do not depend on the thread count.
     fn backward_stack(
         stack: &Composed<Coupling>,
         chunks: &[ChunkTape<MlpTape>],
@@ -202,7 +199,6 @@ impl Layer for Coupling {
                 Some(start)
             })
             .collect();
-        let per_group = chunks.len().div_ceil(kernels::GRADIENT_GROUPS).max(1);
         let chain = |c: usize, part: &mut [f32]| {
             let tape = &chunks[c];
             let rows = tape[0].record.rows;
@@ -228,18 +224,6 @@ impl Layer for Coupling {
                 }
             }
         };
-        let parts: Vec<Vec<f32>> = (0..chunks.len())
-            .step_by(per_group)
-            .collect::<Vec<_>>()
-            .into_par_iter()
-            .map(|first| {
-                let mut part = vec![0.0f32; grads.len()];
-                for c in first..(first + per_group).min(chunks.len()) {
-                    chain(c, &mut part);
-                }
-                part
-            })
-            .collect();
-        kernels::sum_in_order(&parts, grads);
+        kernels::sum_in_groups((0..chunks.len()).collect(), grads, chain);
     }
 }

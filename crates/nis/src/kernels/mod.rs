@@ -24,6 +24,34 @@ pub(crate) fn in_parallel_blocks(len: usize) -> bool {
 /// (a 256-point training step: 4 chunks, 4 groups; 16,384 points: 32 chunks, 16 groups of 2).
 pub const GRADIENT_GROUPS: usize = 16;
 
+/// The backward passes' reduction: `items` (one per chunk, in chunk order) cut into at most
+/// [`GRADIENT_GROUPS`] groups of consecutive items, each group one parallel work item that
+/// runs `f` on its items in order with a zeroed vector of `out.len()` gradients of its own to
+/// add into; the groups' vectors are then summed into `out` in group order
+/// ([`sum_in_order`]). The groups depend on the item count alone, so `out` does not depend on
+/// the thread count. Returns what `f` returned per item, in item order.
+pub(crate) fn sum_in_groups<I: Send, T: Send>(
+    items: Vec<I>,
+    out: &mut [f32],
+    f: impl Fn(I, &mut [f32]) -> T + Sync + Send,
+) -> Vec<T> {
+    use rayon::prelude::*;
+    let per_group = items.len().div_ceil(GRADIENT_GROUPS).max(1);
+    let len = out.len();
+    let groups: Vec<(Vec<f32>, Vec<T>)> = items
+        .into_par_iter()
+        .chunks(per_group)
+        .map(|group| {
+            let mut part = vec![0.0f32; len];
+            let results = group.into_iter().map(|item| f(item, &mut part)).collect();
+            (part, results)
+        })
+        .collect();
+    let (parts, results): (Vec<_>, Vec<_>) = groups.into_iter().unzip();
+    sum_in_order(&parts, out);
+    results.into_iter().flatten().collect()
+}
+
 /// `out[i] = Σ_g parts[g][i]`, summed in the order of `parts` for every `i` (so the result does
 /// not depend on scheduling); in parallel blocks of [`PAR_BLOCK`] for long vectors.
 pub(crate) fn sum_in_order(parts: &[Vec<f32>], out: &mut [f32]) {

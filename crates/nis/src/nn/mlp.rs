@@ -6,7 +6,6 @@
 //! Layout of one layer's parameters: weights `[in, out]` row-major, then the `out` biases.
 
 use rand::Rng;
-use rayon::prelude::*;
 
 use crate::kernels;
 use crate::kernels::dense::{self, Layout, Shape};
@@ -141,9 +140,8 @@ impl Mlp {
 
     /// Backward pass over all chunks of a batch. `g_out[c]` is ∂L/∂output of chunk `c` (laid out
     /// as the output). Writes ∂L/∂parameters into `grads` (overwriting) and returns ∂L/∂input
-    /// per chunk when asked. Each group of consecutive chunks (at most
-    /// [`kernels::GRADIENT_GROUPS`]) is one work item that adds its chunks' parameter gradients
-    /// into its own vector; the vectors are summed in group order, whatever the thread count.
+    /// per chunk when asked. Chunks are reduced in groups ([`kernels::sum_in_groups`]), so the
+    /// sums do not depend on the thread count.
     pub fn backward(
         &self,
         params: &[f32],
@@ -152,26 +150,12 @@ impl Mlp {
         grads: &mut [f32],
         want_input_grad: bool,
     ) -> Option<Vec<Vec<f32>>> {
-        let per_group = tapes.len().div_ceil(kernels::GRADIENT_GROUPS).max(1);
-        let groups: Vec<(Vec<f32>, Vec<Vec<f32>>)> = g_out
-            .into_par_iter()
-            .zip(tapes.par_iter())
-            .chunks(per_group)
-            .map(|group| {
-                let mut part = vec![0.0f32; grads.len()];
-                let g_in = group
-                    .into_iter()
-                    .filter_map(|(g, tape)| {
-                        let (deltas, g_in) = self.backward_deltas(params, tape, g, want_input_grad);
-                        self.add_param_gradients(tape, &deltas, &mut part);
-                        g_in
-                    })
-                    .collect();
-                (part, g_in)
-            })
-            .collect();
-        let (parts, g_in): (Vec<_>, Vec<_>) = groups.into_iter().unzip();
-        kernels::sum_in_order(&parts, grads);
+        let items: Vec<_> = g_out.into_iter().zip(tapes).collect();
+        let g_in = kernels::sum_in_groups(items, grads, |(g, tape), part| {
+            let (deltas, g_in) = self.backward_deltas(params, tape, g, want_input_grad);
+            self.add_param_gradients(tape, &deltas, part);
+            g_in
+        });
         want_input_grad.then(|| g_in.into_iter().flatten().collect())
     }
 
