@@ -40,13 +40,13 @@ pub struct IntegrateArgs {
     #[arg(long, value_parser = method_parser())]
     pub method: Option<Method>,
     /// Coupling transform of the flow.
-    #[arg(long, value_enum, default_value = "pq")]
+    #[arg(long, value_enum, default_value = "pq", conflicts_with = "load")]
     pub coupling: Coupling,
     /// Bins of the coupling transform.
-    #[arg(long, default_value_t = 16)]
+    #[arg(long, default_value_t = 16, conflicts_with = "load")]
     pub bins: usize,
     /// Training loss: kl or chi2.
-    #[arg(long, default_value = "kl")]
+    #[arg(long, default_value = "kl", conflicts_with = "load")]
     pub loss: Loss,
     /// Evaluations per method (NIS training included).
     #[arg(long, default_value_t = 1_000_000)]
@@ -60,14 +60,15 @@ pub struct IntegrateArgs {
     /// Save the trained NIS integrator to this file.
     #[arg(long, conflicts_with = "load")]
     pub save: Option<PathBuf>,
-    /// Load a trained NIS integrator and spend all evaluations on the estimate.
+    /// Load a trained NIS integrator and spend all evaluations on the estimate (with the
+    /// settings it was saved with: --coupling, --bins, --loss and --nis-config conflict with it).
     #[arg(long)]
     pub load: Option<PathBuf>,
     /// NIS settings to change, as JSON merged into the defaults, e.g.
     /// '{"batch": 2048, "flow": {"hidden_width": 64}, "adam": {"learning_rate": 0.001}}';
     /// '{"stratify": null}' draws the final phase's latents i.i.d. instead of stratified,
     /// '{"stratify": {"beta": 0}}' keeps equal counts per hypercube.
-    #[arg(long, value_name = "JSON")]
+    #[arg(long, value_name = "JSON", conflicts_with = "load")]
     pub nis_config: Option<String>,
 }
 

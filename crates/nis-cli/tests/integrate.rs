@@ -115,6 +115,45 @@ fn nis_config_sets_the_stratification_of_the_latent() {
     );
 }
 
+/// A loaded integrator keeps the settings it was saved with: options that would change them are
+/// an error, not silently ignored.
+#[test]
+fn settings_that_a_loaded_integrator_would_ignore_are_an_error() {
+    let dir = std::env::temp_dir().join(format!("nis-load-conflicts-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let model = dir.join("gauss.nis");
+    let model = model.to_str().unwrap();
+    let base = ["integrate", "gauss", "--evals", "20000", "--method", "nis"];
+    let out = nis(&[&base[..], &["--save", model]].concat());
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let loaded = nis(&[&base[..], &["--load", model]].concat());
+    assert!(
+        loaded.status.success(),
+        "{}",
+        String::from_utf8_lossy(&loaded.stderr)
+    );
+    for extra in [
+        &["--nis-config", r#"{"stratify": null}"#][..],
+        &["--coupling", "rq"],
+        &["--bins", "8"],
+        &["--loss", "chi2"],
+    ] {
+        let out = nis(&[&base[..], &["--load", model], extra].concat());
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert!(
+            !out.status.success()
+                && err.contains("cannot be used with")
+                && !err.contains("panicked"),
+            "{extra:?}: {err}"
+        );
+    }
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
 /// `nis eval` with and without a synthetic cost: the same values, bit for bit.
 #[test]
 fn eval_serves_the_same_values_with_a_synthetic_cost() {
