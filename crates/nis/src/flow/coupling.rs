@@ -214,11 +214,11 @@ impl Layer for Coupling {
                 let g_out = coupling.transform_backward(&t.record, &t.input, dim, &mut g_u, &g_ld);
                 // The first layer's input is the fixed x: no gradient needed below it.
                 let want = l > 0 && !coupling.a.is_empty();
-                let (deltas, g_enc) = coupling.mlp.backward_deltas(params, &t.record, g_out, want);
                 let range = coupling.offset..coupling.offset + coupling.mlp.param_count();
-                coupling
-                    .mlp
-                    .add_param_gradients(&t.record, &deltas, &mut part[range]);
+                let g_enc =
+                    coupling
+                        .mlp
+                        .backward_chunk(params, &t.record, g_out, &mut part[range], want);
                 if let Some(g_enc) = g_enc {
                     coupling.encoding_backward(&t.record, &t.input, dim, &g_enc, &mut g_u);
                 }

@@ -152,19 +152,31 @@ impl Mlp {
     ) -> Option<Vec<Vec<f32>>> {
         let items: Vec<_> = g_out.into_iter().zip(tapes).collect();
         let g_in = kernels::sum_in_groups(items, grads, |(g, tape), part| {
-            let (deltas, g_in) = self.backward_deltas(params, tape, g, want_input_grad);
-            self.add_param_gradients(tape, &deltas, part);
-            g_in
+            self.backward_chunk(params, tape, g, part, want_input_grad)
         });
         want_input_grad.then(|| g_in.into_iter().flatten().collect())
     }
 
+    /// Reverse mode of one chunk: its ∂L/∂parameters added into `grads`, and its ∂L/∂input
+    /// returned when asked. A chunk's whole chain runs in one work item, so a backward pass over
+    /// many layers is one parallel loop, not one per layer.
+    pub(crate) fn backward_chunk(
+        &self,
+        params: &[f32],
+        tape: &MlpTape,
+        g_out: Vec<f32>,
+        grads: &mut [f32],
+        want_input_grad: bool,
+    ) -> Option<Vec<f32>> {
+        let (deltas, g_in) = self.backward_deltas(params, tape, g_out, want_input_grad);
+        self.add_param_gradients(tape, &deltas, grads);
+        g_in
+    }
+
     /// Reverse mode of one chunk through the layers, without the parameter gradients (those
     /// are [`Mlp::add_param_gradients`]'s): `deltas[j]`, ∂L/∂(output of layer `j`)
-    /// through its activation, row-major, for every layer, and ∂L/∂input when asked. A chunk's
-    /// whole chain runs in one work item, so a backward pass over many layers is one parallel
-    /// loop, not one per layer.
-    pub(crate) fn backward_deltas(
+    /// through its activation, row-major, for every layer, and ∂L/∂input when asked.
+    fn backward_deltas(
         &self,
         params: &[f32],
         tape: &MlpTape,
@@ -205,12 +217,7 @@ impl Mlp {
 
     /// Adds one chunk's ∂L/∂parameters into `grads`, from its tape and its
     /// [`Mlp::backward_deltas`]: one weight-gradient product and one column sum per layer.
-    pub(crate) fn add_param_gradients(
-        &self,
-        tape: &MlpTape,
-        deltas: &[Vec<f32>],
-        grads: &mut [f32],
-    ) {
+    fn add_param_gradients(&self, tape: &MlpTape, deltas: &[Vec<f32>], grads: &mut [f32]) {
         let mut sums = Vec::new();
         for (j, delta) in deltas.iter().enumerate() {
             let (i, o) = (self.dims[j], self.dims[j + 1]);
