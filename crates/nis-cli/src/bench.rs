@@ -150,7 +150,7 @@ pub struct BenchTimeToPrecisionArgs {
     /// ridge d = 4.
     #[arg(long, num_args = 1.., value_delimiter = ',')]
     only: Vec<String>,
-    /// Methods, from nis, vegas+, mc, vegas-py.
+    /// Methods, from nis, nis-codes (the flow of fewer layers), vegas+, mc, vegas-py.
     #[arg(long, num_args = 1.., value_delimiter = ',', default_value = "nis,vegas+,mc,vegas-py")]
     methods: Vec<String>,
     /// Target relative errors.

@@ -5,6 +5,7 @@ use std::path::PathBuf;
 use clap::builder::{PossibleValuesParser, TypedValueParser};
 use indicatif::{ProgressBar, ProgressStyle};
 use nis::comm::Comm;
+use nis::flow::mask::Masks;
 use nis::flow::Density;
 use nis::integrands::{self, Builtin, SUITE};
 use nis::integrate::unweight::{SampleFormat, SampleWriter};
@@ -48,6 +49,11 @@ pub struct IntegrateArgs {
     /// Training loss: kl or chi2.
     #[arg(long, default_value = "kl", conflicts_with = "load")]
     pub loss: Loss,
+    /// How the flow's coupling layers split the dimensions: binary (the paper's masks) or codes
+    /// (fewer layers: a faster flow with a higher variance per evaluation, for cheap integrands;
+    /// docs/BENCHMARKS.md, "Fewer coupling layers").
+    #[arg(long, default_value = "binary", conflicts_with = "load")]
+    pub masks: Masks,
     /// Evaluations per method (NIS training included).
     #[arg(long, default_value_t = 1_000_000)]
     pub evals: u64,
@@ -86,6 +92,7 @@ impl IntegrateArgs {
             Coupling::Rq => TransformKind::RationalQuadratic { bins: self.bins },
             Coupling::Affine => TransformKind::Affine,
         };
+        c.flow.masks = self.masks;
         c.flow.seed = self.seed;
         c.seed = self.seed;
         if let Some(patch) = &self.nis_config {

@@ -141,6 +141,7 @@ fn settings_that_a_loaded_integrator_would_ignore_are_an_error() {
         &["--coupling", "rq"],
         &["--bins", "8"],
         &["--loss", "chi2"],
+        &["--masks", "codes"],
     ] {
         let out = nis(&[&base[..], &["--load", model], extra].concat());
         let err = String::from_utf8_lossy(&out.stderr);
@@ -151,6 +152,51 @@ fn settings_that_a_loaded_integrator_would_ignore_are_an_error() {
             "{extra:?}: {err}"
         );
     }
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+/// `--masks codes` builds the flow of fewer layers, a saved model keeps it (its weights fit no
+/// other layout), and an unknown layout is an error.
+#[test]
+fn the_code_masks_are_saved_with_the_model() {
+    let dir = std::env::temp_dir().join(format!("nis-codes-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let model = dir.join("gauss.nis");
+    let model = model.to_str().unwrap();
+    let base = [
+        "integrate",
+        "gauss",
+        "--dim",
+        "5",
+        "--evals",
+        "40000",
+        "--method",
+        "nis",
+    ];
+    let run = |extra: &[&str]| {
+        let out = nis(&[&base[..], extra, &["--json"]].concat());
+        let err = String::from_utf8_lossy(&out.stderr).to_string();
+        assert!(out.status.success(), "{extra:?}: {err}");
+        let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+        let (value, std_err) = (v["value"].as_f64().unwrap(), v["std_err"].as_f64().unwrap());
+        let exact = v["exact"].as_f64().unwrap();
+        assert!((value - exact).abs() < 5.0 * std_err, "{extra:?}: {v}");
+        value
+    };
+    let codes = run(&["--masks", "codes", "--save", model]);
+    let binary = run(&[]);
+    assert_ne!(codes, binary);
+    let saved = std::fs::read(model).unwrap();
+    // The config is JSON inside the safetensors header's JSON, its quotes escaped.
+    let needle = br#"\"masks\":\"codes\""#;
+    assert!(saved.windows(needle.len()).any(|w| w == needle));
+    run(&["--load", model]);
+    let out = nis(&[&base[..], &["--masks", "gray"]].concat());
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        !out.status.success() && err.contains("gray") && !err.contains("panicked"),
+        "{err}"
+    );
     std::fs::remove_dir_all(&dir).unwrap();
 }
 

@@ -111,4 +111,8 @@ fn bad_options_are_typed_errors() {
         "vegas-py".parse::<Contender>().unwrap(),
         Contender::VegasPackage
     );
+    assert_eq!(
+        "nis-codes".parse::<Contender>().unwrap(),
+        Contender::NisCodes
+    );
 }

@@ -68,7 +68,7 @@ impl PyFlow {
     #[new]
     #[pyo3(signature = (
         dim, coupling = "pq", bins = 16, layers = None, context_dim = 0, *, hidden_layers = 2,
-        hidden_width = 32, blob_bins = 16, seed = 0
+        hidden_width = 32, blob_bins = 16, masks = "binary", seed = 0
     ))]
     // Each parameter is a named keyword of the Python constructor (the `vegas`-like interface the
     // module promises); PyO3 maps keywords to parameters, so a struct cannot stand in for them.
@@ -82,6 +82,7 @@ impl PyFlow {
         hidden_layers: i64,
         hidden_width: i64,
         blob_bins: i64,
+        masks: &str,
         seed: i64,
     ) -> PyResult<PyFlow> {
         let default = FlowConfig::default();
@@ -95,6 +96,7 @@ impl PyFlow {
             blob_bins: count("blob_bins", blob_bins)?,
             context_dim: count("context_dim", context_dim)?,
             seed,
+            masks: masks.parse().map_err(to_py_err)?,
         };
         if layers == Some(0) {
             return Err(PyValueError::new_err("layers must be at least 1 (or None)"));

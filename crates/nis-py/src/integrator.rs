@@ -76,7 +76,7 @@ struct Given<'a> {
 impl PyIntegrator {
     #[new]
     #[pyo3(signature = (
-        dim, method = "nis", *, seed = 0, coupling = None, bins = None, layers = None,
+        dim, method = "nis", *, seed = 0, coupling = None, bins = None, layers = None, masks = None,
         hidden_layers = None, hidden_width = None, blob_bins = None, loss = None, batch = None,
         steps_per_batch = None, train_fraction = None, learning_rate = None,
         learning_rate_end = None, average_span = None, uniform_fraction = None, anneal_from = None,
@@ -94,6 +94,7 @@ impl PyIntegrator {
         coupling: Option<&str>,
         bins: Option<i64>,
         layers: Option<i64>,
+        masks: Option<&str>,
         hidden_layers: Option<i64>,
         hidden_width: Option<i64>,
         blob_bins: Option<i64>,
@@ -151,6 +152,9 @@ impl PyIntegrator {
             n.flow.transform = transform(coupling.unwrap_or("pq"), bins, &n.flow.transform)?;
         }
         set!(nis, layers, n.flow.couplings, c("layers"));
+        set!(nis, masks, n.flow.masks, |m: &str| m
+            .parse()
+            .map_err(to_py_err));
         set!(nis, hidden_layers, n.flow.hidden_layers, c("hidden_layers"));
         set!(nis, hidden_width, n.flow.hidden_width, c("hidden_width"));
         set!(nis, blob_bins, n.flow.blob_bins, c("blob_bins"));

@@ -81,6 +81,19 @@ def test_an_exception_in_fit_integrand_leaves_the_flow_as_it_was():
     assert np.array_equal(flow.log_prob(x), before)
 
 
+def test_the_code_masks_build_a_smaller_flow_that_saves_and_loads(tmp_path):
+    codes, binary = nis.Flow(8, masks="codes", seed=1), nis.Flow(8, seed=1)
+    assert '"masks":"codes"' in codes.config and "masks" not in binary.config
+    assert codes.param_count < binary.param_count
+    codes.fit_integrand(gauss_np, evals=20_000)
+    codes.save(tmp_path / "codes.safetensors")
+    back = nis.Flow.load(str(tmp_path / "codes.safetensors"))
+    x, log_q = codes.sample(200)
+    assert back.config == codes.config
+    assert np.array_equal(back.log_prob(x), codes.log_prob(x))
+    assert np.allclose(log_q, codes.log_prob(x), atol=1e-3)
+
+
 def test_save_and_load_keep_the_flow_bit_for_bit(fitted, tmp_path):
     flow, _ = fitted
     flow.save(tmp_path / "beta.safetensors")
@@ -116,6 +129,7 @@ def test_a_conditional_flow_takes_context():
         lambda: nis.Flow(2, coupling="nope"),
         lambda: nis.Flow(2, bins=0),
         lambda: nis.Flow(2, layers=0),
+        lambda: nis.Flow(8, masks="gray"),
         lambda: nis.Flow(2, hidden_width=-3),
     ],
 )

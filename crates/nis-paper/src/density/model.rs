@@ -149,6 +149,7 @@ impl ModelConfig {
             blob_bins: self.blob_bins,
             context_dim: 0,
             seed: self.seed,
+            masks: nis::flow::mask::Masks::Binary,
         }
     }
 }

@@ -75,7 +75,8 @@ class Integrator:
     than the chosen one raise ValueError. ``threads``: run in a rayon pool of that size.
 
     NIS: ``coupling`` ("pq", "pl", "rq", "affine"), ``bins``, ``layers`` (coupling layers),
-    ``hidden_layers``, ``hidden_width``, ``blob_bins``, ``loss`` ("kl", "chi2"), ``batch``,
+    ``masks`` ("binary", the paper's, the default; "codes", fewer layers for a cheaper flow with
+    a higher variance per evaluation, for cheap integrands), ``hidden_layers``, ``hidden_width``, ``blob_bins``, ``loss`` ("kl", "chi2"), ``batch``,
     ``steps_per_batch``, ``train_fraction``, ``learning_rate``, ``learning_rate_end``,
     ``average_span`` (the moving average of the flow's weights that the final phase samples
     spans this share of the first training's batches; default 0.1, 0 the last training step's
@@ -98,6 +99,7 @@ class Integrator:
         coupling: Optional[str] = None,
         bins: Optional[int] = None,
         layers: Optional[int] = None,
+        masks: Optional[str] = None,
         hidden_layers: Optional[int] = None,
         hidden_width: Optional[int] = None,
         blob_bins: Optional[int] = None,
@@ -161,7 +163,8 @@ class Integrator:
 
 class Flow:
     """A coupling flow on [0, 1]^dim with a uniform latent, as a distribution (zuko /
-    torch.distributions conventions). A new flow is the uniform density."""
+    torch.distributions conventions). A new flow is the uniform density. ``masks``: "binary"
+    (the paper's layers) or "codes" (fewer layers, see ``Integrator``)."""
 
     def __init__(
         self,
@@ -174,6 +177,7 @@ class Flow:
         hidden_layers: int = 2,
         hidden_width: int = 32,
         blob_bins: int = 16,
+        masks: str = "binary",
         seed: int = 0,
     ) -> None: ...
     def sample(

@@ -215,6 +215,8 @@ impl NisGuideConfig {
             blob_bins: self.blob_bins,
             context_dim: CONTEXT_SCALARS * self.context_bins,
             seed: self.seed,
+            // Two dimensions alternate under either layout.
+            ..FlowConfig::default()
         }
     }
 

@@ -4,7 +4,7 @@
 use serde::{Deserialize, Serialize};
 
 use crate::error::{Error, Result};
-use crate::flow::mask;
+use crate::flow::mask::{self, Masks};
 use crate::transform::TransformKind;
 
 /// Largest dimension a flow accepts (a sanity bound against corrupt configs).
@@ -31,6 +31,11 @@ pub struct FlowConfig {
     pub transform: TransformKind,
     /// Number of coupling layers (0: the default, one pass of all masks).
     pub couplings: usize,
+    /// How the layers split the dimensions: the paper's binary masks (the default, left out of
+    /// the JSON so that model files written before the choice existed read the same) or the
+    /// fewer layers of constant-weight codes ([`mask`]).
+    #[serde(skip_serializing_if = "Masks::is_binary")]
+    pub masks: Masks,
     /// Hidden layers of each conditioner MLP.
     pub hidden_layers: usize,
     /// Width of each hidden layer.
@@ -49,6 +54,7 @@ impl Default for FlowConfig {
             dim: 2,
             transform: TransformKind::Quadratic { bins: 32 },
             couplings: 0,
+            masks: Masks::Binary,
             hidden_layers: 3,
             hidden_width: 64,
             blob_bins: 32,
@@ -70,14 +76,15 @@ impl FlowConfig {
     /// The number of coupling layers this config builds.
     pub fn coupling_count(&self) -> usize {
         if self.couplings == 0 {
-            mask::default_layers(self.dim.max(1))
+            mask::default_layers(self.dim.max(1), self.masks)
         } else {
             self.couplings
         }
     }
 
-    /// The number of parameters of the flow this config builds, computed without building it
-    /// and in O(log D) steps whatever the numbers; `None` when it does not fit in a `usize`.
+    /// The number of parameters of the flow this config builds, computed without building it,
+    /// in O(log D) steps whatever the numbers for the binary masks; `None` when it does not fit
+    /// in a `usize` (or, for the codes, when D is above [`MAX_DIM`]).
     pub fn param_count(&self) -> Option<usize> {
         use crate::transform::Transform;
         let np = self.transform.param_count();
@@ -99,25 +106,12 @@ impl FlowConfig {
             first.checked_add(middle)?.checked_add(last)
         };
         let layers = self.coupling_count();
-        if self.dim <= 1 {
-            return mlp(0, self.dim)?.checked_mul(layers);
-        }
-        // The sizes of mask::partitions: pattern 2b puts the dimensions with bit b clear in A,
-        // pattern 2b + 1 is its complement; layer l uses pattern l mod 2⌈log₂ D⌉.
-        let bits = (usize::BITS - (self.dim - 1).leading_zeros()) as usize;
-        let patterns = 2 * bits;
+        let patterns = mask::pattern_sizes(self.dim, self.masks, MAX_DIM)?;
         let mut total = 0usize;
-        for p in 0..patterns.min(layers) {
-            let b = p / 2;
-            let period = 1usize << (b + 1);
-            let clear = (self.dim / period) * (period / 2) + (self.dim % period).min(period / 2);
-            let (a, bb) = if p % 2 == 1 {
-                (self.dim - clear, clear)
-            } else {
-                (clear, self.dim - clear)
-            };
-            let uses = layers / patterns + usize::from(p < layers % patterns);
-            total = total.checked_add(mlp(a, bb)?.checked_mul(uses)?)?;
+        // Layer l uses pattern l mod the pattern count.
+        for (p, &(a, b)) in patterns.iter().enumerate().take(layers) {
+            let uses = layers / patterns.len() + usize::from(p < layers % patterns.len());
+            total = total.checked_add(mlp(a, b)?.checked_mul(uses)?)?;
         }
         Some(total)
     }
@@ -166,16 +160,25 @@ mod tests {
     #[test]
     fn param_count_matches_the_built_flow() {
         for dim in [1, 2, 3, 5, 8, 17, 100] {
-            for (couplings, context_dim, transform, hidden_layers) in [
-                (0, 0, TransformKind::Quadratic { bins: 4 }, 2),
-                (3, 0, TransformKind::Affine, 0),
-                (7, 5, TransformKind::RationalQuadratic { bins: 3 }, 1),
-                (23, 0, TransformKind::Linear { bins: 2 }, 3),
+            for (couplings, context_dim, transform, hidden_layers, masks) in [
+                (0, 0, TransformKind::Quadratic { bins: 4 }, 2, Masks::Binary),
+                (0, 0, TransformKind::Quadratic { bins: 4 }, 2, Masks::Codes),
+                (3, 0, TransformKind::Affine, 0, Masks::Binary),
+                (
+                    7,
+                    5,
+                    TransformKind::RationalQuadratic { bins: 3 },
+                    1,
+                    Masks::Codes,
+                ),
+                (23, 0, TransformKind::Linear { bins: 2 }, 3, Masks::Binary),
+                (23, 0, TransformKind::Linear { bins: 2 }, 3, Masks::Codes),
             ] {
                 let config = FlowConfig {
                     dim,
                     transform,
                     couplings,
+                    masks,
                     hidden_layers,
                     hidden_width: 6,
                     blob_bins: 3,
@@ -186,6 +189,24 @@ mod tests {
                 assert_eq!(config.param_count(), Some(flow.param_count()), "{config:?}");
             }
         }
+    }
+
+    #[test]
+    fn the_mask_layout_round_trips_and_the_default_is_left_unwritten() {
+        let binary = serde_json::to_string(&FlowConfig::new(8)).unwrap();
+        assert!(!binary.contains("masks"), "{binary}");
+        let codes = FlowConfig {
+            masks: Masks::Codes,
+            ..FlowConfig::new(8)
+        };
+        let json = serde_json::to_string(&codes).unwrap();
+        assert!(json.contains(r#""masks":"codes""#), "{json}");
+        assert_eq!(serde_json::from_str::<FlowConfig>(&json).unwrap(), codes);
+        assert_eq!(Flow::new(codes).unwrap().layers().len(), 5);
+        let bad = json.replace("codes", "gray");
+        assert!(serde_json::from_str::<FlowConfig>(&bad).is_err());
+        assert!("gray".parse::<Masks>().is_err());
+        assert_eq!("codes".parse::<Masks>().unwrap(), Masks::Codes);
     }
 
     #[test]
@@ -206,5 +227,11 @@ mod tests {
             ..FlowConfig::default()
         };
         assert_eq!(absurd.param_count(), None);
+        let absurd_codes = FlowConfig {
+            masks: Masks::Codes,
+            ..absurd
+        };
+        assert_eq!(absurd_codes.param_count(), None);
+        assert!(Flow::new(absurd_codes).is_err());
     }
 }

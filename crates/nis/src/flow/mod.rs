@@ -69,7 +69,7 @@ impl Flow {
         };
         let mut offset = 0;
         let mut couplings = Vec::new();
-        for (a, b) in mask::partitions(config.dim, config.coupling_count()) {
+        for (a, b) in mask::partitions(config.dim, config.coupling_count(), config.masks) {
             let mut dims = vec![encoding.width(a.len()) + config.context_dim];
             dims.extend(std::iter::repeat_n(
                 config.hidden_width,

@@ -8,12 +8,16 @@ use super::{CellResult, Contender};
 use crate::error::Result;
 use crate::image::figure::{canvas, draw_legend, figure_error, has_font, png_bytes};
 
-const COLOURS: [RGBColor; 4] = [
-    RGBColor(31, 119, 180),
-    RGBColor(255, 127, 14),
-    RGBColor(127, 127, 127),
-    RGBColor(44, 160, 44),
-];
+/// Each contender's colour, the same in every plot.
+fn colour(contender: Contender) -> RGBColor {
+    match contender {
+        Contender::Nis => RGBColor(31, 119, 180),
+        Contender::Vegas => RGBColor(255, 127, 14),
+        Contender::Uniform => RGBColor(127, 127, 127),
+        Contender::VegasPackage => RGBColor(44, 160, 44),
+        Contender::NisCodes => RGBColor(148, 103, 189),
+    }
+}
 
 /// The PNG bytes of the cell's plot.
 pub fn png(cell: &CellResult, targets: &[f64]) -> Result<Vec<u8>> {
@@ -80,8 +84,8 @@ pub fn png(cell: &CellResult, targets: &[f64]) -> Result<Vec<u8>> {
                 ))
                 .map_err(figure_error)?;
         }
-        for (k, contender) in Contender::ALL.iter().enumerate() {
-            let colour = COLOURS[k];
+        for contender in Contender::ALL.iter() {
+            let colour = colour(*contender);
             let mut labelled = false;
             for l in cell.ladders.iter().filter(|l| l.contender == *contender) {
                 let points: Vec<(f64, f64, bool)> = l
