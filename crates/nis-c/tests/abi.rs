@@ -135,6 +135,27 @@ fn results_are_bit_identical_to_the_library_for_every_method() {
     }
 }
 
+/// A section that names one field of the flow keeps the integrator's other defaults (not
+/// `FlowConfig`'s own, which are a larger flow): the code masks through C are the library's.
+#[test]
+fn a_partial_flow_section_changes_only_what_it_names() {
+    let integ =
+        create(r#"{"method": "nis", "dim": 5, "seed": 3, "nis": {"flow": {"masks": "codes"}}}"#);
+    let mut s = Settings::default().seed(3);
+    s.nis.flow.masks = nis::flow::mask::Masks::Codes;
+    let mut rust = integrator(Method::Nis, 5, &s).unwrap();
+    let mut c = nis_result::default();
+    let status =
+        unsafe { nis_integrate(integ, Some(bump_c), std::ptr::null_mut(), 20_000, &mut c) };
+    assert_eq!(status, NIS_OK, "{}", last_error());
+    let r = rust.integrate(&bump, 20_000).unwrap();
+    assert!(
+        same(c.value, r.value) && same(c.std_err, r.std_err),
+        "{c:?} vs {r:?}"
+    );
+    unsafe { nis_free(integ) };
+}
+
 #[test]
 fn vector_results_are_bit_identical_with_their_covariance() {
     for (method, components_in_config) in [(Method::Nis, true), (Method::Vegas, false)] {

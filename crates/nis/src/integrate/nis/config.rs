@@ -17,7 +17,9 @@ pub struct NisConfig {
     /// By default 2×32 conditioners on a one-blob encoding of 8 bins per input and
     /// piecewise-quadratic couplings of 16 bins: 8 encoding bins rather than 16 gave lower
     /// variance per evaluation on most of the suite at 3.2·10⁵ and 10⁶ evaluations, in ~10% less
-    /// time (docs/BENCHMARKS.md, "One-blob bins").
+    /// time (docs/BENCHMARKS.md, "One-blob bins"). A partial section in JSON changes the fields
+    /// it names and keeps these defaults for the rest.
+    #[serde(deserialize_with = "flow_patch")]
     pub flow: FlowConfig,
     /// The training loss.
     pub loss: Loss,
@@ -38,6 +40,7 @@ pub struct NisConfig {
     /// Share of the evaluation budget spent in the adaptive phase.
     pub train_fraction: f64,
     /// The optimiser.
+    #[serde(deserialize_with = "adam_patch")]
     pub adam: AdamConfig,
     /// The learning rate decays exponentially over the adaptive phase to this fraction of its
     /// initial value (1: constant; Adam's own `decay` is then set from the number of steps).
@@ -73,6 +76,33 @@ pub struct NisConfig {
     /// Stratified sampling of the flow's latent in the final phase, with VEGAS+'s adaptive
     /// allocation of points to hypercubes (`None` or JSON `null`: i.i.d. latents).
     pub stratify: Option<Stratify>,
+}
+
+/// A section read as a patch of `default`: the fields it names replace `default`'s and the others
+/// keep them (serde would fill them from the section type's own `Default`, which for the flow and
+/// the optimiser is not the integrator's).
+fn patch<'de, D, T>(d: D, default: T) -> std::result::Result<T, D::Error>
+where
+    D: serde::Deserializer<'de>,
+    T: Serialize + serde::de::DeserializeOwned,
+{
+    use serde::de::Error as _;
+    let given = serde_json::Value::deserialize(d)?;
+    let mut merged = serde_json::to_value(default).map_err(D::Error::custom)?;
+    match (merged.as_object_mut(), given) {
+        (Some(fields), serde_json::Value::Object(given)) => fields.extend(given),
+        // Not an object: the section's own error.
+        (_, other) => merged = other,
+    }
+    T::deserialize(merged).map_err(D::Error::custom)
+}
+
+fn flow_patch<'de, D: serde::Deserializer<'de>>(d: D) -> std::result::Result<FlowConfig, D::Error> {
+    patch(d, NisConfig::default().flow)
+}
+
+fn adam_patch<'de, D: serde::Deserializer<'de>>(d: D) -> std::result::Result<AdamConfig, D::Error> {
+    patch(d, NisConfig::default().adam)
 }
 
 /// How the final phase stratifies the flow's latent space (see `integrate::nis::strata`).
@@ -294,6 +324,44 @@ impl NisConfigBuilder {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_partial_nested_section_keeps_the_integrators_own_defaults() {
+        // The integrator's flow and optimiser differ from `FlowConfig`'s and `AdamConfig`'s own
+        // defaults (16 spline bins, 2×32 conditioners, 8 one-blob bins; learning rate 5·10⁻³,
+        // clipping at 10): a section that names one field changes that field only.
+        let d = NisConfig::default();
+        let c: NisConfig = serde_json::from_str(
+            r#"{"flow": {"hidden_width": 64}, "adam": {"learning_rate": 0.001}}"#,
+        )
+        .unwrap();
+        assert_eq!(
+            c.flow,
+            FlowConfig {
+                hidden_width: 64,
+                ..d.flow.clone()
+            }
+        );
+        assert_eq!(
+            c.adam,
+            AdamConfig {
+                learning_rate: 0.001,
+                ..d.adam
+            }
+        );
+        assert_eq!(c.batch, d.batch);
+        // The sections still refuse what they do not know, and what is not a section.
+        for bad in [
+            r#"{"flow": {"width": 64}}"#,
+            r#"{"adam": {"rate": 1}}"#,
+            r#"{"flow": 3}"#,
+        ] {
+            assert!(serde_json::from_str::<NisConfig>(bad).is_err(), "{bad}");
+        }
+        // A whole config (a model file's) reads back as itself.
+        let json = serde_json::to_string(&c).unwrap();
+        assert_eq!(serde_json::from_str::<NisConfig>(&json).unwrap(), c);
+    }
 
     #[test]
     fn every_builder_setter_sets_its_field_and_the_seed_reaches_the_flow() {
