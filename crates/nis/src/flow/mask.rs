@@ -52,8 +52,9 @@ impl std::str::FromStr for Masks {
 }
 
 /// The (A, B) partition of each of `layers` coupling layers in a `dim`-dimensional flow; the
-/// layout's layers repeat in order when `layers` is larger than its own count.
-pub fn partitions(dim: usize, layers: usize, masks: Masks) -> Vec<(Vec<usize>, Vec<usize>)> {
+/// layout's layers repeat in order when `layers` is larger than its own count. For a dimension
+/// a valid [`crate::flow::FlowConfig`] allows (the codes enumerate 2^L candidates).
+pub(crate) fn partitions(dim: usize, layers: usize, masks: Masks) -> Vec<(Vec<usize>, Vec<usize>)> {
     if dim == 1 {
         return vec![(vec![], vec![0]); layers];
     }
