@@ -76,7 +76,8 @@ class Integrator:
 
     NIS: ``coupling`` ("pq", "pl", "rq", "affine"), ``bins``, ``layers`` (coupling layers),
     ``masks`` ("binary", the paper's, the default; "codes", fewer layers for a cheaper flow with
-    a higher variance per evaluation, for cheap integrands), ``hidden_layers``, ``hidden_width``, ``blob_bins``, ``loss`` ("kl", "chi2"), ``batch``,
+    a higher variance per evaluation, for cheap integrands; it misses modes more often, so check
+    it against a second seed or method), ``hidden_layers``, ``hidden_width``, ``blob_bins``, ``loss`` ("kl", "chi2"), ``batch``,
     ``steps_per_batch``, ``train_fraction``, ``learning_rate``, ``learning_rate_end``,
     ``average_span`` (the moving average of the flow's weights that the final phase samples
     spans this share of the first training's batches; default 0.1, 0 the last training step's
