@@ -97,28 +97,9 @@ impl IntegrateArgs {
         c.flow.seed = self.seed;
         c.seed = self.seed;
         if let Some(patch) = &self.nis_config {
-            // Merge the given fields into the defaults, one level into "flow" and "adam".
-            let mut v = serde_json::to_value(&c)?;
             let patch: serde_json::Value = serde_json::from_str(patch)
                 .map_err(|e| format!("--nis-config is not JSON: {e}"))?;
-            let obj = patch
-                .as_object()
-                .ok_or("--nis-config must be a JSON object")?;
-            for (k, val) in obj {
-                match (v.get_mut(k), val) {
-                    (Some(serde_json::Value::Object(inner)), serde_json::Value::Object(fields))
-                        if k == "flow" || k == "adam" =>
-                    {
-                        for (k2, v2) in fields {
-                            inner.insert(k2.clone(), v2.clone());
-                        }
-                    }
-                    _ => {
-                        v[k] = val.clone();
-                    }
-                }
-            }
-            c = serde_json::from_value(v).map_err(|e| format!("--nis-config: {e}"))?;
+            c = c.patched(patch).map_err(|e| format!("--nis-config: {e}"))?;
         }
         Ok(c)
     }

@@ -1,7 +1,14 @@
 //! `nis integrate` end to end: every method side by side in one JSON object with a warnings
 //! array, one method alone, and budgets too small for an error bar.
 
+use std::path::PathBuf;
 use std::process::Command;
+
+fn scratch(name: &str) -> PathBuf {
+    let dir = std::env::temp_dir().join(format!("nis-cli-integrate-{name}-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    dir
+}
 
 fn nis(args: &[&str]) -> std::process::Output {
     Command::new(env!("CARGO_BIN_EXE_nis"))
@@ -119,8 +126,7 @@ fn nis_config_sets_the_stratification_of_the_latent() {
 /// an error, not silently ignored.
 #[test]
 fn settings_that_a_loaded_integrator_would_ignore_are_an_error() {
-    let dir = std::env::temp_dir().join(format!("nis-load-conflicts-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
+    let dir = scratch("load-conflicts");
     let model = dir.join("gauss.nis");
     let model = model.to_str().unwrap();
     let base = ["integrate", "gauss", "--evals", "20000", "--method", "nis"];
@@ -159,8 +165,7 @@ fn settings_that_a_loaded_integrator_would_ignore_are_an_error() {
 /// other layout), and an unknown layout is an error.
 #[test]
 fn the_code_masks_are_saved_with_the_model() {
-    let dir = std::env::temp_dir().join(format!("nis-codes-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
+    let dir = scratch("codes");
     let model = dir.join("gauss.nis");
     let model = model.to_str().unwrap();
     let base = [

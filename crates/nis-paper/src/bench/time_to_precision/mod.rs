@@ -87,6 +87,15 @@ impl Contender {
         }
     }
 
+    /// Our library's settings for this contender with `seed`.
+    fn settings(self, seed: u64) -> Settings {
+        let mut settings = Settings::default().seed(seed);
+        if self == Contender::NisCodes {
+            settings.nis.flow.masks = nis::flow::mask::Masks::Codes;
+        }
+        settings
+    }
+
     /// Our library's method, if it is one of ours.
     fn method(self) -> Option<Method> {
         match self {
@@ -280,7 +289,9 @@ pub fn run(
                 }
                 let runs = ladder::ladder(&o.targets, f.exact, o.cap, |evals| {
                     let r = match (contender.method(), package.as_mut()) {
-                        (Some(method), _) => ours(method, contender, &costly, f.dim, seed, evals),
+                        (Some(method), _) => {
+                            ours(method, &contender.settings(seed), &costly, f.dim, evals)
+                        }
                         (None, Some(p)) => p.run(seed, evals),
                         (None, None) => Err(Error::Config("no vegas package".into())),
                     }?;
@@ -371,18 +382,13 @@ pub fn run(
 /// One fresh run of our `method`, timed around building the integrator and integrating.
 fn ours(
     method: Method,
-    contender: Contender,
+    settings: &Settings,
     f: &dyn Integrand,
     dim: usize,
-    seed: u64,
     evals: u64,
 ) -> Result<Run> {
     let start = Instant::now();
-    let mut settings = Settings::default().seed(seed);
-    if contender == Contender::NisCodes {
-        settings.nis.flow.masks = nis::flow::mask::Masks::Codes;
-    }
-    let r = integrator(method, dim, &settings)?.integrate(f, evals)?;
+    let r = integrator(method, dim, settings)?.integrate(f, evals)?;
     Ok(Run {
         evals,
         seconds: start.elapsed().as_secs_f64(),

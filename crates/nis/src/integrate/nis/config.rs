@@ -78,6 +78,15 @@ pub struct NisConfig {
     pub stratify: Option<Stratify>,
 }
 
+/// Overlays the fields of the JSON object `given` on those of `base`; anything but two objects:
+/// `given` replaces `base` (and the type read from it says what is wrong).
+fn overlay(base: &mut serde_json::Value, given: serde_json::Value) {
+    match (base.as_object_mut(), given) {
+        (Some(fields), serde_json::Value::Object(given)) => fields.extend(given),
+        (_, other) => *base = other,
+    }
+}
+
 /// A section read as a patch of `default`: the fields it names replace `default`'s and the others
 /// keep them (serde would fill them from the section type's own `Default`, which for the flow and
 /// the optimiser is not the integrator's).
@@ -89,11 +98,7 @@ where
     use serde::de::Error as _;
     let given = serde_json::Value::deserialize(d)?;
     let mut merged = serde_json::to_value(default).map_err(D::Error::custom)?;
-    match (merged.as_object_mut(), given) {
-        (Some(fields), serde_json::Value::Object(given)) => fields.extend(given),
-        // Not an object: the section's own error.
-        (_, other) => merged = other,
-    }
+    overlay(&mut merged, given);
     T::deserialize(merged).map_err(D::Error::custom)
 }
 
@@ -163,6 +168,27 @@ impl Default for NisConfig {
 }
 
 impl NisConfig {
+    /// These settings with the fields of the JSON object `patch` changed: a `"flow"` or `"adam"`
+    /// section changes the fields it names and keeps the others of `self` (what `nis integrate
+    /// --nis-config` applies on top of its own options).
+    pub fn patched(&self, patch: serde_json::Value) -> Result<NisConfig> {
+        let bad = |e: serde_json::Error| Error::Config(e.to_string());
+        let serde_json::Value::Object(patch) = patch else {
+            return Err(Error::Config("the settings must be a JSON object".into()));
+        };
+        let mut v = serde_json::to_value(self).map_err(bad)?;
+        let fields = v.as_object_mut().expect("a struct serialises to an object");
+        for (k, given) in patch {
+            match fields.get_mut(&k) {
+                Some(section) if k == "flow" || k == "adam" => overlay(section, given),
+                _ => {
+                    fields.insert(k, given);
+                }
+            }
+        }
+        serde_json::from_value(v).map_err(bad)
+    }
+
     /// A builder starting from the defaults.
     pub fn builder() -> NisConfigBuilder {
         NisConfigBuilder {
@@ -324,6 +350,26 @@ impl NisConfigBuilder {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_patch_changes_what_it_names_on_top_of_any_settings() {
+        let mut base = NisConfig::default();
+        base.flow.transform = TransformKind::RationalQuadratic { bins: 8 };
+        base.batch = 1024;
+        let json = serde_json::json!({"flow": {"hidden_width": 16}, "train_fraction": 0.3});
+        let c = base.patched(json).unwrap();
+        let mut expected = base.clone();
+        expected.flow.hidden_width = 16;
+        expected.train_fraction = 0.3;
+        assert_eq!(c, expected);
+        for bad in [
+            serde_json::json!(3),
+            serde_json::json!({"flow": {"width": 1}}),
+            serde_json::json!({"nope": 1}),
+        ] {
+            assert!(base.patched(bad.clone()).is_err(), "{bad}");
+        }
+    }
 
     #[test]
     fn a_partial_nested_section_keeps_the_integrators_own_defaults() {
