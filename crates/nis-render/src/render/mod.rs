@@ -404,7 +404,12 @@ impl Renderer<'_> {
             s.merge(p);
         }
         if learn {
-            guide.update(gather_statistics(self.comm, statistics));
+            let statistics = gather_statistics(self.comm, statistics);
+            // On one of the pool's threads: a training step's parallel loops, entered from
+            // outside the pool, are each handed over under a lock and waited for with a
+            // wake-up (as `nis::kernels::in_pool` says for the integrator). The neural guide's
+            // steps of 256 records spent a quarter of their time so (docs/GUIDING.md).
+            rayon::scope(|_| guide.update(statistics));
         }
     }
 
