@@ -4,8 +4,9 @@
 //! This is the standard estimator of Kajiya's rendering equation as described by Veach (thesis,
 //! 1997, ch. 9) and Pharr et al. (*PBR* 4th ed., §13.4): at every non-delta vertex one light
 //! sample and one BSDF sample are taken and weighted with the power heuristic. A path guide
-//! replaces the BSDF sample by one from a guide–BSDF mixture; the weights stay those of light
-//! against BSDF sampling (see [`Integrator::sample_light`]). Depth counting,
+//! replaces the BSDF sample by one from a guide–BSDF mixture at the vertices it serves (its
+//! first [`Guide::guided_bounces`] non-delta ones), and learns from those vertices alone; the
+//! weights stay those of light against BSDF sampling (see [`Integrator::sample_light`]). Depth counting,
 //! `max_depth` and `rr_depth` follow Mitsuba 3's `path` integrator: `max_depth = 1` shows only
 //! directly visible emitters, `2` adds direct lighting, `-1` is unbounded; Russian roulette
 //! continues with probability `min(max(throughput · η²), 0.95)` once `rr_depth` bounces are done.
@@ -116,6 +117,9 @@ struct PathState {
     /// match the ones next-event estimation computed there.
     prev_p: Vec3,
     depth: u32,
+    /// Vertices with a non-delta BSDF the path scattered at so far (what
+    /// [`Guide::guided_bounces`] counts).
+    bounces: u32,
     alive: bool,
     pending: Vec<PendingRecord>,
 }
@@ -131,6 +135,7 @@ impl PathState {
             prev_delta: true,
             prev_p: ray.origin,
             depth: 0,
+            bounces: 0,
             alive: true,
             pending: Vec::new(),
         }
@@ -177,7 +182,10 @@ struct Bounce {
     frame: Frame,
     wo: Vec3,
     vertex: GuideVertex,
-    /// Index of the vertex in the step's guide batch (`None` at delta vertices, never guided).
+    /// Whether the material is a delta BSDF (no light sampling, never guided).
+    delta: bool,
+    /// Index of the vertex in the step's guide batch (`None` where the guide does not serve
+    /// the vertex: at delta vertices, and beyond [`Guide::guided_bounces`]).
     guided: Option<usize>,
     /// Selection probability of the guide here.
     alpha: f32,
@@ -350,6 +358,7 @@ impl Integrator {
         } = paths;
         assert!(rays.len() == rngs.len() && rays.len() == radiance.len());
         let want_records = records.is_some();
+        let guided_bounces = guide.guided_bounces();
         let mut paths: Vec<PathState> = rays.iter().map(|&r| PathState::new(r)).collect();
         let mut live: Vec<usize> = (0..paths.len()).collect();
         let mut bounces: Vec<Bounce> = Vec::new();
@@ -390,7 +399,8 @@ impl Integrator {
                     frame,
                     hit,
                     vertex,
-                    guided: (!delta).then(|| batch.push(vertex)),
+                    delta,
+                    guided: (!delta && path.bounces < guided_bounces).then(|| batch.push(vertex)),
                     alpha: 0.0,
                     technique: Technique::Pending,
                 });
@@ -407,7 +417,7 @@ impl Integrator {
                     b.alpha = batch.alphas[g];
                 }
                 let rng = &mut rngs[b.path];
-                if b.guided.is_some() {
+                if !b.delta {
                     let path = &mut paths[b.path];
                     if let Some(c) = self.sample_light(scene, b, material, path.beta, rng, stats) {
                         path.add(c);
@@ -448,7 +458,7 @@ impl Integrator {
                 let cos = b.frame.n.dot(scatter.wi).abs();
                 path.beta *= scatter.f * (cos / scatter.pdf);
                 path.eta *= scatter.eta;
-                if want_records && !scatter.delta {
+                if want_records && !scatter.delta && b.guided.is_some() {
                     path.pending.push(PendingRecord {
                         record: GuideRecord {
                             vertex: b.vertex,
@@ -465,6 +475,7 @@ impl Integrator {
                 path.prev_p = b.hit.p;
                 path.prev_delta = scatter.delta;
                 path.depth += 1;
+                path.bounces += u32::from(!b.delta);
                 if path.depth >= self.rr_depth {
                     let q = (path.beta.max_element() * path.eta * path.eta).min(0.95);
                     if uniform(&mut rngs[b.path]) >= q {

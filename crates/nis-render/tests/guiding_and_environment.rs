@@ -22,6 +22,8 @@ struct UniformGuide {
     iterations: usize,
     /// Paths per wavefront (0: the trait's default).
     batch: usize,
+    /// Bounces it serves (0: the trait's default, every bounce).
+    bounces: u32,
 }
 
 impl Guide for UniformGuide {
@@ -65,6 +67,14 @@ impl Guide for UniformGuide {
         }
     }
 
+    fn guided_bounces(&self) -> u32 {
+        if self.bounces == 0 {
+            u32::MAX
+        } else {
+            self.bounces
+        }
+    }
+
     fn accumulate(&self, records: &[GuideRecord], statistics: &mut Vec<GuideRecord>) {
         statistics.extend_from_slice(records);
     }
@@ -99,6 +109,48 @@ fn guided_mixture_is_unbiased_and_records_paths() {
         assert!(r.radiance.is_finite() && r.radiance.min_element() >= 0.0);
     }
     assert!(records.iter().any(|r| r.radiance.max_element() > 0.0));
+}
+
+/// Whether a record was made where a camera ray hit: its vertex looks back at the eye.
+fn at_first_hit(r: &GuideRecord, eye: glam::Vec3) -> bool {
+    (eye - r.vertex.p).normalize().dot(r.vertex.wo) > 1.0 - 1e-4
+}
+
+#[test]
+fn a_guide_serving_the_first_bounce_only_leaves_the_image_unbiased_and_learns_there() {
+    let params = [("res".to_string(), "12".to_string())];
+    let scene = nis_render::scenes::load_with("cornell-box", &params).unwrap();
+    let eye = scene.camera.ray(6.0, 6.0).origin;
+    let (plain, plain_err) = mean_over_seeds(&scene, Strategy::Mis, &mut NoGuide, 24);
+    let mut guide = UniformGuide {
+        bounces: 1,
+        ..UniformGuide::default()
+    };
+    let (guided, guided_err) = mean_over_seeds(&scene, Strategy::Mis, &mut guide, 24);
+    for c in 0..3 {
+        let sigma = (plain_err[c].powi(2) + guided_err[c].powi(2)).sqrt();
+        assert!(
+            (plain[c] - guided[c]).abs() < 4.0 * sigma,
+            "channel {c}: unguided {} vs guided at the first bounce {} (σ = {sigma})",
+            plain[c],
+            guided[c]
+        );
+    }
+    // Records from camera-ray hits only; a guide of every bounce also learns deeper.
+    assert!(guide.records.len() > 1000);
+    assert!(guide.records.iter().all(|r| at_first_hit(r, eye)));
+    let mut every = UniformGuide::default();
+    mean_over_seeds(&scene, Strategy::Mis, &mut every, 2);
+    let deeper = every
+        .records
+        .iter()
+        .filter(|r| !at_first_hit(r, eye))
+        .count();
+    assert!(
+        deeper > every.records.len() / 4,
+        "{deeper} of {}",
+        every.records.len()
+    );
 }
 
 #[test]

@@ -9,7 +9,8 @@
 //! ([`GuideRecord`]) into statistics and learn from them. The integrator uses the *one-sample*
 //! mixture of the guide and the BSDF: with the guide's selection probability `α` it samples the
 //! guide, otherwise the BSDF, and always weights by the mixture density
-//! `α p_guide + (1 − α) p_bsdf`; vertices with a delta BSDF are never guided. [`NoGuide`]
+//! `α p_guide + (1 − α) p_bsdf`; vertices with a delta BSDF are never guided, nor are those
+//! beyond a guide's [`Guide::guided_bounces`]. [`NoGuide`]
 //! (α = 0) is plain unidirectional path tracing.
 //!
 //! Implementations: [`ppg`] (the SD-tree of practical path guiding), [`gmm`] (Gaussian
@@ -390,6 +391,14 @@ pub trait Guide: Send + Sync {
     /// neural guide asks for thousands so that its network runs on large matrices.
     fn batch_paths(&self) -> usize {
         64
+    }
+
+    /// How many bounces of a path the guide serves: the first this many vertices with a
+    /// non-delta BSDF, from the camera ray's hit on. At later ones the integrator samples the
+    /// BSDF alone, asks the guide nothing and makes no records, so the guide learns only where
+    /// it is used. Every bounce by default.
+    fn guided_bounces(&self) -> u32 {
+        u32::MAX
     }
 
     /// Whether the integrator should collect [`GuideRecord`]s for this guide (costs time; off
