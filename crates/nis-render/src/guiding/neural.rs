@@ -53,7 +53,7 @@ use glam::{Vec2, Vec3};
 use nis::flow::{Bijection, Density, Direction, Flow, FlowConfig};
 use nis::kernels::dense::{self, Layout, Shape};
 use nis::kernels::elementwise::{one_blob, relu};
-use nis::kernels::CHUNK_ROWS;
+use nis::kernels::{chunk_rows, CHUNK_ROWS};
 use nis::nn::mlp::MlpTape;
 use nis::nn::{Adam, AdamConfig, Mlp, ParamAverage};
 use nis::TransformKind;
@@ -309,6 +309,13 @@ impl Sample {
     fn kl_weight(&self) -> f64 {
         f64::from(self.f) / f64::from(self.pdf)
     }
+}
+
+/// The gradients of a training step's loss: the flow's, and the selection network's when it
+/// learns.
+struct StepGradients {
+    flow: Vec<f32>,
+    selection: Option<Vec<f32>>,
 }
 
 /// The records of a training pass, in the order they were made, of which only the newest `cap`
@@ -682,20 +689,53 @@ impl NisGuide {
         scales: &[f64],
         selection: bool,
     ) -> nis::Result<TrainingStats> {
+        // The batch in parts of `chunk_rows(n)` records (a function of `n` alone), each through
+        // both networks' forward passes, and later their backward passes, on one thread: a
+        // step is two parallel loops over the parts, not dozens of loops over a few hundred
+        // records each, which the cores handed over one by one.
+        let part = chunk_rows(batch.len());
+        let (stats, gradients) = self.gradients(batch, scales, selection, part)?;
+        if let Some(g) = gradients {
+            self.flow_adam.step(self.flow.params_mut(), &g.flow)?;
+            if let Some(g_sel) = g.selection {
+                self.selection_adam
+                    .step(&mut self.selection_params, &g_sel)?;
+            }
+        }
+        Ok(stats)
+    }
+
+    /// The loss of a step on `batch` and its gradients (none when no record of the batch
+    /// carries weight), computed `part` records at a time and summed in the parts' order.
+    fn gradients(
+        &self,
+        batch: &[Sample],
+        scales: &[f64],
+        selection: bool,
+        part: usize,
+    ) -> nis::Result<(TrainingStats, Option<StepGradients>)> {
         let n = batch.len();
-        let scalars: Vec<_> = batch.iter().map(|s| s.context).collect();
-        let context = self.encode(&scalars);
-        let x: Vec<f32> = batch.iter().flat_map(|s| s.x).collect();
-        let (evaluated, (tapes, c)) = rayon::join(
-            || self.flow.log_density_for_training(&x, Some(&context)),
-            || self.select(&context),
-        );
-        let evaluated = evaluated?;
+        let parts = batch
+            .par_chunks(part)
+            .map(|b| {
+                let scalars: Vec<_> = b.iter().map(|s| s.context).collect();
+                let context = self.encode(&scalars);
+                let x: Vec<f32> = b.iter().flat_map(|s| s.x).collect();
+                let evaluated = self.flow.log_density_for_training(&x, Some(&context))?;
+                let (tapes, c) = self.select(&context);
+                Ok((evaluated, tapes, c))
+            })
+            .collect::<nis::Result<Vec<_>>>()?;
+        let log_q = parts.iter().flat_map(|(e, _, _)| e.log_q.iter().copied());
+        let c: Vec<f32> = parts
+            .iter()
+            .flat_map(|(_, _, c)| c.iter().copied())
+            .collect();
         let m = self.config.min_selection;
         let mut base = Vec::with_capacity(n);
         let mut mix = Vec::with_capacity(n);
-        for (i, s) in batch.iter().enumerate() {
-            let q = (evaluated.log_q[i].exp() as f32) * s.jacobian;
+        for ((i, s), log_q) in batch.iter().enumerate().zip(log_q) {
+            let q = (log_q.exp() as f32) * s.jacobian;
             let q_mix = c[i] * q + (1.0 - c[i]) * s.bsdf_pdf;
             let w = match self.config.loss {
                 GuideLoss::Kl => s.kl_weight(),
@@ -712,7 +752,7 @@ impl NisGuide {
             ..TrainingStats::default()
         };
         if mean <= 0.0 || !mean.is_finite() {
-            return Ok(stats);
+            return Ok((stats, None));
         }
         let mut w_flow = vec![0.0f32; n];
         let mut g_logit = vec![0.0f32; n];
@@ -733,27 +773,40 @@ impl NisGuide {
             }
         }
         stats.loss = loss / n as f64;
-        // The two networks' gradients side by side; the selection network steps only if the
-        // flow did.
-        let (g_flow, g_sel) = rayon::join(
-            || self.flow.backward(&evaluated.tape, &w_flow),
-            || {
-                selection.then(|| {
+        // Both networks' gradients part by part, summed in the parts' order; the selection
+        // network steps only if the flow did.
+        let grads = parts
+            .par_iter()
+            .zip(w_flow.par_chunks(part))
+            .zip(g_logit.par_chunks(part))
+            .map(|(((evaluated, tapes, _), w_flow), g_logit)| {
+                let g_flow = self.flow.backward(&evaluated.tape, w_flow)?;
+                let g_sel = selection.then(|| {
                     let g_out = g_logit.chunks(CHUNK_ROWS).map(<[f32]>::to_vec).collect();
                     let refs: Vec<&MlpTape> = tapes.iter().collect();
                     let mut g = vec![0.0; self.selection_params.len()];
                     self.selection
                         .backward(&self.selection_params, &refs, g_out, &mut g, false);
                     g
-                })
-            },
-        );
-        self.flow_adam.step(self.flow.params_mut(), &g_flow?)?;
-        if let Some(g_sel) = g_sel {
-            self.selection_adam
-                .step(&mut self.selection_params, &g_sel)?;
+                });
+                Ok((g_flow, g_sel))
+            })
+            .collect::<nis::Result<Vec<_>>>()?;
+        let mut g_flow = vec![0.0f32; self.flow.params().len()];
+        let mut g_sel = selection.then(|| vec![0.0f32; self.selection_params.len()]);
+        for (f, s) in grads {
+            g_flow.iter_mut().zip(&f).for_each(|(a, b)| *a += b);
+            if let (Some(sum), Some(s)) = (&mut g_sel, s) {
+                sum.iter_mut().zip(&s).for_each(|(a, b)| *a += b);
+            }
         }
-        Ok(stats)
+        Ok((
+            stats,
+            Some(StepGradients {
+                flow: g_flow,
+                selection: g_sel,
+            }),
+        ))
     }
 
     /// The constant `c ∈ [c_min, 1 − c_min]` that maximises `Σ (F/p_s)·ln(c·p_flow + (1 − c)·p_bsdf)`
@@ -1148,6 +1201,98 @@ mod tests {
             .map(|&r| guide.context_scalars(&v[r], &guide.map(&v[r])))
             .collect();
         guide.encode(&s)
+    }
+
+    /// A training batch of `n` records with random contexts, directions and weights.
+    fn random_batch(n: usize, seed: u64) -> (Vec<Sample>, Vec<f64>) {
+        let mut rng = Pcg64Mcg::seed_from_u64(seed);
+        let batch = (0..n)
+            .map(|_| Sample {
+                context: std::array::from_fn(|_| rng.random()),
+                x: [rng.random(), rng.random()],
+                f: if rng.random::<f32>() < 0.2 {
+                    0.0
+                } else {
+                    rng.random::<f32>() * 3.0
+                },
+                pdf: 0.05 + rng.random::<f32>(),
+                bsdf_pdf: 0.05 + rng.random::<f32>(),
+                jacobian: 0.25 * std::f32::consts::FRAC_1_PI,
+            })
+            .collect();
+        let scales = (0..n).map(|_| 0.5 + rng.random::<f64>()).collect();
+        (batch, scales)
+    }
+
+    #[test]
+    fn a_step_in_parts_has_the_whole_batch_gradients() {
+        let (guide, ..) = random_guide(GuideFrame::World);
+        let (batch, scales) = random_batch(256, 5);
+        let (s_parts, g_parts) = guide.gradients(&batch, &scales, true, 64).unwrap();
+        let (s_whole, g_whole) = guide.gradients(&batch, &scales, true, 256).unwrap();
+        let (g_parts, g_whole) = (g_parts.unwrap(), g_whole.unwrap());
+        assert!((s_parts.loss - s_whole.loss).abs() <= 1e-12 * s_whole.loss.abs());
+        for (a, b) in [
+            (&g_parts.flow, &g_whole.flow),
+            (
+                g_parts.selection.as_ref().unwrap(),
+                g_whole.selection.as_ref().unwrap(),
+            ),
+        ] {
+            // Sums of 256 f32 terms in another order: within a few roundings of the largest.
+            let scale = b.iter().fold(0.0f32, |m, g| m.max(g.abs()));
+            assert!(scale > 0.0);
+            for (x, y) in a.iter().zip(b) {
+                assert!((x - y).abs() <= 1e-5 * scale, "{x} against {y}");
+            }
+        }
+    }
+
+    /// Parameter `j` of the flow (`network` 0) or of the selection network (1).
+    fn param(g: &mut NisGuide, network: usize, j: usize) -> &mut f32 {
+        if network == 0 {
+            &mut g.flow.params_mut()[j]
+        } else {
+            &mut g.selection_params[j]
+        }
+    }
+
+    #[test]
+    fn step_gradients_are_those_of_the_kl_loss() {
+        let (mut guide, ..) = random_guide(GuideFrame::World);
+        let (batch, scales) = random_batch(256, 6);
+        let loss = |g: &NisGuide| g.gradients(&batch, &scales, true, 64).unwrap().0.loss;
+        let grads = guide
+            .gradients(&batch, &scales, true, 64)
+            .unwrap()
+            .1
+            .unwrap();
+        let selection = grads.selection.unwrap();
+        let mut rng = Pcg64Mcg::seed_from_u64(9);
+        let h = 1e-3f32;
+        for (network, grad) in [(0, &grads.flow), (1, &selection)] {
+            // The eight steepest parameters, and four at random.
+            let mut order: Vec<usize> = (0..grad.len()).collect();
+            order.sort_by(|&a, &b| grad[b].abs().total_cmp(&grad[a].abs()));
+            order.truncate(8);
+            order.extend((0..4).map(|_| rng.random_range(0..grad.len())));
+            assert!(grad[order[7]].abs() > 1e-2, "too flat to test");
+            for j in order {
+                let x = *param(&mut guide, network, j);
+                *param(&mut guide, network, j) = x + h;
+                let up = loss(&guide);
+                *param(&mut guide, network, j) = x - h;
+                let down = loss(&guide);
+                *param(&mut guide, network, j) = x;
+                let fd = (up - down) / (2.0 * f64::from(h));
+                // Central differences of an f32 network: truncation O(h²), rounding ≈ 1e-7/h.
+                let g = f64::from(grad[j]);
+                assert!(
+                    (fd - g).abs() <= 2e-3 + 0.02 * g.abs(),
+                    "network {network}, parameter {j}: {g} against finite differences {fd}"
+                );
+            }
+        }
     }
 
     #[test]
