@@ -277,10 +277,10 @@ impl Default for NisGuideConfig {
             // 2.9% higher on two-rooms-door (level at 256²), for 2–3% more wall time
             // (docs/GUIDING.md, "Records drawn by weight").
             pick_by_weight: 0.5,
-            // The first four bounces: over 6 seeds at 128², 64 spp, 1.2–2.5% lower mean MAPE
+            // The first four bounces: over 9 seeds at 128², 64 spp, 1.1–3.4% lower mean MAPE
             // on all four scenes than guiding (and learning at) every bounce, in 7–9% less
-            // time; three bounces were faster again but 4.6% worse on cornell-indirect
-            // (docs/GUIDING.md, "Guiding the first bounces").
+            // time; three bounces were faster again but 4.6% worse on cornell-indirect over 6
+            // seeds (docs/GUIDING.md, "Guiding the first bounces").
             guided_bounces: 4,
             seed: 0,
         }
