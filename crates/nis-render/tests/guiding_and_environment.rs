@@ -13,7 +13,7 @@ use nis_render::sampling::square_to_uniform_sphere;
 use nis_render::xml::load_scene_str;
 
 mod common;
-use common::mean_over_seeds;
+use common::{assert_unbiased, mean_over_seeds};
 
 /// A deliberately poor guide: uniform directions, chosen half of the time.
 #[derive(Default)]
@@ -89,18 +89,8 @@ impl Guide for UniformGuide {
 fn guided_mixture_is_unbiased_and_records_paths() {
     let params = [("res".to_string(), "12".to_string())];
     let scene = nis_render::scenes::load_with("cornell-box", &params).unwrap();
-    let (plain, plain_err) = mean_over_seeds(&scene, Strategy::Mis, &mut NoGuide, 24);
     let mut guide = UniformGuide::default();
-    let (guided, guided_err) = mean_over_seeds(&scene, Strategy::Mis, &mut guide, 24);
-    for c in 0..3 {
-        let sigma = (plain_err[c].powi(2) + guided_err[c].powi(2)).sqrt();
-        assert!(
-            (plain[c] - guided[c]).abs() < 4.0 * sigma,
-            "channel {c}: unguided {} vs guided {} (σ = {sigma})",
-            plain[c],
-            guided[c]
-        );
-    }
+    assert_unbiased(&scene, &mut guide, "a uniform guide");
     assert_eq!(guide.iterations, 24);
     let records = guide.records;
     assert!(records.len() > 1000);
@@ -121,21 +111,11 @@ fn a_guide_serving_the_first_bounce_only_leaves_the_image_unbiased_and_learns_th
     let params = [("res".to_string(), "12".to_string())];
     let scene = nis_render::scenes::load_with("cornell-box", &params).unwrap();
     let eye = scene.camera.ray(6.0, 6.0).origin;
-    let (plain, plain_err) = mean_over_seeds(&scene, Strategy::Mis, &mut NoGuide, 24);
     let mut guide = UniformGuide {
         bounces: 1,
         ..UniformGuide::default()
     };
-    let (guided, guided_err) = mean_over_seeds(&scene, Strategy::Mis, &mut guide, 24);
-    for c in 0..3 {
-        let sigma = (plain_err[c].powi(2) + guided_err[c].powi(2)).sqrt();
-        assert!(
-            (plain[c] - guided[c]).abs() < 4.0 * sigma,
-            "channel {c}: unguided {} vs guided at the first bounce {} (σ = {sigma})",
-            plain[c],
-            guided[c]
-        );
-    }
+    assert_unbiased(&scene, &mut guide, "a uniform guide at the first bounce");
     // Records from camera-ray hits only; a guide of every bounce also learns deeper.
     assert!(guide.records.len() > 1000);
     assert!(guide.records.iter().all(|r| at_first_hit(r, eye)));

@@ -5,13 +5,13 @@
 use glam::Vec3;
 use nis_render::guiding::gmm::{Gmm, GmmConfig};
 use nis_render::guiding::ppg::{Ppg, PpgConfig};
-use nis_render::guiding::{Guide, GuideVertex, NoGuide};
+use nis_render::guiding::{Guide, GuideVertex};
 use nis_render::integrator::{Integrator, Strategy};
 use nis_render::render::{render, Budget, RenderOptions, Schedule};
 use nis_render::scene::Scene;
 
 mod common;
-use common::mean_over_seeds;
+use common::assert_unbiased;
 
 /// Train `guide` by `passes` render passes, freeze it, check it is used on the back wall,
 /// and compare its mean image with the unguided one.
@@ -38,17 +38,7 @@ fn check_unbiased<G: Guide>(scene: &Scene, guide: &mut G, freeze: impl FnOnce(&m
         transmissive: false,
     };
     assert_eq!(guide.selection_probability(&wall), 0.5, "{name} untrained");
-    let (plain, plain_err) = mean_over_seeds(scene, Strategy::Mis, &mut NoGuide, 24);
-    let (guided, guided_err) = mean_over_seeds(scene, Strategy::Mis, guide, 24);
-    for c in 0..3 {
-        let sigma = (plain_err[c].powi(2) + guided_err[c].powi(2)).sqrt();
-        assert!(
-            (plain[c] - guided[c]).abs() < 4.0 * sigma,
-            "{name} channel {c}: unguided {} vs guided {} (σ = {sigma})",
-            plain[c],
-            guided[c]
-        );
-    }
+    assert_unbiased(scene, guide, name);
 }
 
 fn cornell() -> Scene {

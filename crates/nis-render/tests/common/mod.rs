@@ -1,6 +1,6 @@
 //! Helpers shared by the rendering tests.
 
-use nis_render::guiding::Guide;
+use nis_render::guiding::{Guide, NoGuide};
 use nis_render::integrator::{Integrator, Strategy};
 use nis_render::render::{render, Budget, RenderOptions, Schedule};
 use nis_render::scene::Scene;
@@ -46,4 +46,20 @@ pub fn mean_over_seeds<G: Guide>(
         err[c] = (var / n).sqrt();
     }
     (mean, err)
+}
+
+/// Asserts that rendering `scene` with `guide` gives the image mean of unguided path tracing:
+/// per channel, over 24 seeds each, within 4 standard errors of the difference.
+pub fn assert_unbiased<G: Guide>(scene: &Scene, guide: &mut G, name: &str) {
+    let (plain, plain_err) = mean_over_seeds(scene, Strategy::Mis, &mut NoGuide, 24);
+    let (guided, guided_err) = mean_over_seeds(scene, Strategy::Mis, guide, 24);
+    for c in 0..3 {
+        let sigma = (plain_err[c].powi(2) + guided_err[c].powi(2)).sqrt();
+        assert!(
+            (plain[c] - guided[c]).abs() < 4.0 * sigma,
+            "{name} channel {c}: unguided {} vs guided {} (σ = {sigma})",
+            plain[c],
+            guided[c]
+        );
+    }
 }
