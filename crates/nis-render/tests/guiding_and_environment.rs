@@ -134,6 +134,30 @@ fn a_guide_serving_the_first_bounce_only_leaves_the_image_unbiased_and_learns_th
 }
 
 #[test]
+fn delta_vertices_do_not_count_as_guided_bounces() {
+    // Behind cornell-glossy's smooth glass sphere, the first vertex a guide of one bounce
+    // serves is the one the path reaches through the glass, not a camera ray's hit.
+    let params = [("res".to_string(), "16".to_string())];
+    let scene = nis_render::scenes::load_with("cornell-glossy", &params).unwrap();
+    let eye = scene.camera.ray(8.0, 8.0).origin;
+    let mut guide = UniformGuide {
+        bounces: 1,
+        ..UniformGuide::default()
+    };
+    mean_over_seeds(&scene, Strategy::Mis, &mut guide, 2);
+    let beyond_glass = guide
+        .records
+        .iter()
+        .filter(|r| !at_first_hit(r, eye))
+        .count();
+    assert!(
+        beyond_glass > 0 && beyond_glass < guide.records.len() / 4,
+        "{beyond_glass} of {} records beyond the first hit",
+        guide.records.len()
+    );
+}
+
+#[test]
 fn diffuse_sphere_under_a_uniform_sky_reflects_albedo_times_sky() {
     // The camera sees only the sphere; a convex one-sided diffuse surface lit by a constant
     // environment reflects exactly albedo × radiance, whatever the strategy.
