@@ -10,6 +10,7 @@ use nis_render::guiding::{
 use nis_render::integrator::{Integrator, Strategy};
 use nis_render::render::{render, Budget, RenderOptions, Schedule};
 use nis_render::sampling::square_to_uniform_sphere;
+use nis_render::scene::Scene;
 use nis_render::xml::load_scene_str;
 
 mod common;
@@ -101,31 +102,43 @@ fn guided_mixture_is_unbiased_and_records_paths() {
     assert!(records.iter().any(|r| r.radiance.max_element() > 0.0));
 }
 
-/// Whether a record was made where a camera ray hit: its vertex looks back at the eye.
-fn at_first_hit(r: &GuideRecord, eye: glam::Vec3) -> bool {
-    (eye - r.vertex.p).normalize().dot(r.vertex.wo) > 1.0 - 1e-4
+/// How many of `records` were made away from a camera ray's hit in `scene` (where a vertex
+/// does not look back at the eye).
+fn beyond_first_hit(scene: &Scene, records: &[GuideRecord]) -> usize {
+    let eye = scene.camera.ray(0.5, 0.5).origin;
+    records
+        .iter()
+        .filter(|r| (eye - r.vertex.p).normalize().dot(r.vertex.wo) <= 1.0 - 1e-4)
+        .count()
+}
+
+/// A uniform guide of one bounce, and the records it learned from in `renders` renders of
+/// `scene` (the unbiasedness check's 24 when `renders` is `None`).
+fn one_bounce_guide(scene: &Scene, renders: Option<u64>) -> UniformGuide {
+    let mut guide = UniformGuide {
+        bounces: 1,
+        ..UniformGuide::default()
+    };
+    match renders {
+        Some(n) => {
+            mean_over_seeds(scene, Strategy::Mis, &mut guide, n);
+        }
+        None => assert_unbiased(scene, &mut guide, "a uniform guide at the first bounce"),
+    }
+    guide
 }
 
 #[test]
 fn a_guide_serving_the_first_bounce_only_leaves_the_image_unbiased_and_learns_there() {
     let params = [("res".to_string(), "12".to_string())];
     let scene = nis_render::scenes::load_with("cornell-box", &params).unwrap();
-    let eye = scene.camera.ray(6.0, 6.0).origin;
-    let mut guide = UniformGuide {
-        bounces: 1,
-        ..UniformGuide::default()
-    };
-    assert_unbiased(&scene, &mut guide, "a uniform guide at the first bounce");
+    let guide = one_bounce_guide(&scene, None);
     // Records from camera-ray hits only; a guide of every bounce also learns deeper.
     assert!(guide.records.len() > 1000);
-    assert!(guide.records.iter().all(|r| at_first_hit(r, eye)));
+    assert_eq!(beyond_first_hit(&scene, &guide.records), 0);
     let mut every = UniformGuide::default();
     mean_over_seeds(&scene, Strategy::Mis, &mut every, 2);
-    let deeper = every
-        .records
-        .iter()
-        .filter(|r| !at_first_hit(r, eye))
-        .count();
+    let deeper = beyond_first_hit(&scene, &every.records);
     assert!(
         deeper > every.records.len() / 4,
         "{deeper} of {}",
@@ -139,17 +152,8 @@ fn delta_vertices_do_not_count_as_guided_bounces() {
     // serves is the one the path reaches through the glass, not a camera ray's hit.
     let params = [("res".to_string(), "16".to_string())];
     let scene = nis_render::scenes::load_with("cornell-glossy", &params).unwrap();
-    let eye = scene.camera.ray(8.0, 8.0).origin;
-    let mut guide = UniformGuide {
-        bounces: 1,
-        ..UniformGuide::default()
-    };
-    mean_over_seeds(&scene, Strategy::Mis, &mut guide, 2);
-    let beyond_glass = guide
-        .records
-        .iter()
-        .filter(|r| !at_first_hit(r, eye))
-        .count();
+    let guide = one_bounce_guide(&scene, Some(2));
+    let beyond_glass = beyond_first_hit(&scene, &guide.records);
     assert!(
         beyond_glass > 0 && beyond_glass < guide.records.len() / 4,
         "{beyond_glass} of {} records beyond the first hit",

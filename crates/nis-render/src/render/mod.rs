@@ -405,11 +405,10 @@ impl Renderer<'_> {
         }
         if learn {
             let statistics = gather_statistics(self.comm, statistics);
-            // On one of the pool's threads: a training step's parallel loops, entered from
-            // outside the pool, are each handed over under a lock and waited for with a
-            // wake-up (as `nis::kernels::in_pool` says for the integrator). The neural guide's
-            // steps of 256 records spent a quarter of their time so (docs/GUIDING.md).
-            rayon::scope(|_| guide.update(statistics));
+            // On one of the pool's threads, as the integrator trains: the neural guide's steps
+            // of 256 records spent a quarter of their time handing their loops over to the
+            // pool from outside it (docs/GUIDING.md).
+            nis::kernels::in_pool(|| guide.update(statistics));
         }
     }
 

@@ -76,7 +76,7 @@ pub(crate) fn sum_in_order(parts: &[Vec<f32>], out: &mut [f32]) {
 /// loop is handed to the pool under a lock and waited for with a wake-up; a training step runs
 /// dozens of small loops (per coupling, per dense layer), and on a batch of a few hundred points
 /// those hand-overs cost a fifth of the step. Inside, the loops are scheduled by work stealing.
-pub(crate) fn in_pool<R: Send>(op: impl FnOnce() -> R + Send) -> R {
+pub fn in_pool<R: Send>(op: impl FnOnce() -> R + Send) -> R {
     rayon::scope(|_| op())
 }
 
