@@ -318,6 +318,20 @@ struct StepGradients {
     selection: Option<Vec<f32>>,
 }
 
+/// What one part of a training step adds up ([`NisGuide::part_gradients`]), before the
+/// division by the batch's mean weight.
+#[derive(Default)]
+struct PartGradients {
+    /// Sum of the records' weights.
+    weight: f64,
+    /// Sum of the records' weighted losses.
+    loss: f64,
+    /// Sum of the selection probabilities.
+    selection_sum: f64,
+    flow: Vec<f32>,
+    selection: Option<Vec<f32>>,
+}
+
 /// The records of a training pass, in the order they were made, of which only the newest `cap`
 /// are kept: the replay buffer would keep no more of them (see `NisGuide::train`), so a pass of
 /// any number of paths holds at most a buffer's worth of records. `seen` counts them all (it
@@ -690,9 +704,9 @@ impl NisGuide {
         selection: bool,
     ) -> nis::Result<TrainingStats> {
         // The batch in parts of `chunk_rows(n)` records (a function of `n` alone), each through
-        // both networks' forward passes, and later their backward passes, on one thread: a
-        // step is two parallel loops over the parts, not dozens of loops over a few hundred
-        // records each, which the cores handed over one by one.
+        // both networks and back on one thread: a step is one parallel loop over the parts,
+        // not dozens of loops over a few hundred records each, which the cores handed over one
+        // by one.
         let part = chunk_rows(batch.len());
         let (stats, gradients) = self.gradients(batch, scales, selection, part)?;
         if let Some(g) = gradients {
@@ -707,6 +721,12 @@ impl NisGuide {
 
     /// The loss of a step on `batch` and its gradients (none when no record of the batch
     /// carries weight), computed `part` records at a time and summed in the parts' order.
+    ///
+    /// Each part runs both networks forward and back with its records' weights as they are;
+    /// the loss and the gradients are linear in the weights, so their sums are divided by the
+    /// batch's mean weight once every part is done. The parts are then one parallel loop, not
+    /// two with the mean between them: the other core sleeps at the end of every loop, and
+    /// waking it again cost more than its share of the work (docs/GUIDING.md).
     fn gradients(
         &self,
         batch: &[Sample],
@@ -717,88 +737,29 @@ impl NisGuide {
         let n = batch.len();
         let parts = batch
             .par_chunks(part)
-            .map(|b| {
-                let scalars: Vec<_> = b.iter().map(|s| s.context).collect();
-                let context = self.encode(&scalars);
-                let x: Vec<f32> = b.iter().flat_map(|s| s.x).collect();
-                let evaluated = self.flow.log_density_for_training(&x, Some(&context))?;
-                let (tapes, c) = self.select(&context);
-                Ok((evaluated, tapes, c))
-            })
+            .zip(scales.par_chunks(part))
+            .map(|(b, scales)| self.part_gradients(b, scales, selection, n))
             .collect::<nis::Result<Vec<_>>>()?;
-        let log_q = parts.iter().flat_map(|(e, _, _)| e.log_q.iter().copied());
-        let c: Vec<f32> = parts
-            .iter()
-            .flat_map(|(_, _, c)| c.iter().copied())
-            .collect();
-        let m = self.config.min_selection;
-        let mut base = Vec::with_capacity(n);
-        let mut mix = Vec::with_capacity(n);
-        for ((i, s), log_q) in batch.iter().enumerate().zip(log_q) {
-            let q = (log_q.exp() as f32) * s.jacobian;
-            let q_mix = c[i] * q + (1.0 - c[i]) * s.bsdf_pdf;
-            let w = match self.config.loss {
-                GuideLoss::Kl => s.kl_weight(),
-                GuideLoss::ChiSquare => {
-                    f64::from(s.f) * f64::from(s.f) / (f64::from(s.pdf) * f64::from(q_mix))
-                }
-            } / scales[i];
-            base.push(if w.is_finite() { w } else { 0.0 });
-            mix.push((q, q_mix));
-        }
-        let mean = base.iter().sum::<f64>() / n as f64;
+        let mean = parts.iter().map(|p| p.weight).sum::<f64>() / n as f64;
         let mut stats = TrainingStats {
-            mean_selection: c.iter().map(|&c| f64::from(c)).sum::<f64>() / n as f64,
+            mean_selection: parts.iter().map(|p| p.selection_sum).sum::<f64>() / n as f64,
             ..TrainingStats::default()
         };
         if mean <= 0.0 || !mean.is_finite() {
             return Ok((stats, None));
         }
-        let mut w_flow = vec![0.0f32; n];
-        let mut g_logit = vec![0.0f32; n];
-        let mut loss = 0.0f64;
-        for i in 0..n {
-            let (q, q_mix) = mix[i];
-            let w = base[i] / mean;
-            loss += match self.config.loss {
-                GuideLoss::Kl => -w * f64::from(q_mix).ln(),
-                GuideLoss::ChiSquare => w,
-            };
-            if q_mix > 0.0 {
-                w_flow[i] = (w * f64::from(c[i] * q / q_mix) / n as f64) as f32;
-                let s = (c[i] - m) / (1.0 - 2.0 * m);
-                let d_c = (f64::from(q - batch[i].bsdf_pdf) / f64::from(q_mix)) as f32;
-                g_logit[i] =
-                    (-w * f64::from(d_c * (1.0 - 2.0 * m) * s * (1.0 - s)) / n as f64) as f32;
-            }
-        }
-        stats.loss = loss / n as f64;
-        // Both networks' gradients part by part, summed in the parts' order; the selection
-        // network steps only if the flow did.
-        let grads = parts
-            .par_iter()
-            .zip(w_flow.par_chunks(part))
-            .zip(g_logit.par_chunks(part))
-            .map(|(((evaluated, tapes, _), w_flow), g_logit)| {
-                let g_flow = self.flow.backward(&evaluated.tape, w_flow)?;
-                let g_sel = selection.then(|| {
-                    let g_out = g_logit.chunks(CHUNK_ROWS).map(<[f32]>::to_vec).collect();
-                    let refs: Vec<&MlpTape> = tapes.iter().collect();
-                    let mut g = vec![0.0; self.selection_params.len()];
-                    self.selection
-                        .backward(&self.selection_params, &refs, g_out, &mut g, false);
-                    g
-                });
-                Ok((g_flow, g_sel))
-            })
-            .collect::<nis::Result<Vec<_>>>()?;
+        stats.loss = parts.iter().map(|p| p.loss).sum::<f64>() / mean / n as f64;
         let mut g_flow = vec![0.0f32; self.flow.params().len()];
         let mut g_sel = selection.then(|| vec![0.0f32; self.selection_params.len()]);
-        for (f, s) in grads {
-            g_flow.iter_mut().zip(&f).for_each(|(a, b)| *a += b);
-            if let (Some(sum), Some(s)) = (&mut g_sel, s) {
+        for p in parts {
+            g_flow.iter_mut().zip(&p.flow).for_each(|(a, b)| *a += b);
+            if let (Some(sum), Some(s)) = (&mut g_sel, p.selection) {
                 sum.iter_mut().zip(&s).for_each(|(a, b)| *a += b);
             }
+        }
+        let inv_mean = (1.0 / mean) as f32;
+        for g in g_flow.iter_mut().chain(g_sel.iter_mut().flatten()) {
+            *g *= inv_mean;
         }
         Ok((
             stats,
@@ -807,6 +768,64 @@ impl NisGuide {
                 selection: g_sel,
             }),
         ))
+    }
+
+    /// One part of a step of `n` records ([`NisGuide::gradients`]): both networks forward and
+    /// back with the records' weights `F/(p_s·scale)` (KL) or `F²/(p_s·q_mix·scale)` (χ²), not
+    /// yet divided by the batch's mean weight.
+    fn part_gradients(
+        &self,
+        batch: &[Sample],
+        scales: &[f64],
+        selection: bool,
+        n: usize,
+    ) -> nis::Result<PartGradients> {
+        let scalars: Vec<_> = batch.iter().map(|s| s.context).collect();
+        let context = self.encode(&scalars);
+        let x: Vec<f32> = batch.iter().flat_map(|s| s.x).collect();
+        let evaluated = self.flow.log_density_for_training(&x, Some(&context))?;
+        let (tapes, c) = self.select(&context);
+        let m = self.config.min_selection;
+        let mut out = PartGradients {
+            selection_sum: c.iter().map(|&c| f64::from(c)).sum(),
+            ..PartGradients::default()
+        };
+        let mut w_flow = vec![0.0f32; batch.len()];
+        let mut g_logit = vec![0.0f32; batch.len()];
+        for (i, (s, &log_q)) in batch.iter().zip(&evaluated.log_q).enumerate() {
+            let q = (log_q.exp() as f32) * s.jacobian;
+            let q_mix = c[i] * q + (1.0 - c[i]) * s.bsdf_pdf;
+            let w = match self.config.loss {
+                GuideLoss::Kl => s.kl_weight(),
+                GuideLoss::ChiSquare => {
+                    f64::from(s.f) * f64::from(s.f) / (f64::from(s.pdf) * f64::from(q_mix))
+                }
+            } / scales[i];
+            let w = if w.is_finite() { w } else { 0.0 };
+            out.weight += w;
+            out.loss += match self.config.loss {
+                GuideLoss::Kl => -w * f64::from(q_mix).ln(),
+                GuideLoss::ChiSquare => w,
+            };
+            if q_mix > 0.0 {
+                w_flow[i] = (w * f64::from(c[i] * q / q_mix) / n as f64) as f32;
+                // The logit's sigmoid, and the mixture's derivative in c.
+                let sig = (c[i] - m) / (1.0 - 2.0 * m);
+                let d_c = (f64::from(q - s.bsdf_pdf) / f64::from(q_mix)) as f32;
+                g_logit[i] =
+                    (-w * f64::from(d_c * (1.0 - 2.0 * m) * sig * (1.0 - sig)) / n as f64) as f32;
+            }
+        }
+        out.flow = self.flow.backward(&evaluated.tape, &w_flow)?;
+        out.selection = selection.then(|| {
+            let g_out = g_logit.chunks(CHUNK_ROWS).map(<[f32]>::to_vec).collect();
+            let refs: Vec<&MlpTape> = tapes.iter().collect();
+            let mut g = vec![0.0; self.selection_params.len()];
+            self.selection
+                .backward(&self.selection_params, &refs, g_out, &mut g, false);
+            g
+        });
+        Ok(out)
     }
 
     /// The constant `c ∈ [c_min, 1 − c_min]` that maximises `Σ (F/p_s)·ln(c·p_flow + (1 − c)·p_bsdf)`
