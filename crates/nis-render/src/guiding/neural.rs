@@ -948,13 +948,15 @@ impl NisGuide {
             let mut batch = Vec::with_capacity(size);
             let mut picks = Vec::with_capacity(size);
             for _ in 0..steps {
-                // The indices from the phase's stream in order; the gather, a cache miss per
-                // record in a large buffer, in parallel.
+                // The indices from the phase's stream in order, and their records: a serial
+                // gather, as two parallel loops over 256 records cost more than they shared
+                // (picks and gathers of a 128², 64-spp cornell-box's five phases: 0.032–0.037 s
+                // serial, 0.043–0.052 s parallel).
                 picker.pick(size, &mut rng, &mut picks);
                 batch.clear();
-                batch.par_extend(picks.par_iter().map(|&i| self.buffer[i]));
+                batch.extend(picks.iter().map(|&i| self.buffer[i]));
                 scales.clear();
-                scales.par_extend(batch.par_iter().map(|s| picker.scale(s.kl_weight())));
+                scales.extend(batch.iter().map(|s| picker.scale(s.kl_weight())));
                 let selection = self.history.len() >= self.config.selection_warmup;
                 match self.step(&batch, &scales, selection) {
                     Ok(s) => {
