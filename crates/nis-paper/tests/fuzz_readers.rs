@@ -1,11 +1,10 @@
 //! Fuzzing the experiments' readers of outside data (issue 16): the digits CSV (plain and
 //! gzipped), MNIST IDX (with forged dimensions), MNIST JSON, PNG/JPEG image targets (with
 //! decompression bombs) and density checkpoints (truncated, flipped, forged). Each must give a
-//! typed error or a valid value within the limits of `support/fuzz.rs`. `NIS_FUZZ_CASES=N` sets
+//! typed error or a valid value within the limits of `nis-fuzz-support`. `NIS_FUZZ_CASES=N` sets
 //! the cases per target.
 
-#[path = "../../nis/tests/support/fuzz.rs"]
-mod fuzz;
+use nis_fuzz_support as fuzz;
 
 use std::io::Write;
 use std::path::Path;

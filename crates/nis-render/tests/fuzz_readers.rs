@@ -2,11 +2,10 @@
 //! byte edits and element-level mutations of the built-in scenes, absurd numbers and
 //! parameters, deep nesting), OBJ meshes, EXR images and `--guide-config` JSON. Each reader must
 //! return a typed error or a valid value within the memory and time limits of
-//! `support/fuzz.rs`; an accepted scene must also render a few pixels without panicking.
+//! `nis-fuzz-support`; an accepted scene must also render a few pixels without panicking.
 //! `NIS_FUZZ_CASES=N` sets the cases per target (`scripts/fuzz.sh`).
 
-#[path = "../../nis/tests/support/fuzz.rs"]
-mod fuzz;
+use nis_fuzz_support as fuzz;
 
 use std::path::Path;
 

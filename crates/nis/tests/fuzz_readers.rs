@@ -1,10 +1,9 @@
 //! Fuzzing the core library's readers of outside data (issue 16): model files (`nis::io`,
 //! `NisIntegrator::load`) truncated, bit-flipped and with forged safetensors headers and
 //! configs, and `--nis-config` JSON (`NisConfig`). Each must give a typed error or a valid value
-//! within the limits of `support/fuzz.rs`. `NIS_FUZZ_CASES=N` sets the cases per target.
+//! within the limits of `nis-fuzz-support`. `NIS_FUZZ_CASES=N` sets the cases per target.
 
-#[path = "support/fuzz.rs"]
-mod fuzz;
+use nis_fuzz_support as fuzz;
 
 use fuzz::{check, mutated, Counting};
 use nis::flow::{Density, FlowConfig};

@@ -150,13 +150,23 @@ impl<D: Density> DefensiveMixture<D> {
         self.lambda
     }
 
+    /// Draws `n` points of the mixture: q's share first, then the uniform points (see [`draw`]).
+    pub fn draw(&self, n: usize, rng: &mut dyn RngCore, record: Record) -> Result<MixtureBatch> {
+        draw(&self.density, self.lambda, n, rng, record)
+    }
+
+    /// ln q_mix at a point where q has log-density `log_q`.
+    pub fn mix_log_density(&self, log_q: f64) -> f64 {
+        mix_log_density(self.lambda, log_q)
+    }
+
     fn samples(&self, n: usize, rng: &mut dyn RngCore, record: bool) -> Result<Samples> {
         let how = if record {
             Record::Both
         } else {
             Record::Nothing
         };
-        let b = draw(&self.density, self.lambda, n, rng, how)?;
+        let b = self.draw(n, rng, how)?;
         let tape = match (b.density_part.tape, b.uniform_tape) {
             (Some(q_share), Some(uniform_share)) => {
                 let log_q = b.density_part.log_q.iter().chain(&b.uniform_log_q);

@@ -13,7 +13,9 @@
 //! error of that mean. The final phase is split into iterations whose spread gives χ²/dof.
 
 pub mod diagnostics;
+mod estimate;
 mod integrand;
+mod moments;
 pub mod nis;
 mod result;
 pub mod uniform;
@@ -29,9 +31,10 @@ use crate::comm::Comm;
 use crate::error::{Error, Result};
 
 pub use diagnostics::{Reliability, PARETO_K_LIMIT};
+pub use estimate::Accumulator;
 pub use integrand::{check_dim, evaluate, points_per_task, Integrand, TrainOn, VectorFn};
 pub use result::{
-    disagreements, Accumulator, ComponentEstimates, IntegrationResult, Iteration,
+    disagreements, ComponentEstimates, IntegrationResult, Iteration, IterationComponents, Source,
     DISAGREEMENT_SIGMAS,
 };
 

@@ -6,8 +6,7 @@ use rand::{Rng, SeedableRng};
 use rand_pcg::Pcg64Mcg;
 use serde::{Deserialize, Serialize};
 
-use super::integrand::column;
-use super::result::{ComponentAccumulator, Moments};
+use super::moments::iid_iteration;
 use super::{
     check_budget, check_dim, evaluate, report, Accumulator, Integrand, IntegrationResult,
     Integrator, Method, Progress,
@@ -15,9 +14,6 @@ use super::{
 use crate::comm::Comm;
 use crate::error::{Error, Result};
 use crate::kernels::in_pool;
-
-/// Points drawn and evaluated at once: an iteration's memory, whatever the budget.
-const CHUNK: usize = 1 << 16;
 
 /// Settings of plain Monte Carlo.
 #[derive(Clone, Debug, PartialEq, Eq, Serialize, Deserialize)]
@@ -150,37 +146,19 @@ impl PlainMc {
             "two per iteration",
         )?;
         let mut acc = Accumulator::new(evals);
-        let mut comps = ComponentAccumulator::new(k);
         let mut done = 0;
         for it in 0..iterations {
-            let n = (evals * (it as u64 + 1) / iterations as u64 - done).max(1) as usize;
-            // This rank's share of the iteration, in chunks, so that memory does not grow with
-            // the budget; the ranks' moments are merged in rank order.
-            let mine = self.comm.share(n as u64);
-            let mut moments = Moments::new(k);
-            let mut drawn = Ok(());
-            while drawn.is_ok() && moments.n() < mine {
-                let m = (mine - moments.n()).min(CHUNK as u64) as usize;
-                let x: Vec<f64> = (0..m * dim).map(|_| self.rng.random::<f64>()).collect();
-                drawn = evaluate(f, &x, dim).map(|w| {
-                    acc.observe(&column(&w, k, 0));
-                    moments.add(&w);
-                });
-            }
-            self.comm.check(drawn)?;
-            let moments = moments.across(&self.comm);
-            acc.add_moments(&moments)?;
-            if k > 1 {
-                comps.add_moments(&moments);
-            }
-            done += n as u64;
+            let n = (evals * (it as u64 + 1) / iterations as u64 - done).max(1);
+            let rng = &mut self.rng;
+            let iteration = iid_iteration(&self.comm, n, k, &mut acc, |m| {
+                let x: Vec<f64> = (0..m * dim).map(|_| rng.random::<f64>()).collect();
+                evaluate(f, &x, dim)
+            })?;
+            acc.add(iteration)?;
+            done += n;
             report(&mut self.progress, done, evals, "uniform");
         }
         acc.reduce_tail(&self.comm);
-        let mut r = acc.finish(done, started, Vec::new());
-        if k > 1 {
-            r.components = Some(comps.finish());
-        }
-        Ok(r)
+        Ok(acc.finish(None, done, started))
     }
 }

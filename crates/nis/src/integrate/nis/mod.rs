@@ -21,34 +21,36 @@ use std::time::Instant;
 use rand::SeedableRng;
 use rand_pcg::Pcg64Mcg;
 
-use super::integrand::column;
-use super::result::{ComponentAccumulator, Moments};
+use super::moments::iid_iteration;
 use super::{
     check_budget, check_dim, evaluate, report, Accumulator, Integrand, IntegrationResult,
     Integrator, Method, Progress,
 };
 use crate::comm::Comm;
 use crate::error::{Error, Result};
-use crate::flow::mixture::{self, MixtureBatch};
+use crate::flow::mixture::{DefensiveMixture, MixtureBatch, Record};
 use crate::flow::{Density, Flow, FlowConfig};
 use crate::kernels::in_pool;
 use crate::nn::ParamAverage;
-use crate::train::Trainer;
+use crate::train::Learner;
 use reuse::{ReplayBuffer, TrainingPieces};
 
 mod config;
 mod reuse;
-mod strata;
+mod stratified_latent;
 
 pub use config::{NisConfig, NisConfigBuilder, Stratify};
-use strata::LatentStrata;
+use stratified_latent::{FinalPlan, LatentStrata};
 
 /// A flow-based integrator: it trains its flow, then estimates with it (again and again, or after
 /// saving). It owns the flow, the optimiser's state and the random streams, so a second
 /// [`Integrator::integrate`] trains further from where the first stopped.
 pub struct NisIntegrator {
     config: NisConfig,
-    trainer: Trainer,
+    /// The sampler: the flow in its defensive mixture with the uniform density
+    /// (`uniform_fraction`); training steps its flow.
+    sampler: DefensiveMixture<Flow>,
+    learner: Learner,
     /// Evaluations spent training so far (over all calls, and before saving).
     trained_evals: u64,
     /// Whether this object has set the learning-rate schedule (its first training does).
@@ -68,8 +70,6 @@ pub struct NisIntegrator {
 const TRAIN_SEED_SALT: u64 = 0x7261_696e;
 const ESTIMATE_SEED_SALT: u64 = 0x6573_7469;
 const UNWEIGHT_SEED_SALT: u64 = 0x756e_7765;
-/// Points per piece of a final-phase iteration: its memory, whatever the budget.
-const ESTIMATE_CHUNK: usize = 1 << 16;
 
 /// The random streams, one per use, so that training more does not shift the estimate's points.
 struct Streams {
@@ -96,12 +96,14 @@ impl NisIntegrator {
             dim,
             ..config.flow.clone()
         })?;
-        let trainer = Trainer::new(flow, config.loss, config.adam)?;
+        let learner = Learner::new(flow.param_count(), config.loss, config.adam)?;
+        let sampler = DefensiveMixture::new(flow, config.uniform_fraction)?;
         Ok(NisIntegrator {
             streams: Streams::new(config.seed),
             average: None,
             config,
-            trainer,
+            sampler,
+            learner,
             trained_evals: 0,
             scheduled: false,
             comm: Comm::default(),
@@ -111,7 +113,7 @@ impl NisIntegrator {
 
     /// The flow.
     pub fn flow(&self) -> &Flow {
-        self.trainer.flow()
+        &self.sampler.density
     }
 
     /// Its settings.
@@ -134,7 +136,7 @@ impl NisIntegrator {
     /// Runs data-parallel over the ranks of `comm` from now on (see [`Integrator::set_comm`]):
     /// restarts the random streams as this rank's streams of the seed.
     pub fn set_comm(&mut self, comm: Comm) {
-        self.trainer.set_comm(comm.clone());
+        self.learner.set_comm(comm.clone());
         self.comm = comm;
         self.set_seed(self.config.seed);
     }
@@ -158,11 +160,11 @@ impl NisIntegrator {
         pieces: Option<&mut TrainingPieces>,
     ) -> Result<()> {
         if let Some(a) = &self.average {
-            a.resume(&mut [self.trainer.params_mut()]);
+            a.resume(&mut [self.sampler.density.params_mut()]);
         }
         let trained = self.train_steps(f, evals, pieces);
         if let Some(a) = &mut self.average {
-            a.use_average(&mut [self.trainer.params_mut()]);
+            a.use_average(&mut [self.sampler.density.params_mut()]);
         }
         trained
     }
@@ -189,21 +191,7 @@ impl NisIntegrator {
         let share = self.comm.share(batch as u64) as usize;
         let steps = (evals / batch as u64) as usize;
         if !self.scheduled {
-            // The rate decays over the Adam steps of the on-policy and the replayed batches.
-            let adam_steps = steps * (1 + self.config.replay_steps);
-            let decay = self
-                .config
-                .learning_rate_end
-                .powf(1.0 / adam_steps.max(1) as f32);
-            self.trainer
-                .set_learning_rate_decay(decay * self.config.adam.decay)?;
-            // The average spans a share of the same steps (a loaded integrator's first
-            // training starts an average of its own).
-            if self.config.average_span > 0.0 {
-                let decay = ParamAverage::span_decay(self.config.average_span, steps);
-                self.average = Some(ParamAverage::new(decay, &[self.trainer.flow().params()]));
-            }
-            self.scheduled = true;
+            self.schedule(steps)?;
         }
         let anneal = self.trained_evals == 0 && steps > 1;
         let mut replay = ReplayBuffer::new(self.config.replay_batches);
@@ -215,19 +203,19 @@ impl NisIntegrator {
             } else {
                 1.0
             };
-            self.trainer.set_temperature(beta);
+            self.learner.set_temperature(beta);
             // The flow's latents are the first numbers of the stream (`Flow::sample`): a copy of
             // it redraws them for the prediction of the stratified final phase.
             let latent_rng = pieces
                 .as_deref()
                 .is_some_and(TrainingPieces::needs_latents)
                 .then(|| self.streams.train.clone());
+            // Training sees q's share only (on-policy), so only its pass keeps a tape.
             let drawn = draw(
-                self.trainer.flow(),
-                self.config.uniform_fraction,
+                &self.sampler,
                 share,
                 &mut self.streams.train,
-                true,
+                Record::DensityShare,
             );
             // The failure flag of the batch: an error on any rank stops every rank here.
             let (b, fx) = self
@@ -244,11 +232,13 @@ impl NisIntegrator {
             done += batch as u64;
             let n_f = b.density_part.len();
             // Skip the step when the flow's share saw nothing: there is no direction to learn.
+            let flow = &mut self.sampler.density;
             if self.comm.any(target[..n_f].iter().any(|v| *v != 0.0)) {
-                self.trainer
-                    .step_on_policy(&b.density_part, &target[..n_f])?;
+                self.learner
+                    .step_on_policy(flow, &b.density_part, &target[..n_f])?;
                 for _ in 1..self.config.steps_per_batch {
-                    self.trainer.step(
+                    self.learner.step(
+                        flow,
                         &b.density_part.x,
                         None,
                         &target[..n_f],
@@ -259,11 +249,11 @@ impl NisIntegrator {
             // Earlier batches replayed off-policy (their points keep the density that drew them).
             for _ in 0..self.config.replay_steps {
                 if let Some(r) = replay.next() {
-                    self.trainer.step(&r.x, None, &r.target, &r.log_q)?;
+                    self.learner.step(flow, &r.x, None, &r.target, &r.log_q)?;
                 }
             }
             if let Some(a) = &mut self.average {
-                a.add(&[self.trainer.flow().params()]);
+                a.add(&[self.sampler.density.params()]);
             }
             if self.comm.any(target[..n_f].iter().any(|v| *v != 0.0)) {
                 replay.push(
@@ -277,95 +267,79 @@ impl NisIntegrator {
         Ok(())
     }
 
+    /// Sets the learning-rate schedule and the weights' average over the `steps` training batches
+    /// of this integrator's first training.
+    fn schedule(&mut self, steps: usize) -> Result<()> {
+        // The rate decays over the Adam steps of the on-policy and the replayed batches.
+        let adam_steps = steps * (1 + self.config.replay_steps);
+        let decay = self
+            .config
+            .learning_rate_end
+            .powf(1.0 / adam_steps.max(1) as f32);
+        self.learner
+            .set_learning_rate_decay(decay * self.config.adam.decay)?;
+        // The average spans a share of the same steps (a loaded integrator's first training
+        // starts an average of its own).
+        if self.config.average_span > 0.0 {
+            let decay = ParamAverage::span_decay(self.config.average_span, steps);
+            self.average = Some(ParamAverage::new(decay, &[self.flow().params()]));
+        }
+        self.scheduled = true;
+        Ok(())
+    }
+
     /// The final phase alone: the flow frozen, `evals` evaluations in `final_iterations`
     /// iterations. For a trained or loaded integrator; the result counts only these evaluations.
     pub fn estimate(&mut self, f: &dyn Integrand, evals: u64) -> Result<IntegrationResult> {
         let started = Instant::now();
-        in_pool(|| self.final_phase(f, evals, 0, started, None))
+        let plan = FinalPlan::new(&self.config, self.dim(), evals);
+        in_pool(|| self.final_phase(f, plan, 0, started, None))
     }
 
-    /// The final phase, after `trained` evaluations of training in the same call (for the
+    /// The final phase `plan`, after `trained` evaluations of training in the same call (for the
     /// evaluation count and the progress) that started at `started`, combined with the kept
     /// training batches `pieces` when given.
     fn final_phase(
         &mut self,
         f: &dyn Integrand,
-        evals: u64,
+        plan: FinalPlan,
         trained: u64,
         started: Instant,
         pieces: Option<TrainingPieces>,
     ) -> Result<IntegrationResult> {
-        let dim = self.flow().dim();
-        check_dim(f, dim)?;
+        check_dim(f, self.dim())?;
         let k = f.components();
-        let iters = self.config.final_iterations;
-        let lambda = self.config.uniform_fraction;
-        let (least, why) = match self.config.stratify {
-            Some(s) => (
-                LatentStrata::min_per_iteration(s, lambda),
-                "min_per_cube and two uniform points per iteration of the final phase",
-            ),
-            None => (2, "two per iteration of the final phase, after training"),
-        };
-        check_budget(Method::Nis, evals, least * iters as u64, why)?;
-        let mut latent = self.config.stratify.map(|s| {
-            let per_iter = evals / iters as u64;
-            LatentStrata::new(dim, per_iter, lambda, k, self.config.train_on, s)
-        });
+        let (evals, iters) = (plan.evals, plan.iterations);
+        check_budget(Method::Nis, evals, plan.least * iters as u64, plan.why)?;
+        let lambda = self.sampler.lambda();
+        let train_on = self.config.train_on;
+        let mut latent = plan
+            .latent
+            .map(|(strata, s)| LatentStrata::new(strata, s, lambda, k, train_on));
         let mut acc = Accumulator::new(evals);
-        let mut comps = ComponentAccumulator::new(k);
         if let Some(p) = &pieces {
-            p.add_to(&mut acc, &mut comps)?;
+            p.add_to(&mut acc)?;
         }
         let mut done = 0u64;
         for it in 0..iters {
             let upto = (evals * (it as u64 + 1)) / iters as u64;
-            if let Some(latent) = latent.as_mut() {
-                let n = upto.saturating_sub(done).max(least);
-                let flow = self.trainer.flow();
-                let rng = &mut self.streams.estimate;
-                let s = latent.iteration(flow, f, n, rng, &self.comm, &mut |w| acc.observe(w))?;
-                acc.add_observed_iteration(
-                    &self.comm,
-                    s.estimate,
-                    s.variance,
-                    s.evals,
-                    s.max_abs_w,
-                    s.sum_abs_w,
-                )?;
-                if k > 1 {
-                    comps.add_iteration(s.mean, s.cov, s.evals);
+            let rng = &mut self.streams.estimate;
+            let iteration = match latent.as_mut() {
+                Some(latent) => {
+                    let n = upto.saturating_sub(done).max(plan.least);
+                    let observe = &mut |w: &[f64]| acc.observe(w);
+                    latent.iteration(&self.sampler, f, n, rng, &self.comm, observe)?
                 }
-                done += s.evals;
-                report(
-                    &mut self.progress,
-                    trained + done,
-                    trained + evals,
-                    "nis: estimating",
-                );
-                continue;
-            }
-            let n = (upto - done).max(2) as usize;
-            // This rank's share, drawn in pieces of bounded memory, pooled into one iteration:
-            // memory does not grow with the budget. The ranks' moments are merged in rank order.
-            let mine = self.comm.share(n as u64);
-            let mut moments = Moments::new(k);
-            let mut drawn = Ok(());
-            while drawn.is_ok() && moments.n() < mine {
-                let m = (mine - moments.n()).min(ESTIMATE_CHUNK as u64) as usize;
-                let (flow, lambda) = (self.trainer.flow(), self.config.uniform_fraction);
-                drawn = weights(flow, lambda, f, m, &mut self.streams.estimate).map(|(_, w)| {
-                    acc.observe(&column(&w, k, 0));
-                    moments.add(&w);
-                });
-            }
-            self.comm.check(drawn)?;
-            let moments = moments.across(&self.comm);
-            acc.add_moments(&moments)?;
-            if k > 1 {
-                comps.add_moments(&moments);
-            }
-            done += n as u64;
+                None => {
+                    let n = (upto - done).max(2);
+                    let sampler = &self.sampler;
+                    iid_iteration(&self.comm, n, k, &mut acc, |m| {
+                        weights(sampler, f, m, rng).map(|(_, w)| w)
+                    })?
+                }
+            };
+            done += iteration.evals;
+            acc.add(iteration)?;
             report(
                 &mut self.progress,
                 trained + done,
@@ -374,18 +348,8 @@ impl NisIntegrator {
             );
         }
         acc.reduce_tail(&self.comm);
-        let shares = pieces.map(|p| p.shares(&acc.iterations));
-        let mut r = match &shares {
-            Some(a) => acc.finish_weighted(a, trained + done, started, Vec::new()),
-            None => acc.finish(trained + done, started, Vec::new()),
-        };
-        if k > 1 {
-            r.components = Some(match &shares {
-                Some(a) => comps.finish_weighted(a),
-                None => comps.finish(),
-            });
-        }
-        Ok(r)
+        let shares = pieces.map(|p| p.shares(acc.iterations()));
+        Ok(acc.finish(shares.as_deref(), trained + done, started))
     }
 
     /// `n` weighted points of the frozen sampler (the defensive mixture): the points (`n × d`,
@@ -393,8 +357,7 @@ impl NisIntegrator {
     /// from the stream that [`NisIntegrator::unweighted`] continues, so estimates are not shifted.
     pub fn weighted(&mut self, f: &dyn Integrand, n: usize) -> Result<(Vec<f64>, Vec<f64>)> {
         check_dim(f, self.flow().dim())?;
-        let (flow, lambda) = (self.trainer.flow(), self.config.uniform_fraction);
-        weights(flow, lambda, f, n, &mut self.streams.unweight)
+        weights(&self.sampler, f, n, &mut self.streams.unweight)
     }
 
     /// `n` points of the frozen sampler and the weights of the target the flow learns
@@ -408,7 +371,7 @@ impl NisIntegrator {
         check_dim(f, self.flow().dim())?;
         let k = f.components();
         self.config.train_on.check(k)?;
-        let (x, w) = weights(self.flow(), self.config.uniform_fraction, f, n, rng)?;
+        let (x, w) = weights(&self.sampler, f, n, rng)?;
         Ok((x, self.config.train_on.target(&w, k)))
     }
 
@@ -459,12 +422,14 @@ impl NisIntegrator {
             .get("trained_evals")
             .and_then(|s| s.parse().ok())
             .unwrap_or(0);
-        let trainer = Trainer::new(flow, config.loss, config.adam)?;
+        let learner = Learner::new(flow.param_count(), config.loss, config.adam)?;
+        let sampler = DefensiveMixture::new(flow, config.uniform_fraction)?;
         Ok(NisIntegrator {
             streams: Streams::new(config.seed),
             average: None,
             config,
-            trainer,
+            sampler,
+            learner,
             trained_evals,
             scheduled: false,
             comm: Comm::default(),
@@ -497,10 +462,8 @@ impl Integrator for NisIntegrator {
         let batch = self.config.batch as u64;
         let train = ((evals as f64 * self.config.train_fraction) as u64 / batch) * batch;
         let batches = (train / batch) as usize;
-        let dim = self.flow().dim();
-        let final_evals = evals - train;
-        let mut pieces =
-            TrainingPieces::plan(&self.config, dim, batches, final_evals, f.components());
+        let plan = FinalPlan::new(&self.config, self.dim(), evals - train);
+        let mut pieces = TrainingPieces::plan(&self.config, &plan, batches, f.components());
         // Both phases on one worker thread (as `train` and `estimate` alone): the serial work
         // between parallel loops (the loss, the optimiser's and the average's set-up, the
         // moments) then stays on a core of the pool, and each loop starts without a hand-over
@@ -508,7 +471,7 @@ impl Integrator for NisIntegrator {
         // Serialized).
         in_pool(|| {
             self.train_keeping(f, train, pieces.as_mut())?;
-            self.final_phase(f, final_evals, train, started, pieces)
+            self.final_phase(f, plan, train, started, pieces)
         })
     }
 
@@ -517,37 +480,29 @@ impl Integrator for NisIntegrator {
     }
 }
 
-/// `n` points of the defensive mixture of `flow` with a share `lambda` of uniform ones, with the
+/// `n` points of `sampler` drawn from `rng`, `record` saying which passes keep a tape, with the
 /// points also as f64 for the integrand.
 fn draw(
-    flow: &Flow,
-    lambda: f64,
+    sampler: &DefensiveMixture<Flow>,
     n: usize,
     rng: &mut Pcg64Mcg,
-    for_training: bool,
+    record: Record,
 ) -> Result<(MixtureBatch, Vec<f64>)> {
-    // Training sees q's share only (on-policy), so only its pass keeps a tape.
-    let record = if for_training {
-        mixture::Record::DensityShare
-    } else {
-        mixture::Record::Nothing
-    };
-    let b = mixture::draw(flow, lambda, n, rng, record)?;
+    let b = sampler.draw(n, rng, record)?;
     let x64 = b.x.iter().map(|&v| v as f64).collect();
     Ok((b, x64))
 }
 
-/// `n` points of the frozen mixture and their weights f/q_mix (`n × k`, row-major).
+/// `n` points of the frozen sampler and their weights f/q_mix (`n × k`, row-major).
 fn weights(
-    flow: &Flow,
-    lambda: f64,
+    sampler: &DefensiveMixture<Flow>,
     f: &dyn Integrand,
     n: usize,
     rng: &mut Pcg64Mcg,
 ) -> Result<(Vec<f64>, Vec<f64>)> {
     let k = f.components();
-    let (b, x64) = draw(flow, lambda, n, rng, false)?;
-    let fx = evaluate(f, &x64, flow.dim())?;
+    let (b, x64) = draw(sampler, n, rng, Record::Nothing)?;
+    let fx = evaluate(f, &x64, sampler.density.dim())?;
     let w = fx
         .chunks_exact(k)
         .zip(&b.log_q_mix)

@@ -47,7 +47,7 @@
 //! nearly count shares and the error bar grows (docs/ESTIMATE.md).
 //!
 //! g_b: an i.i.d. final phase is no better than a training batch (g = 1). A stratified one
-//! ([`super::strata`]) is, by as much as its latent grid and allocation gain, and the training
+//! ([`super::stratified_latent`]) is, by as much as its latent grid and allocation gain, and the training
 //! batches predict it: their flow share was drawn from uniform latents z (redrawn from a copy
 //! of the training stream), so post-stratifying its weights on the final phase's own grid
 //! (Cochran's post-stratification) measures what stratifying them would have given. A batch of
@@ -71,13 +71,14 @@
 
 use std::collections::VecDeque;
 
-use super::super::diagnostics::WeightTail;
-use super::super::result::{Accumulator, ComponentAccumulator, Iteration, Moments};
-use super::strata::{self, PostStratified};
+use super::stratified_latent::{self, FinalPlan, PostStratified};
 use super::NisConfig;
 use crate::comm::Comm;
 use crate::error::Result;
 use crate::flow::mixture::{mix_log_density, MixtureBatch};
+use crate::integrate::diagnostics::WeightTail;
+use crate::integrate::moments::Moments;
+use crate::integrate::{Accumulator, Iteration, Source};
 
 /// The last `capacity` training batches (the flow's share of each), for off-policy replay.
 pub(super) struct ReplayBuffer {
@@ -174,25 +175,25 @@ const POST_STRATIFIED_DF: f64 = 2000.0;
 /// zeros, a gain of ~10¹⁷⁰, shares of ~10⁻¹⁷⁰ whose squares underflow).
 const MIN_SHARE: f64 = 1e-9;
 
-/// Consecutive kept batches: Σ a_b·mean_b, Σ a_b²·Cov_b, Σ a_b and their evaluations.
+/// Consecutive kept batches: Σ a_b·mean_b, Σ a_b²·Cov_b, Σ a_b, their evaluations and the
+/// largest and summed |w| of their weights (component 0).
 struct Group {
     weighted_mean: Vec<f64>,
     weighted_cov: Vec<f64>,
     share: f64,
     evals: u64,
     max_abs_w: f64,
+    sum_abs_w: f64,
     batches: usize,
 }
 
 impl TrainingPieces {
-    /// The plan for `batches` training batches followed by a final phase of `final_evals`, for an
-    /// integrand of `k` components in `dim` dimensions; `None` when no batch would enter (reuse
-    /// off, or no batch).
+    /// The plan for `batches` training batches followed by the final phase `final_plan`, for an
+    /// integrand of `k` components; `None` when no batch would enter (reuse off, or no batch).
     pub(super) fn plan(
         config: &NisConfig,
-        dim: usize,
+        final_plan: &FinalPlan,
         batches: usize,
-        final_evals: u64,
         k: usize,
     ) -> Option<TrainingPieces> {
         let kept = (config.reuse_training * batches as f64).floor() as usize;
@@ -202,21 +203,17 @@ impl TrainingPieces {
             return None;
         }
         let batch = config.batch as u64;
-        let stratified = config.stratify.map(|s| {
-            let per_iter = final_evals / config.final_iterations as u64;
-            let lambda = config.uniform_fraction;
-            StratifiedFinal {
-                grid: strata::final_grid(dim, per_iter, lambda, s),
-                recent: VecDeque::new(),
-            }
+        let stratified = final_plan.grid().map(|grid| StratifiedFinal {
+            grid: grid.to_vec(),
+            recent: VecDeque::new(),
         });
         Some(TrainingPieces {
             k,
             batch,
             batches,
             first_kept: batches - kept,
-            per_group: kept.div_ceil(config.final_iterations),
-            final_evals,
+            per_group: kept.div_ceil(final_plan.iterations),
+            final_evals: final_plan.evals,
             remaining: 1.0,
             previous_var: None,
             best_var: f64::INFINITY,
@@ -295,7 +292,7 @@ impl TrainingPieces {
         if let Some(s) = self.stratified.as_mut() {
             let n_q = z.len() / s.grid.len();
             let flow_share: Vec<f64> = w.iter().step_by(self.k).take(n_q).copied().collect();
-            let mut sums = strata::post_stratified(z, &flow_share, &s.grid).to_array();
+            let mut sums = stratified_latent::post_stratified(z, &flow_share, &s.grid).to_array();
             // Plain sums, reduced in the fixed order of the rank count: every rank predicts the
             // same, with one reduction instead of a gather of every rank's sums.
             comm.sum_f64(&mut sums);
@@ -316,9 +313,7 @@ impl TrainingPieces {
             self.remaining -= share;
             let column: Vec<f64> = w.iter().step_by(self.k).copied().collect();
             self.tail.add(&column);
-            let max_abs_w = column.iter().fold(0.0f64, |a, v| a.max(v.abs()));
-            let mut max = [max_abs_w];
-            comm.max_f64(&mut max);
+            let (max_abs_w, sum_abs_w) = m.abs_w();
             let k = self.k;
             if self
                 .groups
@@ -331,6 +326,7 @@ impl TrainingPieces {
                     share: 0.0,
                     evals: 0,
                     max_abs_w: 0.0,
+                    sum_abs_w: 0.0,
                     batches: 0,
                 });
             }
@@ -345,20 +341,16 @@ impl TrainingPieces {
                 .for_each(|(a, v)| *a += share * share * v);
             g.share += share;
             g.evals += m.n();
-            g.max_abs_w = g.max_abs_w.max(max[0]);
+            g.max_abs_w = g.max_abs_w.max(max_abs_w);
+            g.sum_abs_w += sum_abs_w;
             g.batches += 1;
         }
         self.previous_var = Some(var);
         self.best_var = self.best_var.min(var);
     }
 
-    /// Puts the groups into the final phase's accumulators, before its iterations (call it first).
-    pub(super) fn add_to(
-        &self,
-        acc: &mut Accumulator,
-        comps: &mut ComponentAccumulator,
-    ) -> Result<()> {
-        let k = self.k;
+    /// Puts the groups into the final phase's accumulator, before its iterations (call it first).
+    pub(super) fn add_to(&self, acc: &mut Accumulator) -> Result<()> {
         for g in self.groups.iter().filter(|g| g.share > 0.0) {
             let mean: Vec<f64> = g.weighted_mean.iter().map(|v| v / g.share).collect();
             let cov: Vec<f64> = g
@@ -366,10 +358,14 @@ impl TrainingPieces {
                 .iter()
                 .map(|v| v / (g.share * g.share))
                 .collect();
-            acc.add_piece(mean[0], cov[0], g.evals, g.max_abs_w)?;
-            if k > 1 {
-                comps.add_iteration(mean, cov, g.evals);
-            }
+            acc.add(Iteration::new(
+                Source::Training,
+                mean,
+                cov,
+                g.evals,
+                g.max_abs_w,
+                g.sum_abs_w,
+            ))?;
         }
         acc.observe_tail(&self.tail);
         Ok(())
@@ -453,7 +449,13 @@ mod tests {
         };
         let (batches, final_evals) = (20, 4 * 512);
         let mut rng = rand_pcg::Pcg64Mcg::seed_from_u64(seed);
-        let mut pieces = TrainingPieces::plan(&config, 1, batches, final_evals, 1).unwrap();
+        let mut pieces = TrainingPieces::plan(
+            &config,
+            &FinalPlan::new(&config, 1, final_evals),
+            batches,
+            1,
+        )
+        .unwrap();
         let (mut naive_sum, mut naive_norm) = (0.0, 0.0);
         for b in 0..batches {
             let scale = 1.0 + 2.0 * (batches - 1 - b) as f64 / (batches - 1) as f64;
@@ -473,21 +475,20 @@ mod tests {
             }
         }
         let mut acc = Accumulator::new(final_evals);
-        let mut comps = ComponentAccumulator::new(1);
-        pieces.add_to(&mut acc, &mut comps).unwrap();
+        pieces.add_to(&mut acc).unwrap();
         for _ in 0..4 {
             let w = skewed(512, 1.0, &mut rng);
             let (m, v) = mean_var(&w);
             (naive_sum, naive_norm) = (naive_sum + m / v, naive_norm + 1.0 / v);
             acc.add_weights(&w).unwrap();
         }
-        let shares = pieces.shares(&acc.iterations);
+        let shares = pieces.shares(acc.iterations());
         assert!(
             (shares.iter().sum::<f64>() - 1.0).abs() < 1e-12,
             "{shares:?}"
         );
         assert!(shares.iter().all(|a| *a >= 0.0));
-        let r = acc.finish_weighted(&shares, 0, Instant::now(), Vec::new());
+        let r = acc.finish(Some(&shares), 0, Instant::now());
         (r.value, r.std_err, naive_sum / naive_norm)
     }
 
@@ -554,7 +555,13 @@ mod tests {
             ..NisConfig::default()
         };
         let (batches, final_evals) = (20, 4 * 4096);
-        let mut pieces = TrainingPieces::plan(&config, 1, batches, final_evals, 1).unwrap();
+        let mut pieces = TrainingPieces::plan(
+            &config,
+            &FinalPlan::new(&config, 1, final_evals),
+            batches,
+            1,
+        )
+        .unwrap();
         let cells = pieces.stratified.as_ref().unwrap().grid[0] as f64;
         assert!(cells > 1.0, "{cells}");
         let mut rng = rand_pcg::Pcg64Mcg::seed_from_u64(3);
@@ -575,16 +582,15 @@ mod tests {
         }
         assert!(pieces.final_gain() > 1e160, "{}", pieces.final_gain());
         let mut acc = Accumulator::new(final_evals);
-        let mut comps = ComponentAccumulator::new(1);
-        pieces.add_to(&mut acc, &mut comps).unwrap();
+        pieces.add_to(&mut acc).unwrap();
         for _ in 0..4 {
             let w = skewed(4096, 1.0, &mut rng);
             acc.add_weights(&w).unwrap();
         }
-        let shares = pieces.shares(&acc.iterations);
+        let shares = pieces.shares(acc.iterations());
         assert_eq!(shares.len(), 4, "no training group entered: {shares:?}");
         assert!((shares.iter().sum::<f64>() - 1.0).abs() < 1e-12);
-        let r = acc.finish_weighted(&shares, 0, Instant::now(), Vec::new());
+        let r = acc.finish(Some(&shares), 0, Instant::now());
         assert!(r.value.is_finite() && r.std_err.is_finite() && r.std_err > 0.0);
     }
 
@@ -598,13 +604,14 @@ mod tests {
             ..NisConfig::default()
         };
         // Too few batches, or none kept: nothing to reuse.
-        assert!(TrainingPieces::plan(&config, 1, 1, 1000, 1).is_none());
+        assert!(TrainingPieces::plan(&config, &FinalPlan::new(&config, 1, 1000), 1, 1).is_none());
         let off = NisConfig {
             reuse_training: 0.0,
             ..config.clone()
         };
-        assert!(TrainingPieces::plan(&off, 1, 10, 1000, 1).is_none());
-        let mut p = TrainingPieces::plan(&config, 1, 10, 1000, 1).unwrap();
+        assert!(TrainingPieces::plan(&off, &FinalPlan::new(&off, 1, 1000), 10, 1).is_none());
+        let mut p =
+            TrainingPieces::plan(&config, &FinalPlan::new(&config, 1, 1000), 10, 1).unwrap();
         assert_eq!(p.first_kept, 5);
         let mut rng = rand_pcg::Pcg64Mcg::seed_from_u64(1);
         for b in 0..10 {
@@ -621,7 +628,8 @@ mod tests {
             }
         }
         // Equal weights: every kept evaluation weighs the same, 1/(500 + 1000).
-        let mut p = TrainingPieces::plan(&config, 1, 10, 1000, 1).unwrap();
+        let mut p =
+            TrainingPieces::plan(&config, &FinalPlan::new(&config, 1, 1000), 10, 1).unwrap();
         for b in 0..10 {
             p.observe_weights(b, &[2.0; 100], &[], &Comm::default());
         }
@@ -647,8 +655,11 @@ mod tests {
             ..stratified.clone()
         };
         let mut rng = rand_pcg::Pcg64Mcg::seed_from_u64(2);
-        let mut with = TrainingPieces::plan(&stratified, 2, 20, 1000, 1).unwrap();
-        let mut without = TrainingPieces::plan(&iid, 2, 20, 1000, 1).unwrap();
+        let mut with =
+            TrainingPieces::plan(&stratified, &FinalPlan::new(&stratified, 2, 1000), 20, 1)
+                .unwrap();
+        let mut without =
+            TrainingPieces::plan(&iid, &FinalPlan::new(&iid, 2, 1000), 20, 1).unwrap();
         let grid = with.stratified.as_ref().unwrap().grid.clone();
         assert_eq!(grid.iter().product::<usize>(), 56, "{grid:?}");
         for b in 0..20 {
@@ -686,10 +697,12 @@ mod tests {
 
     #[test]
     fn the_latents_redrawn_from_a_copy_of_the_stream_are_those_the_flow_sampled() {
+        use crate::flow::mixture::{DefensiveMixture, Record};
         let flow = crate::flow::mixture::tests::noisy_flow();
         let mut rng = rand_pcg::Pcg64Mcg::seed_from_u64(5);
         let mut copy = rng.clone();
-        let (b, _) = super::super::draw(&flow, 0.1, 500, &mut rng, true).unwrap();
+        let sampler = DefensiveMixture::new(flow.clone(), 0.1).unwrap();
+        let (b, _) = super::super::draw(&sampler, 500, &mut rng, Record::DensityShare).unwrap();
         let z = crate::flow::uniform_latents(b.density_part.len() * 2, &mut copy);
         let (back, _) = crate::flow::Bijection::forward(&flow, &b.density_part.x, None).unwrap();
         let worst = z

@@ -15,25 +15,28 @@
 //! iterations of a still-improving map, so the result iterations here get shares fixed before
 //! their points are drawn, from the trend of the earlier variances ([`next_share`]).
 
+pub(crate) mod adaptive_strata;
+mod iteration;
 mod map;
-pub(crate) mod strata;
+mod shares;
 
 use std::time::Instant;
 
-use rand::{Rng, SeedableRng};
+use rand::SeedableRng;
 use rand_pcg::Pcg64Mcg;
 use serde::{Deserialize, Serialize};
 
-use super::result::ComponentAccumulator;
 use super::{
-    check_budget, check_dim, evaluate, report, Accumulator, Integrand, IntegrationResult,
-    Integrator, Method, Progress, TrainOn,
+    check_budget, check_dim, report, Accumulator, Integrand, IntegrationResult, Integrator, Method,
+    Progress, TrainOn,
 };
 use crate::comm::Comm;
 use crate::error::{Error, Result};
 use crate::kernels::in_pool;
+use adaptive_strata::Strata;
+use iteration::Measure;
 use map::Map;
-use strata::Strata;
+use shares::{next_share, Trend};
 
 /// VEGAS+ settings (the map and stratification defaults follow the `vegas` package: 1000
 /// increments, α = 0.5, β = 0.75).
@@ -304,80 +307,22 @@ impl Vegas {
         let rng = &mut self.rng;
         let comm = &self.comm;
         let mut acc = Accumulator::new((per_iter * (plan.iterations - plan.warmup)) as u64);
-        let mut comps = ComponentAccumulator::new(k);
         let mut n_eval = 0u64;
-        let (mut y, mut x, mut inc) = (vec![0.0; dim], Vec::new(), vec![0usize; dim]);
-        let mut corner = vec![0usize; dim];
         let mut contribution_var = vec![0.0; cubes];
         // Every iteration's variance (warm-up included) and the result iterations' shares.
         let (mut history, mut shares, mut remaining) = (Vec::new(), Vec::new(), 1.0);
+        let measure = Measure {
+            f,
+            comm,
+            k,
+            train_on,
+            volume,
+        };
         for it in 0..plan.iterations {
             let counts = strata.allocate(per_iter + usize::from(it < plan.extra), min_per_cube);
-            let total: usize = counts.iter().sum();
-            // Every rank draws its share of each hypercube's points from its own stream.
-            let mine: Vec<usize> = counts
-                .iter()
-                .map(|&n| comm.share(n as u64) as usize)
-                .collect();
-            let local: usize = mine.iter().sum();
-            x.clear();
-            x.reserve(local * dim);
-            let mut jacs = Vec::with_capacity(local);
-            let mut incs = Vec::with_capacity(local * dim);
-            let mut point = vec![0.0; dim];
-            for (h, &nh) in mine.iter().enumerate() {
-                strata.corner(h, &mut corner);
-                for _ in 0..nh {
-                    for ((yd, &c), &s) in y.iter_mut().zip(&corner).zip(&strata.per_axis) {
-                        *yd = (c as f64 + rng.random::<f64>()) / s as f64;
-                    }
-                    jacs.push(map.apply(&y, &mut point, &mut inc));
-                    x.extend_from_slice(&point);
-                    incs.extend_from_slice(&inc);
-                }
-            }
-            // The failure flag of the iteration: an error on any rank stops every rank here.
-            let fx = comm.check(evaluate(f, &x, dim))?;
-            // The sampler adapts to f itself unless told otherwise: then no copy, no second pass.
-            let adapts_to_f = k == 1 && train_on == TrainOn::Component(0);
-            let target = if adapts_to_f {
-                Vec::new()
-            } else {
-                train_on.target(&fx, k)
-            };
-            n_eval += total as u64;
-            let cube = Cubes {
-                counts: &counts,
-                mine: &mine,
-                fx: &fx,
-                jacs: &jacs,
-                k,
-            };
-            // Per hypercube, over all ranks: mean and variance of f·J (and of the target's
-            // values·J when the sampler adapts to something else).
-            let (means, vars) = cube.moments(comm, |i| fx[i * k] * jacs[i]);
-            let t_vars = (!adapts_to_f).then(|| cube.moments(comm, |i| target[i] * jacs[i]).1);
-            let mut w_eff = Vec::with_capacity(local);
-            for (h, r) in cube.ranges().enumerate() {
-                let n_all = counts[h] as f64;
-                for i in r {
-                    let fj = fx[i * k] * jacs[i];
-                    w_eff.push(fj * volume * total as f64 / n_all);
-                    // The map adapts to the target (component 0 of a scalar: f).
-                    let v = if adapts_to_f { fj } else { target[i] * jacs[i] };
-                    map.add_training(&incs[i * dim..(i + 1) * dim], (v * volume).powi(2));
-                }
-            }
-            map.reduce_training(comm);
-            // The estimate Σ_h V_h·mean_h; the strata adapt to the target's variances.
-            let (mut estimate, mut variance) = (0.0, 0.0);
-            for (h, &nh) in counts.iter().enumerate() {
-                estimate += volume * means[h];
-                variance += volume * volume * vars[h] / nh as f64;
-                let t_var = t_vars.as_ref().map_or(vars[h], |t| t[h]);
-                contribution_var[h] = volume * volume * t_var / nh as f64;
-            }
-            let component_estimates = (k > 1).then(|| cube.components(comm, volume));
+            let measured = measure.iteration(map, strata, rng, &counts, &mut contribution_var)?;
+            let variance = measured.variance;
+            n_eval += measured.evals;
             if it >= plan.warmup {
                 // The share was fixed by the history before this iteration's points.
                 let trend = if it == plan.warmup {
@@ -388,10 +333,8 @@ impl Vegas {
                 let share = next_share(remaining, plan.iterations - it, &history, trend);
                 remaining -= share;
                 shares.push(share);
-                acc.add_iteration_across(comm, estimate, variance, total as u64, &w_eff)?;
-                if let Some((mean_k, cov_k)) = component_estimates {
-                    comps.add_iteration(mean_k, cov_k, total as u64);
-                }
+                acc.observe(&measured.w_eff);
+                acc.add(measured.iteration(comm))?;
             }
             history.push(variance);
             strata.adapt(&contribution_var, beta);
@@ -408,185 +351,7 @@ impl Vegas {
             );
         }
         acc.reduce_tail(comm);
-        let mut r = acc.finish_weighted(&shares, n_eval, started, Vec::new());
-        if k > 1 {
-            r.components = Some(comps.finish_weighted(&shares));
-        }
-        Ok(r)
-    }
-}
-
-/// The fastest fall of the variance per iteration (smallest ratio) the shares extrapolate.
-const MAX_FALL: f64 = 0.25;
-/// Iterations the trend of the variance is fitted over.
-const TREND_SPAN: usize = 5;
-
-/// How a share reads the trend of the variances before it.
-#[derive(Clone, Copy, Debug, PartialEq)]
-enum Trend {
-    /// The least-squares fall per iteration.
-    Fitted,
-    /// One standard error of that fit steeper: for the first result iteration, whose share rests
-    /// on the warm-up's variances alone.
-    Cautious,
-}
-
-/// The share a_i of the next result iteration in the final estimate Σ a_i·I_i, from the
-/// variances of the iterations before it only, so E[a_i·I_i] = E[a_i]·I and the estimate is
-/// unbiased; the shares add up to exactly one (the last takes what is `remaining`).
-///
-/// The package weighs iterations by their inverse variances, which matters because the map keeps
-/// improving: on gauss-sharp d = 8 the variance falls ×0.75 per iteration, 15-fold over the
-/// result iterations, and equal shares are 6× worse than inverse-variance ones. Here the fall is
-/// extrapolated: with ρ the ratio per iteration fitted to the last few (clamped to
-/// [`MAX_FALL`], 1) the `left` iterations are expected to have variances ∝ ρ^m, so inverse-variance
-/// shares of what remains give this one c = 1/Σ_{m<left} ρ^(−m).
-///
-/// A share that is too large costs far more than one that is too small: given to an iteration
-/// whose variance turns out k times the last ones', it adds up to k/left² of theirs, while one too
-/// small only leaves the others to carry its points. The first result iteration is where that
-/// happens: its share rests on the warm-up alone, whose variances can be noise around no trend
-/// before they start to fall (gauss d = 16: five warm-up variances within a factor 10 of each
-/// other, then a 3000-fold fall over the result iterations; the fitted flat trend gave the first
-/// one 1/15 and σ² 40–100× the inverse-variance optimum on four seeds of seven).
-/// [`Trend::Cautious`] takes the fall one standard error of the slope steeper, so noise reads as
-/// a possible fall; after the first, the result iterations' own variances are in the fit.
-fn next_share(remaining: f64, left: usize, history: &[f64], trend: Trend) -> f64 {
-    if left <= 1 {
-        return remaining;
-    }
-    // ρ from the least-squares slope of ln σ² over the last (up to) five iterations: the ratio of
-    // two noisy variances would let one heavy-tailed iteration reset the trend.
-    let recent: Vec<(f64, f64)> = history
-        .iter()
-        .rev()
-        .take(TREND_SPAN)
-        .enumerate()
-        .filter(|(_, v)| **v > 0.0 && v.is_finite())
-        .map(|(j, v)| (-(j as f64), v.ln()))
-        .collect();
-    let rho = if recent.len() >= 3 {
-        let m = recent.len() as f64;
-        let (mx, my) = recent
-            .iter()
-            .fold((0.0, 0.0), |(a, b), (x, y)| (a + x / m, b + y / m));
-        let (sxy, sxx) = recent.iter().fold((0.0, 0.0), |(a, b), (x, y)| {
-            (a + (x - mx) * (y - my), b + (x - mx) * (x - mx))
-        });
-        let slope = sxy / sxx;
-        let steeper = match trend {
-            Trend::Fitted => 0.0,
-            Trend::Cautious => {
-                let sse: f64 = recent
-                    .iter()
-                    .map(|(x, y)| (my + slope * (x - mx) - y).powi(2))
-                    .sum();
-                (sse / (m - 2.0) / sxx).sqrt()
-            }
-        };
-        (slope - steeper).exp()
-    } else {
-        1.0
-    };
-    let rho = if rho.is_finite() {
-        rho.clamp(MAX_FALL, 1.0)
-    } else {
-        1.0
-    };
-    let sum: f64 = (0..left).map(|m| rho.powi(-(m as i32))).sum();
-    remaining / sum
-}
-
-/// One iteration's points by hypercube: how many every rank drew in each (`counts`) and how
-/// many this rank drew (`mine`, its points in cube order), with their values (`fx`, `n × k`),
-/// and the map's Jacobians.
-struct Cubes<'a> {
-    counts: &'a [usize],
-    mine: &'a [usize],
-    fx: &'a [f64],
-    jacs: &'a [f64],
-    k: usize,
-}
-
-impl Cubes<'_> {
-    /// This rank's points of each hypercube, as index ranges.
-    fn ranges(&self) -> impl Iterator<Item = std::ops::Range<usize>> + '_ {
-        self.mine.iter().scan(0, |start, &nh| {
-            *start += nh;
-            Some(*start - nh..*start)
-        })
-    }
-
-    /// Per hypercube, the mean and the sample variance of `value(i)` over the points of all
-    /// ranks: sums, then squared deviations from the means, reduced over the ranks (two passes,
-    /// as over one process's points).
-    fn moments(&self, comm: &Comm, value: impl Fn(usize) -> f64) -> (Vec<f64>, Vec<f64>) {
-        let mut means: Vec<f64> = self.ranges().map(|r| r.map(&value).sum()).collect();
-        comm.sum_f64(&mut means);
-        for (m, &n) in means.iter_mut().zip(self.counts) {
-            *m /= n as f64;
-        }
-        let mut vars: Vec<f64> = self
-            .ranges()
-            .zip(&means)
-            .map(|(r, m)| r.map(|i| (value(i) - m).powi(2)).sum())
-            .collect();
-        comm.sum_f64(&mut vars);
-        for (v, &n) in vars.iter_mut().zip(self.counts) {
-            *v /= (n - 1) as f64;
-        }
-        (means, vars)
-    }
-
-    /// Every component's estimate Σ_h V_h·mean_h and its covariance Σ_h V_h²·Cov_h/n_h, the
-    /// hypercubes' means and covariances taken over the points of all ranks.
-    fn components(&self, comm: &Comm, volume: f64) -> (Vec<f64>, Vec<f64>) {
-        let (k, cubes) = (self.k, self.counts.len());
-        let mut m = vec![0.0; cubes * k];
-        for (h, r) in self.ranges().enumerate() {
-            for i in r {
-                for a in 0..k {
-                    m[h * k + a] += self.fx[i * k + a] * self.jacs[i];
-                }
-            }
-        }
-        comm.sum_f64(&mut m);
-        for (h, &n) in self.counts.iter().enumerate() {
-            m[h * k..(h + 1) * k]
-                .iter_mut()
-                .for_each(|a| *a /= n as f64);
-        }
-        // Σ (f_a·J − m_a)(f_b·J − m_b), each product formed once so the matrix is exactly
-        // symmetric.
-        let mut sums = vec![0.0; cubes * k * k];
-        for (h, r) in self.ranges().enumerate() {
-            let (m, sum) = (
-                &m[h * k..(h + 1) * k],
-                &mut sums[h * k * k..(h + 1) * k * k],
-            );
-            for i in r {
-                let (row, jac) = (&self.fx[i * k..(i + 1) * k], self.jacs[i]);
-                for a in 0..k {
-                    let da = row[a] * jac - m[a];
-                    for b in 0..k {
-                        sum[a * k + b] += da * (row[b] * jac - m[b]);
-                    }
-                }
-            }
-        }
-        comm.sum_f64(&mut sums);
-        let (mut mean, mut cov) = (vec![0.0; k], vec![0.0; k * k]);
-        for (h, &n) in self.counts.iter().enumerate() {
-            let nh = n as f64;
-            let scale = volume * volume / (nh - 1.0) / nh;
-            for (c, s) in cov.iter_mut().zip(&sums[h * k * k..(h + 1) * k * k]) {
-                *c += scale * s;
-            }
-            for (a, v) in mean.iter_mut().zip(&m[h * k..(h + 1) * k]) {
-                *a += volume * v;
-            }
-        }
-        (mean, cov)
+        Ok(acc.finish(Some(&shares), n_eval, started))
     }
 }
 

@@ -1,14 +1,13 @@
-//! What the fuzz tests of every reader of outside data share (issue 16, "Parsers and files,
-//! fuzzed"): a counting global allocator, the per-case limits, the case count, and byte-level
-//! mutations. Included with `#[path]` by `tests/fuzz_readers.rs` of `nis`, `nis-render` and
-//! `nis-paper`, each of which installs [`Counting`] as its `#[global_allocator]`.
+//! What the fuzz tests of every reader of outside data share: a counting global allocator, the
+//! per-case limits, the case count, and byte-level mutations. A dev-only crate: the
+//! `tests/fuzz_readers.rs` of `nis`, `nis-render` and `nis-paper` depend on it, and each installs
+//! [`Counting`] as its `#[global_allocator]`.
 //!
 //! The promise checked for every case: the reader returns a typed error or a valid value — no
 //! panic (proptest reports a panic as a failing case and shrinks it), no more than
 //! [`BASE_ALLOWANCE`] plus [`SIZE_FACTOR`]× the input's (decompressed) size live at the peak of
 //! the case, and no case longer than [`MAX_CASE`]. Tests of one binary take a lock
 //! ([`exclusive`]) so that the global counts belong to one case at a time.
-#![allow(dead_code)] // each test binary uses its own part of this module
 
 use std::alloc::{GlobalAlloc, Layout, System};
 use std::sync::atomic::{AtomicUsize, Ordering};

@@ -3,7 +3,7 @@
 //! sampled as VEGAS+ samples its y-space (Lepage 2021, Sec. 3): cut into hypercubes h of volume
 //! V_h, n_h points uniform in each, the estimate Σ_h V_h·mean_h with variance
 //! Σ_h V_h²·Var_h/n_h, and the n_h of the next iteration allocated by the measured variances
-//! ([`crate::integrate::vegas::strata`], damped by β).
+//! ([`crate::integrate::vegas::adaptive_strata`], damped by β).
 //!
 //! The defensive mixture q_mix = λ·uniform + (1 − λ)·q is kept as a sum of two integrals,
 //! ∫ f = ∫ (1 − λ)·f/q_mix · q dx + ∫ λ·f/q_mix dx (the two weights add up to one wherever
@@ -26,14 +26,57 @@
 use rand::Rng;
 use rand_pcg::Pcg64Mcg;
 
-use super::config::Stratify;
-use super::ESTIMATE_CHUNK;
+use super::config::{NisConfig, Stratify};
 use crate::comm::Comm;
 use crate::error::Result;
+use crate::flow::mixture::DefensiveMixture;
 use crate::flow::{Bijection, Density, Flow};
-use crate::integrate::result::Moments;
-use crate::integrate::vegas::strata::Strata;
-use crate::integrate::{evaluate, TrainOn};
+use crate::integrate::moments::{Moments, CHUNK};
+use crate::integrate::vegas::adaptive_strata::Strata;
+use crate::integrate::{evaluate, Iteration, Source, TrainOn};
+
+/// A final phase's layout, made once before training (whose kept batches predict it) and then
+/// followed: its evaluations, iterations, and the flow latent's hypercubes when it stratifies.
+pub(super) struct FinalPlan {
+    pub(super) evals: u64,
+    pub(super) iterations: usize,
+    /// The fewest evaluations an iteration needs, and why.
+    pub(super) least: u64,
+    pub(super) why: &'static str,
+    /// The hypercubes of the flow's latent and their settings (`None`: i.i.d. latents).
+    pub(super) latent: Option<(Strata, Stratify)>,
+}
+
+impl FinalPlan {
+    /// The plan of a final phase of `evals` evaluations in `dim` dimensions under `config`.
+    pub(super) fn new(config: &NisConfig, dim: usize, evals: u64) -> FinalPlan {
+        let iterations = config.final_iterations;
+        let lambda = config.uniform_fraction;
+        match config.stratify {
+            Some(s) => FinalPlan {
+                evals,
+                iterations,
+                // `min_per_cube` in every hypercube, and two uniform points (for their variance)
+                // when λ > 0.
+                least: (s.min_per_cube + if lambda > 0.0 { 2 } else { 0 }) as u64,
+                why: "min_per_cube and two uniform points per iteration of the final phase",
+                latent: Some((plan(dim, evals / iterations as u64, lambda, s), s)),
+            },
+            None => FinalPlan {
+                evals,
+                iterations,
+                least: 2,
+                why: "two per iteration of the final phase, after training",
+                latent: None,
+            },
+        }
+    }
+
+    /// Strata per axis of the latent grid, when the final phase stratifies.
+    pub(super) fn grid(&self) -> Option<&[usize]> {
+        self.latent.as_ref().map(|(s, _)| s.per_axis.as_slice())
+    }
+}
 
 /// The stratification of one final phase: its hypercubes, their adapted allocation, and what a
 /// chunk of points needs to know.
@@ -50,32 +93,16 @@ pub(super) struct LatentStrata {
     train_on: TrainOn,
 }
 
-/// One iteration's estimate: Σ over both components, its variance (component 0), and the
-/// per-component mean and covariance of the mean (`k`, `k × k`).
-pub(super) struct Stratified {
-    pub(super) estimate: f64,
-    pub(super) variance: f64,
-    pub(super) mean: Vec<f64>,
-    pub(super) cov: Vec<f64>,
-    /// Evaluations over all ranks.
-    pub(super) evals: u64,
-    /// This rank's largest |w| and Σ|w| of the weights it observed.
-    pub(super) max_abs_w: f64,
-    pub(super) sum_abs_w: f64,
-}
-
 impl LatentStrata {
-    /// The hypercubes for iterations of about `per_iter` points, as VEGAS+ plans them for its
-    /// y-space (at most `settings.max_cubes`).
+    /// The final phase's hypercubes `strata` (see [`FinalPlan`]), for a mixture of uniform share
+    /// `lambda` and an integrand of `k` components.
     pub(super) fn new(
-        dim: usize,
-        per_iter: u64,
+        strata: Strata,
+        settings: Stratify,
         lambda: f64,
         k: usize,
         train_on: TrainOn,
-        settings: Stratify,
     ) -> LatentStrata {
-        let strata = plan(dim, per_iter, lambda, settings);
         LatentStrata {
             strata,
             settings,
@@ -86,10 +113,12 @@ impl LatentStrata {
         }
     }
 
-    /// The fewest evaluations an iteration needs: `min_per_cube` in every hypercube and two
-    /// uniform points (for their variance) when λ > 0.
-    pub(super) fn min_per_iteration(settings: Stratify, lambda: f64) -> u64 {
-        (settings.min_per_cube + if lambda > 0.0 { 2 } else { 0 }) as u64
+    /// [`LatentStrata::new`] on the hypercubes planned for iterations of about `per_iter` points
+    /// of a scalar integrand.
+    #[cfg(test)]
+    fn planned(dim: usize, per_iter: u64, lambda: f64, settings: Stratify) -> LatentStrata {
+        let strata = plan(dim, per_iter, lambda, settings);
+        LatentStrata::new(strata, settings, lambda, 1, TrainOn::default())
     }
 
     /// One iteration of `n` evaluations over all ranks: this rank's share of every hypercube's
@@ -97,14 +126,15 @@ impl LatentStrata {
     /// each chunk's weights go to `observe`. Adapts the allocation for the next iteration.
     pub(super) fn iteration(
         &mut self,
-        flow: &Flow,
+        sampler: &DefensiveMixture<Flow>,
         f: &dyn crate::integrate::Integrand,
         n: u64,
         rng: &mut Pcg64Mcg,
         comm: &Comm,
         observe: &mut dyn FnMut(&[f64]),
-    ) -> Result<Stratified> {
-        let (dim, k, lambda) = (flow.dim(), self.k, self.lambda);
+    ) -> Result<Iteration> {
+        let flow = &sampler.density;
+        let (dim, k) = (flow.dim(), self.k);
         let (n_u, n_q) = split(n, self.uniform_share);
         let counts = self
             .strata
@@ -145,7 +175,7 @@ impl LatentStrata {
             .draw(comm, rng, k, target, &mut weigh, &mut |z| {
                 let (x, neg_log_q) = flow.inverse(z, None)?;
                 let log_q: Vec<f64> = neg_log_q.iter().map(|l| -l).collect();
-                mixture_weights(f, &x, &log_q, lambda, dim, k)
+                mixture_weights(sampler, f, &x, &log_q)
             })?;
             let uniform_part = Cubes {
                 strata: &uniform_strata,
@@ -153,7 +183,7 @@ impl LatentStrata {
             }
             .draw(comm, rng, k, None, &mut weigh, &mut |x| {
                 let log_q = flow.log_density(x, None)?;
-                mixture_weights(f, x, &log_q, lambda, dim, k)
+                mixture_weights(sampler, f, x, &log_q)
             })?;
             Ok((flow_part, uniform_part))
         })();
@@ -171,6 +201,7 @@ impl LatentStrata {
             cov.iter_mut().zip(&ch).for_each(|(s, v)| *s += a * a * v);
             (a * (ch[0] * m.n() as f64).max(0.0).sqrt(), a * a * ch[0])
         };
+        let lambda = self.lambda;
         let a = (1.0 - lambda) / cubes as f64;
         let mut sigma_q = 0.0;
         for (h, m) in g.iter().enumerate() {
@@ -189,15 +220,17 @@ impl LatentStrata {
             self.uniform_share = (sigma_u / (sigma_u + sigma_q)).clamp(lambda, MAX_UNIFORM_SHARE);
         }
         self.strata.adapt(&contribution_var, self.settings.beta);
-        Ok(Stratified {
-            estimate: mean[0],
-            variance: cov[0],
+        let mut max = [max_abs_w];
+        comm.max_f64(&mut max);
+        let sum_abs_w = comm.sum(sum_abs_w);
+        Ok(Iteration::new(
+            Source::Final,
             mean,
             cov,
             evals,
-            max_abs_w,
+            max[0],
             sum_abs_w,
-        })
+        ))
     }
 }
 
@@ -207,15 +240,9 @@ fn plan(dim: usize, per_iter: u64, lambda: f64, settings: Stratify) -> Strata {
     let (_, n_q) = split(per_iter, lambda);
     // Planning from fewer points gives fewer hypercubes: the even quarter fills max_cubes.
     let cap = (settings.max_cubes as f64 * settings.min_per_cube as f64
-        / (1.0 - crate::integrate::vegas::strata::ADAPTIVE_SHARE))
+        / (1.0 - crate::integrate::vegas::adaptive_strata::ADAPTIVE_SHARE))
         .min(usize::MAX as f64) as usize;
     Strata::plan(dim, (n_q as usize).min(cap), settings.min_per_cube)
-}
-
-/// Strata per axis of the latent grid of a final phase of iterations of about `per_iter` points
-/// (what [`LatentStrata::new`] will cut the latent into).
-pub(super) fn final_grid(dim: usize, per_iter: u64, lambda: f64, settings: Stratify) -> Vec<usize> {
-    plan(dim, per_iter, lambda, settings).per_axis
 }
 
 /// i.i.d. weights `w` at latents `z` (`n × dim`, uniform on [0,1]^dim) post-stratified on the
@@ -397,8 +424,8 @@ impl Cubes<'_> {
         let (mut h, mut done_in_h) = (0, 0);
         while h < cubes {
             let (mut z, mut cube_of) = (Vec::new(), Vec::new());
-            while h < cubes && cube_of.len() < ESTIMATE_CHUNK {
-                let take = (mine[h] - done_in_h).min(ESTIMATE_CHUNK - cube_of.len());
+            while h < cubes && cube_of.len() < CHUNK {
+                let take = (mine[h] - done_in_h).min(CHUNK - cube_of.len());
                 self.strata.corner(h, &mut corner);
                 for _ in 0..take {
                     for (&c, &s) in corner.iter().zip(&self.strata.per_axis) {
@@ -439,33 +466,33 @@ const UNIFORM_PER_CUBE: usize = 2;
 /// Most of an iteration's points the uniform part may take: the flow is the sampler.
 const MAX_UNIFORM_SHARE: f64 = 0.5;
 
-/// Uniform and flow points of an iteration of `n`: n_u = round(λn), at least two when λ > 0 (for
-/// the uniform part's variance), and the rest.
-fn split(n: u64, lambda: f64) -> (u64, u64) {
-    let n_u = if lambda > 0.0 {
-        ((lambda * n as f64).round() as u64).max(2)
+/// Uniform and flow points of an iteration of `n` whose uniform part has the share `share` (λ,
+/// or Neyman's allocation): n_u = round(share·n), at least two when share > 0 (for the uniform
+/// part's variance; unlike [`crate::flow::mixture::uniform_count`], which draws a mixture's
+/// batch), and the rest.
+fn split(n: u64, share: f64) -> (u64, u64) {
+    let n_u = if share > 0.0 {
+        ((share * n as f64).round() as u64).max(2)
     } else {
         0
     };
     (n_u, n.saturating_sub(n_u))
 }
 
-/// f/q_mix at the points `x` with ln q, `n × k` row-major.
+/// f/q_mix at the points `x` where the flow has ln q, `n × k` row-major.
 fn mixture_weights(
+    sampler: &DefensiveMixture<Flow>,
     f: &dyn crate::integrate::Integrand,
     x: &[f32],
     log_q: &[f64],
-    lambda: f64,
-    dim: usize,
-    k: usize,
 ) -> Result<Vec<f64>> {
     let x64: Vec<f64> = x.iter().map(|&v| v as f64).collect();
-    let fx = evaluate(f, &x64, dim)?;
+    let fx = evaluate(f, &x64, sampler.density.dim())?;
     Ok(fx
-        .chunks_exact(k)
+        .chunks_exact(f.components())
         .zip(log_q)
         .flat_map(|(v, &l)| {
-            let inv_q = (-crate::flow::mixture::mix_log_density(lambda, l)).exp();
+            let inv_q = (-sampler.mix_log_density(l)).exp();
             v.iter().map(move |v| v * inv_q)
         })
         .collect())
@@ -496,26 +523,21 @@ mod tests {
     fn run(flow: &Flow, lambda: f64, settings: Stratify, seed: u64) -> (f64, f64) {
         let (iterations, per_iter) = (4, 2000);
         let f = integrand;
-        let mut latent = LatentStrata::new(2, per_iter, lambda, 1, TrainOn::default(), settings);
+        let mut latent = LatentStrata::planned(2, per_iter, lambda, settings);
+        let sampler = DefensiveMixture::new(flow.clone(), lambda).unwrap();
         let mut rng = Pcg64Mcg::seed_from_u64(seed);
         let comm = Comm::default();
         let mut acc = Accumulator::new(iterations * per_iter);
         for _ in 0..iterations {
             let s = latent
-                .iteration(flow, &f, per_iter, &mut rng, &comm, &mut |w| acc.observe(w))
+                .iteration(&sampler, &f, per_iter, &mut rng, &comm, &mut |w| {
+                    acc.observe(w)
+                })
                 .unwrap();
             assert_eq!(s.evals, per_iter);
-            acc.add_observed_iteration(
-                &comm,
-                s.estimate,
-                s.variance,
-                s.evals,
-                s.max_abs_w,
-                s.sum_abs_w,
-            )
-            .unwrap();
+            acc.add(s).unwrap();
         }
-        let r = acc.finish(iterations * per_iter, Instant::now(), Vec::new());
+        let r = acc.finish(None, iterations * per_iter, Instant::now());
         (r.value, r.std_err)
     }
 
@@ -579,12 +601,12 @@ mod tests {
         };
         let (iterations, per_iter) = (4usize, 2000usize);
         // The i.i.d. final phase's estimate: the mean of f/q over all its points.
+        let sampler = DefensiveMixture::new(flow.clone(), 0.0).unwrap();
         let iid: Vec<f64> = (0..seeds)
             .map(|s| {
                 let mut rng = Pcg64Mcg::seed_from_u64(s);
-                let (_, w) =
-                    super::super::weights(&flow, 0.0, &integrand, iterations * per_iter, &mut rng)
-                        .unwrap();
+                let n = iterations * per_iter;
+                let (_, w) = super::super::weights(&sampler, &integrand, n, &mut rng).unwrap();
                 w.iter().sum::<f64>() / w.len() as f64
             })
             .collect();
@@ -633,20 +655,20 @@ mod tests {
     #[test]
     fn hypercubes_follow_the_plan_and_the_cap() {
         let flow = flow();
-        let latent = LatentStrata::new(2, 50_000, 0.0, 1, TrainOn::default(), Stratify::default());
+        let latent = LatentStrata::planned(2, 50_000, 0.0, Stratify::default());
         assert_eq!(latent.strata.per_axis, vec![79, 79]);
         let capped = Stratify {
             max_cubes: 100,
             ..Stratify::default()
         };
-        let latent = LatentStrata::new(2, 50_000, 0.0, 1, TrainOn::default(), capped);
+        let latent = LatentStrata::planned(2, 50_000, 0.0, capped);
         assert_eq!(latent.strata.per_axis, vec![10, 10]);
         // An iteration makes exactly its points, the uniform ones included.
-        let mut latent = LatentStrata::new(2, 1001, 0.1, 1, TrainOn::default(), capped);
+        let mut latent = LatentStrata::planned(2, 1001, 0.1, capped);
         let mut rng = Pcg64Mcg::seed_from_u64(1);
         let s = latent
             .iteration(
-                &flow,
+                &DefensiveMixture::new(flow.clone(), 0.1).unwrap(),
                 &integrand,
                 1001,
                 &mut rng,
@@ -657,10 +679,10 @@ mod tests {
         assert_eq!(s.evals, 1001);
         // Half the points uniform, more than 8·max_cubes of them: the uniform part's hypercubes
         // are capped too, and the counts still add up.
-        let mut latent = LatentStrata::new(2, 10_000, 0.5, 1, TrainOn::default(), capped);
+        let mut latent = LatentStrata::planned(2, 10_000, 0.5, capped);
         let s = latent
             .iteration(
-                &flow,
+                &DefensiveMixture::new(flow.clone(), 0.5).unwrap(),
                 &integrand,
                 10_000,
                 &mut rng,
