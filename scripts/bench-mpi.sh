@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # The MPI benchmark: strong scaling 1 vs 2 ranks, communication per training step, and the
-# scaling model (docs/BENCHMARKS.md, section `mpi`; docs/SCALING.md). Builds what it needs with
+# scaling model (docs/results/scaling.md, sections `mpi` and `scaling-model`). Builds what it needs with
 # scripts/build-mpi.sh. A few minutes on 2 cores.
 #
 #   scripts/bench-mpi.sh [--runs 3]

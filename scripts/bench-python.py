@@ -10,7 +10,7 @@ for: the 8-d camel (two Gaussians, α = 0.2) at 10^6 evaluations.
 
 Run by scripts/bench-python.sh, which makes one venv per package; this file is both the driver
 (`--driver`) and, inside each venv, the runner of one method (`--run METHOD`). Each line of a
-runner's output is one JSON result. The driver writes the table into docs/BENCHMARKS.md between
+runner's output is one JSON result. The driver writes the table into docs/results/integration.md between
 the `<!-- python:start -->` and `<!-- python:end -->` markers.
 """
 

@@ -2,7 +2,7 @@
 # The Python module's benchmark: camel d = 8 at 10^6 evaluations through Python (numpy
 # integrand) against the Rust closure (the CLI), the `vegas` package and MadNIS, each Python
 # package in its own venv under target/bench-py (made on first use). Writes its section of
-# docs/BENCHMARKS.md (between <!-- python:start --> and <!-- python:end -->).
+# docs/results/integration.md (between <!-- python:start --> and <!-- python:end -->).
 #
 #   scripts/bench-python.sh [--reps 3]
 set -euo pipefail
@@ -27,5 +27,5 @@ if ! venv madnis numpy madnis >"$root/madnis-install.log" 2>&1; then
     madnis_note="pip install madnis failed: $(tail -1 "$root/madnis-install.log")"
     rm -rf "$root/madnis"
 fi
-python3 scripts/bench-python.py --cli target/release/nis --venvs "$root" --out docs/BENCHMARKS.md \
+python3 scripts/bench-python.py --cli target/release/nis --venvs "$root" --out docs/results/integration.md \
     --madnis-note "$madnis_note" "$@"

@@ -2,11 +2,11 @@
 """NIS integrator settings side by side: variance per evaluation and wall time of
 `nis integrate NAME --dim D --method nis --nis-config JSON` for several settings at the same
 budgets and seeds, medians over seeds, against the first setting, written to a section of
-docs/BENCHMARKS.md.
+docs/results/integration.md.
 
     scripts/bench-settings.py --section ID --title TITLE --settings NAME=JSON NAME=JSON ...
                               [--cells camel:4 ...] [--evals 320000 1000000] [--seeds 3]
-                              [--nis target/release/nis] [--docs docs/BENCHMARKS.md]
+                              [--nis target/release/nis] [--docs docs/results/integration.md]
 
 Each row: the median relative variance per evaluation and median seconds per setting; then, per
 setting after the first, the first's median variance over its own (above 1: this one is better
@@ -64,7 +64,7 @@ def main():
     ap.add_argument("--evals", type=int, nargs="+", default=[320_000, 1_000_000])
     ap.add_argument("--cells", nargs="+", default=CELLS)
     ap.add_argument("--nis", default=os.path.join(root, "target", "release", "nis"))
-    ap.add_argument("--docs", default=os.path.join(root, "docs", "BENCHMARKS.md"))
+    ap.add_argument("--docs", default=os.path.join(root, "docs", "results", "integration.md"))
     args = ap.parse_args()
     named = parse_settings(args.settings)
     base = named[0][0]

@@ -72,7 +72,7 @@ def main():
     p.add_argument("--evals", type=int, default=1_000_000)
     p.add_argument("--seeds", type=int, default=3)
     p.add_argument("--only", nargs="*", help="suite names to run (default: all)")
-    p.add_argument("--out", default="docs/BENCHMARKS.md")
+    p.add_argument("--out", default="docs/results/integration.md")
     args = p.parse_args()
     import numpy
     import vegas

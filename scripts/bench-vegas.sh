@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # Our VEGAS+ against the `vegas` package (its own venv under target/bench-py/vegas, made on
 # first use) on every suite integrand, 3 seeds, 10^6 evaluations each; writes its section of
-# docs/BENCHMARKS.md (between <!-- vegas:start --> and <!-- vegas:end -->).
+# docs/results/integration.md (between <!-- vegas:start --> and <!-- vegas:end -->).
 #
 #   scripts/bench-vegas.sh [--evals 1000000] [--seeds 3] [--only camel-sharp peaks]
 set -euo pipefail

@@ -5,7 +5,7 @@ scene that places it in the built-in Cornell box, for BVH and OBJ-loading checks
 Usage: python3 scripts/bumpy-sphere.py [OUT_DIR]   (default: out/)
 Then:  nis render out/bumpy.xml --spp 16 --res 256 --out out/bumpy.exr
 The same out/bumpy.xml loads in Mitsuba 3 (mi.load_file), which is how the numbers in
-docs/BENCHMARKS.md and docs/REPRODUCTION.md were compared.
+docs/results/guiding.md were compared.
 """
 
 import math

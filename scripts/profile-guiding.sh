@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# Where a guided render's time goes (docs/GUIDING.md): samples `nis render` with perf on one
+# Where a guided render's time goes (docs/results/guiding.md): samples `nis render` with perf on one
 # thread and sorts the samples into the guide's stages and the kernels they run in. The binary
 # is a release build with frame pointers (built here into target/profiling), so that perf walks
 # every stack whole: DWARF unwinding copies 32 KiB of stack per sample and cut the deep network

@@ -1,8 +1,8 @@
 //! `nis bench flow`, `nis bench integrate`, `nis bench memory`, `nis bench coverage`, `nis
 //! bench time-to-precision` and `nis bench reuse`: the drivers are `nis_paper::bench::{flow,
-//! integrate, memory, coverage, time_to_precision, reuse}`; results go to stdout and to sections of `docs/BENCHMARKS.md`
-//! (coverage: `docs/ROBUSTNESS.md`). `nis bench mpi` (driver `nis_paper::bench::mpi`) writes a
-//! section of `docs/BENCHMARKS.md` and the model in `docs/SCALING.md`.
+//! integrate, memory, coverage, time_to_precision, reuse}`; results go to stdout and to sections of `docs/results/integration.md`
+//! (coverage: `docs/results/robustness.md`). `nis bench mpi` (driver `nis_paper::bench::mpi`) writes a
+//! section and the model in `docs/results/scaling.md`.
 
 use std::path::{Path, PathBuf};
 
@@ -46,7 +46,7 @@ pub struct BenchCoverageArgs {
     #[arg(long, default_value = "target/coverage-cache")]
     cache: PathBuf,
     /// Markdown file the results go to.
-    #[arg(long, default_value = "docs/ROBUSTNESS.md")]
+    #[arg(long, default_value = "docs/results/robustness.md")]
     docs: PathBuf,
 }
 
@@ -87,7 +87,7 @@ pub struct BenchMemoryArgs {
     #[arg(long)]
     program: Option<PathBuf>,
     /// Markdown file the results go to (not written with --only or --program).
-    #[arg(long, default_value = "docs/BENCHMARKS.md")]
+    #[arg(long, default_value = "docs/results/integration.md")]
     docs: PathBuf,
 }
 
@@ -166,7 +166,7 @@ pub struct BenchTimeToPrecisionArgs {
     #[arg(long, default_value_t = 0.0)]
     cost_us: f64,
     /// Markdown file the results go to (plots in img/ beside it).
-    #[arg(long, default_value = "docs/BENCHMARKS.md")]
+    #[arg(long, default_value = "docs/results/integration.md")]
     docs: PathBuf,
 }
 
@@ -284,7 +284,7 @@ pub struct BenchReuseArgs {
     #[arg(long, value_delimiter = ',', default_values_t = [100_000u64, 400_000])]
     train_budgets: Vec<u64>,
     /// Markdown file the results go to.
-    #[arg(long, default_value = "docs/BENCHMARKS.md")]
+    #[arg(long, default_value = "docs/results/integration.md")]
     docs: PathBuf,
 }
 

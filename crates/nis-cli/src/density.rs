@@ -326,7 +326,7 @@ pub struct BenchDensityArgs {
     #[arg(long, default_value = "out/bench-density")]
     out: PathBuf,
     /// Markdown file the table goes to (section "density").
-    #[arg(long, default_value = "docs/REPRODUCTION.md")]
+    #[arg(long, default_value = "docs/results/paper.md")]
     docs: PathBuf,
     /// Directory for the sample and manifold PNGs the Markdown file shows.
     #[arg(long, default_value = "docs/img")]

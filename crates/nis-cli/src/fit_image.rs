@@ -215,7 +215,7 @@ pub struct BenchFitImageArgs {
     #[arg(long, default_value = "out/bench-fit-image")]
     out: PathBuf,
     /// Markdown file the table goes to (section "fit-image").
-    #[arg(long, default_value = "docs/REPRODUCTION.md")]
+    #[arg(long, default_value = "docs/results/paper.md")]
     docs: PathBuf,
     /// Directory for the figures the Markdown file shows (a small montage and the first
     /// target's curves).

@@ -68,7 +68,7 @@ pub struct BenchGuidingArgs {
     pub out: PathBuf,
 
     /// Markdown file the table goes to.
-    #[arg(long, default_value = "docs/REPRODUCTION.md")]
+    #[arg(long, default_value = "docs/results/guiding.md")]
     pub docs: PathBuf,
 
     /// Folder the montages go to (linked from --docs).

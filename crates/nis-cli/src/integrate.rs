@@ -51,7 +51,7 @@ pub struct IntegrateArgs {
     pub loss: Loss,
     /// How the flow's coupling layers split the dimensions: binary (the paper's masks) or codes
     /// (fewer layers: a faster flow with a higher variance per evaluation, for cheap integrands;
-    /// it misses modes more often, so check it against the side-by-side run; docs/BENCHMARKS.md,
+    /// it misses modes more often, so check it against the side-by-side run; docs/results/integration.md,
     /// "Flow masks: binary against codes").
     #[arg(long, default_value = "binary", conflicts_with = "load")]
     pub masks: Masks,

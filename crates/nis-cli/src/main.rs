@@ -62,7 +62,7 @@ enum Command {
     /// Example: nis density train --dataset digits --coupling pq --epochs 50 --out out/digits-pq
     #[command(subcommand)]
     Density(density::DensityCommand),
-    /// Measure throughput and write it to docs/BENCHMARKS.md.
+    /// Measure throughput and write it to docs/results/.
     #[command(subcommand)]
     Bench(BenchCommand),
 }
@@ -84,7 +84,7 @@ enum BenchCommand {
         #[arg(long)]
         only: Option<String>,
         /// Markdown file the results go to.
-        #[arg(long, default_value = "docs/BENCHMARKS.md")]
+        #[arg(long, default_value = "docs/results/integration.md")]
         docs: PathBuf,
     },
     /// The built-in suite with plain MC, VEGAS+, NIS-PQ/KL, NIS-PQ/χ², NIS-RQ/KL and NIS-PQ/KL
@@ -104,24 +104,24 @@ enum BenchCommand {
         #[arg(long, default_value_t = 1)]
         seeds: u64,
         /// Markdown file the results go to.
-        #[arg(long, default_value = "docs/BENCHMARKS.md")]
+        #[arg(long, default_value = "docs/results/integration.md")]
         docs: PathBuf,
     },
     /// Are the error bars honest? Suite integrands × NIS-KL, NIS-χ², VEGAS+ and plain MC at
     /// 2·10⁴ evaluations × 200 seeds and 2·10⁵ × 50: coverage, pulls, χ²/dof and the Pareto-k̂
-    /// flag, into docs/ROBUSTNESS.md (cells cached: an interrupted run resumes).
+    /// flag, into docs/results/robustness.md (cells cached: an interrupted run resumes).
     /// Example: nis bench coverage --small-only
     Coverage(bench::BenchCoverageArgs),
     /// The paper's Figure 3: affine L=2 and L=16 against PL-32, PQ-32 and RQ-32 with L=2 on
-    /// every built-in 2-D target; writes a montage and a table to docs/REPRODUCTION.md.
+    /// every built-in 2-D target; writes a montage and a table to docs/results/paper.md.
     /// Example: nis bench fit-image --steps 400
     FitImage(fit_image::BenchFitImageArgs),
     /// Path guiding: unidirectional path tracing and every guide against a path-traced
     /// reference at equal samples and equal time; writes montages and a table to
-    /// docs/REPRODUCTION.md. Example: nis bench guiding --scene two-rooms-door
+    /// docs/results/guiding.md. Example: nis bench guiding --scene two-rooms-door
     Guiding(guiding::BenchGuidingArgs),
     /// Piecewise-quadratic against affine couplings at the same architecture and training time
-    /// on the real digits and MNIST; writes a table and PNGs to docs/REPRODUCTION.md.
+    /// on the real digits and MNIST; writes a table and PNGs to docs/results/paper.md.
     /// Example: nis bench density --minutes-digits 2 --minutes-mnist 4
     Density(density::BenchDensityArgs),
     /// Peak memory (RSS) and wall time against the budget, each case in a fresh process: NIS
@@ -132,18 +132,18 @@ enum BenchCommand {
     /// Wall time of NIS, our VEGAS+, plain MC and the Python `vegas` package (installed into its
     /// own venv on first use) to reach relative errors 1e-3 and 1e-4 with an honest answer: fresh
     /// runs at budgets doubling from 10⁴, 3 seeds, median, each ladder capped; a table into
-    /// docs/BENCHMARKS.md and a plot per integrand. The full run takes hours: run it on a quiet
+    /// docs/results/integration.md and a plot per integrand. The full run takes hours: run it on a quiet
     /// machine. Example: nis bench time-to-precision --only camel-sharp:8 --targets 1e-3 --cap 60 --seeds 1
     TimeToPrecision(bench::BenchTimeToPrecisionArgs),
     /// Every evaluation counts: the NIS error bar of camel d4, d8 at 10⁶ evaluations with the
     /// final phase alone and with the last training batches in the estimate (3 seeds), and the
     /// variance per evaluation after training with and without replaying earlier batches (camel
-    /// d4, d8, gauss d8), with the training's wall time; into docs/BENCHMARKS.md (~10 minutes on
+    /// d4, d8, gauss d8), with the training's wall time; into docs/results/integration.md (~10 minutes on
     /// two cores). Example: nis bench reuse --evals 200000 --seeds 1
     Reuse(bench::BenchReuseArgs),
     /// Strong scaling over MPI ranks (1 vs 2, one thread each) for a ~100 µs/point and a cheap
     /// integrand, the communication of a training step, and the scaling model in
-    /// docs/SCALING.md. Starts mpirun with binaries built with the feature `mpi`
+    /// docs/results/scaling.md. Starts mpirun with binaries built with the feature `mpi`
     /// (scripts/bench-mpi.sh builds them and runs this).
     /// Example: nis bench mpi --mpi-nis target/mpi/nis --mpi-example target/mpi/mpi_ranks
     Mpi {
@@ -157,10 +157,10 @@ enum BenchCommand {
         #[arg(long, default_value_t = 3)]
         runs: usize,
         /// Markdown file the measurements go to.
-        #[arg(long, default_value = "docs/BENCHMARKS.md")]
+        #[arg(long, default_value = "docs/results/scaling.md")]
         docs: PathBuf,
         /// Markdown file the scaling model goes to.
-        #[arg(long, default_value = "docs/SCALING.md")]
+        #[arg(long, default_value = "docs/results/scaling.md")]
         scaling: PathBuf,
     },
 }

@@ -20,7 +20,7 @@ fn nis(args: &[&str]) -> std::process::Output {
 #[test]
 fn bench_guiding_writes_a_table_a_montage_and_a_cached_reference() {
     let dir = scratch("bench");
-    let docs = dir.join("docs/REPRODUCTION.md");
+    let docs = dir.join("docs/results/guiding.md");
     let img = dir.join("docs/img");
     let out = dir.join("out");
     let args = [
@@ -54,8 +54,8 @@ fn bench_guiding_writes_a_table_a_montage_and_a_cached_reference() {
             "{method} missing from\n{md}"
         );
     }
-    assert!(md.contains("](img/guiding-cornell-box.png)"), "{md}");
-    assert!(md.contains("](img/guiding-error-time.png)"), "{md}");
+    assert!(md.contains("](../img/guiding-cornell-box.png)"), "{md}");
+    assert!(md.contains("](../img/guiding-error-time.png)"), "{md}");
     assert!(md.contains("seconds to MAPE"), "{md}");
     for png in ["guiding-cornell-box.png", "guiding-error-time.png"] {
         assert!(std::fs::read(img.join(png))

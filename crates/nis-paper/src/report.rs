@@ -2,7 +2,7 @@
 //! (`<!-- key:start -->` … `<!-- key:end -->`), keeping the other sections, with the machine they
 //! ran on.
 
-use std::path::Path;
+use std::path::{Component, Path, PathBuf};
 
 use crate::error::{Error, Result};
 
@@ -62,12 +62,34 @@ pub fn write_file(path: &Path, bytes: &[u8]) -> Result<()> {
     Ok(nis::io::write_atomic(path, bytes)?)
 }
 
-/// `path` relative to the directory of the Markdown file `docs`, for links inside it.
+/// `path` relative to the directory of the Markdown file `docs`, for links inside it (with `..`
+/// where `path` is outside that directory; `path` as given where the two share no root).
 pub fn relative_to(docs: &Path, path: &Path) -> String {
-    path.strip_prefix(docs.parent().unwrap_or(Path::new("")))
-        .unwrap_or(path)
-        .display()
-        .to_string()
+    let dir = docs.parent().unwrap_or(Path::new(""));
+    if let Ok(inside) = path.strip_prefix(dir) {
+        return inside.display().to_string();
+    }
+    let named = |c: &Component| matches!(c, Component::Normal(_));
+    let (a, b): (Vec<Component>, Vec<Component>) =
+        (dir.components().collect(), path.components().collect());
+    let common = a.iter().zip(&b).take_while(|(x, y)| x == y).count();
+    let rooted = |c: &[Component]| c.first().is_some_and(|c| !named(c));
+    if rooted(&a) != rooted(&b) || !a[common..].iter().all(named) {
+        return path.display().to_string();
+    }
+    let mut out: PathBuf = a[common..].iter().map(|_| "..").collect();
+    out.extend(&b[common..]);
+    out.display().to_string()
+}
+
+/// The folder of the figures of the Markdown file `docs`: `img/` beside it, or beside its folder
+/// when that is `results` (the figures of `docs/results/*.md` live in `docs/img`).
+pub fn images_dir(docs: &Path) -> PathBuf {
+    let dir = docs.parent().unwrap_or(Path::new(""));
+    match dir.file_name() {
+        Some(name) if name == "results" => dir.parent().unwrap_or(Path::new("")).join("img"),
+        _ => dir.join("img"),
+    }
 }
 
 #[cfg(test)]
@@ -91,6 +113,13 @@ mod tests {
             relative_to(&dir.join("B.md"), &dir.join("img/x.png")),
             "img/x.png"
         );
+        let docs = Path::new("docs/results/integration.md");
+        assert_eq!(images_dir(docs), Path::new("docs/img"));
+        assert_eq!(
+            relative_to(docs, &images_dir(docs).join("x.png")),
+            "../img/x.png"
+        );
+        assert_eq!(images_dir(&dir.join("B.md")), dir.join("img"));
         std::fs::remove_dir_all(&dir).unwrap();
     }
 }

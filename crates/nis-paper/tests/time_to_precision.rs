@@ -6,7 +6,7 @@ use nis_paper::bench::time_to_precision::{self as ttp, ladder, Contender, Option
 #[test]
 fn a_tiny_race_has_a_ladder_per_method_and_seed_and_writes_its_section_and_plot() {
     let dir = std::env::temp_dir().join(format!("ttp-e2e-{}", std::process::id()));
-    let docs = dir.join("BENCHMARKS.md");
+    let docs = dir.join("results/integration.md");
     let options = Options {
         cells: vec![("camel".into(), 2)],
         contenders: vec![Contender::Vegas, Contender::Uniform],
@@ -65,6 +65,7 @@ fn a_tiny_race_has_a_ladder_per_method_and_seed_and_writes_its_section_and_plot(
     let written = std::fs::read_to_string(&docs).unwrap();
     assert!(written.contains("<!-- time-to-precision:start -->"));
     assert!(written.contains("<!-- time-to-precision:end -->"));
+    assert!(written.contains("](../img/time-to-precision-camel-d2.png)"));
     let png = std::fs::read(dir.join("img/time-to-precision-camel-d2.png")).unwrap();
     assert_eq!(&png[1..4], b"PNG");
     std::fs::remove_dir_all(&dir).unwrap();

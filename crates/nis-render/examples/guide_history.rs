@@ -1,6 +1,6 @@
 //! Renders a built-in scene with the neural guide and prints what every training phase did:
 //! records with non-zero `F`, Adam steps, the loss, the mean selection probability and the
-//! share of the flow's mass below the surface (docs/GUIDING.md, "Error at equal samples").
+//! share of the flow's mass below the surface (docs/results/guiding.md).
 //!
 //! ```text
 //! cargo run --release -p nis-render --example guide_history -- cornell-indirect 128 64 0 '{"frame": "local"}'

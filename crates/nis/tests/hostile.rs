@@ -1,5 +1,5 @@
 //! Hostile integrands through every method: each gives a clear error, or an estimate whose error
-//! bar is honest (and a warning where the weights say it cannot be trusted). docs/ROBUSTNESS.md
+//! bar is honest (and a warning where the weights say it cannot be trusted). docs/results/robustness.md
 //! says what the user sees in each case.
 
 use nis::integrate::{integrator, Integrand, IntegrationResult, Method, Settings, PARETO_K_LIMIT};

@@ -4,7 +4,7 @@
 //! and how well the reliability diagnostic (PSIS's Pareto k̂, [`nis::integrate::diagnostics`])
 //! sorts the runs: how many of those more than 4σ off it flags, and whether the unflagged ones
 //! cover at their nominal rate. Every cell is cached as JSON as soon as it is done, so an
-//! interrupted run resumes where it stopped. Writes a section of `docs/ROBUSTNESS.md` and a plot.
+//! interrupted run resumes where it stopped. Writes a section of `docs/results/robustness.md` and a plot.
 
 use std::path::{Path, PathBuf};
 
@@ -327,11 +327,7 @@ pub fn run(o: &Options, log: &mut dyn FnMut(usize, usize, &str)) -> Result<Strin
         }
     }
     let md = markdown(&done, budgets);
-    let figure = o
-        .docs
-        .parent()
-        .unwrap_or(Path::new("."))
-        .join("img/coverage.png");
+    let figure = report::images_dir(&o.docs).join("coverage.png");
     report::create_dir(figure.parent().unwrap_or(Path::new(".")))?;
     report::write_file(&figure, &png_bytes(&plot(&done, budgets)?)?)?;
     let body = format!(

@@ -1,6 +1,6 @@
 //! `nis bench guiding`: every path-guiding method against a high-sample path-traced reference,
 //! at equal samples per pixel and at equal time, as in the paper's Figure 5: MAPE and relMSE,
-//! montages of central crops with error maps, a table in `docs/REPRODUCTION.md`.
+//! montages of central crops with error maps, a table in `docs/results/guiding.md`.
 //!
 //! Equal time is one wall-clock budget `T` per scene for every method: the time unguided path
 //! tracing takes for [`Settings::equal_time_spp`] samples per pixel (or `--seconds`). Each

@@ -1,7 +1,7 @@
 //! `nis bench integrate`: the built-in suite (`nis::integrands`) with plain MC, VEGAS+ and four
 //! NIS variants (PQ/KL, PQ/χ², RQ/KL with the stratified latent of the default final phase, and
 //! PQ/KL with i.i.d. latents) at one budget over a few seeds; relative variance per evaluation,
-//! pulls and wall time, into `docs/BENCHMARKS.md`.
+//! pulls and wall time, into `docs/results/integration.md`.
 
 use std::path::Path;
 

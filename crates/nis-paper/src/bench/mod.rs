@@ -3,17 +3,17 @@
 //! long-running step (a fit, a training run) or a line logger as closures, so the command line can
 //! show bars and a test can run them silently.
 //!
-//! - [`coverage`]: error bars against exact values over many seeds (`docs/ROBUSTNESS.md`).
-//! - [`flow`]: flow throughput against bare gemm and PyTorch (`docs/BENCHMARKS.md`).
-//! - [`integrate`]: the integration suite with every method at one budget (`docs/BENCHMARKS.md`).
-//! - [`fit_image`]: the paper's Figure 3, couplings on 2-D image targets (`docs/REPRODUCTION.md`).
+//! - [`coverage`]: error bars against exact values over many seeds (`docs/results/robustness.md`).
+//! - [`flow`]: flow throughput against bare gemm and PyTorch (`docs/results/integration.md`).
+//! - [`integrate`]: the integration suite with every method at one budget (`docs/results/integration.md`).
+//! - [`fit_image`]: the paper's Figure 3, couplings on 2-D image targets (`docs/results/paper.md`).
 //! - [`density`]: the paper's Figure 4, PQ against affine couplings on real digits.
 //! - [`guiding`]: the paper's Figure 5, path guiding against a reference at equal samples and time.
-//! - [`memory`]: peak RSS of integration and rendering against the budget (`docs/BENCHMARKS.md`).
+//! - [`memory`]: peak RSS of integration and rendering against the budget (`docs/results/integration.md`).
 //! - [`time_to_precision`]: wall time of NIS, VEGAS+, plain MC and the `vegas` package to a target
-//!   relative error with an honest answer (`docs/BENCHMARKS.md`).
-//! - [`reuse`]: training evaluations in the estimate and replayed training (`docs/BENCHMARKS.md`).
-//! - [`mpi`]: strong scaling over MPI ranks and the scaling model (`docs/SCALING.md`).
+//!   relative error with an honest answer (`docs/results/integration.md`).
+//! - [`reuse`]: training evaluations in the estimate and replayed training (`docs/results/integration.md`).
+//! - [`mpi`]: strong scaling over MPI ranks and the scaling model (`docs/results/scaling.md`).
 
 pub mod coverage;
 pub mod density;

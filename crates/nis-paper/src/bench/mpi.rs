@@ -1,7 +1,7 @@
 //! `nis bench mpi`: strong scaling of data-parallel NIS over MPI ranks on this machine (1 against
 //! 2 ranks, one thread each), for an integrand of ~100 µs per point and a cheap one; the
 //! communication of one training step; and the scaling model those numbers give for clusters
-//! (`docs/SCALING.md`). It starts `mpirun` with a `nis` built with the feature `mpi` and the
+//! (`docs/results/scaling.md`). It starts `mpirun` with a `nis` built with the feature `mpi` and the
 //! library's `mpi_ranks` example (`scripts/bench-mpi.sh` builds both and runs this).
 //!
 //! Other processes may share the machine, so every timing is the median of `runs` runs.
@@ -98,7 +98,7 @@ fn integrate(
 }
 
 /// Runs the measurements `runs` times each, writes the `mpi` section of `docs` and the model's
-/// section of `scaling` (docs/SCALING.md), and returns the Markdown of both.
+/// section of `scaling` (docs/results/scaling.md), and returns the Markdown of both.
 pub fn run(
     programs: &MpiPrograms,
     runs: usize,
@@ -200,7 +200,7 @@ pub fn run(
          `mpi_ranks comm-time 4`): median {comm_us:.1} µs; Adam's update, replicated on every \
          rank: {adam_us:.1} µs. What NIS itself costs per evaluation (sampling, training, \
          weights; from the cheap integrand): {:.2} µs. The model for clusters built on these \
-         numbers is in [SCALING.md](SCALING.md).\n\n{load}\n",
+         numbers is in the section \"The numbers\" below.\n\n{load}\n",
         4.0 * params,
         flow_per_point * 1e6
     );

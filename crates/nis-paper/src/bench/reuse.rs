@@ -8,7 +8,7 @@
 //!   budget), with and without replaying earlier batches, and the training's wall time: what the
 //!   extra passes buy per evaluation and what they cost per second.
 //!
-//! Writes the section "reuse" of `docs/BENCHMARKS.md`.
+//! Writes the section "reuse" of `docs/results/integration.md`.
 
 use std::path::Path;
 use std::time::Instant;

@@ -101,7 +101,7 @@ pub struct NisGuideConfig {
     /// The divergence to minimise.
     pub loss: GuideLoss,
     /// The frame of the flow's directions: world-space on the sphere, or the vertex's local
-    /// frame, on the hemisphere where the material is opaque (docs/GUIDING.md compares them).
+    /// frame, on the hemisphere where the material is opaque (docs/results/guiding.md compares them).
     pub frame: GuideFrame,
     /// The coupling transform of the flow.
     pub transform: TransformKind,
@@ -247,7 +247,7 @@ impl Default for NisGuideConfig {
             frame: GuideFrame::World,
             // Small networks: 16 bins, width 16 and 8 one-blob bins gave the same mean MAPE
             // over 9 seeds as 32 bins, width 32 and 16 one-blob bins, in 55% of the time
-            // (docs/GUIDING.md, "Network size"); width 64 was slower and no better.
+            // (docs/results/guiding.md, "Network size"); width 64 was slower and no better.
             transform: TransformKind::Quadratic { bins: 16 },
             couplings: 2,
             hidden_layers: 2,
@@ -261,7 +261,7 @@ impl Default for NisGuideConfig {
             // records (4.5× the steps on cornell-box at 128², 64 spp, reading 0.28× the
             // records), and the guide learns sooner. Over 9 seeds at 128², 64 spp its mean
             // MAPE is 1.7–7.6% lower on all four scenes, at 256², 256 spp 0.6–3.3% lower, in
-            // the same wall time (docs/GUIDING.md, "Smaller training batches").
+            // the same wall time (docs/results/guiding.md, "Smaller training batches").
             batch: 256,
             min_steps: 40,
             max_steps: 400,
@@ -270,17 +270,17 @@ impl Default for NisGuideConfig {
             // Rendering with the average of the last half phase's weights rather than the last
             // step's: 2–8% lower mean MAPE over 9 seeds on all four scenes at 128², a third of
             // the spread over seeds on cornell-indirect, and 1–3% lower again at 256², 256 spp
-            // than a fixed β = 0.95 (docs/GUIDING.md, "Weight average").
+            // than a fixed β = 0.95 (docs/results/guiding.md, "Weight average").
             average_span: 0.5,
             // Batches drawn by √(F/p_s): over 9 seeds at 128², 64 spp, 2.4–4.9% lower mean MAPE
             // on cornell-box, -glossy and -indirect (3.3% at 256², 256 spp on the last),
             // 2.9% higher on two-rooms-door (level at 256²), for 2–3% more wall time
-            // (docs/GUIDING.md, "Records drawn by weight").
+            // (docs/results/guiding.md, "Records drawn by weight").
             pick_by_weight: 0.5,
             // The first four bounces: over 9 seeds at 128², 64 spp, 1.1–3.4% lower mean MAPE
             // on all four scenes than guiding (and learning at) every bounce, in 7–9% less
             // time; three bounces were faster again but 4.6% worse on cornell-indirect over 6
-            // seeds (docs/GUIDING.md, "Guiding the first bounces").
+            // seeds (docs/results/guiding.md, "Guiding the first bounces").
             guided_bounces: 4,
             seed: 0,
         }
@@ -726,7 +726,7 @@ impl NisGuide {
     /// the loss and the gradients are linear in the weights, so their sums are divided by the
     /// batch's mean weight once every part is done. The parts are then one parallel loop, not
     /// two with the mean between them: the other core sleeps at the end of every loop, and
-    /// waking it again cost more than its share of the work (docs/GUIDING.md).
+    /// waking it again cost more than its share of the work (docs/results/guiding.md).
     fn gradients(
         &self,
         batch: &[Sample],

@@ -10,7 +10,7 @@
 //! on the records that carry it. α = 0 is the uniform draw, α = 1 the draw by the KL weight
 //! itself (every record then enters with weight 1 under the KL loss). In between, the
 //! square root (α = ½) spreads the batch over more records than α = 1 while still favouring
-//! the bright ones (docs/GUIDING.md, "Records drawn by weight").
+//! the bright ones (docs/results/guiding.md, "Records drawn by weight").
 //!
 //! The draw is Walker's alias method (Vose's construction): one uniform number per pick and one
 //! table cell (its threshold and alias side by side, one cache line) per pick. The numbers are
@@ -91,7 +91,7 @@ impl RecordPicker {
 /// small buffer by weight, the extra reads go to the same bright records again and again,
 /// while a uniform draw spreads them over every record; at 128², 64 spp the first training
 /// phases read their buffer 5–40 times over, and the full α there cost two-rooms-door 3% of
-/// MAPE (docs/GUIDING.md, "Records drawn by weight"). Any α keeps the expected gradient.
+/// MAPE (docs/results/guiding.md, "Records drawn by weight"). Any α keeps the expected gradient.
 pub(super) fn phase_alpha(alpha: f64, picks: usize, records: usize) -> f64 {
     if picks <= records {
         alpha

@@ -407,7 +407,7 @@ impl Renderer<'_> {
             let statistics = gather_statistics(self.comm, statistics);
             // On one of the pool's threads, as the integrator trains: the neural guide's steps
             // of 256 records spent a quarter of their time handing their loops over to the
-            // pool from outside it (docs/GUIDING.md).
+            // pool from outside it (docs/results/guiding.md).
             nis::kernels::in_pool(|| guide.update(statistics));
         }
     }

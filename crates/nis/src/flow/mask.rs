@@ -14,7 +14,7 @@
 //!   L is the smallest with C(L, w) ≥ D (5 at D = 8, 6 at D = 16, 8 at D = 64), and the codes are
 //!   chosen greedily so that every layer transforms about as many dimensions. Fewer layers and
 //!   w transforms per dimension instead of ⌈log₂ D⌉: a cheaper flow with a higher variance per
-//!   evaluation (docs/BENCHMARKS.md, "Flow masks: binary against codes").
+//!   evaluation (docs/results/integration.md, "Flow masks: binary against codes").
 
 use serde::{Deserialize, Serialize};
 

@@ -153,7 +153,7 @@ pub const COSTLY: SuiteEntry = SuiteEntry {
 };
 
 /// Rounds of [`costly`] in the built-in `costly`: about 100 µs per point on the 2-core Zen 4
-/// development machine (docs/SCALING.md measures it).
+/// development machine (docs/results/scaling.md measures it).
 pub const COSTLY_ROUNDS: usize = 4_500;
 
 /// `camel` (α = 0.2) in `dim` dimensions, each point also paying for `rounds` rounds of

@@ -5,14 +5,14 @@
 //! ladder of fresh runs at budgets doubling from 10⁴ ([`ladder`]); the time to a target is the
 //! wall time of the first run whose relative error is below it with |pull| < 4, the median over
 //! seeds, or "> cap" with the error reached. Writes a table into a section of
-//! `docs/BENCHMARKS.md` and a plot of relative error against wall time per integrand.
+//! `docs/results/integration.md` and a plot of relative error against wall time per integrand.
 
 pub mod cost;
 pub mod ladder;
 mod plot;
 pub mod vegas_package;
 
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 use std::time::Instant;
 
 use nis::integrate::{integrator, Integrand, Method, Settings};
@@ -346,7 +346,7 @@ pub fn run(
     let load = (load_start, load_average());
     let mut md = table(o, &cells, load, versions.as_ref());
     if let Some(docs) = &o.docs {
-        let dir = docs.parent().unwrap_or(Path::new("")).join("img");
+        let dir = report::images_dir(docs);
         md.push_str("\nRelative error against wall time, every run (circles: honest, crosses: |pull| ≥ 4; dashed: the targets):\n\n");
         for c in &cells {
             let file = dir.join(format!(

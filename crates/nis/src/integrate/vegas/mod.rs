@@ -2,7 +2,7 @@
 //! arXiv:2009.05112): a separable importance map ([`map`]) combined with adaptive stratified
 //! sampling in y over hypercubes ([`strata`]), both adapted after every iteration as G. P.
 //! Lepage's `vegas` package adapts them (its defaults: α = 0.5, β = 0.75, a quarter of the points
-//! spread evenly, increments and strata from the points per iteration; docs/BENCHMARKS.md compares
+//! spread evenly, increments and strata from the points per iteration; docs/results/integration.md compares
 //! the two on the suite).
 //!
 //! Departure from the package, and why: the first `warmup` iterations only teach the map and the
