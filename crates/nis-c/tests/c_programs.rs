@@ -1,7 +1,10 @@
-//! The C and Fortran programs, compiled against the static library and run: the C example
-//! (`examples/camel.c`), the C test of the error paths (`tests/c/errors.c`), the header under a
-//! C++ compiler, and the Fortran example (`examples/fortran/`) when `gfortran` is on PATH.
+//! The C and Fortran programs, compiled against the static library and run: the C examples
+//! (`examples/quickstart.c`, the docs' example, also linked against the shared library with an
+//! rpath; `examples/camel.c`), the C test of the error paths (`tests/c/errors.c`), the header
+//! under a C++ compiler, and the Fortran example (`examples/fortran/`) when `gfortran` is on
+//! PATH.
 
+use std::io::Write;
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
@@ -31,6 +34,23 @@ fn static_lib() -> PathBuf {
                 dir.display()
             )
         })
+}
+
+/// The shared library cargo built with this test (`deps/` or uplifted, the newer, as
+/// [`static_lib`]); `None` when cargo built none.
+fn shared_lib() -> Option<PathBuf> {
+    let dir = lib_dir();
+    [dir.join("libnis_c.so"), dir.join("deps/libnis_c.so")]
+        .into_iter()
+        .filter_map(|p| Some((std::fs::metadata(&p).ok()?.modified().ok()?, p)))
+        .max()
+        .map(|(_, p)| p)
+}
+
+/// Says on the terminal that a test skipped a part: straight to stderr, since the harness
+/// captures `println!` and hides it for a passing test.
+fn skipped(message: &str) {
+    let _ = writeln!(std::io::stderr(), "skipped: {message}");
 }
 
 fn on_path(tool: &str) -> bool {
@@ -74,6 +94,54 @@ fn compile_c(sources: &[PathBuf], name: &str) -> PathBuf {
 }
 
 #[test]
+fn c_quickstart_example_integrates_to_one() {
+    let exe = compile_c(&[crate_dir().join("examples/quickstart.c")], "quickstart");
+    let out = run(&mut Command::new(&exe));
+    println!("{out}");
+    assert!(out.contains("quickstart: ok"), "{out}");
+}
+
+/// The README and the guide show `examples/quickstart.c` as it is (from its first `#include`
+/// on), so the program they show is the one compiled above.
+#[test]
+fn docs_show_the_quickstart_example_as_compiled() {
+    let source = std::fs::read_to_string(crate_dir().join("examples/quickstart.c")).unwrap();
+    let program = &source[source.find("#include").unwrap()..];
+    for doc in ["../../README.md", "../../docs/guide/02-integrate.md"] {
+        let text = std::fs::read_to_string(crate_dir().join(doc)).unwrap();
+        assert!(
+            text.contains(&format!("```c\n{program}```")),
+            "{doc} must show examples/quickstart.c from its first #include on, unchanged"
+        );
+    }
+}
+
+/// The docs' route to the shared library: `-L dir -lnis_c -Wl,-rpath,dir`, run without
+/// LD_LIBRARY_PATH.
+#[test]
+fn c_quickstart_links_the_shared_library_with_an_rpath() {
+    let Some(lib) = shared_lib() else {
+        skipped("no libnis_c.so beside the test (cargo builds it with crate-type cdylib)");
+        return;
+    };
+    let dir = lib.parent().unwrap();
+    let exe = Path::new(env!("CARGO_TARGET_TMPDIR")).join("quickstart_shared");
+    let mut rpath = std::ffi::OsString::from("-Wl,-rpath,");
+    rpath.push(dir);
+    run(Command::new("cc")
+        .args(["-std=c11", "-O2", "-Wall", "-Wextra", "-Werror", "-I"])
+        .arg(crate_dir().join("include"))
+        .arg(crate_dir().join("examples/quickstart.c"))
+        .arg("-L")
+        .arg(dir)
+        .arg(rpath)
+        .args(["-lnis_c", "-lm", "-o"])
+        .arg(&exe));
+    let out = run(Command::new(&exe).env_remove("LD_LIBRARY_PATH"));
+    assert!(out.contains("quickstart: ok"), "{out}");
+}
+
+#[test]
 fn c_camel_example_matches_the_exact_value() {
     let exe = compile_c(&[crate_dir().join("examples/camel.c")], "camel");
     let out = run(&mut Command::new(&exe));
@@ -100,14 +168,14 @@ fn c_error_paths_report_their_codes() {
             ])
             .arg(&exe));
     } else {
-        println!("valgrind not on PATH: the leak check is skipped");
+        skipped("valgrind not on PATH: the leak check of the error paths");
     }
 }
 
 #[test]
 fn header_compiles_as_cpp() {
     if !on_path("c++") {
-        println!("c++ not on PATH: skipped");
+        skipped("c++ not on PATH: the header under C++");
         return;
     }
     let exe = Path::new(env!("CARGO_TARGET_TMPDIR")).join("header_cpp");
@@ -125,7 +193,7 @@ fn header_compiles_as_cpp() {
 #[test]
 fn fortran_example_with_save_state_integrates() {
     if !on_path("gfortran") {
-        println!("gfortran not on PATH: the Fortran example is skipped (scripts/install-system-deps.sh installs it)");
+        skipped("gfortran not on PATH: the Fortran example (scripts/install-system-deps.sh installs it)");
         return;
     }
     let dir = crate_dir().join("examples/fortran");

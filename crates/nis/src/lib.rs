@@ -46,3 +46,21 @@ pub use transform::{Transform, TransformKind};
 #[cfg(doctest)]
 #[doc = include_str!("../../../README.md")]
 struct ReadmeDoctests;
+
+/// The guide's Rust examples (docs/guide/), compiled and run as doctests: one item per page
+/// with Rust blocks. Blocks that are not Rust are marked with their language (`sh`, `text`, …).
+#[cfg(doctest)]
+mod guide {
+    #[doc = include_str!("../../../docs/guide/02-integrate.md")]
+    struct Integrate;
+    #[doc = include_str!("../../../docs/guide/03-results.md")]
+    struct Results;
+    #[doc = include_str!("../../../docs/guide/04-settings.md")]
+    struct Settings;
+    #[doc = include_str!("../../../docs/guide/05-save-load-sample.md")]
+    struct SaveLoadSample;
+    #[doc = include_str!("../../../docs/guide/06-mpi.md")]
+    struct Mpi;
+    #[doc = include_str!("../../../docs/guide/08-file-formats.md")]
+    struct FileFormats;
+}

@@ -4,8 +4,13 @@
 !> by default the library calls it from one thread at a time, with whole batches.
 !>
 !>   cargo build --release -p nis-c
-!>   gfortran crates/nis-c/examples/fortran/nis.f90 crates/nis-c/examples/fortran/gauss.f90 \
-!>       target/release/libnis_c.a -lm -lpthread -ldl -o gauss && ./gauss
+!>   mkdir -p target/fortran
+!>   gfortran -J target/fortran crates/nis-c/examples/fortran/nis.f90 \
+!>       crates/nis-c/examples/fortran/gauss.f90 target/release/libnis_c.a -lm -lpthread -ldl \
+!>       -o target/fortran/gauss && target/fortran/gauss
+!>
+!> (-J puts the module files nis.mod and gauss_integrand.mod in target/fortran, not in the
+!> working directory.)
 module gauss_integrand
   use, intrinsic :: iso_c_binding
   implicit none
