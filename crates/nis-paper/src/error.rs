@@ -32,7 +32,7 @@ pub enum Error {
     #[error("data file {path}: {reason}")]
     Data { path: PathBuf, reason: String },
     /// A data file that is not there.
-    #[error("data file {path} not found: run scripts/fetch-data.sh (it fetches the image sets into data/)")]
+    #[error("data file {path} not found: run scripts/setup/fetch-data.sh (it fetches the image sets into data/)")]
     MissingData { path: PathBuf },
     /// A figure (PNG plot or false-colour image) that could not be drawn or encoded.
     #[error("figure: {0}")]

@@ -1,5 +1,5 @@
 //! The density-estimation workflow on the real image sets in `data/`, fetched by
-//! `scripts/fetch-data.sh` (`scripts/test.sh` and CI run it before the tests). Without the files
+//! `scripts/setup/fetch-data.sh` (`scripts/test.sh` and CI run it before the tests). Without the files
 //! these tests are skipped and say so on stderr ("skipped: data/… absent"; libtest has no skipped
 //! state, so they count as passed); with `NIS_REQUIRE_DATA=1`, as `scripts/test.sh` sets it, a
 //! missing file fails them instead.
@@ -21,13 +21,13 @@ fn data_dir(test: &str, file: &str) -> Option<PathBuf> {
     let required = std::env::var_os("NIS_REQUIRE_DATA").is_some_and(|v| v == "1");
     assert!(
         !required,
-        "data/{file} absent and NIS_REQUIRE_DATA=1: run scripts/fetch-data.sh"
+        "data/{file} absent and NIS_REQUIRE_DATA=1: run scripts/setup/fetch-data.sh"
     );
     // Straight to stderr, not through `eprintln!`, which the test harness captures and hides for
     // a passing test: the skip must show in `cargo test`'s output.
     let _ = writeln!(
         std::io::stderr(),
-        "{test}: skipped: data/{file} absent, run scripts/fetch-data.sh"
+        "{test}: skipped: data/{file} absent, run scripts/setup/fetch-data.sh"
     );
     None
 }

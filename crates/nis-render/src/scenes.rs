@@ -1,5 +1,5 @@
 //! The built-in scenes, shipped as Mitsuba 3 XML inside the crate so that exactly the same file
-//! can be rendered by Mitsuba for comparison (`scripts/reference-mitsuba.py`).
+//! can be rendered by Mitsuba for comparison (`scripts/scenes/reference-mitsuba.py`).
 //!
 //! * `cornell-box`: the classic Cornell box (Goral et al. 1984), our own dimensions.
 //! * `cornell-indirect`: its light faces the ceiling, so the room is lit only indirectly.

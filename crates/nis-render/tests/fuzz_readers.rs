@@ -3,7 +3,7 @@
 //! parameters, deep nesting), OBJ meshes, EXR images and `--guide-config` JSON. Each reader must
 //! return a typed error or a valid value within the memory and time limits of
 //! `nis-fuzz-support`; an accepted scene must also render a few pixels without panicking.
-//! `NIS_FUZZ_CASES=N` sets the cases per target (`scripts/fuzz.sh`).
+//! `NIS_FUZZ_CASES=N` sets the cases per target (`scripts/test/fuzz.sh`).
 
 use nis_fuzz_support as fuzz;
 

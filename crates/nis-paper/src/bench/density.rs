@@ -135,7 +135,7 @@ pub fn run(a: &Settings, fit: &mut Train<'_>, log: &mut dyn FnMut(&str)) -> Resu
 fn markdown(a: &Settings, rows: &[Row], settings: &[(DensityConfig, f64, usize, usize)]) -> String {
     let images = report::relative_to(&a.docs, &a.docs_images);
     let mut t = format!(
-        "Reproduce: `scripts/fetch-data.sh && nis bench density --minutes-digits {} \
+        "Reproduce: `scripts/setup/fetch-data.sh && nis bench density --minutes-digits {} \
          --minutes-mnist {} --bins {}`.\n\n\
          The paper trains a RealNVP multi-scale flow with piecewise-quadratic couplings (K = 4) on \
          CelebA and reports 2.85 / 2.89 bits/dim (train / validation) against 2.97 / 3.02 for \

@@ -1,6 +1,6 @@
 //! `nis bench flow`: throughput of the flow's sampling and on-policy training step on the two
 //! reference configurations, against a bare `gemm` of the same dense-layer shapes, at 1 and 2
-//! threads, and optionally against the same flow in PyTorch eager (`scripts/bench-torch.py`).
+//! threads, and optionally against the same flow in PyTorch eager (`scripts/bench/bench-torch.py`).
 
 use std::path::Path;
 
@@ -175,10 +175,10 @@ pub fn flow(batch: usize, only: Option<&str>, log: &mut dyn FnMut(&str)) -> Resu
 /// (threads, samples/s of sampling, samples/s of a training step).
 type TorchRow = (usize, f64, f64);
 
-/// Runs the PyTorch eager baseline (`scripts/bench-torch.py`, which installs torch into its own
+/// Runs the PyTorch eager baseline (`scripts/bench/bench-torch.py`, which installs torch into its own
 /// venv) and returns its (threads, sample/s, train/s) rows.
 fn torch_baseline(batch: usize) -> Result<Vec<TorchRow>> {
-    let script = std::path::PathBuf::from("scripts/bench-torch.py");
+    let script = std::path::PathBuf::from("scripts/bench/bench-torch.py");
     let out = std::process::Command::new("python3")
         .arg(&script)
         .args(["--batch", &batch.to_string()])
@@ -189,7 +189,7 @@ fn torch_baseline(batch: usize) -> Result<Vec<TorchRow>> {
         })?;
     if !out.status.success() {
         return Err(Error::Config(format!(
-            "scripts/bench-torch.py failed: {}",
+            "scripts/bench/bench-torch.py failed: {}",
             String::from_utf8_lossy(&out.stderr)
         )));
     }
@@ -222,7 +222,7 @@ pub fn run(
     if torch {
         let rows = torch_baseline(batch)?;
         md.push_str(
-            "\nR1 in PyTorch eager (`scripts/bench-torch.py`: the same flow as a PyTorch user \
+            "\nR1 in PyTorch eager (`scripts/bench/bench-torch.py`: the same flow as a PyTorch user \
              writes it — sample without grad, recompute log q with grad, backward, Adam), timed in \
              the same run; ratio = nis / PyTorch:\n\n| threads | sample + log q (samples/s) | \
              train step (samples/s) | nis / PyTorch (sample) | nis / PyTorch (train) |\n\

@@ -2,7 +2,7 @@
 //! 2 ranks, one thread each), for an integrand of ~100 µs per point and a cheap one; the
 //! communication of one training step; and the scaling model those numbers give for clusters
 //! (`docs/results/scaling.md`). It starts `mpirun` with a `nis` built with the feature `mpi` and the
-//! library's `mpi_ranks` example (`scripts/bench-mpi.sh` builds both and runs this).
+//! library's `mpi_ranks` example (`scripts/bench/bench-mpi.sh` builds both and runs this).
 //!
 //! Other processes may share the machine, so every timing is the median of `runs` runs.
 
@@ -193,7 +193,7 @@ pub fn run(
     let body = format!(
         "Strong scaling of `nis integrate NAME --dim 4 --method nis` (default flow and batch of \
          1024, 40 % training) under `mpirun -n 1` and `-n 2` with `RAYON_NUM_THREADS=1` (one \
-         core per rank), median of {runs} runs each (`scripts/bench-mpi.sh`; the machine is \
+         core per rank), median of {runs} runs each (`scripts/bench/bench-mpi.sh`; the machine is \
          shared with other builds, so single runs are noisy). Cost per point: plain MC on one \
          rank.\n\n{table}\nCommunication of one training step on 2 ranks (five one-number \
          reductions and the sum of the gradient of {params} f32 parameters = {} bytes, \

@@ -1,5 +1,5 @@
 //! Real image data for density estimation (`nis density`): small greyscale image sets read from
-//! the files `scripts/fetch-data.sh` brings into `data/`, or from the standard MNIST IDX files.
+//! the files `scripts/setup/fetch-data.sh` brings into `data/`, or from the standard MNIST IDX files.
 //!
 //! - [`Dataset::Digits`]: the 1,797 8×8 digits shipped with scikit-learn (`digits.csv.gz`; UCI
 //!   "Optical Recognition of Handwritten Digits"), 17 grey levels (0..=16).
@@ -9,7 +9,7 @@
 //!
 //! Every reader checks what it reads and returns [`Error::Data`] naming the file and what is wrong
 //! (truncated, malformed, out of range); a missing file is [`Error::MissingData`], whose message
-//! tells the user to run `scripts/fetch-data.sh`.
+//! tells the user to run `scripts/setup/fetch-data.sh`.
 
 mod formats;
 

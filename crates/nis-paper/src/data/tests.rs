@@ -64,7 +64,7 @@ fn digits_csv_truncated_or_malformed_is_a_clear_error() {
     }
     let missing = read_digits_csv(&dir.join("nope.csv.gz")).unwrap_err();
     assert!(matches!(missing, Error::MissingData { .. }));
-    assert!(missing.to_string().contains("scripts/fetch-data.sh"));
+    assert!(missing.to_string().contains("scripts/setup/fetch-data.sh"));
     std::fs::remove_dir_all(&dir).ok();
 }
 

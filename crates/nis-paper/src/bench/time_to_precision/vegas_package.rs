@@ -1,5 +1,5 @@
-//! The Python `vegas` package as a contender: `scripts/ttp-vegas.py` in the venv
-//! `scripts/vegas-venv.sh` makes, asked for one run at a time over a pipe, so the measurement rule
+//! The Python `vegas` package as a contender: `scripts/bench/ttp-vegas.py` in the venv
+//! `scripts/setup/vegas-venv.sh` makes, asked for one run at a time over a pipe, so the measurement rule
 //! stays in [`super::ladder`] for every method. It integrates the integrand `nis eval` serves
 //! (with the same synthetic cost as ours).
 
@@ -12,8 +12,8 @@ use serde::Deserialize;
 use super::ladder::Run;
 use crate::error::{Error, Result};
 
-const SCRIPT: &str = "scripts/ttp-vegas.py";
-const VENV: &str = "scripts/vegas-venv.sh";
+const SCRIPT: &str = "scripts/bench/ttp-vegas.py";
+const VENV: &str = "scripts/setup/vegas-venv.sh";
 
 /// What the Python side measured of its integrand through the pipe.
 #[derive(Clone, Debug, Deserialize)]
@@ -34,7 +34,7 @@ struct Answer {
     std_err: f64,
 }
 
-/// A running `scripts/ttp-vegas.py` for one integrand.
+/// A running `scripts/bench/ttp-vegas.py` for one integrand.
 pub struct VegasPackage {
     child: Child,
     stdin: Option<ChildStdin>,

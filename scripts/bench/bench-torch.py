@@ -5,7 +5,7 @@ way a PyTorch user would, timed for (a) sampling with log-density and (b) one on
 training step (sample without grad, recompute log q with grad, backward, Adam), batch 16384, on
 1 and 2 threads.
 
-Usage: python3 scripts/bench-torch.py [--batch 16384]
+Usage: python3 scripts/bench/bench-torch.py [--batch 16384]
 It creates its own virtual environment (target/torch-venv) with torch from PyPI on first use.
 """
 import os
@@ -13,7 +13,7 @@ import subprocess
 import sys
 import time
 
-ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 VENV = os.path.join(ROOT, "target", "torch-venv")
 
 

@@ -3,9 +3,9 @@
 # first use) on every suite integrand, 3 seeds, 10^6 evaluations each; writes its section of
 # docs/results/integration.md (between <!-- vegas:start --> and <!-- vegas:end -->).
 #
-#   scripts/bench-vegas.sh [--evals 1000000] [--seeds 3] [--only camel-sharp peaks]
+#   scripts/bench/bench-vegas.sh [--evals 1000000] [--seeds 3] [--only camel-sharp peaks]
 set -euo pipefail
-cd "$(dirname "$0")/.."
+cd "$(dirname "$0")/../.."
 cargo build --release -p nis-cli
-python=$(scripts/vegas-venv.sh)
-"$python" scripts/bench-vegas.py --cli target/release/nis "$@"
+python=$(scripts/setup/vegas-venv.sh)
+"$python" scripts/bench/bench-vegas.py --cli target/release/nis "$@"

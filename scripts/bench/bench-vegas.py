@@ -6,7 +6,7 @@ it — `integ(f, nitn=5, neval=N/20)` to adapt (discarded), then `integ(f, nitn=
 for the result — on the very same integrand, whose values `nis eval` serves over a pipe. Both
 spend N evaluations in all; the variance per evaluation is N·σ²/I² over all N, and the pull is
 (value − exact)/σ. Writes the section between `<!-- vegas:start -->` and `<!-- vegas:end -->`
-of the docs file atomically. Run through scripts/bench-vegas.sh (it makes the venv).
+of the docs file atomically. Run through scripts/bench/bench-vegas.sh (it makes the venv).
 """
 
 import argparse
@@ -19,8 +19,9 @@ import subprocess
 import sys
 import time
 
-from docs_section import machine, write_section
-from nis_served import Served
+sys.path.insert(0, os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "lib"))  # scripts/lib
+from docs_section import machine, write_section  # noqa: E402
+from nis_served import Served  # noqa: E402
 
 
 def suite(cli, only):
@@ -103,7 +104,7 @@ def main():
         return all(abs(r["value"] - exact) <= 4 * r["sdev"] for r in runs)
 
     lines = [
-        "## VEGAS+: ours against the `vegas` package (`scripts/bench-vegas.sh`)",
+        "## VEGAS+: ours against the `vegas` package (`scripts/bench/bench-vegas.sh`)",
         "",
         f"Machine: {machine()}; Python {platform.python_version()}, vegas {vegas.__version__}, "
         f"numpy {numpy.__version__}; 1-minute load {load_start:.1f} at the start, "

@@ -1,6 +1,6 @@
 """Sorts `perf script` call stacks of a guided render into the guide's stages (by the guide
 method on the stack) and into kernels (by the innermost recognisable frame); prints both as
-shares of all samples. Used by scripts/profile-guiding.sh; see docs/results/guiding.md."""
+shares of all samples. Used by scripts/bench/profile-guiding.sh; see docs/results/guiding.md."""
 
 import collections
 import re

@@ -9,11 +9,12 @@ cost per point, as our integrators get). Requests on stdin, one JSON answer per 
   run SEED EVALS     -> {"evals", "seconds", "value", "std_err"}: a fresh vegas.Integrator run as
                         its documentation shows (5 adapting iterations discarded, then 15 for the
                         result, EVALS/20 points each), timed around the two calls
-Run in the venv scripts/vegas-venv.sh makes.
+Run in the venv scripts/setup/vegas-venv.sh makes.
 """
 
 import argparse
 import json
+import os
 import platform
 import sys
 import time
@@ -22,7 +23,8 @@ import gvar
 import numpy as np
 import vegas
 
-from nis_served import Served
+sys.path.insert(0, os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "lib"))  # scripts/lib
+from nis_served import Served  # noqa: E402
 
 
 def main():

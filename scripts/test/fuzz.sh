@@ -5,9 +5,9 @@
 # peak of live bytes) and the total; exits non-zero on the first failing case, which proptest
 # shrinks and prints.
 #
-#   NIS_FUZZ_CASES=200000 scripts/fuzz.sh
+#   NIS_FUZZ_CASES=200000 scripts/test/fuzz.sh
 set -euo pipefail
-cd "$(dirname "$0")/.."
+cd "$(dirname "$0")/../.."
 export NIS_FUZZ_CASES=${NIS_FUZZ_CASES:-20000}
 log=$(mktemp /tmp/nis-fuzz-XXXXXX.log)
 started=$SECONDS

@@ -16,9 +16,9 @@ With --bench it also times both renderers on the Cornell box at 256x256 (samples
 for nis) with Mitsuba's scalar_rgb and llvm_ad_rgb variants, in the same run.
 
 Usage (from the repository root; Python 3.11 and pip are all that is needed):
-    python3 scripts/reference-mitsuba.py                 # comparison, 128x128, 512 spp
-    python3 scripts/reference-mitsuba.py --spp 1024 --res 256 --scenes cornell-box
-    python3 scripts/reference-mitsuba.py --bench-only    # speed benchmark only
+    python3 scripts/scenes/reference-mitsuba.py                 # comparison, 128x128, 512 spp
+    python3 scripts/scenes/reference-mitsuba.py --spp 1024 --res 256 --scenes cornell-box
+    python3 scripts/scenes/reference-mitsuba.py --bench-only    # speed benchmark only
 
 On first use the script creates target/mitsuba-venv and installs mitsuba (and numpy) there,
 then re-runs itself inside it. It builds `nis` with cargo (release). Images and a Markdown
@@ -35,7 +35,7 @@ import time
 import venv
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parent.parent
+ROOT = Path(__file__).resolve().parents[2]
 VENV = ROOT / "target" / "mitsuba-venv"
 MITSUBA = "mitsuba==3.9.1"
 SCENES = ["cornell-box", "cornell-indirect", "two-rooms-door", "cornell-glossy"]

@@ -1,18 +1,18 @@
 #!/usr/bin/env bash
-# Builds what runs under `mpirun`: installs Open MPI if needed (scripts/install-mpi.sh), builds
+# Builds what runs under `mpirun`: installs Open MPI if needed (scripts/setup/install-mpi.sh), builds
 # `nis` with the feature `mpi` and the library's `mpi_ranks` example, and copies them to
 # target/mpi/nis and target/mpi/mpi_ranks.
 #
-#   scripts/build-mpi.sh
+#   scripts/setup/build-mpi.sh
 #
 # The build shares target/ with the default one: third-party crates are built once, only the
 # workspace's crates twice (their artifacts with and without the feature have distinct hashes and
 # live side by side). The copies are needed because target/release/nis is the default build's
 # name and the next default build takes it back.
 set -euo pipefail
-cd "$(dirname "$0")/.."
+cd "$(dirname "$0")/../.."
 
-scripts/install-mpi.sh
+scripts/setup/install-mpi.sh
 executable() {  # the path of executable $1 that `cargo build --message-format=json` reports
     python3 -c 'import json, sys
 path = None

@@ -5,13 +5,13 @@
 # every stack whole: DWARF unwinding copies 32 KiB of stack per sample and cut the deep network
 # stacks short, which hid a third of them from their stage.
 #
-#   scripts/profile-guiding.sh [SCENE] [RES] [SPP] [GUIDE]   (default: cornell-box 128 64 nis-kl)
-#   GUIDE_CONFIG='{"hidden_width": 16}' scripts/profile-guiding.sh   (a --guide-config for the render)
+#   scripts/bench/profile-guiding.sh [SCENE] [RES] [SPP] [GUIDE]   (default: cornell-box 128 64 nis-kl)
+#   GUIDE_CONFIG='{"hidden_width": 16}' scripts/bench/profile-guiding.sh   (a --guide-config for the render)
 #
 # Needs `perf` (Debian: apt-get install linux-perf).
 set -euo pipefail
 scene=${1:-cornell-box}; res=${2:-128}; spp=${3:-64}; guide=${4:-nis-kl}
-root=$(cd "$(dirname "$0")/.." && pwd)
+root=$(cd "$(dirname "$0")/../.." && pwd)
 RUSTFLAGS="-C force-frame-pointers=yes" cargo build --release -q -p nis-cli \
   --manifest-path "$root/Cargo.toml" --target-dir "$root/target/profiling"
 nis=$root/target/profiling/release/nis
@@ -21,4 +21,4 @@ perf record -q -F 999 --call-graph fp -o "$work/perf.data" \
   "$nis" render "$scene" --res "$res" --spp "$spp" --guide "$guide" --threads 1 ${GUIDE_CONFIG:+--guide-config "$GUIDE_CONFIG"} \
   --out "$work/render.exr" >/dev/null
 perf script -i "$work/perf.data" -F comm,tid,ip,sym 2>/dev/null > "$work/stacks.txt"
-python3 "$root/scripts/profile_breakdown.py" "$work/stacks.txt"
+python3 "$root/scripts/bench/profile-breakdown.py" "$work/stacks.txt"

@@ -1,6 +1,6 @@
 """A built-in integrand of `nis` served by `nis eval` behind a pipe, as a `vegas` batch integrand.
 
-Shared by scripts/bench-vegas.py and scripts/ttp-vegas.py: the Python baselines integrate the very
+Shared by scripts/bench/bench-vegas.py and scripts/bench/ttp-vegas.py: the Python baselines integrate the very
 same integrand code as our integrators, optionally with the same synthetic cost per point
 (`spins`, see `nis eval --spins`).
 """

@@ -4,9 +4,9 @@
 # package in its own venv under target/bench-py (made on first use). Writes its section of
 # docs/results/integration.md (between <!-- python:start --> and <!-- python:end -->).
 #
-#   scripts/bench-python.sh [--reps 3]
+#   scripts/bench/bench-python.sh [--reps 3]
 set -euo pipefail
-cd "$(dirname "$0")/.."
+cd "$(dirname "$0")/../.."
 root=target/bench-py
 mkdir -p "$root"
 
@@ -27,5 +27,5 @@ if ! venv madnis numpy madnis >"$root/madnis-install.log" 2>&1; then
     madnis_note="pip install madnis failed: $(tail -1 "$root/madnis-install.log")"
     rm -rf "$root/madnis"
 fi
-python3 scripts/bench-python.py --cli target/release/nis --venvs "$root" --out docs/results/integration.md \
+python3 scripts/bench/bench-python.py --cli target/release/nis --venvs "$root" --out docs/results/integration.md \
     --madnis-note "$madnis_note" "$@"

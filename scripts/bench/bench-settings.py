@@ -4,7 +4,7 @@
 budgets and seeds, medians over seeds, against the first setting, written to a section of
 docs/results/integration.md.
 
-    scripts/bench-settings.py --section ID --title TITLE --settings NAME=JSON NAME=JSON ...
+    scripts/bench/bench-settings.py --section ID --title TITLE --settings NAME=JSON NAME=JSON ...
                               [--cells camel:4 ...] [--evals 320000 1000000] [--seeds 3]
                               [--nis target/release/nis] [--docs docs/results/integration.md]
 
@@ -22,7 +22,7 @@ import statistics
 import subprocess
 import sys
 
-sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+sys.path.insert(0, os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "lib"))  # scripts/lib
 from docs_section import machine, write_section  # noqa: E402
 
 CELLS = ["camel-sharp:8", "camel:4", "gauss:8", "peaks:4", "gauss-diagonal:4", "annulus:2", "camel:2"]
@@ -54,7 +54,7 @@ def parse_settings(items):
 
 
 def main():
-    root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+    root = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--section", required=True, help="id of the docs section it writes")
     ap.add_argument("--title", required=True, help="heading of that section")
@@ -95,7 +95,7 @@ def main():
     ratios = " | ".join(f"{base}/{o} per eval | {base}/{o} × time" for o in others)
     settings = "; ".join(f"`{label}` = `{json.dumps(s)}`" for label, s in named)
     lines = [
-        f"## {args.title} (`scripts/bench-settings.py --section {args.section}`)",
+        f"## {args.title} (`scripts/bench/bench-settings.py --section {args.section}`)",
         "",
         f"Machine: {machine()}, {when}. `nis integrate NAME --dim D --method nis --evals N --seed S "
         f"--nis-config JSON` with {settings}; medians over seeds 1–{args.seeds}. Ratios: the "

@@ -9,7 +9,7 @@
 #
 # Needs pip (only `pip download`, nothing is installed), npm (`npm pack`), python3, tar, sha256sum.
 set -euo pipefail
-cd "$(dirname "$0")/.."
+cd "$(dirname "$0")/../.."
 
 SKLEARN_VERSION=1.5.2
 SKLEARN_WHEEL=scikit_learn-1.5.2-cp311-cp311-manylinux_2_17_x86_64.manylinux2014_x86_64.whl

@@ -2,7 +2,7 @@
 """Write a large test mesh (a bumpy sphere, 490,000 triangles, no normals in the file) and a
 scene that places it in the built-in Cornell box, for BVH and OBJ-loading checks.
 
-Usage: python3 scripts/bumpy-sphere.py [OUT_DIR]   (default: out/)
+Usage: python3 scripts/scenes/bumpy-sphere.py [OUT_DIR]   (default: out/)
 Then:  nis render out/bumpy.xml --spp 16 --res 256 --out out/bumpy.exr
 The same out/bumpy.xml loads in Mitsuba 3 (mi.load_file), which is how the numbers in
 docs/results/guiding.md were compared.
@@ -13,7 +13,7 @@ import os
 import sys
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parent.parent
+ROOT = Path(__file__).resolve().parents[2]
 out = Path(sys.argv[1]) if len(sys.argv) > 1 else ROOT / "out"
 out.mkdir(parents=True, exist_ok=True)
 nu, nv = 700, 350

@@ -8,7 +8,7 @@ for: the 8-d camel (two Gaussians, α = 0.2) at 10^6 evaluations.
 - the `vegas` package (VEGAS+, numpy batch integrand) on the same numpy integrand;
 - MadNIS (PyTorch), if it installs and runs here, on the same numpy integrand.
 
-Run by scripts/bench-python.sh, which makes one venv per package; this file is both the driver
+Run by scripts/bench/bench-python.sh, which makes one venv per package; this file is both the driver
 (`--driver`) and, inside each venv, the runner of one method (`--run METHOD`). Each line of a
 runner's output is one JSON result. The driver writes the table into docs/results/integration.md between
 the `<!-- python:start -->` and `<!-- python:end -->` markers.
@@ -24,7 +24,8 @@ import subprocess
 import sys
 import time
 
-from docs_section import machine, write_section
+sys.path.insert(0, os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "lib"))  # scripts/lib
+from docs_section import machine, write_section  # noqa: E402
 
 DIM, EVALS, SEED, ALPHA = 8, 1_000_000, 1, 0.2
 EXACT = (0.5 * (math.erf(1 / (3 * ALPHA)) + math.erf(2 / (3 * ALPHA)))) ** DIM
@@ -158,7 +159,7 @@ def driver(args):
     lines = [
         "## Python: the module `nis` against the Rust closure, `vegas` and MadNIS",
         "",
-        f"`scripts/bench-python.sh` — camel (two Gaussians on the diagonal, α = 0.2) in d = {DIM}, "
+        f"`scripts/bench/bench-python.sh` — camel (two Gaussians on the diagonal, α = 0.2) in d = {DIM}, "
         f"{EVALS:,} evaluations per run, exact value {EXACT:.8f}; the numpy integrand is the "
         "same function for every package. Time is the median wall time of the integration call "
         f"over {args.reps} runs (one for MadNIS), interleaved; NIS settings are the defaults "

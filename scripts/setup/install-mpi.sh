@@ -3,11 +3,11 @@
 # and `mpirun`), pkg-config (how the `mpi` crate finds it) and libclang (the crate's bindgen reads
 # mpi.h with it). Idempotent and quiet when everything is there already.
 #
-#   scripts/install-mpi.sh
+#   scripts/setup/install-mpi.sh
 #
 # Runs as root (CI) or through sudo when there is one. Open MPI refuses to run as root unless told:
 # run `mpirun --allow-run-as-root …` or export OMPI_ALLOW_RUN_AS_ROOT=1 and
-# OMPI_ALLOW_RUN_AS_ROOT_CONFIRM=1 (scripts/test-mpi.sh does the latter).
+# OMPI_ALLOW_RUN_AS_ROOT_CONFIRM=1 (scripts/test/test-mpi.sh does the latter).
 set -euo pipefail
 
 SUDO=""
