@@ -140,7 +140,6 @@ impl LatentStrata {
             .strata
             .allocate(n_q as usize, self.settings.min_per_cube);
         let evals = counts.iter().sum::<usize>() as u64 + n_u;
-        let cubes = self.strata.cubes;
         // The uniform part stratified in x with equal counts, two points per hypercube: as
         // many hypercubes as that allows (it gets few points, too few to adapt an allocation),
         // at most max_cubes (planning from 8·max_cubes points gives that many).
@@ -191,8 +190,36 @@ impl LatentStrata {
         let g = Moments::across_each(&g, comm);
         let t = Moments::across_each(&t, comm);
         let u = Moments::across_each(&u, comm);
+        let (mean, cov) = self.estimate_and_adapt(&g, &t, &u, n_u > 0);
+        let mut max = [max_abs_w];
+        comm.max_f64(&mut max);
+        let sum_abs_w = comm.sum(sum_abs_w);
+        Ok(Iteration::new(
+            Source::Final,
+            mean,
+            cov,
+            evals,
+            max[0],
+            sum_abs_w,
+        ))
+    }
+
+    /// The iteration's estimate Σ_h V_h·(1 − λ)·mean_h + Σ_h' V_h'·λ·mean_h' (every component)
+    /// and its covariance from the flow part's hypercubes `g` (with the target's moments `t` when
+    /// the sampler adapts to another target) and the uniform part's `u`, all over every rank;
+    /// adapts the next iteration's allocation: the hypercubes' by their contributions to the
+    /// variance, the two parts' by Neyman's rule when the uniform part has points.
+    fn estimate_and_adapt(
+        &mut self,
+        g: &[Moments],
+        t: &[Moments],
+        u: &[Moments],
+        has_uniform: bool,
+    ) -> (Vec<f64>, Vec<f64>) {
+        let k = self.k;
         // Σ_h V_h·(1 − λ)·mean_h + Σ_h' V_h'·λ·mean_h', and its covariance.
         let (mut mean, mut cov) = (vec![0.0; k], vec![0.0; k * k]);
+        let cubes = self.strata.cubes;
         let mut contribution_var = vec![0.0; cubes];
         // Σ_h a_h·σ_h of each part, its standard deviation per point under Neyman's allocation.
         let mut add = |m: &Moments, a: f64| {
@@ -211,26 +238,16 @@ impl LatentStrata {
                 .get(h)
                 .map_or(var, |t| a * a * t.mean_and_cov_of_mean().1[0]);
         }
-        let a_u = lambda / uniform_strata.cubes as f64;
+        let a_u = lambda / u.len() as f64;
         let sigma_u: f64 = u.iter().map(|m| add(m, a_u).0).sum();
-        if n_u > 0 && sigma_u + sigma_q > 0.0 && (sigma_u + sigma_q).is_finite() {
+        if has_uniform && sigma_u + sigma_q > 0.0 && (sigma_u + sigma_q).is_finite() {
             // The two parts' points in proportion to their standard deviations (the variance
             // Σ c²σ_c²/n_c is least for n_c ∝ c·σ_c), never fewer uniform ones than λ asks for,
             // nor more than half; fixed before the next iteration's points, so still unbiased.
             self.uniform_share = (sigma_u / (sigma_u + sigma_q)).clamp(lambda, MAX_UNIFORM_SHARE);
         }
         self.strata.adapt(&contribution_var, self.settings.beta);
-        let mut max = [max_abs_w];
-        comm.max_f64(&mut max);
-        let sum_abs_w = comm.sum(sum_abs_w);
-        Ok(Iteration::new(
-            Source::Final,
-            mean,
-            cov,
-            evals,
-            max[0],
-            sum_abs_w,
-        ))
+        (mean, cov)
     }
 }
 
