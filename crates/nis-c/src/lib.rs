@@ -69,7 +69,7 @@ const SAMPLE_STREAM: u64 = 0x7361_6d70;
 
 /// An integrator (opaque): the method's adapted state, the callback settings and the last result.
 pub struct nis_integrator {
-    method: Sampler,
+    integrator: Box<dyn Integrator>,
     components: usize,
     concurrent_callback: bool,
     /// The stream of `nis_sample` and `nis_sample_weighted`.
@@ -77,39 +77,15 @@ pub struct nis_integrator {
     last: Option<IntegrationResult>,
 }
 
-/// NIS is kept as itself for what only it can do (sample, unweight, save).
-enum Sampler {
-    Nis(Box<NisIntegrator>),
-    Other(Box<dyn Integrator>),
-}
-
-impl Sampler {
-    fn integrator(&mut self) -> &mut dyn Integrator {
-        match self {
-            Sampler::Nis(n) => n.as_mut(),
-            Sampler::Other(i) => i.as_mut(),
-        }
-    }
-
-    fn dim(&self) -> usize {
-        match self {
-            Sampler::Nis(n) => n.dim(),
-            Sampler::Other(i) => i.dim(),
-        }
-    }
-
-    fn nis(&mut self) -> Outcome<&mut NisIntegrator> {
-        match self {
-            Sampler::Nis(n) => Ok(n),
-            Sampler::Other(i) => Err(Failure::new(
-                NIS_ERR_UNSUPPORTED,
-                format!(
-                    "only a NIS integrator samples and saves, this one is {}",
-                    i.method()
-                ),
-            )),
-        }
-    }
+/// `integrator` as NIS, for what only NIS does (sample, unweight, save).
+fn as_nis(integrator: &mut dyn Integrator) -> Outcome<&mut NisIntegrator> {
+    let method = integrator.method();
+    integrator.as_nis().ok_or_else(|| {
+        Failure::new(
+            NIS_ERR_UNSUPPORTED,
+            format!("only a NIS integrator samples and saves, this one is {method}"),
+        )
+    })
 }
 
 /// The scalar summary of a result; a vector integrand's components are read with
@@ -222,21 +198,15 @@ pub unsafe extern "C" fn nis_create(json: *const c_char, out: *mut *mut nis_inte
                 "components must be at least 1",
             ));
         }
-        let settings = config.settings();
-        let method = match config.method {
-            Method::Nis => Sampler::Nis(Box::new(NisIntegrator::new(
-                config.dim,
-                settings.nis.clone(),
-            )?)),
-            m => Sampler::Other(integrator(m, config.dim, &settings)?),
-        };
+        let settings = config.settings()?;
+        let integrator = integrator(config.method, config.dim, &settings)?;
         let seed = match config.method {
             Method::Nis => settings.nis.seed,
             Method::Vegas => settings.vegas.seed,
             Method::Uniform => settings.uniform.seed,
         };
         let integ = nis_integrator {
-            method,
+            integrator,
             components: config.components,
             concurrent_callback: config.concurrent_callback,
             sample_rng: Pcg64Mcg::seed_from_u64(seed ^ SAMPLE_STREAM),
@@ -265,7 +235,7 @@ pub unsafe extern "C" fn nis_load(path: *const c_char, out: *mut *mut nis_integr
         let nis = NisIntegrator::load(&path)?;
         let seed = nis.config().seed;
         let integ = nis_integrator {
-            method: Sampler::Nis(Box::new(nis)),
+            integrator: Box::new(nis),
             components: 1,
             concurrent_callback: false,
             sample_rng: Pcg64Mcg::seed_from_u64(seed ^ SAMPLE_STREAM),
@@ -299,7 +269,7 @@ pub unsafe extern "C" fn nis_free(integ: *mut nis_integrator) {
 #[no_mangle]
 pub unsafe extern "C" fn nis_dim(integ: *const nis_integrator) -> usize {
     // SAFETY: NULL or live (caller's contract).
-    unsafe { integ.as_ref() }.map_or(0, |i| i.method.dim())
+    unsafe { integ.as_ref() }.map_or(0, |i| i.integrator.dim())
 }
 
 /// Restarts the random streams of a NIS integrator from `seed` (its flow is kept), e.g. to
@@ -311,7 +281,7 @@ pub unsafe extern "C" fn nis_dim(integ: *const nis_integrator) -> usize {
 pub unsafe extern "C" fn nis_set_seed(integ: *mut nis_integrator, seed: u64) -> c_int {
     guard(|| {
         let integ = unsafe { handle(integ) }?;
-        integ.method.nis()?.set_seed(seed);
+        as_nis(integ.integrator.as_mut())?.set_seed(seed);
         integ.sample_rng = Pcg64Mcg::seed_from_u64(seed ^ SAMPLE_STREAM);
         Ok(())
     })
@@ -362,16 +332,16 @@ fn with_callback<T>(
     f: nis_integrand_fn,
     user: *mut c_void,
     components: Option<usize>,
-    body: impl FnOnce(&mut Sampler, &dyn Integrand) -> nis::Result<T>,
+    body: impl FnOnce(&mut dyn Integrator, &dyn Integrand) -> nis::Result<T>,
 ) -> Outcome<T> {
     let f = f.ok_or_else(|| Failure::null("the integrand callback"))?;
     let k = components.unwrap_or(integ.components);
     if k == 0 {
         return Err(Failure::invalid("components must be at least 1"));
     }
-    let dim = integ.method.dim();
+    let dim = integ.integrator.dim();
     let callback = Callback::new(f, user, dim, k, integ.concurrent_callback);
-    body(&mut integ.method, &callback).map_err(|e| {
+    body(integ.integrator.as_mut(), &callback).map_err(|e| {
         if let (nis::Error::IntegrandFailed { .. }, Some(s)) = (&e, callback.failed_status()) {
             status::set_last_callback_status(s);
         }
@@ -394,9 +364,7 @@ unsafe fn integrate(
                 "evals must be at least 2, got {evals}"
             )));
         }
-        let r = with_callback(integ, f, user, components, |m, f| {
-            m.integrator().integrate(f, evals)
-        })?;
+        let r = with_callback(integ, f, user, components, |m, f| m.integrate(f, evals))?;
         // SAFETY: NULL or writable (caller's contract).
         if let Some(out) = unsafe { result.as_mut() } {
             *out = nis_result::from(&r);
@@ -478,7 +446,7 @@ fn draw(integ: &mut nis_integrator, n: usize) -> Outcome<(Vec<f64>, Vec<f64>)> {
     if n == 0 {
         return Err(Failure::invalid("n must be at least 1"));
     }
-    let nis = integ.method.nis()?;
+    let nis = as_nis(integ.integrator.as_mut())?;
     product(n, nis.dim(), "n * dim")?;
     let lambda = nis.config().uniform_fraction;
     let b = mixture::draw(
@@ -514,7 +482,7 @@ pub unsafe extern "C" fn nis_sample_weighted(
             return Err(Failure::null(if x.is_null() { "x" } else { "w" }));
         }
         let (xs, log_q) = draw(integ, n)?;
-        let dim = integ.method.dim();
+        let dim = integ.integrator.dim();
         let fx = with_callback(integ, f, user, None, |_, f| {
             nis::integrate::evaluate(f, &xs, dim)
         })?;
@@ -558,16 +526,15 @@ pub unsafe extern "C" fn nis_unweighted(
                 "overweight must be in [0, 0.5), got {overweight}"
             )));
         }
-        let dim = integ.method.dim();
+        let dim = integ.integrator.dim();
         let len = product(n, dim, "n * dim")?;
-        integ.method.nis()?;
+        as_nis(integ.integrator.as_mut())?;
         if x.is_null() || weights.is_null() {
             return Err(Failure::null(if x.is_null() { "x" } else { "weights" }));
         }
-        let u = with_callback(integ, f, user, None, |m, f| {
-            m.nis()
-                .map_err(|e| nis::Error::Config(e.message))?
-                .unweighted(f, n, overweight)
+        let u = with_callback(integ, f, user, None, |m, f| match m.as_nis() {
+            Some(nis) => nis.unweighted(f, n, overweight),
+            None => Err(nis::Error::Config("only a NIS integrator unweights".into())),
         })?;
         unsafe { buffer(x, len, "x") }?.copy_from_slice(&u.points);
         unsafe { buffer(weights, n, "weights") }?.copy_from_slice(&u.weights);
@@ -585,7 +552,7 @@ pub unsafe extern "C" fn nis_save(integ: *mut nis_integrator, path: *const c_cha
     guard(|| {
         let integ = unsafe { handle(integ) }?;
         let path = PathBuf::from(unsafe { text(path, "the path") }?);
-        integ.method.nis()?.save(&path)?;
+        as_nis(integ.integrator.as_mut())?.save(&path)?;
         Ok(())
     })
 }

@@ -14,7 +14,6 @@ use nis::integrate::{
     Settings, DISAGREEMENT_SIGMAS,
 };
 use nis::loss::Loss;
-use nis::TransformKind;
 
 /// `--method`: the library's method names, listed in `--help`.
 fn method_parser() -> impl TypedValueParser<Value = Method> {
@@ -22,12 +21,24 @@ fn method_parser() -> impl TypedValueParser<Value = Method> {
         .map(|s| s.parse::<Method>().expect("a listed method"))
 }
 
+/// `--coupling`: the names of the library's `coupling` keyword.
 #[derive(Clone, Copy, clap::ValueEnum)]
 pub enum Coupling {
     Pq,
     Pl,
     Rq,
     Affine,
+}
+
+impl Coupling {
+    fn name(self) -> &'static str {
+        match self {
+            Coupling::Pq => "pq",
+            Coupling::Pl => "pl",
+            Coupling::Rq => "rq",
+            Coupling::Affine => "affine",
+        }
+    }
 }
 
 #[derive(clap::Args)]
@@ -40,21 +51,21 @@ pub struct IntegrateArgs {
     /// Method; without it, NIS, VEGAS+ and plain MC run side by side.
     #[arg(long, value_parser = method_parser())]
     pub method: Option<Method>,
-    /// Coupling transform of the flow.
-    #[arg(long, value_enum, default_value = "pq", conflicts_with = "load")]
-    pub coupling: Coupling,
-    /// Bins of the coupling transform.
-    #[arg(long, default_value_t = 16, conflicts_with = "load")]
-    pub bins: usize,
-    /// Training loss: kl or chi2.
-    #[arg(long, default_value = "kl", conflicts_with = "load")]
-    pub loss: Loss,
-    /// How the flow's coupling layers split the dimensions: binary (the paper's masks) or codes
-    /// (fewer layers: a faster flow with a higher variance per evaluation, for cheap integrands;
-    /// it misses modes more often, so check it against the side-by-side run; docs/results/integration.md,
-    /// "Flow masks: binary against codes").
-    #[arg(long, default_value = "binary", conflicts_with = "load")]
-    pub masks: Masks,
+    /// Coupling transform of the flow (default: NisConfig's, pq).
+    #[arg(long, value_enum, conflicts_with = "load")]
+    pub coupling: Option<Coupling>,
+    /// Bins of the coupling transform (default: NisConfig's, 16).
+    #[arg(long, conflicts_with = "load")]
+    pub bins: Option<usize>,
+    /// Training loss: kl or chi2 (default: NisConfig's, kl).
+    #[arg(long, conflicts_with = "load")]
+    pub loss: Option<Loss>,
+    /// How the flow's coupling layers split the dimensions: binary (the paper's masks, the
+    /// default) or codes (fewer layers: a faster flow with a higher variance per evaluation, for
+    /// cheap integrands; it misses modes more often, so check it against the side-by-side run;
+    /// docs/results/integration.md, "Flow masks: binary against codes").
+    #[arg(long, conflicts_with = "load")]
+    pub masks: Option<Masks>,
     /// Evaluations per method (NIS training included).
     #[arg(long, default_value_t = 1_000_000)]
     pub evals: u64,
@@ -82,26 +93,34 @@ pub struct IntegrateArgs {
 type Error = Box<dyn std::error::Error>;
 
 impl IntegrateArgs {
-    pub fn nis_config(&self) -> Result<NisConfig, Error> {
-        let mut c = NisConfig {
-            loss: self.loss,
-            ..NisConfig::default()
-        };
-        c.flow.transform = match self.coupling {
-            Coupling::Pq => TransformKind::Quadratic { bins: self.bins },
-            Coupling::Pl => TransformKind::Linear { bins: self.bins },
-            Coupling::Rq => TransformKind::RationalQuadratic { bins: self.bins },
-            Coupling::Affine => TransformKind::Affine,
-        };
-        c.flow.masks = self.masks;
-        c.flow.seed = self.seed;
-        c.seed = self.seed;
+    /// Every method's settings: the named flags as the library's keywords (as Python's are;
+    /// `--seed` seeds every method), then `--nis-config` laid over the NIS section, both read
+    /// by the library's one reader of settings.
+    pub fn settings(&self) -> Result<Settings, Error> {
+        use serde_json::json;
+        let mut keywords = vec![("seed", json!(self.seed))];
+        if let Some(c) = self.coupling {
+            keywords.push(("coupling", json!(c.name())));
+        }
+        if let Some(b) = self.bins {
+            keywords.push(("bins", json!(b)));
+        }
+        if let Some(l) = self.loss {
+            keywords.push(("loss", serde_json::to_value(l)?));
+        }
+        if let Some(m) = self.masks {
+            keywords.push(("masks", serde_json::to_value(m)?));
+        }
+        let mut s = Settings::default().with_keywords(Method::Nis, keywords)?;
         if let Some(patch) = &self.nis_config {
             let patch: serde_json::Value = serde_json::from_str(patch)
                 .map_err(|e| format!("--nis-config is not JSON: {e}"))?;
-            c = c.patched(patch).map_err(|e| format!("--nis-config: {e}"))?;
+            s.nis = s
+                .nis
+                .patched(patch)
+                .map_err(|e| format!("--nis-config: {e}"))?;
         }
-        Ok(c)
+        Ok(s)
     }
 }
 
@@ -122,17 +141,6 @@ fn bar(label: &str) -> ProgressBar {
                 .expect("valid template"),
         )
         .with_prefix(label.to_string())
-}
-
-impl IntegrateArgs {
-    /// Every method's settings from the flags (all seeded with `--seed`).
-    pub fn settings(&self) -> Result<Settings, Error> {
-        let s = Settings::default().seed(self.seed);
-        Ok(Settings {
-            nis: self.nis_config()?,
-            ..s
-        })
-    }
 }
 
 /// What one method gave: the result and, for NIS on several ranks, every rank's checksum of its

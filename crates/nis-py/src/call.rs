@@ -16,6 +16,7 @@ use numpy::{PyArray1, PyArrayDyn, PyArrayMethods, PyUntypedArrayMethods};
 use pyo3::exceptions::{PyRuntimeError, PyValueError};
 use pyo3::prelude::*;
 
+use crate::builtin::PyBuiltin;
 use crate::shape_str;
 
 /// How often the calling thread looks for pending signals while the library works.
@@ -232,4 +233,32 @@ pub(crate) fn run<T: Send>(
             )))
         }
     }
+}
+
+/// An integrand for one call, with the call's shared state.
+pub(crate) struct Target<'a> {
+    pub(crate) f: &'a dyn Integrand,
+    pub(crate) call: &'a Call,
+}
+
+/// Runs `body` with `f` as a library integrand: a built-in directly (no Python per batch), any
+/// other callable through [`PyIntegrand`]; `body` also learns whether results are vectors.
+pub(crate) fn with_integrand<T>(
+    _py: Python<'_>,
+    f: &Bound<'_, PyAny>,
+    dim: usize,
+    body: impl FnOnce(Target<'_>, bool) -> PyResult<T>,
+) -> PyResult<T> {
+    let call = Call::default();
+    if let Ok(b) = f.cast::<PyBuiltin>() {
+        let b = b.get();
+        let g = Guarded {
+            f: &b.inner,
+            call: &call,
+        };
+        return body(Target { f: &g, call: &call }, false);
+    }
+    let g = PyIntegrand::probe(f, dim, &call)?;
+    let vector = g.vector();
+    body(Target { f: &g, call: &call }, vector)
 }

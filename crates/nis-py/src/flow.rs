@@ -4,10 +4,11 @@
 //! `fit_integrand`, which learns |f|/∫|f| from an integrand's values (KL or χ²).
 
 use nis::flow::{Density, Flow, FlowConfig};
-use nis::integrate::{evaluate, TrainOn};
+use nis::integrate::{evaluate, Method, Settings, TrainOn};
 use nis::loss::Loss;
 use nis::nn::AdamConfig;
 use nis::train::Trainer;
+use nis::TransformKind;
 use numpy::{PyArray1, PyArrayMethods};
 use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
@@ -15,8 +16,7 @@ use rand::seq::SliceRandom;
 use rand::SeedableRng;
 use rand_pcg::Pcg64Mcg;
 
-use crate::call::{run, Call};
-use crate::integrator::{parse_loss, transform, with_integrand};
+use crate::call::{run, with_integrand, Call};
 use crate::{check_parent, count, path_of, rows, to_py_err, PointsAndValues};
 
 /// A normalizing flow on [0, 1]^dim with a uniform latent: a stack of coupling layers
@@ -44,6 +44,29 @@ impl PyFlow {
             flow,
             rng: Pcg64Mcg::seed_from_u64(seed ^ 0x666c_6f77),
         }
+    }
+}
+
+/// A coupling transform by name ("pq", "pl", "rq", "affine"), read as `Integrator`'s
+/// `coupling` and `bins` keywords are.
+fn transform(coupling: &str, bins: i64) -> PyResult<TransformKind> {
+    let keywords = [
+        ("coupling", serde_json::json!(coupling)),
+        ("bins", serde_json::json!(bins)),
+    ];
+    let s = Settings::default()
+        .with_keywords(Method::Nis, keywords)
+        .map_err(to_py_err)?;
+    Ok(s.nis.flow.transform)
+}
+
+/// A training loss by name ("kl", "chi2").
+fn parse_loss(name: &str) -> PyResult<Loss> {
+    match name.parse::<Loss>().map_err(to_py_err)? {
+        Loss::Nll => Err(PyValueError::new_err(
+            "loss \"nll\" is for data (Flow.fit); an integrand trains with \"kl\" or \"chi2\"",
+        )),
+        l => Ok(l),
     }
 }
 
@@ -85,11 +108,10 @@ impl PyFlow {
         masks: &str,
         seed: i64,
     ) -> PyResult<PyFlow> {
-        let default = FlowConfig::default();
         let seed = count("seed", seed)? as u64;
         let config = FlowConfig {
             dim: count("dim", dim)?,
-            transform: transform(coupling, Some(bins), &default.transform)?,
+            transform: transform(coupling, bins)?,
             couplings: layers.map(|l| count("layers", l)).transpose()?.unwrap_or(0),
             hidden_layers: count("hidden_layers", hidden_layers)?,
             hidden_width: count("hidden_width", hidden_width)?,

@@ -6,50 +6,28 @@ use std::sync::{Arc, Mutex};
 
 use nis::flow::Density;
 use nis::integrate::nis::NisIntegrator;
-use nis::integrate::{
-    integrator, Integrand, IntegrationResult, Integrator, Method, Settings, TrainOn,
-};
+use nis::integrate::{integrator, IntegrationResult, Integrator, Method, Settings};
 use nis::loss::Loss;
-use nis::TransformKind;
 use numpy::{PyArray1, PyArray2, PyArrayMethods};
 use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
+use pyo3::types::PyDict;
 
-use crate::builtin::PyBuiltin;
-use crate::call::{run, Call, Guarded, PyIntegrand};
+use crate::call::{run, with_integrand};
 use crate::flow::PyFlow;
+use crate::settings::keywords;
 use crate::{check_parent, count, path_of, to_py_err, PointsAndValues};
-
-/// The adapted state: NIS concretely (for its own calls), the others through the trait.
-enum Engine {
-    Nis(Box<NisIntegrator>),
-    Other(Box<dyn Integrator>),
-}
-
-impl Engine {
-    fn integrator(&mut self) -> &mut dyn Integrator {
-        match self {
-            Engine::Nis(n) => n.as_mut(),
-            Engine::Other(o) => o.as_mut(),
-        }
-    }
-
-    fn nis(&mut self, what: &str) -> PyResult<&mut NisIntegrator> {
-        match self {
-            Engine::Nis(n) => Ok(n),
-            Engine::Other(o) => Err(PyValueError::new_err(format!(
-                "{what} needs a trained flow: method=\"nis\", not {:?}",
-                o.method().name()
-            ))),
-        }
-    }
-}
 
 /// A Monte Carlo integrator over [0, 1]^dim that owns its adapted state, like
 /// `vegas.Integrator`.
 ///
 /// `method` is "nis" (neural importance sampling), "vegas" (VEGAS+) or "uniform" (plain MC).
-/// Every setting is a keyword; those of another method than the chosen one are an error.
+/// Every setting is a keyword: a field of the method's settings (`batch=2048`,
+/// `increments=500`, `flow={"hidden_width": 64}`) or a shorthand (`coupling="pq"`, `bins=16`,
+/// `layers`, `masks`, `hidden_layers`, `hidden_width`, `blob_bins`, `learning_rate`, `loss="kl"`,
+/// `stratify=False`, `train_on=1`); those of another method than the chosen one, unknown ones
+/// and ill-typed values raise ValueError naming the keyword. None leaves a setting at its
+/// default.
 ///
 ///     integ = nis.Integrator(dim=4, method="nis", coupling="pq", loss="kl", seed=1)
 ///     r = integ(f, evals=1_000_000)   # f: (n, 4) float64 array -> (n,) or (n, k)
@@ -59,147 +37,33 @@ impl Engine {
 #[pyclass(module = "nis", name = "Integrator")]
 pub(crate) struct PyIntegrator {
     // A Mutex only to make the class Sync; methods take `&mut self`, so it is never contended.
-    engine: Mutex<Engine>,
+    integrator: Mutex<Box<dyn Integrator>>,
     threads: Option<usize>,
     pool: Option<Arc<rayon::ThreadPool>>,
 }
 
-/// Keywords that only some methods take.
-struct Given<'a> {
-    nis: Vec<&'a str>,
-    vegas: Vec<&'a str>,
-    iterations: bool,
-    train_on: bool,
-}
-
-#[pymethods]
 impl PyIntegrator {
-    #[new]
-    #[pyo3(signature = (
-        dim, method = "nis", *, seed = 0, coupling = None, bins = None, layers = None, masks = None,
-        hidden_layers = None, hidden_width = None, blob_bins = None, loss = None, batch = None,
-        steps_per_batch = None, train_fraction = None, learning_rate = None,
-        learning_rate_end = None, average_span = None, uniform_fraction = None, anneal_from = None,
-        final_iterations = None, stratify = None, reuse_training = None, replay_batches = None,
-        replay_steps = None, increments = None, alpha = None, beta = None,
-        iterations = None, warmup = None, min_per_cube = None, train_on = None, threads = None
-    ))]
-    // Each parameter is a named keyword of the Python constructor (the `vegas`-like interface the
-    // module promises); PyO3 maps keywords to parameters, so a struct cannot stand in for them.
-    #[allow(clippy::too_many_arguments)]
-    fn new(
-        dim: i64,
-        method: &str,
-        seed: i64,
-        coupling: Option<&str>,
-        bins: Option<i64>,
-        layers: Option<i64>,
-        masks: Option<&str>,
-        hidden_layers: Option<i64>,
-        hidden_width: Option<i64>,
-        blob_bins: Option<i64>,
-        loss: Option<&str>,
-        batch: Option<i64>,
-        steps_per_batch: Option<i64>,
-        train_fraction: Option<f64>,
-        learning_rate: Option<f32>,
-        learning_rate_end: Option<f32>,
-        average_span: Option<f64>,
-        uniform_fraction: Option<f64>,
-        anneal_from: Option<f64>,
-        final_iterations: Option<i64>,
-        stratify: Option<bool>,
-        reuse_training: Option<f64>,
-        replay_batches: Option<i64>,
-        replay_steps: Option<i64>,
-        increments: Option<i64>,
-        alpha: Option<f64>,
-        beta: Option<f64>,
-        iterations: Option<i64>,
-        warmup: Option<i64>,
-        min_per_cube: Option<i64>,
-        train_on: Option<&Bound<'_, PyAny>>,
-        threads: Option<i64>,
-    ) -> PyResult<PyIntegrator> {
-        let method: Method = method.parse().map_err(to_py_err)?;
-        let dim = count("dim", dim)?;
-        let mut given = Given {
-            nis: Vec::new(),
-            vegas: Vec::new(),
-            iterations: iterations.is_some(),
-            train_on: train_on.is_some(),
-        };
-        let mut s = Settings::default().seed(count("seed", seed)? as u64);
-        let n = &mut s.nis;
-        macro_rules! set {
-            ($list:ident, $name:ident, $field:expr, $conv:expr) => {
-                if let Some(v) = $name {
-                    given.$list.push(stringify!($name));
-                    $field = $conv(v)?;
-                }
-            };
-        }
-        let c = |name: &'static str| move |v: i64| count(name, v);
-        fn same<T>(v: T) -> PyResult<T> {
-            Ok(v)
-        }
-        if coupling.is_some() || bins.is_some() {
-            given.nis.push(if coupling.is_some() {
-                "coupling"
-            } else {
-                "bins"
-            });
-            n.flow.transform = transform(coupling.unwrap_or("pq"), bins, &n.flow.transform)?;
-        }
-        set!(nis, layers, n.flow.couplings, c("layers"));
-        set!(nis, masks, n.flow.masks, |m: &str| m
-            .parse()
-            .map_err(to_py_err));
-        set!(nis, hidden_layers, n.flow.hidden_layers, c("hidden_layers"));
-        set!(nis, hidden_width, n.flow.hidden_width, c("hidden_width"));
-        set!(nis, blob_bins, n.flow.blob_bins, c("blob_bins"));
-        set!(nis, loss, n.loss, parse_loss);
-        set!(nis, batch, n.batch, c("batch"));
-        set!(
-            nis,
-            steps_per_batch,
-            n.steps_per_batch,
-            c("steps_per_batch")
-        );
-        set!(nis, train_fraction, n.train_fraction, same);
-        set!(nis, learning_rate, n.adam.learning_rate, same);
-        set!(nis, learning_rate_end, n.learning_rate_end, same);
-        set!(nis, average_span, n.average_span, same);
-        set!(nis, uniform_fraction, n.uniform_fraction, same);
-        set!(nis, anneal_from, n.anneal_from, same);
-        set!(
-            nis,
-            final_iterations,
-            n.final_iterations,
-            c("final_iterations")
-        );
-        if let Some(on) = stratify {
-            given.nis.push("stratify");
-            n.stratify = on.then(|| n.stratify.unwrap_or_default());
-        }
-        set!(nis, reuse_training, n.reuse_training, same);
-        set!(nis, replay_batches, n.replay_batches, c("replay_batches"));
-        set!(nis, replay_steps, n.replay_steps, c("replay_steps"));
-        let v = &mut s.vegas;
-        set!(vegas, increments, v.increments, c("increments"));
-        set!(vegas, alpha, v.alpha, same);
-        set!(vegas, beta, v.beta, same);
-        set!(vegas, warmup, v.warmup, c("warmup"));
-        set!(vegas, min_per_cube, v.min_per_cube, c("min_per_cube"));
-        if let Some(i) = iterations {
-            let i = count("iterations", i)?;
-            s.vegas.iterations = i;
-            s.uniform.iterations = i;
-        }
-        if let Some(t) = train_on {
-            s = s.train_on(parse_train_on(t)?);
-        }
-        given.check(method)?;
+    /// The integrator, NIS or not.
+    fn integrator(&mut self) -> &mut dyn Integrator {
+        self.integrator
+            .get_mut()
+            .unwrap_or_else(|p| p.into_inner())
+            .as_mut()
+    }
+
+    /// The integrator as NIS, for `what` that only NIS does.
+    fn nis(&mut self, what: &str) -> PyResult<&mut NisIntegrator> {
+        let integ = self.integrator();
+        let method = integ.method();
+        integ.as_nis().ok_or_else(|| {
+            PyValueError::new_err(format!(
+                "{what} needs a trained flow: method=\"nis\", not {:?}",
+                method.name()
+            ))
+        })
+    }
+
+    fn with(integrator: Box<dyn Integrator>, threads: Option<i64>) -> PyResult<PyIntegrator> {
         let threads = threads.map(|t| count("threads", t)).transpose()?;
         let pool = match threads {
             Some(0) => return Err(PyValueError::new_err("threads must be at least 1")),
@@ -211,27 +75,41 @@ impl PyIntegrator {
             )),
             None => None,
         };
-        let engine = match method {
-            Method::Nis => {
-                Engine::Nis(Box::new(NisIntegrator::new(dim, s.nis).map_err(to_py_err)?))
-            }
-            m => Engine::Other(integrator(m, dim, &s).map_err(to_py_err)?),
-        };
         Ok(PyIntegrator {
-            engine: Mutex::new(engine),
+            integrator: Mutex::new(integrator),
             threads,
             pool,
         })
     }
+}
 
-    /// Spends `evals` evaluations of `f`: adapts on a share of them (continuing from earlier
-    /// calls), then estimates ∫ f with the rest, the sampler frozen.
-    ///
-    /// `f` takes an (n, dim) float64 array and returns n values (shape (n,)) or n vectors
-    /// (shape (n, k): every component is estimated from the same points, with covariance). It
-    /// is called on whole batches, with the GIL held only then. An exception raised by `f`
-    /// propagates unchanged; NaN or inf raise `nis.IntegrandError`; Ctrl-C raises
-    /// KeyboardInterrupt at the next batch.
+#[pymethods]
+impl PyIntegrator {
+    #[new]
+    #[pyo3(signature = (dim, method = "nis", *, threads = None, **settings))]
+    fn new(
+        dim: i64,
+        method: &str,
+        threads: Option<i64>,
+        settings: Option<&Bound<'_, PyDict>>,
+    ) -> PyResult<PyIntegrator> {
+        let method: Method = method.parse().map_err(to_py_err)?;
+        let dim = count("dim", dim)?;
+        let keywords = keywords(settings)?;
+        let settings = Settings::default()
+            .with_keywords(
+                method,
+                keywords.iter().map(|(k, v)| (k.as_str(), v.clone())),
+            )
+            .map_err(to_py_err)?;
+        PyIntegrator::with(
+            integrator(method, dim, &settings).map_err(to_py_err)?,
+            threads,
+        )
+    }
+
+    /// Spends `evals` evaluations of `f`: adapts, then estimates ∫ f (the docstring Python
+    /// shows is in python/nis/__init__.py: PyO3 makes `__call__` a type slot, which keeps none).
     #[pyo3(signature = (f, evals = 1_000_000))]
     fn __call__(
         &mut self,
@@ -240,12 +118,11 @@ impl PyIntegrator {
         evals: i64,
     ) -> PyResult<PyIntegrationResult> {
         let evals = count("evals", evals)? as u64;
-        let engine = self.engine.get_mut().unwrap_or_else(|p| p.into_inner());
-        with_integrand(py, f, engine.integrator().dim(), |g, vector| {
-            let r = run(py, self.pool.as_deref(), g.call, || {
-                engine.integrator().integrate(g.f, evals)
-            })?;
-            Ok(PyIntegrationResult { r, vector })
+        let pool = self.pool.clone();
+        let integ = self.integrator();
+        with_integrand(py, f, integ.dim(), |g, vector| {
+            let r = run(py, pool.as_deref(), g.call, || integ.integrate(g.f, evals))?;
+            Ok(PyIntegrationResult::new(r, vector))
         })
     }
 
@@ -253,11 +130,11 @@ impl PyIntegrator {
     #[pyo3(signature = (f, evals))]
     fn train(&mut self, py: Python<'_>, f: &Bound<'_, PyAny>, evals: i64) -> PyResult<()> {
         let evals = count("evals", evals)? as u64;
-        let nis = self.engine.get_mut().unwrap_or_else(|p| p.into_inner());
-        let nis = nis.nis("train")?;
+        let pool = self.pool.clone();
+        let nis = self.nis("train")?;
         let dim = nis.flow().dim();
         with_integrand(py, f, dim, |g, _| {
-            run(py, self.pool.as_deref(), g.call, || nis.train(g.f, evals))
+            run(py, pool.as_deref(), g.call, || nis.train(g.f, evals))
         })
     }
 
@@ -271,14 +148,12 @@ impl PyIntegrator {
         evals: i64,
     ) -> PyResult<PyIntegrationResult> {
         let evals = count("evals", evals)? as u64;
-        let nis = self.engine.get_mut().unwrap_or_else(|p| p.into_inner());
-        let nis = nis.nis("estimate")?;
+        let pool = self.pool.clone();
+        let nis = self.nis("estimate")?;
         let dim = nis.flow().dim();
         with_integrand(py, f, dim, |g, vector| {
-            let r = run(py, self.pool.as_deref(), g.call, || {
-                nis.estimate(g.f, evals)
-            })?;
-            Ok(PyIntegrationResult { r, vector })
+            let r = run(py, pool.as_deref(), g.call, || nis.estimate(g.f, evals))?;
+            Ok(PyIntegrationResult::new(r, vector))
         })
     }
 
@@ -292,12 +167,12 @@ impl PyIntegrator {
         n: i64,
     ) -> PyResult<(Bound<'py, PyArray2<f64>>, Bound<'py, PyAny>)> {
         let n = count("n", n)?;
-        let nis = self.engine.get_mut().unwrap_or_else(|p| p.into_inner());
-        let nis = nis.nis("sample")?;
+        let pool = self.pool.clone();
+        let nis = self.nis("sample")?;
         let dim = nis.flow().dim();
         with_integrand(py, f, dim, |g, vector| {
             let k = g.f.components();
-            let (x, w) = run(py, self.pool.as_deref(), g.call, || {
+            let (x, w) = run(py, pool.as_deref(), g.call, || {
                 // In pieces, so that f sees batches of bounded size.
                 let (mut x, mut w) = (Vec::with_capacity(n * dim), Vec::with_capacity(n * k));
                 while w.len() < n * k {
@@ -333,11 +208,11 @@ impl PyIntegrator {
         overweight: f64,
     ) -> PyResult<PointsAndValues<'py>> {
         let n = count("n", n)?;
-        let nis = self.engine.get_mut().unwrap_or_else(|p| p.into_inner());
-        let nis = nis.nis("unweighted")?;
+        let pool = self.pool.clone();
+        let nis = self.nis("unweighted")?;
         let dim = nis.flow().dim();
         with_integrand(py, f, dim, |g, _| {
-            let u = run(py, self.pool.as_deref(), g.call, || {
+            let u = run(py, pool.as_deref(), g.call, || {
                 nis.unweighted(g.f, n, overweight)
             })?;
             let x = PyArray1::from_vec(py, u.points).reshape([n, dim])?;
@@ -350,8 +225,7 @@ impl PyIntegrator {
     fn save(&mut self, path: &Bound<'_, PyAny>) -> PyResult<()> {
         let path = path_of(path)?;
         check_parent(&path)?;
-        let engine = self.engine.get_mut().unwrap_or_else(|p| p.into_inner());
-        engine.integrator().save(&path).map_err(to_py_err)
+        self.integrator().save(&path).map_err(to_py_err)
     }
 
     /// Loads an integrator saved by `save` (or `nis integrate --save`).
@@ -360,36 +234,19 @@ impl PyIntegrator {
     fn load(path: &Bound<'_, PyAny>, threads: Option<i64>) -> PyResult<PyIntegrator> {
         let path = path_of(path)?;
         let nis = NisIntegrator::load(&path).map_err(to_py_err)?;
-        let threads = threads.map(|t| count("threads", t)).transpose()?;
-        let pool = match threads {
-            Some(0) => return Err(PyValueError::new_err("threads must be at least 1")),
-            Some(t) => Some(Arc::new(
-                rayon::ThreadPoolBuilder::new()
-                    .num_threads(t)
-                    .build()
-                    .map_err(|e| PyValueError::new_err(format!("threads={t}: {e}")))?,
-            )),
-            None => None,
-        };
-        Ok(PyIntegrator {
-            engine: Mutex::new(Engine::Nis(Box::new(nis))),
-            threads,
-            pool,
-        })
+        PyIntegrator::with(Box::new(nis), threads)
     }
 
     /// The method: "nis", "vegas" or "uniform".
     #[getter]
     fn method(&mut self) -> &'static str {
-        let engine = self.engine.get_mut().unwrap_or_else(|p| p.into_inner());
-        engine.integrator().method().name()
+        self.integrator().method().name()
     }
 
     /// The dimension.
     #[getter]
     fn dim(&mut self) -> usize {
-        let engine = self.engine.get_mut().unwrap_or_else(|p| p.into_inner());
-        engine.integrator().dim()
+        self.integrator().dim()
     }
 
     /// Threads of its own rayon pool (None: the global pool).
@@ -401,24 +258,22 @@ impl PyIntegrator {
     /// NIS only: a copy of the trained flow, as a `nis.Flow`.
     #[getter]
     fn flow(&mut self) -> PyResult<PyFlow> {
-        let engine = self.engine.get_mut().unwrap_or_else(|p| p.into_inner());
-        let nis = engine.nis("flow")?;
+        let nis = self.nis("flow")?;
         Ok(PyFlow::from_flow(nis.flow().clone(), nis.config().seed))
     }
 
     /// NIS only: evaluations spent training so far (over all calls, and before saving).
     #[getter]
     fn trained_evals(&mut self) -> PyResult<u64> {
-        let engine = self.engine.get_mut().unwrap_or_else(|p| p.into_inner());
-        Ok(engine.nis("trained_evals")?.trained_evals())
+        Ok(self.nis("trained_evals")?.trained_evals())
     }
 
     fn __repr__(&mut self) -> String {
-        let engine = self.engine.get_mut().unwrap_or_else(|p| p.into_inner());
-        match engine {
-            Engine::Nis(n) => format!(
-                "nis.Integrator(dim={}, method=\"nis\", coupling={:?}, loss={:?}, seed={})",
-                n.flow().dim(),
+        let integ = self.integrator();
+        let (dim, method) = (integ.dim(), integ.method().name());
+        match integ.as_nis() {
+            Some(n) => format!(
+                "nis.Integrator(dim={dim}, method=\"nis\", coupling={:?}, loss={:?}, seed={})",
                 n.config().flow.transform.label(),
                 match n.config().loss {
                     Loss::Kl => "kl",
@@ -427,121 +282,8 @@ impl PyIntegrator {
                 },
                 n.config().seed
             ),
-            Engine::Other(o) => format!(
-                "nis.Integrator(dim={}, method={:?})",
-                o.dim(),
-                o.method().name()
-            ),
+            None => format!("nis.Integrator(dim={dim}, method={method:?})"),
         }
-    }
-}
-
-/// An integrand for one call, with the call's shared state.
-pub(crate) struct Target<'a> {
-    pub(crate) f: &'a dyn Integrand,
-    pub(crate) call: &'a Call,
-}
-
-/// Runs `body` with `f` as a library integrand: a built-in directly (no Python per batch), any
-/// other callable through [`PyIntegrand`]; `body` also learns whether results are vectors.
-pub(crate) fn with_integrand<T>(
-    _py: Python<'_>,
-    f: &Bound<'_, PyAny>,
-    dim: usize,
-    body: impl FnOnce(Target<'_>, bool) -> PyResult<T>,
-) -> PyResult<T> {
-    let call = Call::default();
-    if let Ok(b) = f.cast::<PyBuiltin>() {
-        let b = b.get();
-        let g = Guarded {
-            f: &b.inner,
-            call: &call,
-        };
-        return body(Target { f: &g, call: &call }, false);
-    }
-    let g = PyIntegrand::probe(f, dim, &call)?;
-    let vector = g.vector();
-    body(Target { f: &g, call: &call }, vector)
-}
-
-impl Given<'_> {
-    /// Rejects keywords of another method than `method`.
-    fn check(&self, method: Method) -> PyResult<()> {
-        let mut wrong: Vec<&str> = Vec::new();
-        if method != Method::Nis {
-            wrong.extend(&self.nis);
-        }
-        if method != Method::Vegas {
-            wrong.extend(&self.vegas);
-        }
-        if method == Method::Nis && self.iterations {
-            wrong.push("iterations (NIS has final_iterations)");
-        }
-        if method == Method::Uniform && self.train_on {
-            wrong.push("train_on");
-        }
-        if wrong.is_empty() {
-            Ok(())
-        } else {
-            Err(PyValueError::new_err(format!(
-                "method={:?} does not take {}",
-                method.name(),
-                wrong.join(", ")
-            )))
-        }
-    }
-}
-
-/// A coupling transform by name ("pq", "pl", "rq", "affine"), with `bins` or the current ones.
-pub(crate) fn transform(
-    name: &str,
-    bins: Option<i64>,
-    current: &TransformKind,
-) -> PyResult<TransformKind> {
-    let bins = match bins {
-        Some(b) => count("bins", b)?,
-        None => match *current {
-            TransformKind::Linear { bins }
-            | TransformKind::Quadratic { bins }
-            | TransformKind::RationalQuadratic { bins } => bins,
-            TransformKind::Affine => 16,
-        },
-    };
-    let t = match name {
-        "pq" | "quadratic" => TransformKind::Quadratic { bins },
-        "pl" | "linear" => TransformKind::Linear { bins },
-        "rq" | "rational_quadratic" => TransformKind::RationalQuadratic { bins },
-        "affine" => TransformKind::Affine,
-        _ => {
-            return Err(PyValueError::new_err(format!(
-                "unknown coupling {name:?}: expected \"pq\", \"pl\", \"rq\" or \"affine\""
-            )))
-        }
-    };
-    t.validate().map_err(to_py_err)?;
-    Ok(t)
-}
-
-/// A training loss by name ("kl", "chi2").
-pub(crate) fn parse_loss(name: &str) -> PyResult<Loss> {
-    match name.parse::<Loss>().map_err(to_py_err)? {
-        Loss::Nll => Err(PyValueError::new_err(
-            "loss \"nll\" is for data (Flow.fit); an integrand trains with \"kl\" or \"chi2\"",
-        )),
-        l => Ok(l),
-    }
-}
-
-/// `train_on`: a component index or "sum_abs".
-fn parse_train_on(v: &Bound<'_, PyAny>) -> PyResult<TrainOn> {
-    if let Ok(i) = v.extract::<i64>() {
-        return Ok(TrainOn::Component(count("train_on", i)?));
-    }
-    match v.extract::<String>().as_deref() {
-        Ok("sum_abs") => Ok(TrainOn::SumAbs),
-        _ => Err(PyValueError::new_err(format!(
-            "train_on must be a component index or \"sum_abs\", got {v}"
-        ))),
     }
 }
 
@@ -555,9 +297,25 @@ pub(crate) struct PyIntegrationResult {
     vector: bool,
 }
 
+impl PyIntegrationResult {
+    /// The result of an integrand that returned (n, k) arrays (`vector`) or (n,) ones; an
+    /// (n, 1) array makes a vector integrand of one component, which its warnings say.
+    fn new(mut r: IntegrationResult, vector: bool) -> PyIntegrationResult {
+        if vector && r.estimates().mean.len() == 1 {
+            r.warnings.push(
+                "f returned shape (n, 1): a vector integrand of one component, so mean, sdev \
+                 and cov are arrays; return shape (n,) for floats"
+                    .into(),
+            );
+        }
+        PyIntegrationResult { r, vector }
+    }
+}
+
 #[pymethods]
 impl PyIntegrationResult {
-    /// The estimate of ∫ f (an array of k for a vector integrand).
+    /// The estimate of ∫ f (an array of k for a vector integrand, one whose f returns shape
+    /// (n, k), k = 1 included).
     #[getter]
     fn mean<'py>(&self, py: Python<'py>) -> Bound<'py, PyAny> {
         if self.vector {

@@ -11,6 +11,8 @@
 //!   releases the GIL, polls for Ctrl-C and re-raises the integrand's own exception.
 //! - [`integrator`]: `nis.Integrator` (NIS, VEGAS+, plain MC by name) and `nis.IntegrationResult`.
 //! - [`flow`]: `nis.Flow`, a coupling flow as a distribution.
+//! - [`settings`]: keyword arguments as the library's settings keywords (one reader for Python,
+//!   the C ABI and the CLI).
 //! - [`builtin`]: the built-in suite, `nis.integrands.*`.
 
 use std::path::Path;
@@ -25,6 +27,7 @@ mod builtin;
 mod call;
 mod flow;
 mod integrator;
+mod settings;
 
 pyo3::create_exception!(
     nis,
@@ -154,5 +157,6 @@ fn _nis(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<flow::PyFlow>()?;
     m.add_class::<builtin::PyBuiltin>()?;
     m.add_function(wrap_pyfunction!(builtin::suite, m)?)?;
+    m.add_function(wrap_pyfunction!(settings::_keywords, m)?)?;
     Ok(())
 }

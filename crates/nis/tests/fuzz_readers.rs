@@ -239,3 +239,97 @@ fn integrator_settings_in_a_model_file_are_validated_on_load() {
     assert!(e.contains("integrator settings"), "{e}");
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+/// A settings patch as the C ABI's config, Python's keywords and the CLI's flags reach the one
+/// reader: the defaults' paths (every section, and `flow`, `adam`, `stratify`, `transform`
+/// within NIS's) set to absurd values, or random JSON anywhere.
+fn settings_patch() -> impl Strategy<Value = serde_json::Value> {
+    let defaults = serde_json::to_value(nis::integrate::Settings::default()).expect("serialises");
+    let mut paths: Vec<Vec<String>> = vec![vec!["seed".into()], vec!["train_on".into()]];
+    fn walk(v: &serde_json::Value, at: &mut Vec<String>, out: &mut Vec<Vec<String>>) {
+        if let Some(fields) = v.as_object() {
+            for (k, inner) in fields {
+                at.push(k.clone());
+                out.push(at.clone());
+                walk(inner, at, out);
+                at.pop();
+            }
+        }
+    }
+    walk(&defaults, &mut Vec::new(), &mut paths);
+    let value = prop_oneof![3 => absurd(), 1 => fuzz::json_value()];
+    prop_oneof![
+        1 => fuzz::json_value(),
+        4 => prop::collection::vec((prop::sample::select(paths), value), 0..5).prop_map(
+            |fields| {
+                let mut patch = serde_json::json!({});
+                for (path, x) in fields {
+                    let mut node = &mut patch;
+                    for k in &path[..path.len() - 1] {
+                        if !node[k].is_object() {
+                            node[k] = serde_json::json!({});
+                        }
+                        node = &mut node[k];
+                    }
+                    node[path.last().expect("a path has a field")] = x;
+                }
+                patch
+            }
+        ),
+    ]
+}
+
+/// Keywords as Python passes them: known names (and unknown ones) with absurd values, for any
+/// method.
+fn settings_keywords() -> impl Strategy<Value = (usize, Vec<(String, serde_json::Value)>)> {
+    let mut names = nis::integrate::settings::keyword_names();
+    names.extend(["colour".to_string(), "dim".to_string(), String::new()]);
+    let value = prop_oneof![3 => absurd(), 1 => fuzz::json_value()];
+    (
+        0..3usize,
+        prop::collection::vec((prop::sample::select(names), value), 0..6),
+    )
+}
+
+#[test]
+fn settings_patches_and_keywords_random_and_absurd() {
+    use nis::integrate::{Method, Settings};
+    // Ok must be valid settings; an error must be a typed one (a panic fails the case).
+    let judge = |r: nis::Result<Settings>| -> Result<(), TestCaseError> {
+        match r {
+            Ok(s) => prop_assert!(s.validate().is_ok(), "accepted, not valid: {s:?}"),
+            Err(e) => prop_assert!(matches!(e, nis::Error::Config(_)), "{e}"),
+        }
+        Ok(())
+    };
+    fuzz::fuzz("settings-patch", 400, settings_patch(), |tally, patch| {
+        let len = patch.to_string().len();
+        let r = check(
+            tally,
+            len,
+            || Settings::default().patched(patch.clone()),
+            |_| 0,
+        )?;
+        judge(r)
+    });
+    fuzz::fuzz(
+        "settings-keywords",
+        400,
+        settings_keywords(),
+        |tally, (m, keywords)| {
+            let len = serde_json::to_string(&keywords).map_or(0, |s| s.len());
+            let r = check(
+                tally,
+                len,
+                || {
+                    Settings::default().with_keywords(
+                        Method::ALL[m],
+                        keywords.iter().map(|(k, v)| (k.as_str(), v.clone())),
+                    )
+                },
+                |_| 0,
+            )?;
+            judge(r)
+        },
+    );
+}

@@ -27,6 +27,31 @@ from ._nis import (
 )
 from . import integrands
 
+_integrate = Integrator.__call__
+
+
+def _call(self, f, evals=1_000_000):
+    """Spends ``evals`` evaluations of ``f``: adapts on a share of them (continuing from
+    earlier calls), then estimates ∫ f with the rest, the sampler frozen; returns an
+    ``IntegrationResult``.
+
+    ``f`` takes an (n, dim) float64 array and returns n values, shape (n,), or n vectors,
+    shape (n, k): every component is then estimated from the same points, with covariance,
+    and ``mean``, ``sdev`` and ``cov`` are arrays. An f returning shape (n, 1) is such a
+    vector integrand of one component (its result's warnings say so); return shape (n,) for
+    floats. f is called on whole batches, with the GIL held only then. An exception raised by
+    f propagates unchanged; NaN or inf raise ``nis.IntegrandError``; Ctrl-C raises
+    KeyboardInterrupt at the next batch.
+    """
+    return _integrate(self, f, evals=evals)
+
+
+# PyO3 makes ``__call__`` a type slot, which keeps no docstring: this one carries it.
+_call.__name__ = "__call__"
+_call.__qualname__ = "Integrator.__call__"
+Integrator.__call__ = _call
+del _call
+
 __all__ = [
     "Builtin",
     "Flow",

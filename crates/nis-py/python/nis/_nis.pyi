@@ -1,7 +1,7 @@
 """Type stubs of the compiled module ``nis._nis`` (re-exported by ``nis``)."""
 
 import os
-from typing import Callable, List, Optional, Tuple, Union
+from typing import Any, Callable, Dict, List, Optional, Tuple, Union
 
 import numpy as np
 import numpy.typing as npt
@@ -28,7 +28,8 @@ class IntegrationResult:
 
     @property
     def mean(self) -> Union[float, npt.NDArray[np.float64]]:
-        """The estimate of ∫ f (an array of k for a vector integrand)."""
+        """The estimate of ∫ f (an array of k for a vector integrand, one whose f returns shape
+        (n, k), k = 1 included)."""
     @property
     def sdev(self) -> Union[float, npt.NDArray[np.float64]]:
         """Its standard error (an array of k for a vector integrand)."""
@@ -71,24 +72,30 @@ class IntegrationResult:
 
 class Integrator:
     """A Monte Carlo integrator over [0, 1]^dim that owns its adapted state, like
-    ``vegas.Integrator``. ``method``: "nis", "vegas" or "uniform"; keywords of another method
-    than the chosen one raise ValueError. ``threads``: run in a rayon pool of that size.
+    ``vegas.Integrator``. ``method``: "nis", "vegas" or "uniform". ``threads``: run in a rayon
+    pool of that size. Every other keyword is a setting, read by the library's one reader of
+    settings (the C ABI's JSON and the CLI's flags go through it too): a field of the chosen
+    method's settings, or a shorthand for one. A keyword of another method, an unknown one or
+    an ill-typed value raises ValueError naming it; None leaves the setting at its default.
 
-    NIS: ``coupling`` ("pq", "pl", "rq", "affine"), ``bins``, ``layers`` (coupling layers),
-    ``masks`` ("binary", the paper's, the default; "codes", fewer layers for a cheaper flow with
-    a higher variance per evaluation, for cheap integrands; it misses modes more often, so check
-    it against a second seed or method), ``hidden_layers``, ``hidden_width``, ``blob_bins``, ``loss`` ("kl", "chi2"), ``batch``,
-    ``steps_per_batch``, ``train_fraction``, ``learning_rate``, ``learning_rate_end``,
-    ``average_span`` (the moving average of the flow's weights that the final phase samples
-    spans this share of the first training's batches; default 0.1, 0 the last training step's
-    weights), ``uniform_fraction``, ``anneal_from``, ``final_iterations``, ``stratify`` (the final phase's
-    latent cut into adaptive hypercubes, as VEGAS+ does; default True, False draws it i.i.d.),
-    ``reuse_training`` (share of
-    the training batches, the last ones, in the estimate; default 0.5, 0 the final phase alone;
-    docs/ESTIMATE.md), ``replay_batches``,
-    ``replay_steps`` (earlier batches replayed off-policy in training).
-    VEGAS+: ``increments``, ``alpha``, ``beta``, ``iterations``, ``warmup``, ``min_per_cube``.
-    Plain MC: ``iterations``. NIS and VEGAS+: ``train_on`` (component index or "sum_abs").
+    All methods: ``seed``. NIS: ``coupling`` ("pq", "pl", "rq", "affine"), ``bins``,
+    ``layers`` (coupling layers), ``masks`` ("binary", the paper's, the default; "codes",
+    fewer layers for a cheaper flow with a higher variance per evaluation, for cheap
+    integrands; it misses modes more often, so check it against a second seed or method),
+    ``hidden_layers``, ``hidden_width``, ``blob_bins``, ``flow`` (the flow's settings as a
+    dict, e.g. ``{"hidden_width": 64}``), ``loss`` ("kl", "chi2"), ``batch``,
+    ``steps_per_batch``, ``train_fraction``, ``learning_rate``, ``adam`` (the optimiser's
+    settings as a dict, e.g. ``{"beta1": 0.95}``), ``learning_rate_end``, ``average_span``
+    (the moving average of the flow's weights that the final phase samples spans this share of
+    the first training's batches; default 0.1, 0 the last training step's weights),
+    ``uniform_fraction``, ``anneal_from``, ``final_iterations``, ``stratify`` (the final
+    phase's latent cut into adaptive hypercubes, as VEGAS+ does; default True, False draws it
+    i.i.d., a dict sets ``beta``, ``min_per_cube``, ``max_cubes``), ``reuse_training`` (share
+    of the training batches, the last ones, in the estimate; default 0.5, 0 the final phase
+    alone; docs/ESTIMATE.md), ``replay_batches``, ``replay_steps`` (earlier batches replayed
+    off-policy in training). VEGAS+: ``increments``, ``alpha``, ``beta``, ``iterations``,
+    ``warmup``, ``min_per_cube``. Plain MC: ``iterations``. NIS and VEGAS+: ``train_on``
+    (component index or "sum_abs").
     """
 
     def __init__(
@@ -96,7 +103,8 @@ class Integrator:
         dim: int,
         method: str = "nis",
         *,
-        seed: int = 0,
+        threads: Optional[int] = None,
+        seed: Optional[int] = None,
         coupling: Optional[str] = None,
         bins: Optional[int] = None,
         layers: Optional[int] = None,
@@ -104,17 +112,19 @@ class Integrator:
         hidden_layers: Optional[int] = None,
         hidden_width: Optional[int] = None,
         blob_bins: Optional[int] = None,
+        flow: Optional[Dict[str, Any]] = None,
         loss: Optional[str] = None,
         batch: Optional[int] = None,
         steps_per_batch: Optional[int] = None,
         train_fraction: Optional[float] = None,
         learning_rate: Optional[float] = None,
+        adam: Optional[Dict[str, Any]] = None,
         learning_rate_end: Optional[float] = None,
         average_span: Optional[float] = None,
         uniform_fraction: Optional[float] = None,
         anneal_from: Optional[float] = None,
         final_iterations: Optional[int] = None,
-        stratify: Optional[bool] = None,
+        stratify: Optional[Union[bool, Dict[str, Any]]] = None,
         reuse_training: Optional[float] = None,
         replay_batches: Optional[int] = None,
         replay_steps: Optional[int] = None,
@@ -124,13 +134,21 @@ class Integrator:
         iterations: Optional[int] = None,
         warmup: Optional[int] = None,
         min_per_cube: Optional[int] = None,
-        train_on: Optional[Union[int, str]] = None,
-        threads: Optional[int] = None,
+        train_on: Optional[Union[int, str, Dict[str, int]]] = None,
     ) -> None: ...
     def __call__(self, f: IntegrandFn, evals: int = 1_000_000) -> IntegrationResult:
-        """Adapts on a share of ``evals`` evaluations of ``f`` (continuing earlier calls),
-        then estimates ∫ f with the rest. ``f`` is called on whole (n, dim) batches; its
-        exceptions propagate unchanged; NaN/inf raise ``IntegrandError``."""
+        """Spends ``evals`` evaluations of ``f``: adapts on a share of them (continuing from
+        earlier calls), then estimates ∫ f with the rest, the sampler frozen; returns an
+        ``IntegrationResult``.
+
+        ``f`` takes an (n, dim) float64 array and returns n values, shape (n,), or n vectors,
+        shape (n, k): every component is then estimated from the same points, with covariance,
+        and ``mean``, ``sdev`` and ``cov`` are arrays. An f returning shape (n, 1) is such a
+        vector integrand of one component (its result's warnings say so); return shape (n,) for
+        floats. f is called on whole batches, with the GIL held only then. An exception raised by
+        f propagates unchanged; NaN or inf raise ``nis.IntegrandError``; Ctrl-C raises
+        KeyboardInterrupt at the next batch.
+        """
     def train(self, f: IntegrandFn, evals: int) -> None:
         """NIS only: trains on ``evals`` more evaluations without estimating."""
     def estimate(self, f: IntegrandFn, evals: int = 1_000_000) -> IntegrationResult:
@@ -243,3 +261,6 @@ class Builtin:
 
 def suite() -> List[Tuple[str, List[int], str]]:
     """The suite: (name, benchmark dimensions, description) per member."""
+
+def _keywords() -> List[str]:
+    """The settings keywords ``Integrator`` takes, from the library's schema (for the tests)."""

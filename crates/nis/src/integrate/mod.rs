@@ -18,6 +18,7 @@ mod integrand;
 mod moments;
 pub mod nis;
 mod result;
+pub mod settings;
 pub mod uniform;
 pub mod unweight;
 pub mod vegas;
@@ -116,6 +117,11 @@ pub trait Integrator: Send {
             "{} has no trained state to save",
             self.method().name()
         )))
+    }
+    /// This integrator as NIS, for what only NIS does (train without estimating, estimate with
+    /// the flow frozen, sample, unweight); `None` for the other methods.
+    fn as_nis(&mut self) -> Option<&mut nis::NisIntegrator> {
+        None
     }
 }
 

@@ -40,7 +40,7 @@ impl PlainMcConfig {
         PlainMcConfigBuilder(PlainMcConfig::default())
     }
 
-    fn validate(&self) -> Result<()> {
+    pub(crate) fn validate(&self) -> Result<()> {
         if self.iterations == 0 {
             return Err(Error::Config(
                 "plain Monte Carlo needs at least one iteration".into(),

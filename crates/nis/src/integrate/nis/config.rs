@@ -168,25 +168,13 @@ impl Default for NisConfig {
 }
 
 impl NisConfig {
-    /// These settings with the fields of the JSON object `patch` changed: a `"flow"` or `"adam"`
-    /// section changes the fields it names and keeps the others of `self` (what `nis integrate
-    /// --nis-config` applies on top of its own options).
+    /// These settings with the JSON object `patch` laid over them by the one reader of settings
+    /// (`integrate::settings`): a field it names is replaced, an object it gives for an object
+    /// (`"flow"`, `"adam"`, `"stratify"`) changes the fields it names and keeps the others of
+    /// `self` (what `nis integrate --nis-config` applies on top of its own options). Not
+    /// checked: building the integrator checks it.
     pub fn patched(&self, patch: serde_json::Value) -> Result<NisConfig> {
-        let bad = |e: serde_json::Error| Error::Config(e.to_string());
-        let serde_json::Value::Object(patch) = patch else {
-            return Err(Error::Config("the settings must be a JSON object".into()));
-        };
-        let mut v = serde_json::to_value(self).map_err(bad)?;
-        let fields = v.as_object_mut().expect("a struct serialises to an object");
-        for (k, given) in patch {
-            match fields.get_mut(&k) {
-                Some(section) if k == "flow" || k == "adam" => overlay(section, given),
-                _ => {
-                    fields.insert(k, given);
-                }
-            }
-        }
-        serde_json::from_value(v).map_err(bad)
+        crate::integrate::settings::overlaid(self, patch)
     }
 
     /// A builder starting from the defaults.
@@ -197,7 +185,14 @@ impl NisConfig {
         }
     }
 
-    pub(super) fn validate(&self) -> Result<()> {
+    pub(crate) fn validate(&self) -> Result<()> {
+        if self.loss == Loss::Nll {
+            return Err(Error::Config(
+                "loss \"nll\" is for data (a flow fitted to points); an integrand trains with \
+                 \"kl\" or \"chi2\""
+                    .into(),
+            ));
+        }
         let ok = self.batch >= 2
             && self.steps_per_batch >= 1
             && (self.replay_steps == 0 || self.replay_batches >= 1)

@@ -443,6 +443,10 @@ impl Integrator for NisIntegrator {
         Method::Nis
     }
 
+    fn as_nis(&mut self) -> Option<&mut NisIntegrator> {
+        Some(self)
+    }
+
     fn dim(&self) -> usize {
         self.flow().dim()
     }

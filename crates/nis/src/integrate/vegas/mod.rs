@@ -83,7 +83,7 @@ impl VegasConfig {
         VegasConfigBuilder(VegasConfig::default())
     }
 
-    fn validate(&self) -> Result<()> {
+    pub(crate) fn validate(&self) -> Result<()> {
         let c = self;
         let auto = c.iterations == 0 && c.warmup == 0;
         if c.increments == 0
