@@ -19,7 +19,7 @@ pub enum AnyGuide {
     /// Gaussian mixtures.
     Gmm(Gmm),
     /// Neural importance sampling of directions.
-    Neural(NisGuide),
+    Neural(Box<NisGuide>),
 }
 
 impl AnyGuide {
@@ -102,10 +102,10 @@ impl GuideSpec {
                 AnyGuide::Ppg(Ppg::new(bounds, c.for_film(film)))
             }
             GuideSpec::Gmm(c) => AnyGuide::Gmm(Gmm::new(bounds, *c)),
-            GuideSpec::Neural(c) => AnyGuide::Neural(
+            GuideSpec::Neural(c) => AnyGuide::Neural(Box::new(
                 NisGuide::new(bounds, c.clone())
                     .map_err(|e| Error::Invalid(format!("neural guide: {e}")))?,
-            ),
+            )),
         })
     }
 }

@@ -152,7 +152,7 @@ pub fn render_any(
         AnyGuide::None(g) => render_across(scene, options, g, comm, progress),
         AnyGuide::Ppg(g) => render_across(scene, options, g, comm, progress),
         AnyGuide::Gmm(g) => render_across(scene, options, g, comm, progress),
-        AnyGuide::Neural(g) => render_across(scene, options, g, comm, progress),
+        AnyGuide::Neural(g) => render_across(scene, options, &mut **g, comm, progress),
     }
 }
 

@@ -160,11 +160,7 @@ impl ContextLayers {
 impl ContextCache {
     /// Contexts in the cache.
     pub fn len(&self) -> usize {
-        if self.width == 0 {
-            0
-        } else {
-            self.rows.len() / self.width
-        }
+        self.rows.len().checked_div(self.width).unwrap_or(0)
     }
 
     /// Whether the cache holds no context.
