@@ -6,8 +6,9 @@ use std::path::PathBuf;
 use std::time::Duration;
 
 use indicatif::{ProgressBar, ProgressStyle};
+use nis::comm::Comm;
 use nis_paper::bench::guiding::{Io, Settings};
-use nis_render::guiding::spec::GuideSpec;
+use nis_render::guiding::factory::GuideSpec;
 use nis_render::render::RenderOptions;
 use nis_render::scene::Scene;
 
@@ -106,7 +107,8 @@ pub fn run_bench(args: &BenchGuidingArgs) -> Result<(), Box<dyn std::error::Erro
     };
     let mut render = |scene: &Scene, options: &RenderOptions, spec: &GuideSpec, label: &str| {
         let bar = bar(label);
-        let out = spec.render(scene, options, &|f| bar.set_position((f * 1000.0) as u64))?;
+        let progress = |f: f64| bar.set_position((f * 1000.0) as u64);
+        let out = crate::render::render_spec(scene, options, spec, &Comm::default(), &progress)?;
         bar.finish_and_clear();
         Ok(out)
     };

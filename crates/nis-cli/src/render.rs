@@ -9,9 +9,9 @@ use indicatif::{ProgressBar, ProgressStyle};
 use nis::comm::Comm;
 use nis_render::compare::{compare, error_map};
 use nis_render::film::Image;
-use nis_render::guiding::spec::GuideSpec;
+use nis_render::guiding::factory::GuideSpec;
 use nis_render::integrator::{Integrator, Strategy};
-use nis_render::render::{Budget, RenderOptions, RenderOutput, Schedule};
+use nis_render::render::{render_any, Budget, RenderOptions, RenderOutput, Schedule};
 use nis_render::scene::Scene;
 
 /// Render a scene with the CPU path tracer.
@@ -125,7 +125,30 @@ pub fn render_with(
     progress: &(dyn Fn(f64) + Sync),
 ) -> Result<RenderOutput, Box<dyn std::error::Error>> {
     let spec = GuideSpec::parse(guide, guide_config, options.seed)?;
-    Ok(spec.render_across(scene, options, comm, progress)?)
+    Ok(render_spec(scene, options, &spec, comm, progress)?)
+}
+
+/// Render with the guide `spec` describes: `none` is plain path tracing in one pass, every
+/// other guide trains in passes of its own first ([`Schedule::Training`]), whatever
+/// `options.schedule` says.
+pub fn render_spec(
+    scene: &Scene,
+    options: &RenderOptions,
+    spec: &GuideSpec,
+    comm: &Comm,
+    progress: &(dyn Fn(f64) + Sync),
+) -> Result<RenderOutput, nis_render::Error> {
+    let mut guide = spec.build(scene)?;
+    let schedule = if guide.learns() {
+        Schedule::Training
+    } else {
+        Schedule::Plain
+    };
+    let options = RenderOptions {
+        schedule,
+        ..*options
+    };
+    Ok(render_any(scene, &options, &mut guide, comm, progress))
 }
 
 fn load(

@@ -13,7 +13,7 @@ use fuzz::{check, mutated, Counting};
 use nis::flow::Density;
 use nis_render::film::Image;
 use nis_render::geometry::Rgb;
-use nis_render::guiding::spec::GuideSpec;
+use nis_render::guiding::factory::GuideSpec;
 use nis_render::guiding::NoGuide;
 use nis_render::integrator::{Integrator, Strategy as Technique};
 use nis_render::render::{render, Budget, RenderOptions, Schedule};

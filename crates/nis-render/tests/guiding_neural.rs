@@ -99,7 +99,7 @@ fn train_on_lobe(
 /// The guide's densities of `dirs` at [`vertex`], in one batch.
 fn pdfs(guide: &NisGuide, dirs: &[Vec3]) -> Vec<f32> {
     let vertices = [vertex()];
-    let mut context = Vec::new();
+    let mut context = Default::default();
     guide.prepare(&vertices, &mut context);
     let queries: Vec<PdfQuery> = dirs.iter().map(|&wi| PdfQuery { vertex: 0, wi }).collect();
     let mut pdf = vec![0.0; dirs.len()];
@@ -192,7 +192,7 @@ fn trained_density_is_normalised_concentrated_and_matches_its_samples() {
         .map(|_| Vec2::new(rng.random(), rng.random()))
         .collect();
     let vertices = [vertex()];
-    let mut context = Vec::new();
+    let mut context = Default::default();
     guide.prepare(&vertices, &mut context);
     let queries: Vec<SampleQuery> = u.iter().map(|&u| SampleQuery { vertex: 0, u }).collect();
     let mut samples = vec![None; n];
@@ -435,7 +435,7 @@ fn opaque_vertices_get_a_normalised_hemisphere_density_and_no_samples_below() {
     let map = DirectionMap::new(&v);
     assert!(map.is_hemisphere() && (map.normal() - up).length() < 1e-6);
     let vertices = [v];
-    let mut cache = Vec::new();
+    let mut cache = Default::default();
     guide.prepare(&vertices, &mut cache);
     let density = |dirs: &[Vec3]| {
         let queries: Vec<PdfQuery> = dirs.iter().map(|&wi| PdfQuery { vertex: 0, wi }).collect();

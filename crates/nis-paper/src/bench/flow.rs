@@ -55,11 +55,11 @@ fn dense_shapes(flow: &Flow) -> Vec<(usize, usize, bool)> {
         .iter()
         .enumerate()
         .flat_map(|(l, c)| {
-            (0..c.mlp.layers()).map(move |j| {
+            (0..c.mlp().layers()).map(move |j| {
                 (
-                    c.mlp.dims[j],
-                    c.mlp.dims[j + 1],
-                    j > 0 || (l > 0 && !c.a.is_empty()),
+                    c.mlp().dims[j],
+                    c.mlp().dims[j + 1],
+                    j > 0 || (l > 0 && !c.a().is_empty()),
                 )
             })
         })

@@ -13,7 +13,7 @@ use std::path::PathBuf;
 use nis_render::compare::{compare, error_map, ImageErrors};
 use nis_render::film::Image;
 use nis_render::geometry::Rgb;
-use nis_render::guiding::spec::GuideSpec;
+use nis_render::guiding::factory::GuideSpec;
 use nis_render::integrator::{Integrator, Strategy};
 use nis_render::render::{Budget, RenderOptions, RenderOutput, Schedule};
 use nis_render::scene::Scene;

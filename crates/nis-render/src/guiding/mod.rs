@@ -24,12 +24,11 @@ use glam::{Vec2, Vec3};
 use crate::geometry::Rgb;
 
 pub mod directions;
+pub mod factory;
 pub mod gmm;
 pub mod neural;
-mod picks;
 pub mod ppg;
 pub mod spatial;
-pub mod spec;
 #[cfg(test)]
 mod tests;
 

@@ -26,6 +26,7 @@ use rayon::prelude::*;
 
 use crate::film::Image;
 use crate::geometry::Rgb;
+use crate::guiding::factory::AnyGuide;
 use crate::guiding::{Guide, GuideStatistics};
 use crate::integrator::{uniform, Integrator, PathStats, Wavefront};
 use crate::sampling::splitmix64;
@@ -137,6 +138,22 @@ pub fn render<G: Guide + ?Sized>(
     progress: &(dyn Fn(f64) + Sync),
 ) -> RenderOutput {
     render_across(scene, options, guide, &Comm::default(), progress)
+}
+
+/// [`render_across`] with a guide of any method ([`crate::guiding::factory::GuideSpec::build`]).
+pub fn render_any(
+    scene: &Scene,
+    options: &RenderOptions,
+    guide: &mut AnyGuide,
+    comm: &Comm,
+    progress: &(dyn Fn(f64) + Sync),
+) -> RenderOutput {
+    match guide {
+        AnyGuide::None(g) => render_across(scene, options, g, comm, progress),
+        AnyGuide::Ppg(g) => render_across(scene, options, g, comm, progress),
+        AnyGuide::Gmm(g) => render_across(scene, options, g, comm, progress),
+        AnyGuide::Neural(g) => render_across(scene, options, &mut **g, comm, progress),
+    }
 }
 
 /// [`render`] split over the ranks of `comm` (see the module documentation): every rank calls it
@@ -405,10 +422,10 @@ impl Renderer<'_> {
         }
         if learn {
             let statistics = gather_statistics(self.comm, statistics);
-            // On one of the pool's threads, as the integrator trains: the neural guide's steps
-            // of 256 records spent a quarter of their time handing their loops over to the
-            // pool from outside it (docs/results/guiding.md).
-            nis::kernels::in_pool(|| guide.update(statistics));
+            // On one of the pool's threads (`rayon::scope` from outside the pool runs there),
+            // as the integrator trains: the neural guide's small steps would otherwise spend
+            // much of their time handing their loops over to the pool (docs/results/guiding.md).
+            rayon::scope(|_| guide.update(statistics));
         }
     }
 

@@ -129,14 +129,34 @@ impl<L: Layer> Composed<L> {
         let (dim, cdim) = (self.dim, self.context_dim);
         let rows = u.len() / dim;
         let chunk = L::chunk_rows(rows).max(1);
-        let mut log_q = vec![0.0f64; rows];
+        let (log_q, chunks) = self.run_chunks(u, chunk, direction, record, |c, l, rows| {
+            let ctx =
+                ctx.map(|ctx| &ctx[c * chunk * cdim..(c * chunk + rows.log_det.len()) * cdim]);
+            self.layers[l].apply(&self.params, Rows { ctx, ..rows }, direction)
+        });
+        let tape = record.then(|| Tape::new(self.version, rows, chunks));
+        (log_q, tape)
+    }
+
+    /// The one layer loop: cuts `u` into chunks of `chunk` rows that run in parallel, and sends
+    /// each chunk through the layers in `direction`'s order, layer `l` of chunk `c` by
+    /// `apply(c, l, rows)` (whose `ctx` is `None`: `apply` brings the chunk's context). Returns
+    /// ln q per row and, when `record`, each chunk's tapes in data-to-latent order.
+    pub(crate) fn run_chunks(
+        &self,
+        u: &mut [f32],
+        chunk: usize,
+        direction: Direction,
+        record: bool,
+        apply: impl Fn(usize, usize, Rows<'_>) -> L::Record + Sync,
+    ) -> (Vec<f64>, Vec<ChunkTape<L::Record>>) {
+        let dim = self.dim;
+        let mut log_q = vec![0.0f64; u.len() / dim];
         let chunks: Vec<ChunkTape<L::Record>> = in_pool(|| {
             u.par_chunks_mut(chunk * dim)
                 .zip(log_q.par_chunks_mut(chunk))
                 .enumerate()
                 .map(|(c, (u, log_q))| {
-                    let ctx =
-                        ctx.map(|ctx| &ctx[c * chunk * cdim..(c * chunk + log_q.len()) * cdim]);
                     let mut tapes = Vec::new();
                     let order: Vec<usize> = match direction {
                         Direction::Forward => (0..self.layers.len()).collect(),
@@ -147,10 +167,10 @@ impl<L: Layer> Composed<L> {
                         let rows = Rows {
                             u: &mut *u,
                             dim,
-                            ctx,
+                            ctx: None,
                             log_det: &mut *log_q,
                         };
-                        let out = self.layers[l].apply(&self.params, rows, direction);
+                        let out = apply(c, l, rows);
                         if record {
                             // Inverse: after the layer, u holds the layer's input (data side).
                             let input = input.unwrap_or_else(|| u.to_vec());
@@ -164,8 +184,12 @@ impl<L: Layer> Composed<L> {
                 })
                 .collect()
         });
-        let tape = record.then(|| Tape::new(self.version, rows, chunks));
-        (log_q, tape)
+        (log_q, chunks)
+    }
+
+    /// The parameters' version: bumped whenever they may change.
+    pub(crate) fn version(&self) -> u64 {
+        self.version
     }
 
     fn check_points(&self, x: &[f32]) -> Result<usize> {

@@ -8,6 +8,8 @@
 use super::composed::{ChunkTape, Composed, Direction, Layer, Rows};
 use super::config::FlowConfig;
 use crate::kernels;
+use crate::kernels::dense::{self, Shape};
+use crate::kernels::elementwise;
 use crate::nn::encoding::OneBlob;
 use crate::nn::mlp::{Mlp, MlpTape};
 use crate::transform::{Transform, TransformKind};
@@ -17,22 +19,75 @@ use crate::transform::{Transform, TransformKind};
 #[derive(Clone, Debug)]
 pub struct Coupling {
     /// The dimensions left alone and fed to the conditioner (the mask's A).
-    pub a: Vec<usize>,
+    a: Vec<usize>,
     /// The dimensions transformed (B).
-    pub b: Vec<usize>,
+    b: Vec<usize>,
     /// How x_A enters the conditioner.
-    pub encoding: OneBlob,
+    encoding: OneBlob,
     /// The conditioner: encoded x_A and the context in, |B| × the transform's parameters out.
-    pub mlp: Mlp,
+    mlp: Mlp,
     /// The 1-D transform of each B dimension.
-    pub transform: TransformKind,
-    pub offset: usize,
+    transform: TransformKind,
+    /// Where this layer's weights start in the flow's parameters.
+    offset: usize,
 }
 
 impl Coupling {
+    /// The layer transforming `b` given `a` with `transform`, its conditioner `mlp` taking
+    /// `encoding` of x_A (then the context) and its weights at `offset` in the flow's.
+    pub(crate) fn new(
+        a: Vec<usize>,
+        b: Vec<usize>,
+        encoding: OneBlob,
+        mlp: Mlp,
+        transform: TransformKind,
+        offset: usize,
+    ) -> Coupling {
+        Coupling {
+            a,
+            b,
+            encoding,
+            mlp,
+            transform,
+            offset,
+        }
+    }
+
     /// This layer's parameters within the flow's.
     pub fn params<'a>(&self, all: &'a [f32]) -> &'a [f32] {
-        &all[self.offset..self.offset + self.mlp.param_count()]
+        &all[self.param_range()]
+    }
+
+    /// Where this layer's parameters lie in the flow's.
+    pub fn param_range(&self) -> std::ops::Range<usize> {
+        self.offset..self.offset + self.mlp.param_count()
+    }
+
+    /// The dimensions left alone and fed to the conditioner (the mask's A).
+    pub fn a(&self) -> &[usize] {
+        &self.a
+    }
+
+    /// The dimensions this layer transforms (the mask's B).
+    pub fn b(&self) -> &[usize] {
+        &self.b
+    }
+
+    /// The conditioner.
+    pub fn mlp(&self) -> &Mlp {
+        &self.mlp
+    }
+
+    /// The conditioner's first layer's share of the context: its weights' rows for the context
+    /// inputs of `context_dim` features (`[context_dim, out]` row-major), and its biases.
+    pub(crate) fn context_share<'a>(
+        &self,
+        params: &'a [f32],
+        context_dim: usize,
+    ) -> (&'a [f32], &'a [f32]) {
+        let (w, b) = self.mlp.layer_params(self.params(params), 0);
+        // Rows of W are inputs: the encoded x_A first, then the context.
+        (&w[(self.mlp.dims[0] - context_dim) * b.len()..], b)
     }
 
     /// The conditioner's input width: the encoded A dimensions, then the context features.
@@ -64,7 +119,7 @@ impl Coupling {
     /// place in `direction`, with the conditioner's output `out` for those rows, adding each
     /// row's log C' to `log_det`. One B dimension at a time over all rows: the transform's
     /// batched kernel sees a column.
-    pub fn transform_rows(
+    fn transform_rows(
         &self,
         out: &[f32],
         u: &mut [f32],
@@ -95,7 +150,7 @@ impl Coupling {
     /// `g_u` holds ∂L/∂output on entry and ∂L/∂input for the B dimensions on exit (the A part is
     /// completed by [`Coupling::encoding_backward`]); `g_log_det[r]` is ∂L/∂log C' of row r.
     /// Returns ∂L/∂(conditioner output).
-    pub fn transform_backward(
+    fn transform_backward(
         &self,
         tape: &MlpTape,
         input: &[f32],
@@ -127,7 +182,7 @@ impl Coupling {
     }
 
     /// Adds the conditioner's dependence on x_A to `g_u`, from ∂L/∂(encoded input).
-    pub fn encoding_backward(
+    fn encoding_backward(
         &self,
         tape: &MlpTape,
         input: &[f32],
@@ -151,6 +206,50 @@ impl Coupling {
                 g_u[r * dim + a] += g_s[k];
             }
         }
+    }
+}
+
+impl Coupling {
+    /// [`Layer::apply`] for rows whose context's share of the conditioner's first layer,
+    /// `W_c·c + b`, is already known: `first` holds it per row (`rows × dims[1]`, before the
+    /// activation, see [`super::context`]). Adds `W_A·enc(x_A)`, runs the conditioner from its
+    /// second layer on and transforms x_B in place; `rows.ctx` is not read.
+    pub(crate) fn apply_cached(
+        &self,
+        params: &[f32],
+        first: Vec<f32>,
+        rows: Rows<'_>,
+        direction: Direction,
+    ) -> MlpTape {
+        let Rows {
+            u, dim, log_det, ..
+        } = rows;
+        let n = log_det.len();
+        let mlp = &self.mlp;
+        let p = self.params(params);
+        let h = mlp.dims[1];
+        let mut acts = vec![Vec::new(); mlp.dims.len()];
+        acts[1] = first;
+        let mut tape = MlpTape { rows: n, acts };
+        let enc_w = self.encoded_width();
+        let mut enc = vec![0.0f32; n * enc_w];
+        let mut s = vec![0.0f32; self.a.len()];
+        for (r, e) in enc.chunks_exact_mut(enc_w.max(1)).enumerate().take(n) {
+            for (k, &a) in self.a.iter().enumerate() {
+                s[k] = u[r * dim + a];
+            }
+            self.encoding.encode(&s, e);
+        }
+        let (w, _) = mlp.layer_params(p, 0);
+        let first = &mut tape.acts[1];
+        dense::accumulate(&enc, &w[..enc_w * h], first, Shape::rows(n, enc_w, h));
+        if mlp.layers() > 1 {
+            elementwise::relu(first);
+        }
+        mlp.forward_from(p, &mut tape, 1);
+        let out = tape.acts.last().expect("an MLP has an output layer");
+        self.transform_rows(out, u, dim, log_det, direction);
+        tape
     }
 }
 
@@ -214,7 +313,7 @@ impl Layer for Coupling {
                 let g_out = coupling.transform_backward(&t.record, &t.input, dim, &mut g_u, &g_ld);
                 // The first layer's input is the fixed x: no gradient needed below it.
                 let want = l > 0 && !coupling.a.is_empty();
-                let range = coupling.offset..coupling.offset + coupling.mlp.param_count();
+                let range = coupling.param_range();
                 let g_enc =
                     coupling
                         .mlp

@@ -9,6 +9,7 @@
 //! - [`composed`]: the one composition loop, [`Composed`], generic over the [`Layer`].
 //! - [`coupling`], [`mask`], [`config`]: the coupling layer with its mask, one-blob encoding,
 //!   MLP conditioner and transform kind; [`Flow`] is a stack of them built from a [`FlowConfig`].
+//! - [`context`]: the per-context cache of a conditioned flow, for many queries at one context.
 //! - [`multiscale`]: RealNVP's multi-scale flow with convolutional conditioners, for images.
 //! - [`mixture`]: the defensive mixture of a flow with the uniform density.
 //!
@@ -24,6 +25,7 @@
 
 pub mod composed;
 pub mod config;
+pub mod context;
 pub mod coupling;
 mod density;
 pub mod mask;
@@ -82,23 +84,13 @@ impl Flow {
                 output: Layout::Features,
             };
             let len = mlp.param_count();
-            couplings.push(Coupling {
-                a,
-                b,
-                encoding,
-                mlp,
-                transform: config.transform,
-                offset,
-            });
+            couplings.push(Coupling::new(a, b, encoding, mlp, config.transform, offset));
             offset += len;
         }
         let mut params = vec![0.0; offset];
         let mut rng = Pcg64Mcg::seed_from_u64(config.seed);
         for c in &couplings {
-            c.mlp.init(
-                &mut params[c.offset..c.offset + c.mlp.param_count()],
-                &mut rng,
-            );
+            c.mlp().init(&mut params[c.param_range()], &mut rng);
         }
         let (dim, context_dim) = (config.dim, config.context_dim);
         Ok(Composed::from_parts(

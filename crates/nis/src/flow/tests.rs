@@ -129,7 +129,7 @@ fn log_det_matches_finite_difference_jacobian() {
                     // not checked at this point.
                     let mut fd = 0.0;
                     let mut smooth = true;
-                    for &d in &c.b {
+                    for &d in c.b() {
                         // A step relative to the distance from the ends: the affine density
                         // varies like x^(e^s − 1) there.
                         let h0 = (1e-2 * u0[d].min(1.0 - u0[d])).clamp(1e-5, 1e-3);
@@ -141,7 +141,7 @@ fn log_det_matches_finite_difference_jacobian() {
                             apply(&mut up, &mut [0.0]);
                             apply(&mut um, &mut [0.0]);
                             // y_B depends on u_B only through its own coordinate.
-                            for &e in &c.b {
+                            for &e in c.b() {
                                 if e != d {
                                     assert!((up[e] - um[e]).abs() < 1e-6);
                                 }
@@ -158,7 +158,7 @@ fn log_det_matches_finite_difference_jacobian() {
                     assert!(
                         (fd - ld[0]).abs() < 2e-3,
                         "{t:?} layer {:?}: {fd} vs {}",
-                        c.b,
+                        c.b(),
                         ld[0]
                     );
                 }
@@ -308,9 +308,9 @@ fn parameter_gradients_match_finite_differences() {
             // One directional derivative per weight and bias block of every conditioner layer
             // (the first layers' blocks reach the loss through later layers' one-blob encodings).
             for c in flow.layers() {
-                let mut off = c.offset;
-                for j in 0..c.mlp.layers() {
-                    let (i, o) = (c.mlp.dims[j], c.mlp.dims[j + 1]);
+                let mut off = c.param_range().start;
+                for j in 0..c.mlp().layers() {
+                    let (i, o) = (c.mlp().dims[j], c.mlp().dims[j + 1]);
                     for len in [i * o, o] {
                         let block = off..off + len;
                         off += len;

@@ -36,9 +36,9 @@ pub const FNV_OFFSET: u64 = 0xcbf2_9ce4_8422_2325;
 fn layout(flow: &Flow) -> Vec<(String, Vec<usize>, std::ops::Range<usize>)> {
     let mut out = Vec::new();
     for (l, c) in flow.layers().iter().enumerate() {
-        let mut off = c.offset;
-        for j in 0..c.mlp.layers() {
-            let (i, o) = (c.mlp.dims[j], c.mlp.dims[j + 1]);
+        let mut off = c.param_range().start;
+        for j in 0..c.mlp().layers() {
+            let (i, o) = (c.mlp().dims[j], c.mlp().dims[j + 1]);
             out.push((
                 format!("coupling{l}.layer{j}.weight"),
                 vec![i, o],

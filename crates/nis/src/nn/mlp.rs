@@ -7,9 +7,14 @@
 
 use rand::Rng;
 
+use rayon::prelude::*;
+
 use crate::kernels;
-use crate::kernels::dense::{self, Layout, Shape};
+use crate::kernels::dense::{self, Shape};
 use crate::kernels::elementwise;
+use crate::kernels::CHUNK_ROWS;
+
+pub use crate::kernels::dense::Layout;
 
 /// The row-major `[n, o]` copy of the feature-major `[o, n]` matrix `m`. For a chunk of a few
 /// rows a row at a time (contiguous stores, and the reads a few cache lines per feature); for
@@ -51,6 +56,23 @@ pub struct Mlp {
 pub struct MlpTape {
     pub rows: usize,
     pub acts: Vec<Vec<f32>>,
+}
+
+/// An MLP's forward pass over a batch ([`Mlp::forward_batch`]): its outputs, and what its
+/// backward pass needs.
+#[derive(Clone, Debug, Default)]
+pub struct BatchForward {
+    chunks: Vec<MlpTape>,
+}
+
+impl BatchForward {
+    /// The outputs, chunk after chunk, each in the MLP's output layout (row-major for
+    /// [`Layout::Rows`]).
+    pub fn outputs(&self) -> impl Iterator<Item = &f32> {
+        self.chunks
+            .iter()
+            .flat_map(|t| t.acts.last().expect("an MLP has an output layer"))
+    }
 }
 
 impl Mlp {
@@ -155,6 +177,47 @@ impl Mlp {
             self.backward_chunk(params, tape, g, part, want_input_grad)
         });
         want_input_grad.then(|| g_in.into_iter().flatten().collect())
+    }
+
+    /// Forward pass over a whole batch (`input`, `dims[0]` features per row), in parallel
+    /// chunks of rows, kept for [`Mlp::backward_batch`].
+    pub fn forward_batch(&self, params: &[f32], input: &[f32]) -> BatchForward {
+        let width = self.dims[0];
+        let chunks = input
+            .par_chunks(CHUNK_ROWS * width.max(1))
+            .map(|x| {
+                let mut tape = self.tape(x.len() / width.max(1));
+                tape.acts[0].copy_from_slice(x);
+                self.forward(params, &mut tape);
+                tape
+            })
+            .collect();
+        BatchForward { chunks }
+    }
+
+    /// The gradient of a loss with ∂L/∂output `g_out` (laid out as
+    /// [`BatchForward::outputs`]) with respect to the parameters, written into `grads`
+    /// (overwriting), through the batch `forward` ran.
+    pub fn backward_batch(
+        &self,
+        params: &[f32],
+        forward: &BatchForward,
+        g_out: &[f32],
+        grads: &mut [f32],
+    ) {
+        let outputs = self.dims[self.dims.len() - 1];
+        let mut at = 0;
+        let g_out = forward
+            .chunks
+            .iter()
+            .map(|t| {
+                let part = g_out[at..at + t.rows * outputs].to_vec();
+                at += t.rows * outputs;
+                part
+            })
+            .collect();
+        let tapes: Vec<&MlpTape> = forward.chunks.iter().collect();
+        self.backward(params, &tapes, g_out, grads, false);
     }
 
     /// Reverse mode of one chunk: its ∂L/∂parameters added into `grads`, and its ∂L/∂input

@@ -12,7 +12,7 @@
 
 use glam::DVec2;
 
-use super::disk::{Component, Mixture};
+use super::mixture::{Component, Mixture};
 use super::GmmConfig;
 
 /// Farthest a mean may be from the disk centre (keeps the in-disk mass integrand smooth).
@@ -21,14 +21,14 @@ const MAX_MEAN_RADIUS: f64 = 0.999;
 /// Normalised weighted sufficient statistics of a mixture: per component `Σ γw`, `Σ γw x`
 /// and `Σ γw x xᵀ` over `Σ w = 1`.
 #[derive(Clone, Debug, Default)]
-pub(super) struct SufficientStatistics {
+struct SufficientStatistics {
     s0: Vec<f64>,
     s1: Vec<DVec2>,
     s2: Vec<[f64; 3]>,
 }
 
 impl SufficientStatistics {
-    pub(super) fn zero(k: usize) -> Self {
+    fn zero(k: usize) -> Self {
         Self {
             s0: vec![0.0; k],
             s1: vec![DVec2::ZERO; k],
@@ -37,7 +37,7 @@ impl SufficientStatistics {
     }
 
     /// `(1 − η) self + η batch`.
-    pub(super) fn blend(&self, batch: &SufficientStatistics, eta: f64) -> SufficientStatistics {
+    fn blend(&self, batch: &SufficientStatistics, eta: f64) -> SufficientStatistics {
         let mix = |a: f64, b: f64| (1.0 - eta) * a + eta * b;
         SufficientStatistics {
             s0: (0..self.s0.len())
@@ -53,10 +53,29 @@ impl SufficientStatistics {
     }
 }
 
-impl Mixture {
+/// A mixture learned by stepwise EM, with the running statistics it is fitted from.
+#[derive(Clone, Debug)]
+pub(super) struct OnlineMixture {
+    pub(super) mixture: Mixture,
+    stats: SufficientStatistics,
+    /// Iterations fitted so far (`t` of stepwise EM).
+    steps: u32,
+}
+
+impl OnlineMixture {
+    /// The initial mixture of `k` components ([`Mixture::initial`]), nothing fitted yet.
+    pub(super) fn initial(k: usize) -> Self {
+        OnlineMixture {
+            mixture: Mixture::initial(k),
+            stats: SufficientStatistics::zero(k),
+            steps: 0,
+        }
+    }
+
     /// Stepwise EM over one iteration's samples `(disk point, weight)` with `Σ weight > 0`.
     pub(super) fn fit(&mut self, samples: &[(DVec2, f64)], config: &GmmConfig) {
-        let k = self.components.len();
+        let m = &mut self.mixture;
+        let k = m.components.len();
         let total: f64 = samples.iter().map(|s| s.1).sum();
         self.steps += 1;
         let eta = f64::from(self.steps).powf(-config.step_exponent);
@@ -64,9 +83,9 @@ impl Mixture {
         let mut log_g = vec![0.0; k];
         for _ in 0..config.em_steps {
             let mut batch = SufficientStatistics::zero(k);
-            let log_w: Vec<f64> = self.components.iter().map(|c| c.weight.ln()).collect();
+            let log_w: Vec<f64> = m.components.iter().map(|c| c.weight.ln()).collect();
             for &(x, w) in samples {
-                for ((g, c), lw) in log_g.iter_mut().zip(&self.components).zip(&log_w) {
+                for ((g, c), lw) in log_g.iter_mut().zip(&m.components).zip(&log_w) {
                     *g = lw + c.log_density(x);
                 }
                 let max = log_g.iter().copied().fold(f64::NEG_INFINITY, f64::max);
@@ -81,18 +100,20 @@ impl Mixture {
                 }
             }
             blended = self.stats.blend(&batch, eta);
-            self.maximise(&blended, config);
+            m.maximise(&blended, config);
         }
         self.stats = blended;
-        for c in &mut self.components {
+        for c in &mut m.components {
             c.inside = c.disk_mass();
         }
-        self.finish();
+        m.finish();
     }
+}
 
+impl Mixture {
     /// MAP M-step: Dirichlet prior on the weights, conjugate (inverse-Wishart-like) prior
     /// `σ₀² I` on the covariances, none on the means (which stay in the disk, being weighted
-    /// means of disk points). In-disk masses are left for the end of [`Mixture::fit`].
+    /// means of disk points). In-disk masses are left for the end of [`OnlineMixture::fit`].
     fn maximise(&mut self, s: &SufficientStatistics, config: &GmmConfig) {
         let k = self.components.len();
         let a = config.prior_strength;
@@ -159,8 +180,9 @@ mod tests {
             prior_strength: 1e-6,
             ..GmmConfig::default()
         };
-        let mut m = Mixture::initial(2);
-        m.fit(&points, &config);
+        let mut online = OnlineMixture::initial(2);
+        online.fit(&points, &config);
+        let m = &online.mixture;
         // Component 0 starts at the centre, component 1 at (0.5, 0): match by the means.
         let mut found: Vec<&Component> = m.components.iter().collect();
         found.sort_by(|a, b| b.mean.x.total_cmp(&a.mean.x));

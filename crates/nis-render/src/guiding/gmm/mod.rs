@@ -29,10 +29,11 @@ use super::spatial::SpatialTree;
 use super::{bits_key, Guide, GuideRecord, GuideSample, GuideVertex, PdfQuery, SampleQuery};
 use crate::bvh::Aabb;
 use crate::sampling::square_to_disk_concentric;
-use disk::{disk_to_hemisphere, hemisphere_to_disk, Mixture};
+use em::OnlineMixture;
+use mixture::{disk_to_hemisphere, hemisphere_to_disk, Mixture};
 
-mod disk;
 mod em;
+mod mixture;
 
 /// Most Gaussians per mixture.
 pub const MAX_COMPONENTS: usize = 8;
@@ -161,7 +162,7 @@ impl Sample {
 /// unit cube.
 #[derive(Clone, Debug, Default)]
 struct Leaf {
-    mixtures: [Option<Mixture>; 6],
+    mixtures: [Option<OnlineMixture>; 6],
     samples: Vec<(Vec3, Sample)>,
 }
 
@@ -262,7 +263,9 @@ impl Gmm {
 
     /// The trained mixture of a looked-up vertex, if any.
     fn mixture(&self, at: &Lookup) -> Option<&Mixture> {
-        self.tree.leaf(at.leaf).mixtures[at.class].as_ref()
+        self.tree.leaf(at.leaf).mixtures[at.class]
+            .as_ref()
+            .map(|m| &m.mixture)
     }
 }
 
@@ -280,7 +283,7 @@ fn density(mixture: Option<&Mixture>, frame: &[Vec3; 3], wi: Vec3) -> f32 {
 }
 
 /// Fit the six mixtures of a leaf to its samples (those of classes with enough of them).
-fn fit_mixtures(mixtures: &mut [Option<Mixture>; 6], samples: &[Sample], config: &GmmConfig) {
+fn fit_mixtures(mixtures: &mut [Option<OnlineMixture>; 6], samples: &[Sample], config: &GmmConfig) {
     let mut points: [Vec<(DVec2, f64)>; 6] = Default::default();
     for s in samples.iter().filter(|s| s.weight > 0.0) {
         let (class, frame) = class_frame(s.n);
@@ -292,7 +295,7 @@ fn fit_mixtures(mixtures: &mut [Option<Mixture>; 6], samples: &[Sample], config:
     for (mixture, points) in mixtures.iter_mut().zip(&points) {
         if points.len() >= config.min_samples.max(1) {
             mixture
-                .get_or_insert_with(|| Mixture::initial(config.components))
+                .get_or_insert_with(|| OnlineMixture::initial(config.components))
                 .fit(points, config);
         }
     }

@@ -56,7 +56,7 @@ pub struct PpgConfig {
     pub spatial_threshold: f64,
     /// Pixels of the film the guide trains on, if the threshold is to be scaled to it by
     /// `√(film_pixels / PAPER_FILM_PIXELS)`; `None` uses `spatial_threshold` as it is.
-    /// [`GuideSpec`](super::spec::GuideSpec) sets it to the rendered film.
+    /// [`GuideSpec`](super::factory::GuideSpec) sets it to the rendered film.
     pub film_pixels: Option<u64>,
     /// `ρ`: a quadtree node is subdivided when it carries more than this fraction of its
     /// tree's flux (§5.2, 1 %).

@@ -1,7 +1,7 @@
 //! Which records of the neural guide's buffer a training step sees.
 //!
 //! Every gradient of the guide is a weighted sum over records, Σ_r w_r·∇ℓ_r, with the weights
-//! built from F/p_s (see [`super::neural`]). A step estimates it from a batch. Drawn uniformly,
+//! built from F/p_s (see [`super`]). A step estimates it from a batch. Drawn uniformly,
 //! the batch's records enter with their weights w_r, which span many orders of magnitude in a
 //! rendered scene: most of a batch adds almost nothing and a few records carry the step. Drawn
 //! with probability π_r ∝ s_r = (F/p_s)_r^α instead, a record enters with w_r / s_r, and the

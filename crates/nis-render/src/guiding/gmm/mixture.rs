@@ -22,7 +22,6 @@ use std::sync::OnceLock;
 
 use glam::{DVec2, Vec2, Vec3};
 
-use super::em::SufficientStatistics;
 use crate::sampling::{splitmix64, square_to_disk_concentric};
 
 /// Directions of the trapezoid rule for the in-disk mass of a Gaussian.
@@ -151,9 +150,6 @@ pub(super) struct Mixture {
     pub(super) outside: f64,
     /// Cumulative component weights for sampling.
     pub(super) cdf: Vec<f64>,
-    pub(super) stats: SufficientStatistics,
-    /// Iterations fitted so far (`t` of stepwise EM).
-    pub(super) steps: u32,
 }
 
 impl Mixture {
@@ -174,8 +170,6 @@ impl Mixture {
             components,
             outside: 0.0,
             cdf: Vec::new(),
-            stats: SufficientStatistics::zero(k),
-            steps: 0,
         };
         m.finish();
         m

@@ -1,17 +1,39 @@
 //! Guides by name: what `--guide NAME --guide-config JSON` means, in one place (pbrt's
-//! `Create(name, parameters)`). A [`GuideSpec`] is parsed from a name and optional settings, then
-//! builds its guide for a scene and renders with it: `none` is plain path tracing in one pass,
-//! every other guide trains in passes of its own first ([`Schedule::Training`]).
+//! `Create(name, parameters)`). A [`GuideSpec`] is parsed from a name and optional settings,
+//! then builds its guide for a scene ([`AnyGuide`]); rendering with it is the render module's
+//! ([`crate::render::render_any`]).
 
-use crate::bvh::Aabb;
 use crate::guiding::gmm::{Gmm, GmmConfig};
 use crate::guiding::neural::{GuideLoss, NisGuide, NisGuideConfig};
 use crate::guiding::ppg::{Ppg, PpgConfig};
 use crate::guiding::{Guide, NoGuide};
-use crate::render::{render_across, RenderOptions, RenderOutput, Schedule};
 use crate::scene::Scene;
 use crate::Error;
-use nis::comm::Comm;
+
+/// A guide of any method, as [`GuideSpec::build`] makes it.
+pub enum AnyGuide {
+    /// Unidirectional path tracing.
+    None(NoGuide),
+    /// Practical path guiding.
+    Ppg(Ppg),
+    /// Gaussian mixtures.
+    Gmm(Gmm),
+    /// Neural importance sampling of directions.
+    Neural(Box<NisGuide>),
+}
+
+impl AnyGuide {
+    /// Whether the guide wants to learn from the paths it helps trace (a new guide of every
+    /// method but `none` does).
+    pub fn learns(&self) -> bool {
+        match self {
+            AnyGuide::None(g) => g.wants_records(),
+            AnyGuide::Ppg(g) => g.wants_records(),
+            AnyGuide::Gmm(g) => g.wants_records(),
+            AnyGuide::Neural(g) => g.wants_records(),
+        }
+    }
+}
 
 /// A guiding method and its settings.
 #[derive(Clone, Debug)]
@@ -34,7 +56,7 @@ impl GuideSpec {
     /// (JSON, merged over the defaults; `loss` and `seed` come from the name and `seed`).
     ///
     /// ```
-    /// use nis_render::guiding::spec::GuideSpec;
+    /// use nis_render::guiding::factory::GuideSpec;
     /// assert!(matches!(GuideSpec::parse("ppg", None, 0), Ok(GuideSpec::Ppg(_))));
     /// assert!(GuideSpec::parse("nis-kl", Some(r#"{"couplings": 4}"#), 0).is_ok());
     /// assert!(GuideSpec::parse("vmf", None, 0).is_err());
@@ -70,53 +92,20 @@ impl GuideSpec {
         Ok(GuideSpec::Neural(config))
     }
 
-    /// Builds the guide for `scene` and renders with it; `options.schedule` is set by the guide
-    /// (plain for `none`, training passes first for the others).
-    pub fn render(
-        &self,
-        scene: &Scene,
-        options: &RenderOptions,
-        progress: &(dyn Fn(f64) + Sync),
-    ) -> Result<RenderOutput, Error> {
-        self.render_across(scene, options, &Comm::default(), progress)
-    }
-
-    /// [`GuideSpec::render`] split over the ranks of `comm` ([`render_across`]).
-    pub fn render_across(
-        &self,
-        scene: &Scene,
-        options: &RenderOptions,
-        comm: &Comm,
-        progress: &(dyn Fn(f64) + Sync),
-    ) -> Result<RenderOutput, Error> {
-        let bounds: Aabb = scene.bounds();
-        let with = |schedule| RenderOptions {
-            schedule,
-            ..*options
-        };
-        fn run<G: Guide>(
-            scene: &Scene,
-            options: &RenderOptions,
-            mut guide: G,
-            comm: &Comm,
-            progress: &(dyn Fn(f64) + Sync),
-        ) -> RenderOutput {
-            render_across(scene, options, &mut guide, comm, progress)
-        }
-        let guided = with(Schedule::Training);
+    /// The guide for `scene`, new and untrained.
+    pub fn build(&self, scene: &Scene) -> Result<AnyGuide, Error> {
+        let bounds = scene.bounds();
         Ok(match self {
-            GuideSpec::None => run(scene, &with(Schedule::Plain), NoGuide, comm, progress),
+            GuideSpec::None => AnyGuide::None(NoGuide),
             GuideSpec::Ppg(c) => {
                 let film = u64::from(scene.camera.width()) * u64::from(scene.camera.height());
-                let config = c.for_film(film);
-                run(scene, &guided, Ppg::new(bounds, config), comm, progress)
+                AnyGuide::Ppg(Ppg::new(bounds, c.for_film(film)))
             }
-            GuideSpec::Gmm(c) => run(scene, &guided, Gmm::new(bounds, *c), comm, progress),
-            GuideSpec::Neural(c) => {
-                let guide = NisGuide::new(bounds, c.clone())
-                    .map_err(|e| Error::Invalid(format!("neural guide: {e}")))?;
-                run(scene, &guided, guide, comm, progress)
-            }
+            GuideSpec::Gmm(c) => AnyGuide::Gmm(Gmm::new(bounds, *c)),
+            GuideSpec::Neural(c) => AnyGuide::Neural(Box::new(
+                NisGuide::new(bounds, c.clone())
+                    .map_err(|e| Error::Invalid(format!("neural guide: {e}")))?,
+            )),
         })
     }
 }

@@ -1,0 +1,123 @@
+//! The neural guide's training records: what it keeps of a path's [`GuideRecord`]
+//! ([`Sample`]), a training pass's records ([`PassSamples`], the guide's
+//! [`Guide::Statistics`]) and their wire format between processes.
+
+use std::collections::VecDeque;
+
+use super::CONTEXT_SCALARS;
+#[cfg(doc)]
+use crate::guiding::{Guide, GuideRecord};
+use crate::guiding::{GuideStatistics, COUNT_WORDS};
+
+/// What the neural guide keeps of a training record. A training pass's
+/// [`Guide::Statistics`] are its samples, in the order they were made.
+#[derive(Clone, Copy, Debug)]
+pub struct Sample {
+    /// The vertex's context scalars (position, outgoing direction, normal).
+    pub(super) context: [f32; CONTEXT_SCALARS],
+    /// The direction in cylindrical coordinates.
+    pub(super) x: [f32; 2],
+    /// `F`: luminance of incident radiance × BSDF × cosine.
+    pub(super) f: f32,
+    /// Mixture density the direction was drawn with.
+    pub(super) pdf: f32,
+    /// The BSDF's density of the direction.
+    pub(super) bsdf_pdf: f32,
+    /// Solid-angle density per unit density on the square of the vertex's map.
+    pub(super) jacobian: f32,
+}
+
+impl Sample {
+    /// F/p_s: the record's weight in the KL gradient (in f64, where it cannot overflow).
+    pub(super) fn kl_weight(&self) -> f64 {
+        f64::from(self.f) / f64::from(self.pdf)
+    }
+}
+
+/// The records of a training pass, in the order they were made, of which only the newest `cap`
+/// are kept: the replay buffer would keep no more of them (see `NisGuide::train`), so a pass of
+/// any number of paths holds at most a buffer's worth of records. `seen` counts them all (it
+/// sets the number of steps), so training is the same as with every record kept.
+#[derive(Debug, Default)]
+pub struct PassSamples {
+    pub(super) samples: VecDeque<Sample>,
+    pub(super) seen: usize,
+    /// The replay buffer's size; `None` until the guide has accumulated into these statistics.
+    pub(super) cap: Option<usize>,
+}
+
+impl PassSamples {
+    pub(super) fn trim(&mut self) {
+        if let Some(cap) = self.cap {
+            let excess = self.samples.len().saturating_sub(cap);
+            self.samples.drain(..excess);
+        }
+    }
+}
+
+impl crate::guiding::Record for Sample {
+    const WORDS: usize = CONTEXT_SCALARS + 6;
+    fn write(&self, out: &mut Vec<f32>) {
+        out.extend_from_slice(&self.context);
+        out.extend_from_slice(&[
+            self.x[0],
+            self.x[1],
+            self.f,
+            self.pdf,
+            self.bsdf_pdf,
+            self.jacobian,
+        ]);
+    }
+    fn read(w: &[f32]) -> Self {
+        let c = CONTEXT_SCALARS;
+        let mut context = [0.0; CONTEXT_SCALARS];
+        context.copy_from_slice(&w[..c]);
+        Sample {
+            context,
+            x: [w[c], w[c + 1]],
+            f: w[c + 2],
+            pdf: w[c + 3],
+            bsdf_pdf: w[c + 4],
+            jacobian: w[c + 5],
+        }
+    }
+}
+
+impl GuideStatistics for PassSamples {
+    fn merge(&mut self, later: Self) {
+        self.cap = match (self.cap, later.cap) {
+            (Some(a), Some(b)) => Some(a.min(b)),
+            (a, b) => a.or(b),
+        };
+        self.seen += later.seen;
+        self.samples.extend(later.samples);
+        self.trim();
+    }
+    /// The cap plus one (0 for none) and the count of records seen, then the kept records.
+    fn to_words(&self) -> Vec<f32> {
+        use crate::guiding::Record;
+        let mut out = Vec::with_capacity(2 * COUNT_WORDS + self.samples.len() * Sample::WORDS);
+        crate::guiding::write_count(self.cap.map_or(0, |c| c + 1), &mut out);
+        crate::guiding::write_count(self.seen, &mut out);
+        for s in &self.samples {
+            s.write(&mut out);
+        }
+        out
+    }
+    fn from_words(words: &[f32]) -> Self {
+        use crate::guiding::Record;
+        let (head, records) = words.split_at((2 * COUNT_WORDS).min(words.len()));
+        if head.len() < 2 * COUNT_WORDS {
+            return PassSamples::default();
+        }
+        let cap = crate::guiding::read_count(&head[..COUNT_WORDS]);
+        PassSamples {
+            samples: records
+                .chunks_exact(Sample::WORDS)
+                .map(Sample::read)
+                .collect(),
+            seen: crate::guiding::read_count(&head[COUNT_WORDS..]),
+            cap: cap.checked_sub(1),
+        }
+    }
+}
