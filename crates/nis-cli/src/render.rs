@@ -10,7 +10,7 @@ use nis::comm::Comm;
 use nis_render::compare::{compare, error_map};
 use nis_render::film::Image;
 use nis_render::guiding::factory::GuideSpec;
-use nis_render::integrator::{Integrator, Strategy};
+use nis_render::path_tracer::{PathTracer, Strategy};
 use nis_render::render::{render_any, Budget, RenderOptions, RenderOutput, Schedule};
 use nis_render::scene::Scene;
 
@@ -205,7 +205,7 @@ pub fn run_render(args: &RenderArgs, comm: &Comm) -> Result<(), Box<dyn std::err
         "bsdf" => Strategy::Bsdf,
         _ => Strategy::Mis,
     };
-    let integrator = Integrator::from_scene(&scene, strategy);
+    let path_tracer = PathTracer::from_scene(&scene, strategy);
     let budget = match (args.seconds, args.spp) {
         (Some(t), _) if t > 0.0 => Budget::Seconds(t),
         (Some(_), _) => return Err("--seconds must be positive".into()),
@@ -224,7 +224,7 @@ pub fn run_render(args: &RenderArgs, comm: &Comm) -> Result<(), Box<dyn std::err
     let progress = |f: f64| bar.set_position((f * 1000.0) as u64);
     let run = || {
         let options = RenderOptions {
-            integrator,
+            path_tracer,
             budget,
             seed: args.seed,
             schedule: Schedule::Plain,

@@ -10,7 +10,7 @@
 //! `nis render --guide-config`).
 
 use nis_render::guiding::neural::{NisGuide, NisGuideConfig};
-use nis_render::integrator::{Integrator, Strategy};
+use nis_render::path_tracer::{PathTracer, Strategy};
 use nis_render::render::{render, Budget, RenderOptions, Schedule};
 
 fn main() -> Result<(), Box<dyn std::error::Error>> {
@@ -25,7 +25,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let config = NisGuideConfig { seed, ..config };
     let mut guide = NisGuide::new(scene.bounds(), config)?;
     let options = RenderOptions {
-        integrator: Integrator::from_scene(&scene, Strategy::Mis),
+        path_tracer: PathTracer::from_scene(&scene, Strategy::Mis),
         budget: Budget::Samples(spp),
         seed,
         schedule: Schedule::Training,

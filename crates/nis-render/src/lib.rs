@@ -3,18 +3,18 @@
 //!
 //! The layout follows pbrt-v4, one concept per module: [`geometry`] and [`sampling`] (shared
 //! math), [`shape`] and [`bvh`] (geometry and its acceleration structure), [`camera`],
-//! [`bsdf`] (materials), [`light`], [`scene`], [`integrator`] (path tracing with NEE + MIS),
+//! [`bsdf`] (materials), [`light`], [`scene`], [`path_tracer`] (path tracing with NEE + MIS),
 //! [`render`] (the parallel, deterministic render loop, its training schedule and the combination
 //! of passes), [`guiding`] (the interface that path guiding methods implement, and the methods), [`film`] and [`compare`] (images and error metrics), [`xml`]
 //! (Mitsuba 3 scenes) and [`scenes`] (the built-in test scenes, themselves Mitsuba XML).
 //!
 //! ```
-//! use nis_render::integrator::{Integrator, Strategy};
+//! use nis_render::path_tracer::{PathTracer, Strategy};
 //! use nis_render::render::{render, Budget, RenderOptions, Schedule};
 //! let mut scene = nis_render::scenes::load("cornell-box").unwrap();
 //! scene.camera.set_resolution(8, 8);
 //! let options = RenderOptions {
-//!     integrator: Integrator::from_scene(&scene, Strategy::Mis),
+//!     path_tracer: PathTracer::from_scene(&scene, Strategy::Mis),
 //!     budget: Budget::Samples(2),
 //!     seed: 1,
 //!     schedule: Schedule::Plain,
@@ -32,8 +32,8 @@ pub mod compare;
 pub mod film;
 pub mod geometry;
 pub mod guiding;
-pub mod integrator;
 pub mod light;
+pub mod path_tracer;
 pub mod render;
 pub mod sampling;
 pub mod scene;

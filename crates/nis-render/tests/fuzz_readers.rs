@@ -15,7 +15,7 @@ use nis_render::film::Image;
 use nis_render::geometry::Rgb;
 use nis_render::guiding::factory::GuideSpec;
 use nis_render::guiding::NoGuide;
-use nis_render::integrator::{Integrator, Strategy as Technique};
+use nis_render::path_tracer::{PathTracer, Strategy as Technique};
 use nis_render::render::{render, Budget, RenderOptions, Schedule};
 use nis_render::scene::Scene;
 use nis_render::scenes::SCENES;
@@ -64,12 +64,12 @@ fn assert_usable(scene: &Scene) -> Result<(), TestCaseError> {
     prop_assert!(scene.settings.spp >= 1);
     let mut small = scene.clone();
     small.camera.set_resolution(2, 2);
-    let mut integrator = Integrator::from_scene(&small, Technique::Mis);
-    integrator.max_depth = 4;
+    let mut path_tracer = PathTracer::from_scene(&small, Technique::Mis);
+    path_tracer.max_depth = 4;
     let out = render(
         &small,
         &RenderOptions {
-            integrator,
+            path_tracer,
             budget: Budget::Samples(1),
             seed: 1,
             schedule: Schedule::Plain,

@@ -7,7 +7,7 @@ use std::path::Path;
 use nis_render::guiding::{
     Guide, GuideRecord, GuideSample, GuideVertex, NoGuide, PdfQuery, SampleQuery,
 };
-use nis_render::integrator::{Integrator, Strategy};
+use nis_render::path_tracer::{PathTracer, Strategy};
 use nis_render::render::{render, Budget, RenderOptions, Schedule};
 use nis_render::sampling::square_to_uniform_sphere;
 use nis_render::scene::Scene;
@@ -210,14 +210,14 @@ fn diffuse_sphere_under_a_uniform_sky_reflects_albedo_times_sky() {
 fn wavefront_batches_do_not_change_the_image() {
     let params = [("res".to_string(), "20".to_string())];
     let scene = nis_render::scenes::load_with("cornell-glossy", &params).unwrap();
-    let integrator = Integrator::from_scene(&scene, Strategy::Mis);
+    let path_tracer = PathTracer::from_scene(&scene, Strategy::Mis);
     let images: Vec<_> = [1, 7, 4096]
         .into_iter()
         .map(|b| {
             render(
                 &scene,
                 &RenderOptions {
-                    integrator,
+                    path_tracer,
                     budget: Budget::Samples(4),
                     seed: 3,
                     schedule: Schedule::Plain,

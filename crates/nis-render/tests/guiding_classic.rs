@@ -6,7 +6,7 @@ use glam::Vec3;
 use nis_render::guiding::gmm::{Gmm, GmmConfig};
 use nis_render::guiding::ppg::{Ppg, PpgConfig};
 use nis_render::guiding::{Guide, GuideVertex};
-use nis_render::integrator::{Integrator, Strategy};
+use nis_render::path_tracer::{PathTracer, Strategy};
 use nis_render::render::{render, Budget, RenderOptions, Schedule};
 use nis_render::scene::Scene;
 
@@ -16,12 +16,12 @@ use common::assert_unbiased;
 /// Train `guide` by `passes` render passes, freeze it, check it is used on the back wall,
 /// and compare its mean image with the unguided one.
 fn check_unbiased<G: Guide>(scene: &Scene, guide: &mut G, freeze: impl FnOnce(&mut G), name: &str) {
-    let integrator = Integrator::from_scene(scene, Strategy::Mis);
+    let path_tracer = PathTracer::from_scene(scene, Strategy::Mis);
     for pass in 0..3 {
         render(
             scene,
             &RenderOptions {
-                integrator,
+                path_tracer,
                 budget: Budget::Samples(16),
                 seed: 1000 + pass,
                 schedule: Schedule::Plain,

@@ -13,7 +13,7 @@ use nis_render::guiding::{cylindrical_to_dir, dir_to_cylindrical};
 use nis_render::guiding::{
     Guide, GuideRecord, GuideSample, GuideVertex, NoGuide, PdfQuery, SampleQuery,
 };
-use nis_render::integrator::{Integrator, Strategy};
+use nis_render::path_tracer::{PathTracer, Strategy};
 use nis_render::render::{render, Budget, RenderOptions, Schedule};
 use nis_render::scene::Scene;
 use rand::{Rng, SeedableRng};
@@ -243,7 +243,7 @@ fn trained_density_is_normalised_concentrated_and_matches_its_samples() {
 fn guided_render_is_unbiased_and_deterministic() {
     let params = [("res".to_string(), "12".to_string())];
     let scene = nis_render::scenes::load_with("cornell-indirect", &params).unwrap();
-    let integrator = Integrator::from_scene(&scene, Strategy::Mis);
+    let path_tracer = PathTracer::from_scene(&scene, Strategy::Mis);
     let guided = |seed: u64, frame: GuideFrame| {
         let config = NisGuideConfig {
             batch: 512,
@@ -256,7 +256,7 @@ fn guided_render_is_unbiased_and_deterministic() {
         let out = render(
             &scene,
             &RenderOptions {
-                integrator,
+                path_tracer,
                 budget: Budget::Samples(16),
                 seed,
                 schedule: Schedule::Training,
@@ -271,7 +271,7 @@ fn guided_render_is_unbiased_and_deterministic() {
         render(
             &scene,
             &RenderOptions {
-                integrator,
+                path_tracer,
                 budget: Budget::Samples(16),
                 seed,
                 schedule: Schedule::Plain,
@@ -349,9 +349,9 @@ fn scenes_without_light_or_with_the_camera_inside_a_mesh_render_black() {
     // Every guide, not only the neural one.
     for (origin, light) in [("0, 1, 4", false), ("0, 0, 0.2", true)] {
         let scene = cube_scene(origin, light);
-        let integrator = Integrator::from_scene(&scene, Strategy::Mis);
+        let path_tracer = PathTracer::from_scene(&scene, Strategy::Mis);
         let options = RenderOptions {
-            integrator,
+            path_tracer,
             budget: Budget::Samples(8),
             seed: 1,
             schedule: Schedule::Training,
@@ -383,12 +383,12 @@ fn scenes_without_light_or_with_the_camera_inside_a_mesh_render_black() {
     }
     // The lit cube seen from outside is not black (the scene itself is fine).
     let scene = cube_scene("0, 2.5, 4", true);
-    let integrator = Integrator::from_scene(&scene, Strategy::Mis);
+    let path_tracer = PathTracer::from_scene(&scene, Strategy::Mis);
     let mut guide = NisGuide::new(scene.bounds(), NisGuideConfig::default()).unwrap();
     let out = render(
         &scene,
         &RenderOptions {
-            integrator,
+            path_tracer,
             budget: Budget::Samples(8),
             seed: 1,
             schedule: Schedule::Training,

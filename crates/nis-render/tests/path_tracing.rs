@@ -7,7 +7,7 @@
 use std::path::Path;
 
 use nis_render::guiding::NoGuide;
-use nis_render::integrator::{Integrator, Strategy};
+use nis_render::path_tracer::{PathTracer, Strategy};
 use nis_render::render::{render, Budget, RenderOptions, Schedule};
 use nis_render::scene::Scene;
 use nis_render::xml::load_scene_str;
@@ -15,10 +15,10 @@ use nis_render::xml::load_scene_str;
 fn furnace(shape: &str, albedo: f32, max_depth: i32, rr_depth: u32) -> Scene {
     let xml = format!(
         r#"<scene version="3.0.0">
-            <integrator type="path">
+            <path_tracer type="path">
                 <integer name="max_depth" value="{max_depth}"/>
                 <integer name="rr_depth" value="{rr_depth}"/>
-            </integrator>
+            </path_tracer>
             <sensor type="perspective">
                 <float name="fov" value="90"/>
                 <transform name="to_world"><lookat origin="0.1, 0.2, 0" target="1, 0, 0.3"/></transform>
@@ -41,7 +41,7 @@ fn mean_and_std_err(
     spp: u32,
     repeats: u64,
 ) -> (Vec<f64>, Vec<f64>) {
-    let integrator = Integrator::from_scene(scene, strategy);
+    let path_tracer = PathTracer::from_scene(scene, strategy);
     let (w, h) = (scene.camera.width(), scene.camera.height());
     // Statistics per 2×2 block of the image (4 regions) and channel.
     let mut samples: Vec<Vec<f64>> = vec![Vec::new(); 12];
@@ -49,7 +49,7 @@ fn mean_and_std_err(
         let out = render(
             scene,
             &RenderOptions {
-                integrator,
+                path_tracer,
                 budget: Budget::Samples(spp),
                 seed: 100 + seed,
                 schedule: Schedule::Plain,
@@ -162,7 +162,7 @@ fn nee_bsdf_and_mis_estimates_agree_within_noise() {
 fn images_do_not_depend_on_the_thread_count() {
     let params = [("res".to_string(), "24".to_string())];
     let scene = nis_render::scenes::load_with("cornell-glossy", &params).unwrap();
-    let integrator = Integrator::from_scene(&scene, Strategy::Mis);
+    let path_tracer = PathTracer::from_scene(&scene, Strategy::Mis);
     let run = |threads: usize| {
         let pool = rayon::ThreadPoolBuilder::new()
             .num_threads(threads)
@@ -172,7 +172,7 @@ fn images_do_not_depend_on_the_thread_count() {
             render(
                 &scene,
                 &RenderOptions {
-                    integrator,
+                    path_tracer,
                     budget: Budget::Samples(3),
                     seed: 5,
                     schedule: Schedule::Plain,

@@ -14,7 +14,7 @@ use nis_render::compare::{compare, error_map, ImageErrors};
 use nis_render::film::Image;
 use nis_render::geometry::Rgb;
 use nis_render::guiding::factory::GuideSpec;
-use nis_render::integrator::{Integrator, Strategy};
+use nis_render::path_tracer::{PathTracer, Strategy};
 use nis_render::render::{Budget, RenderOptions, RenderOutput, Schedule};
 use nis_render::scene::Scene;
 
@@ -128,7 +128,7 @@ pub fn time_to_reach(curve: &[(f64, f64)], target: f64) -> Option<Reach> {
 fn reference(
     name: &str,
     scene: &Scene,
-    integrator: &Integrator,
+    path_tracer: &PathTracer,
     args: &Settings,
     io: &mut Io<'_>,
 ) -> Result<Image> {
@@ -141,7 +141,7 @@ fn reference(
         return Ok(Image::read_exr(&path)?);
     }
     let options = RenderOptions {
-        integrator: *integrator,
+        path_tracer: *path_tracer,
         budget: Budget::Samples(args.reference_spp),
         seed: args.seed ^ REFERENCE_SEED_SALT,
         schedule: Schedule::Plain,
@@ -201,6 +201,71 @@ fn montage(reference: &Image, runs: &[Run]) -> Result<Image> {
 /// progress), `io.log` sees a line per render. Writes renders and references into `args.out`,
 /// montages into `args.img` and the section "guiding" of `args.docs`; returns its Markdown.
 pub fn run(args: &Settings, io: &mut Io<'_>) -> Result<String> {
+    check(args)?;
+    let scenes: Vec<String> = if args.scenes.is_empty() {
+        nis_render::scenes::names().map(String::from).collect()
+    } else {
+        args.scenes.clone()
+    };
+    let methods: Vec<String> = if args.methods.is_empty() {
+        GuideSpec::NAMES.iter().map(|s| s.to_string()).collect()
+    } else {
+        args.methods.clone()
+    };
+    let specs = methods
+        .iter()
+        .map(|m| GuideSpec::parse(m, None, args.seed))
+        .collect::<std::result::Result<Vec<_>, _>>()?;
+    let methods: Vec<(String, GuideSpec)> = methods.into_iter().zip(specs).collect();
+    create_dir(&args.out)?;
+    create_dir(&args.img)?;
+    let mut table = String::from(
+        "| scene | method | MAPE | relMSE | seconds | equal time (s) | spp | MAPE | relMSE | seconds to MAPE |\n|---|---|---|---|---|---|---|---|---|---|\n",
+    );
+    let mut figures = String::new();
+    let mut panels: Vec<ErrorTimePanel> = Vec::new();
+    for name in &scenes {
+        let params = [("res".to_string(), args.res.to_string())];
+        let scene = nis_render::scenes::load_with(name, &params)?;
+        let path_tracer = PathTracer::from_scene(&scene, Strategy::Mis);
+        let reference = reference(name, &scene, &path_tracer, args, io)?;
+        let bench = SceneBench {
+            name,
+            scene: &scene,
+            reference: &reference,
+            path_tracer,
+            args,
+        };
+        let equal_spp = bench.equal_samples(&methods, io)?;
+        let (seconds, equal_time, curves) = bench.equal_time(&methods, io)?;
+        table.push_str(&table_rows(
+            name,
+            seconds,
+            args.target_mape,
+            &equal_spp,
+            &equal_time,
+            &curves,
+        ));
+        panels.push((name.clone(), seconds, curves));
+        let file = format!("guiding-{name}.png");
+        montage(&reference, &equal_spp)?.write(&args.img.join(&file))?;
+        let names: Vec<&str> = methods.iter().map(|(m, _)| m.as_str()).collect();
+        figures.push_str(&format!(
+            "**{name}** (central crops: reference, then {} at equal spp, all at one exposure; their relative error maps below, 0 to 1 in false colour):\n\n![{name}]({}/{file})\n\n",
+            names.join(", "),
+            report::relative_to(&args.docs, &args.img)
+        ));
+    }
+    let plot = "guiding-error-time.png";
+    let figure = error_time("MAPE against wall-clock time", &panels)?;
+    report::write_file(&args.img.join(plot), &png_bytes(&figure)?)?;
+    let body = section(args, &table, plot, &figures);
+    report::write_section(&args.docs, "guiding", "Path guiding", &body)?;
+    Ok(body)
+}
+
+/// An error for settings that cannot make a comparison.
+fn check(args: &Settings) -> Result<()> {
     if args.spp == 0 || args.res == 0 || args.reference_spp == 0 || args.equal_time_spp == 0 {
         return Err(Error::Config(
             "samples per pixel, resolution, reference and equal-time samples must be positive"
@@ -223,43 +288,40 @@ pub fn run(args: &Settings, io: &mut Io<'_>) -> Result<String> {
             "the target MAPE must be positive, got {m}"
         )));
     }
-    let scenes: Vec<String> = if args.scenes.is_empty() {
-        nis_render::scenes::names().map(String::from).collect()
-    } else {
-        args.scenes.clone()
-    };
-    let methods: Vec<String> = if args.methods.is_empty() {
-        GuideSpec::NAMES.iter().map(|s| s.to_string()).collect()
-    } else {
-        args.methods.clone()
-    };
-    let specs = methods
-        .iter()
-        .map(|m| GuideSpec::parse(m, None, args.seed))
-        .collect::<std::result::Result<Vec<_>, _>>()?;
-    create_dir(&args.out)?;
-    create_dir(&args.img)?;
-    let mut table = String::from(
-        "| scene | method | MAPE | relMSE | seconds | equal time (s) | spp | MAPE | relMSE | seconds to MAPE |\n|---|---|---|---|---|---|---|---|---|---|\n",
-    );
-    let mut figures = String::new();
-    let mut panels: Vec<ErrorTimePanel> = Vec::new();
-    for name in &scenes {
-        let params = [("res".to_string(), args.res.to_string())];
-        let scene = nis_render::scenes::load_with(name, &params)?;
-        let integrator = Integrator::from_scene(&scene, Strategy::Mis);
-        let reference = reference(name, &scene, &integrator, args, io)?;
-        let options = |budget| RenderOptions {
-            integrator,
+    Ok(())
+}
+
+/// One scene's renders: its reference and the renders' settings.
+struct SceneBench<'a> {
+    name: &'a str,
+    scene: &'a Scene,
+    reference: &'a Image,
+    path_tracer: PathTracer,
+    args: &'a Settings,
+}
+
+/// An error-vs-time curve: a method and its (seconds, MAPE) points.
+type Curve = (String, Vec<(f64, f64)>);
+
+impl SceneBench<'_> {
+    fn options(&self, budget: Budget) -> RenderOptions {
+        RenderOptions {
+            path_tracer: self.path_tracer,
             budget,
-            seed: args.seed,
+            seed: self.args.seed,
             schedule: Schedule::Plain,
-        };
-        let mut equal_spp = Vec::new();
-        for (method, spec) in methods.iter().zip(&specs) {
+        }
+    }
+
+    /// Every method at the same samples per pixel; the renders are written to `args.out`.
+    fn equal_samples(&self, methods: &[(String, GuideSpec)], io: &mut Io<'_>) -> Result<Vec<Run>> {
+        let (name, args) = (self.name, self.args);
+        let mut runs = Vec::new();
+        for (method, spec) in methods {
             let label = format!("{name}: {method}, {} spp", args.spp);
-            let output = (io.render)(&scene, &options(Budget::Samples(args.spp)), spec, &label)?;
-            let errors = compare(&output.image, &reference)?;
+            let options = self.options(Budget::Samples(args.spp));
+            let output = (io.render)(self.scene, &options, spec, &label)?;
+            let errors = compare(&output.image, self.reference)?;
             (io.log)(&format!(
                 "{name:>16} {method:>8} {:>4} spp  MAPE {:.4}  relMSE {:.4}  {:.2} s",
                 output.spp, errors.mape, errors.relmse, output.seconds
@@ -269,12 +331,23 @@ pub fn run(args: &Settings, io: &mut Io<'_>) -> Result<String> {
                     .out
                     .join(format!("{name}-{method}-{}spp.exr", args.spp)),
             )?;
-            equal_spp.push(Run {
+            runs.push(Run {
                 method: method.clone(),
                 errors,
                 output,
             });
         }
+        Ok(runs)
+    }
+
+    /// Every method at the equal-time budget and its halvings: the budget in seconds, each
+    /// method's render at the budget, and each method's error-vs-time curve.
+    fn equal_time(
+        &self,
+        methods: &[(String, GuideSpec)],
+        io: &mut Io<'_>,
+    ) -> Result<(f64, Vec<Run>, Vec<Curve>)> {
+        let (name, args) = (self.name, self.args);
         // The equal-time budget: path tracing's time for `equal_time_spp` (that render is
         // path tracing's point at the budget), unless given.
         let mut pt_at_budget = None;
@@ -282,12 +355,8 @@ pub fn run(args: &Settings, io: &mut Io<'_>) -> Result<String> {
             Some(s) => s,
             None => {
                 let label = format!("{name}: none, {} spp (budget)", args.equal_time_spp);
-                let output = (io.render)(
-                    &scene,
-                    &options(Budget::Samples(args.equal_time_spp)),
-                    &GuideSpec::None,
-                    &label,
-                )?;
+                let options = self.options(Budget::Samples(args.equal_time_spp));
+                let output = (io.render)(self.scene, &options, &GuideSpec::None, &label)?;
                 let s = output.seconds;
                 pt_at_budget = Some(output);
                 s
@@ -299,7 +368,7 @@ pub fn run(args: &Settings, io: &mut Io<'_>) -> Result<String> {
             .collect();
         let mut equal_time = Vec::new();
         let mut curves = Vec::new();
-        for (method, spec) in methods.iter().zip(&specs) {
+        for (method, spec) in methods {
             let mut curve = Vec::new();
             let mut last = None;
             for &budget in &budgets {
@@ -310,10 +379,11 @@ pub fn run(args: &Settings, io: &mut Io<'_>) -> Result<String> {
                     Some(o) => o,
                     None => {
                         let label = format!("{name}: {method}, {budget:.2} s");
-                        (io.render)(&scene, &options(Budget::Seconds(budget)), spec, &label)?
+                        let options = self.options(Budget::Seconds(budget));
+                        (io.render)(self.scene, &options, spec, &label)?
                     }
                 };
-                let errors = compare(&output.image, &reference)?;
+                let errors = compare(&output.image, self.reference)?;
                 (io.log)(&format!(
                     "{name:>16} {method:>8} {:>4} spp  MAPE {:.4}  relMSE {:.4}  {:.2} s (budget {budget:.2} s)",
                     output.spp, errors.mape, errors.relmse, output.seconds
@@ -329,55 +399,62 @@ pub fn run(args: &Settings, io: &mut Io<'_>) -> Result<String> {
                 output,
             });
         }
-        let best = |runs: &[Run], key: fn(&ImageErrors) -> f64| {
-            runs.iter()
-                .map(|r| key(&r.errors))
-                .fold(f64::INFINITY, f64::min)
-        };
-        let bold = |v: f64, best: f64| {
-            if v == best {
-                format!("**{v:.4}**")
-            } else {
-                format!("{v:.4}")
-            }
-        };
-        // Path tracing's MAPE at the budget, or the best method's when it did not run.
-        let target = args.target_mape.unwrap_or_else(|| {
-            equal_time
-                .iter()
-                .find(|r| r.method == "none")
-                .map_or_else(|| best(&equal_time, |e| e.mape), |r| r.errors.mape)
-        });
-        let (b1, b2) = (best(&equal_spp, |e| e.mape), best(&equal_spp, |e| e.relmse));
-        let (b3, b4) = (
-            best(&equal_time, |e| e.mape),
-            best(&equal_time, |e| e.relmse),
-        );
-        for ((a, t), (_, curve)) in equal_spp.iter().zip(&equal_time).zip(&curves) {
-            let reach = time_to_reach(curve, target).map_or_else(|| "–".into(), |r| r.to_string());
-            table.push_str(&format!(
-                "| {name} | {} | {} | {} | {:.1} | {seconds:.1} | {} | {} | {} | {target:.4} in {reach} |\n",
-                a.method,
-                bold(a.errors.mape, b1),
-                bold(a.errors.relmse, b2),
-                a.output.seconds,
-                t.output.spp,
-                bold(t.errors.mape, b3),
-                bold(t.errors.relmse, b4),
-            ));
+        Ok((seconds, equal_time, curves))
+    }
+}
+
+/// The table's rows of one scene: every method at equal samples and at equal time (best per
+/// column in bold), and the seconds each needs to reach the target MAPE (`target_mape`, or path
+/// tracing's at the budget, or the best method's without it).
+fn table_rows(
+    name: &str,
+    seconds: f64,
+    target_mape: Option<f64>,
+    equal_spp: &[Run],
+    equal_time: &[Run],
+    curves: &[Curve],
+) -> String {
+    let best = |runs: &[Run], key: fn(&ImageErrors) -> f64| {
+        runs.iter()
+            .map(|r| key(&r.errors))
+            .fold(f64::INFINITY, f64::min)
+    };
+    let bold = |v: f64, best: f64| {
+        if v == best {
+            format!("**{v:.4}**")
+        } else {
+            format!("{v:.4}")
         }
-        panels.push((name.clone(), seconds, curves));
-        let file = format!("guiding-{name}.png");
-        montage(&reference, &equal_spp)?.write(&args.img.join(&file))?;
-        figures.push_str(&format!(
-            "**{name}** (central crops: reference, then {} at equal spp, all at one exposure; their relative error maps below, 0 to 1 in false colour):\n\n![{name}]({}/{file})\n\n",
-            methods.join(", "),
-            report::relative_to(&args.docs, &args.img)
+    };
+    // Path tracing's MAPE at the budget, or the best method's when it did not run.
+    let target = target_mape.unwrap_or_else(|| {
+        equal_time
+            .iter()
+            .find(|r| r.method == "none")
+            .map_or_else(|| best(equal_time, |e| e.mape), |r| r.errors.mape)
+    });
+    let (b1, b2) = (best(equal_spp, |e| e.mape), best(equal_spp, |e| e.relmse));
+    let (b3, b4) = (best(equal_time, |e| e.mape), best(equal_time, |e| e.relmse));
+    let mut rows = String::new();
+    for ((a, t), (_, curve)) in equal_spp.iter().zip(equal_time).zip(curves) {
+        let reach = time_to_reach(curve, target).map_or_else(|| "–".into(), |r| r.to_string());
+        rows.push_str(&format!(
+            "| {name} | {} | {} | {} | {:.1} | {seconds:.1} | {} | {} | {} | {target:.4} in {reach} |\n",
+            a.method,
+            bold(a.errors.mape, b1),
+            bold(a.errors.relmse, b2),
+            a.output.seconds,
+            t.output.spp,
+            bold(t.errors.mape, b3),
+            bold(t.errors.relmse, b4),
         ));
     }
-    let plot = "guiding-error-time.png";
-    let figure = error_time("MAPE against wall-clock time", &panels)?;
-    report::write_file(&args.img.join(plot), &png_bytes(&figure)?)?;
+    rows
+}
+
+/// The section's text: how the comparison is run, the table, the error-vs-time plot `plot` and
+/// the montages `figures`.
+fn section(args: &Settings, table: &str, plot: &str, figures: &str) -> String {
     let budget = match args.seconds {
         Some(s) => format!("{s} s (`--seconds`)"),
         None => format!(
@@ -385,7 +462,7 @@ pub fn run(args: &Settings, io: &mut Io<'_>) -> Result<String> {
             args.equal_time_spp
         ),
     };
-    let body = format!(
+    format!(
         "Reproduce: `nis bench guiding --spp {spp} --res {res} --reference-spp {rspp} \
          --equal-time-spp {etspp} --curve-points {points}`. \
          Every method renders {res}×{res} pixels with {spp} samples per pixel in total \
@@ -406,9 +483,7 @@ pub fn run(args: &Settings, io: &mut Io<'_>) -> Result<String> {
         etspp = args.equal_time_spp,
         points = args.curve_points,
         img = report::relative_to(&args.docs, &args.img),
-    );
-    report::write_section(&args.docs, "guiding", "Path guiding", &body)?;
-    Ok(body)
+    )
 }
 
 #[cfg(test)]

@@ -1,4 +1,4 @@
-//! Path guiding: learned distributions of incident light that the integrator samples directions
+//! Path guiding: learned distributions of incident light that the path tracer samples directions
 //! from, mixed with BSDF sampling.
 //!
 //! Guiding methods (Müller et al. 2017, "Practical Path Guiding"; Vorba et al. 2014, "On-line
@@ -6,7 +6,7 @@
 //! "Neural Importance Sampling") share one narrow interface, [`Guide`]: at a batch of path
 //! vertices, give the selection probability, draw directions with their densities and evaluate
 //! the density of any direction; after paths finish, accumulate what they found
-//! ([`GuideRecord`]) into statistics and learn from them. The integrator uses the *one-sample*
+//! ([`GuideRecord`]) into statistics and learn from them. The path tracer uses the *one-sample*
 //! mixture of the guide and the BSDF: with the guide's selection probability `α` it samples the
 //! guide, otherwise the BSDF, and always weights by the mixture density
 //! `α p_guide + (1 − α) p_bsdf`; vertices with a delta BSDF are never guided, nor are those
@@ -267,7 +267,7 @@ impl Record for GuideRecord {
 /// A directional sampling distribution over incident directions at path vertices, mixed with
 /// BSDF sampling, that may learn from finished paths.
 ///
-/// **Queries come in batches.** In every bounce of a wavefront the integrator gathers the
+/// **Queries come in batches.** In every bounce of a wavefront the path tracer gathers the
 /// guided vertices, calls [`Guide::prepare`] once for all of them, then asks
 /// [`Guide::selection_probabilities`] and answers [`SampleQuery`]s and [`PdfQuery`]s that refer
 /// to those vertices by index. Per-vertex work that every query shares (a neural guide's
@@ -314,7 +314,7 @@ impl Record for GuideRecord {
 /// ```
 pub trait Guide: Send + Sync {
     /// Per-vertex work [`Guide::prepare`] does once for a batch of vertices and every query on
-    /// that batch reuses. The integrator keeps one and hands it back, so its buffers are reused.
+    /// that batch reuses. The path tracer keeps one and hands it back, so its buffers are reused.
     type Prepared: Default + Send;
 
     /// What [`Guide::accumulate`] collects from records for [`Guide::update`].
@@ -385,7 +385,7 @@ pub trait Guide: Send + Sync {
         out[0]
     }
 
-    /// How many paths the integrator should trace together as one wavefront. Guides whose
+    /// How many paths the path tracer should trace together as one wavefront. Guides whose
     /// queries are cheap one at a time keep the default (small batches stay in cache); a
     /// neural guide asks for thousands so that its network runs on large matrices.
     fn batch_paths(&self) -> usize {
@@ -393,14 +393,14 @@ pub trait Guide: Send + Sync {
     }
 
     /// How many bounces of a path the guide serves: the first this many vertices with a
-    /// non-delta BSDF, from the camera ray's hit on. At later ones the integrator samples the
+    /// non-delta BSDF, from the camera ray's hit on. At later ones the path tracer samples the
     /// BSDF alone, asks the guide nothing and makes no records, so the guide learns only where
     /// it is used. Every bounce by default.
     fn guided_bounces(&self) -> u32 {
         u32::MAX
     }
 
-    /// Whether the integrator should collect [`GuideRecord`]s for this guide (costs time; off
+    /// Whether the path tracer should collect [`GuideRecord`]s for this guide (costs time; off
     /// when not training).
     fn wants_records(&self) -> bool {
         false

@@ -28,7 +28,7 @@ use crate::film::Image;
 use crate::geometry::Rgb;
 use crate::guiding::factory::AnyGuide;
 use crate::guiding::{Guide, GuideStatistics};
-use crate::integrator::{uniform, Integrator, PathStats, Wavefront};
+use crate::path_tracer::{uniform, PathStats, PathTracer, Wavefront};
 use crate::sampling::splitmix64;
 use crate::scene::Scene;
 
@@ -68,7 +68,7 @@ pub enum Schedule {
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct RenderOptions {
     /// The path tracer's settings.
-    pub integrator: Integrator,
+    pub path_tracer: PathTracer,
     /// How long to render; samples per pixel count all passes, training included.
     pub budget: Budget,
     /// Seed of every sample's random stream.
@@ -118,12 +118,12 @@ pub fn sample_rng(seed: u64, pixel: u64, sample: u64) -> Pcg32 {
 /// done after every wave of paths.
 ///
 /// ```
-/// use nis_render::integrator::{Integrator, Strategy};
+/// use nis_render::path_tracer::{PathTracer, Strategy};
 /// use nis_render::render::{render, Budget, RenderOptions, Schedule};
 /// let mut scene = nis_render::scenes::load("cornell-box").unwrap();
 /// scene.camera.set_resolution(8, 8);
 /// let options = RenderOptions {
-///     integrator: Integrator::from_scene(&scene, Strategy::Mis),
+///     path_tracer: PathTracer::from_scene(&scene, Strategy::Mis),
 ///     budget: Budget::Samples(4),
 ///     seed: 1,
 ///     schedule: Schedule::Training,
@@ -339,7 +339,7 @@ impl Renderer<'_> {
     /// records learns from the pass's paths once it is done.
     ///
     /// The samples are cut into slices of at most `WAVE_SPP` per pixel, and each slice's tiles
-    /// into waves of at least [`WAVE_PATHS`] paths that the integrator traces
+    /// into waves of at least [`WAVE_PATHS`] paths that the path tracer traces
     /// bounce by bounce (so a guide sees large batches); waves run in parallel, a group of them
     /// at a time, and accumulate their records into guide statistics of their own, which are
     /// merged in wave order, so training does not depend on the thread count.
@@ -423,7 +423,7 @@ impl Renderer<'_> {
         if learn {
             let statistics = gather_statistics(self.comm, statistics);
             // On one of the pool's threads (`rayon::scope` from outside the pool runs there),
-            // as the integrator trains: the neural guide's small steps would otherwise spend
+            // as the NIS integrator trains: the neural guide's small steps would otherwise spend
             // much of their time handing their loops over to the pool (docs/results/guiding.md).
             rayon::scope(|_| guide.update(statistics));
         }
@@ -475,7 +475,7 @@ impl Renderer<'_> {
             };
             let records = learn.then_some(&mut records);
             self.options
-                .integrator
+                .path_tracer
                 .trace(scene, paths, guide, &mut stats, records);
         }
         stats.paths += rays.len() as u64;

@@ -398,6 +398,29 @@ impl Loader {
     }
 
     fn shape(&mut self, el: &Element) -> LoadResult<()> {
+        let geometry = self.geometry(el)?;
+        let (material, emission) = self.shape_children(el)?;
+        let material = match material {
+            Some(m) => m,
+            None => {
+                // Mitsuba's default BSDF: diffuse with reflectance 0.5.
+                self.materials.push(Material::new(Bsdf::Diffuse {
+                    reflectance: Rgb::splat(0.5),
+                }));
+                self.materials.len() - 1
+            }
+        };
+        self.shapes.push(Shape {
+            geometry,
+            material,
+            emission,
+        });
+        Ok(())
+    }
+
+    /// A shape's geometry: its `type` with its properties, transformed to world space, its
+    /// normals flipped when asked.
+    fn geometry(&self, el: &Element) -> LoadResult<Geometry> {
         let kind = el.required("type")?;
         let p = Props::new(el)?;
         let to_world = p.transform("to_world")?;
@@ -457,6 +480,12 @@ impl Loader {
             }
             g => g,
         };
+        Ok(geometry)
+    }
+
+    /// A shape's material (its own `<bsdf>`, or a `<ref>` to one defined before; `None`: the
+    /// default) and the radiance of its area `<emitter>`, if any.
+    fn shape_children(&mut self, el: &Element) -> LoadResult<(Option<usize>, Option<Rgb>)> {
         let mut material = None;
         let mut emission = None;
         for c in el
@@ -498,22 +527,7 @@ impl Loader {
                 _ => return unsupported(c, "bsdf, ref, emitter inside a shape"),
             }
         }
-        let material = match material {
-            Some(m) => m,
-            None => {
-                // Mitsuba's default BSDF: diffuse with reflectance 0.5.
-                self.materials.push(Material::new(Bsdf::Diffuse {
-                    reflectance: Rgb::splat(0.5),
-                }));
-                self.materials.len() - 1
-            }
-        };
-        self.shapes.push(Shape {
-            geometry,
-            material,
-            emission,
-        });
-        Ok(())
+        Ok((material, emission))
     }
 }
 

@@ -1,7 +1,7 @@
 //! Helpers shared by the rendering tests.
 
 use nis_render::guiding::{Guide, NoGuide};
-use nis_render::integrator::{Integrator, Strategy};
+use nis_render::path_tracer::{PathTracer, Strategy};
 use nis_render::render::{render, Budget, RenderOptions, Schedule};
 use nis_render::scene::Scene;
 
@@ -12,13 +12,13 @@ pub fn mean_over_seeds<G: Guide>(
     guide: &mut G,
     repeats: u64,
 ) -> ([f64; 3], [f64; 3]) {
-    let integrator = Integrator::from_scene(scene, strategy);
+    let path_tracer = PathTracer::from_scene(scene, strategy);
     let mut samples = vec![[0.0f64; 3]; repeats as usize];
     for (seed, s) in samples.iter_mut().enumerate() {
         let img = render(
             scene,
             &RenderOptions {
-                integrator,
+                path_tracer,
                 budget: Budget::Samples(8),
                 seed: 7 + seed as u64,
                 schedule: Schedule::Plain,

@@ -36,7 +36,7 @@
 //! ([`NisGuideConfig::average_span`]), not with the last step's, whose noise would otherwise be
 //! part of every image; training goes on from the last step's.
 //!
-//! The integrator traces thousands of paths as one wavefront ([`Guide::batch_paths`]), so
+//! The path tracer traces thousands of paths as one wavefront ([`Guide::batch_paths`]), so
 //! every query below runs the networks on large batches.
 //!
 //! **Per-vertex cache.** Every query at a vertex (its selection probability, the guide's sample,

@@ -6,7 +6,7 @@
 //! sample and one BSDF sample are taken and weighted with the power heuristic. A path guide
 //! replaces the BSDF sample by one from a guide–BSDF mixture at the vertices it serves (its
 //! first [`Guide::guided_bounces`] non-delta ones), and learns from those vertices alone; the
-//! weights stay those of light against BSDF sampling (see [`Integrator::sample_light`]).
+//! weights stay those of light against BSDF sampling (see [`PathTracer::sample_light`]).
 //! Depth counting, `max_depth` and `rr_depth` follow Mitsuba 3's `path` integrator:
 //! `max_depth = 1` shows only directly visible emitters, `2` adds direct lighting, `-1` is
 //! unbounded; Russian roulette continues with probability `min(max(throughput · η²), 0.95)`
@@ -38,7 +38,7 @@ pub enum Strategy {
 
 /// Path-tracing parameters.
 #[derive(Clone, Copy, Debug, PartialEq)]
-pub struct Integrator {
+pub struct PathTracer {
     /// Longest path in segments, camera segment included; `-1` is unbounded.
     pub max_depth: i32,
     /// Bounces after which Russian roulette may end a path.
@@ -111,7 +111,7 @@ struct PathState {
     beta: Rgb,
     eta: f32,
     /// The BSDF's density of the direction the path left its previous vertex in, which MIS
-    /// weighs against light sampling (guided or not: see [`Integrator::sample_light`]).
+    /// weighs against light sampling (guided or not: see [`PathTracer::sample_light`]).
     prev_bsdf_pdf: f32,
     prev_delta: bool,
     /// The previous vertex itself (not the offset ray origin), for light densities that must
@@ -306,10 +306,19 @@ pub struct Wavefront<'a> {
     pub radiance: &'a mut [Rgb],
 }
 
-impl Integrator {
+/// A wavefront between bounces: its paths, the live ones, this bounce's vertices and the guide
+/// queries they make.
+struct WaveState<G: Guide + ?Sized> {
+    paths: Vec<PathState>,
+    live: Vec<usize>,
+    bounces: Vec<Bounce>,
+    batch: GuideBatch<G>,
+}
+
+impl PathTracer {
     /// The settings a scene was described with, estimated by `strategy`.
     pub fn from_scene(scene: &Scene, strategy: Strategy) -> Self {
-        Integrator {
+        PathTracer {
             max_depth: scene.settings.max_depth,
             rr_depth: scene.settings.rr_depth,
             hide_emitters: scene.settings.hide_emitters,
@@ -360,142 +369,194 @@ impl Integrator {
         assert!(rays.len() == rngs.len() && rays.len() == radiance.len());
         let want_records = records.is_some();
         let guided_bounces = guide.guided_bounces();
-        let mut paths: Vec<PathState> = rays.iter().map(|&r| PathState::new(r)).collect();
-        let mut live: Vec<usize> = (0..paths.len()).collect();
-        let mut bounces: Vec<Bounce> = Vec::new();
-        let mut batch = GuideBatch::<G>::new();
-        while !live.is_empty() {
-            // 1. Intersect, collect emission, and set up the vertices that scatter; non-delta
-            //    ones join the guide batch.
-            bounces.clear();
-            batch.vertices.clear();
-            for &i in &live {
-                let path = &mut paths[i];
-                stats.rays += 1;
-                let hit = scene.intersect(&path.ray, f32::INFINITY);
-                if let Some(e) = self.emitted(scene, path, hit.as_ref()) {
-                    path.add(path.beta * e.radiance * e.weight);
-                }
-                let Some(hit) = hit else {
-                    path.alive = false;
-                    continue;
-                };
-                if self.max_depth >= 0 && path.depth as i64 + 1 >= i64::from(self.max_depth) {
-                    path.alive = false;
-                    continue;
-                }
-                let wo_world = -path.ray.dir;
-                let frame = Frame::from_normal(hit.ns);
-                let material = &scene.materials[hit.material as usize];
-                let vertex = GuideVertex {
-                    p: hit.p,
-                    n: hit.ns,
-                    wo: wo_world,
-                    transmissive: material.transmits(),
-                };
-                let delta = material.is_delta();
-                bounces.push(Bounce {
-                    path: i,
-                    wo: frame.to_local(wo_world),
-                    frame,
-                    hit,
-                    vertex,
-                    delta,
-                    guided: (!delta && path.bounces < guided_bounces).then(|| batch.push(vertex)),
-                    alpha: 0.0,
-                    technique: Technique::Pending,
-                });
-            }
-
+        let mut wave = WaveState {
+            paths: rays.iter().map(|&r| PathState::new(r)).collect(),
+            live: (0..rays.len()).collect(),
+            bounces: Vec::new(),
+            batch: GuideBatch::<G>::new(),
+        };
+        while !wave.live.is_empty() {
+            self.intersect(scene, &mut wave, guided_bounces, stats);
             // 2. Selection probabilities of the guide, for all guided vertices at once.
-            batch.select(guide);
-
-            // 3. Next-event estimation up to the shadow ray, technique selection and BSDF
-            //    sampling; queue the guide densities and samples these need.
-            for b in &mut bounces {
-                let material = &scene.materials[b.hit.material as usize];
-                if let Some(g) = b.guided {
-                    b.alpha = batch.alphas[g];
-                }
-                let rng = &mut rngs[b.path];
-                if !b.delta {
-                    let path = &mut paths[b.path];
-                    if let Some(c) = self.sample_light(scene, b, material, path.beta, rng, stats) {
-                        path.add(c);
-                    }
-                }
-                let u_select = uniform(rng);
-                let u_lobe = uniform(rng);
-                let u_dir = uniform2(rng);
-                b.technique = match b.guided {
-                    Some(g) if b.alpha > 0.0 && u_select < b.alpha => {
-                        Technique::Guide(batch.sample(g, u_dir))
-                    }
-                    _ => {
-                        let sample = material.sample(b.wo, u_lobe, u_dir);
-                        let query = b
-                            .guided
-                            .filter(|_| b.alpha > 0.0)
-                            .zip(sample.filter(|s| !s.delta))
-                            .map(|(g, s)| batch.pdf(g, b.frame.to_world(s.wi)));
-                        Technique::Bsdf(sample, query)
-                    }
-                };
-            }
-            batch.run(guide);
-
-            // 4. Finish next-event estimation and continue (or end) every path.
-            for b in &bounces {
-                let material = &scene.materials[b.hit.material as usize];
-                let path = &mut paths[b.path];
-                let Some(scatter) = Self::scatter(b, material, &batch) else {
-                    path.alive = false;
-                    continue;
-                };
-                if scatter.pdf <= 0.0 || scatter.f == Rgb::ZERO {
-                    path.alive = false;
-                    continue;
-                }
-                let cos = b.frame.n.dot(scatter.wi).abs();
-                path.beta *= scatter.f * (cos / scatter.pdf);
-                path.eta *= scatter.eta;
-                if want_records && !scatter.delta && b.guided.is_some() {
-                    path.pending.push(PendingRecord {
-                        record: GuideRecord {
-                            vertex: b.vertex,
-                            wi: scatter.wi,
-                            pdf: scatter.pdf,
-                            bsdf_pdf: scatter.bsdf_pdf,
-                            bsdf_cos: scatter.f * cos,
-                            radiance: Rgb::ZERO,
-                        },
-                        throughput: path.beta,
-                    });
-                }
-                path.prev_bsdf_pdf = scatter.bsdf_pdf;
-                path.prev_p = b.hit.p;
-                path.prev_delta = scatter.delta;
-                path.depth += 1;
-                path.bounces += u32::from(!b.delta);
-                if path.depth >= self.rr_depth {
-                    let q = (path.beta.max_element() * path.eta * path.eta).min(0.95);
-                    if uniform(&mut rngs[b.path]) >= q {
-                        path.alive = false;
-                        continue;
-                    }
-                    // Pending records keep the throughput from before this division: the 1/q
-                    // belongs to the radiance estimate of the path after them.
-                    path.beta /= q;
-                }
-                path.ray = Ray::new(offset_origin(b.hit.p, b.hit.ng, scatter.wi), scatter.wi);
-            }
-            live.retain(|&i| paths[i].alive);
+            wave.batch.select(guide);
+            self.choose_techniques(scene, &mut wave, rngs, stats);
+            wave.batch.run(guide);
+            self.scatter_all(scene, &mut wave, rngs, want_records);
+            let paths = &wave.paths;
+            wave.live.retain(|&i| paths[i].alive);
         }
+        let mut paths = wave.paths;
         for (o, path) in radiance.iter_mut().zip(&mut paths) {
             *o = path.l;
             if let Some(records) = records.as_deref_mut() {
                 records.extend(path.pending.drain(..).map(|p| p.record));
             }
+        }
+    }
+
+    /// Step 1 of a bounce in [`PathTracer::trace`]: intersects every live path's ray, collects emission, and sets up the
+    /// vertices that scatter; non-delta ones among a path's first `guided_bounces` join the
+    /// guide batch.
+    fn intersect<G: Guide + ?Sized>(
+        &self,
+        scene: &Scene,
+        wave: &mut WaveState<G>,
+        guided_bounces: u32,
+        stats: &mut PathStats,
+    ) {
+        let WaveState {
+            paths,
+            live,
+            bounces,
+            batch,
+        } = wave;
+        bounces.clear();
+        batch.vertices.clear();
+        for &i in live.iter() {
+            let path = &mut paths[i];
+            stats.rays += 1;
+            let hit = scene.intersect(&path.ray, f32::INFINITY);
+            if let Some(e) = self.emitted(scene, path, hit.as_ref()) {
+                path.add(path.beta * e.radiance * e.weight);
+            }
+            let Some(hit) = hit else {
+                path.alive = false;
+                continue;
+            };
+            if self.max_depth >= 0 && path.depth as i64 + 1 >= i64::from(self.max_depth) {
+                path.alive = false;
+                continue;
+            }
+            let wo_world = -path.ray.dir;
+            let frame = Frame::from_normal(hit.ns);
+            let material = &scene.materials[hit.material as usize];
+            let vertex = GuideVertex {
+                p: hit.p,
+                n: hit.ns,
+                wo: wo_world,
+                transmissive: material.transmits(),
+            };
+            let delta = material.is_delta();
+            bounces.push(Bounce {
+                path: i,
+                wo: frame.to_local(wo_world),
+                frame,
+                hit,
+                vertex,
+                delta,
+                guided: (!delta && path.bounces < guided_bounces).then(|| batch.push(vertex)),
+                alpha: 0.0,
+                technique: Technique::Pending,
+            });
+        }
+    }
+
+    /// Step 3 (after the guide's selection probabilities): next-event estimation up to the
+    /// shadow ray, the choice of technique and BSDF sampling at every vertex; queues the guide
+    /// densities and samples these need.
+    fn choose_techniques<G: Guide + ?Sized>(
+        &self,
+        scene: &Scene,
+        wave: &mut WaveState<G>,
+        rngs: &mut [Pcg32],
+        stats: &mut PathStats,
+    ) {
+        let WaveState {
+            paths,
+            bounces,
+            batch,
+            ..
+        } = wave;
+        for b in bounces.iter_mut() {
+            let material = &scene.materials[b.hit.material as usize];
+            if let Some(g) = b.guided {
+                b.alpha = batch.alphas[g];
+            }
+            let rng = &mut rngs[b.path];
+            if !b.delta {
+                let path = &mut paths[b.path];
+                if let Some(c) = self.sample_light(scene, b, material, path.beta, rng, stats) {
+                    path.add(c);
+                }
+            }
+            let u_select = uniform(rng);
+            let u_lobe = uniform(rng);
+            let u_dir = uniform2(rng);
+            b.technique = match b.guided {
+                Some(g) if b.alpha > 0.0 && u_select < b.alpha => {
+                    Technique::Guide(batch.sample(g, u_dir))
+                }
+                _ => {
+                    let sample = material.sample(b.wo, u_lobe, u_dir);
+                    let query = b
+                        .guided
+                        .filter(|_| b.alpha > 0.0)
+                        .zip(sample.filter(|s| !s.delta))
+                        .map(|(g, s)| batch.pdf(g, b.frame.to_world(s.wi)));
+                    Technique::Bsdf(sample, query)
+                }
+            };
+        }
+    }
+
+    /// Step 4 (after the guide's queries): finishes next-event estimation and continues, or
+    /// ends, every path; keeps the vertices guides learn from when `want_records`.
+    fn scatter_all<G: Guide + ?Sized>(
+        &self,
+        scene: &Scene,
+        wave: &mut WaveState<G>,
+        rngs: &mut [Pcg32],
+        want_records: bool,
+    ) {
+        let WaveState {
+            paths,
+            bounces,
+            batch,
+            ..
+        } = wave;
+        for b in bounces.iter() {
+            let material = &scene.materials[b.hit.material as usize];
+            let path = &mut paths[b.path];
+            let Some(scatter) = Self::scatter(b, material, batch) else {
+                path.alive = false;
+                continue;
+            };
+            if scatter.pdf <= 0.0 || scatter.f == Rgb::ZERO {
+                path.alive = false;
+                continue;
+            }
+            let cos = b.frame.n.dot(scatter.wi).abs();
+            path.beta *= scatter.f * (cos / scatter.pdf);
+            path.eta *= scatter.eta;
+            if want_records && !scatter.delta && b.guided.is_some() {
+                path.pending.push(PendingRecord {
+                    record: GuideRecord {
+                        vertex: b.vertex,
+                        wi: scatter.wi,
+                        pdf: scatter.pdf,
+                        bsdf_pdf: scatter.bsdf_pdf,
+                        bsdf_cos: scatter.f * cos,
+                        radiance: Rgb::ZERO,
+                    },
+                    throughput: path.beta,
+                });
+            }
+            path.prev_bsdf_pdf = scatter.bsdf_pdf;
+            path.prev_p = b.hit.p;
+            path.prev_delta = scatter.delta;
+            path.depth += 1;
+            path.bounces += u32::from(!b.delta);
+            if path.depth >= self.rr_depth {
+                let q = (path.beta.max_element() * path.eta * path.eta).min(0.95);
+                if uniform(&mut rngs[b.path]) >= q {
+                    path.alive = false;
+                    continue;
+                }
+                // Pending records keep the throughput from before this division: the 1/q
+                // belongs to the radiance estimate of the path after them.
+                path.beta /= q;
+            }
+            path.ray = Ray::new(offset_origin(b.hit.p, b.hit.ng, scatter.wi), scatter.wi);
         }
     }
 
@@ -553,7 +614,7 @@ impl Integrator {
     ///
     /// The sample is weighted by the power heuristic against the BSDF's density of its
     /// direction, guided or not, and the emitter that a continuation reaches by the same two
-    /// densities ([`Integrator::emitted`]), so the two weights of every direction sum to one
+    /// densities ([`PathTracer::emitted`]), so the two weights of every direction sum to one
     /// whatever density the continuation was drawn from: the guide–BSDF mixture only divides
     /// the continuation's throughput, and the guide's density of the light sample's direction
     /// (a network query per light sample for the neural guide) is never needed. Weighing
