@@ -15,10 +15,10 @@ use nis_render::xml::load_scene_str;
 fn furnace(shape: &str, albedo: f32, max_depth: i32, rr_depth: u32) -> Scene {
     let xml = format!(
         r#"<scene version="3.0.0">
-            <path_tracer type="path">
+            <integrator type="path">
                 <integer name="max_depth" value="{max_depth}"/>
                 <integer name="rr_depth" value="{rr_depth}"/>
-            </path_tracer>
+            </integrator>
             <sensor type="perspective">
                 <float name="fov" value="90"/>
                 <transform name="to_world"><lookat origin="0.1, 0.2, 0" target="1, 0, 0.3"/></transform>
