@@ -14,15 +14,20 @@
 //! [`Strategy::Nee`] and [`Strategy::Bsdf`] switch one of the two techniques off; all three are
 //! unbiased estimators of the same image, which the tests check.
 
-use glam::{Vec2, Vec3};
+use glam::Vec2;
 use rand::RngCore;
 use rand_pcg::Pcg32;
 
-use crate::bsdf::{BsdfSample, Material};
+use crate::bsdf::Material;
 use crate::geometry::{offset_origin, Frame, Ray, Rgb, RAY_EPSILON};
-use crate::guiding::{Guide, GuideRecord, GuideSample, GuideVertex, PdfQuery, SampleQuery};
+use crate::guiding::{Guide, GuideRecord, GuideVertex};
 use crate::sampling::power_heuristic;
 use crate::scene::{Scene, SurfaceHit, NO_LIGHT};
+use guide_batch::GuideBatch;
+use path::{Bounce, Emission, PathState, PendingRecord, Scatter, Technique};
+
+mod guide_batch;
+mod path;
 
 /// Which techniques estimate the light arriving at a vertex.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Default)]
@@ -81,218 +86,6 @@ pub fn uniform(rng: &mut Pcg32) -> f32 {
 #[inline]
 fn uniform2(rng: &mut Pcg32) -> Vec2 {
     Vec2::new(uniform(rng), uniform(rng))
-}
-
-/// A vertex kept while a path is traced so that guides can learn from it afterwards.
-struct PendingRecord {
-    record: GuideRecord,
-    /// Path throughput after scattering at this vertex.
-    throughput: Rgb,
-}
-
-/// Credit `contribution` (already multiplied by the path throughput) to every pending vertex
-/// in `pending`, as radiance arriving along its sampled direction.
-fn credit(pending: &mut [PendingRecord], contribution: Rgb) {
-    for v in pending {
-        let t = v.throughput;
-        let safe = |c: f32, t: f32| if t > 0.0 { c / t } else { 0.0 };
-        v.record.radiance += Rgb::new(
-            safe(contribution.x, t.x),
-            safe(contribution.y, t.y),
-            safe(contribution.z, t.z),
-        );
-    }
-}
-
-/// A path being traced.
-struct PathState {
-    ray: Ray,
-    l: Rgb,
-    beta: Rgb,
-    eta: f32,
-    /// The BSDF's density of the direction the path left its previous vertex in, which MIS
-    /// weighs against light sampling (guided or not: see [`PathTracer::sample_light`]).
-    prev_bsdf_pdf: f32,
-    prev_delta: bool,
-    /// The previous vertex itself (not the offset ray origin), for light densities that must
-    /// match the ones next-event estimation computed there.
-    prev_p: Vec3,
-    depth: u32,
-    /// Vertices with a non-delta BSDF the path scattered at so far (what
-    /// [`Guide::guided_bounces`] counts).
-    bounces: u32,
-    alive: bool,
-    pending: Vec<PendingRecord>,
-}
-
-impl PathState {
-    fn new(ray: Ray) -> Self {
-        PathState {
-            ray,
-            l: Rgb::ZERO,
-            beta: Rgb::ONE,
-            eta: 1.0,
-            prev_bsdf_pdf: 0.0,
-            prev_delta: true,
-            prev_p: ray.origin,
-            depth: 0,
-            bounces: 0,
-            alive: true,
-            pending: Vec::new(),
-        }
-    }
-
-    /// Add a contribution (already multiplied by the throughput) to the estimate and credit it
-    /// to the vertices waiting for training data.
-    fn add(&mut self, c: Rgb) {
-        self.l += c;
-        credit(&mut self.pending, c);
-    }
-}
-
-/// Emitted radiance a path's ray reached, and its MIS weight (kept apart: the estimator
-/// multiplies throughput, radiance and weight in that order).
-#[derive(Clone, Copy, Debug)]
-struct Emission {
-    radiance: Rgb,
-    weight: f32,
-}
-
-/// How a vertex continues its path: the sampled direction and what the estimator needs of it.
-#[derive(Clone, Copy, Debug)]
-struct Scatter {
-    /// Direction (world).
-    wi: Vec3,
-    /// BSDF value (for a delta lobe, its weight divided by `|cos θi|`).
-    f: Rgb,
-    /// Density the direction was drawn with: the guide–BSDF mixture's, or a delta lobe's
-    /// probability.
-    pdf: f32,
-    /// The BSDF's own density of `wi`.
-    bsdf_pdf: f32,
-    /// Whether `wi` came from a delta lobe.
-    delta: bool,
-    /// Relative index of refraction crossed.
-    eta: f32,
-}
-
-/// One scattering vertex of one path during a wavefront step.
-struct Bounce {
-    path: usize,
-    hit: SurfaceHit,
-    frame: Frame,
-    wo: Vec3,
-    vertex: GuideVertex,
-    /// Whether the material is a delta BSDF (no light sampling, never guided).
-    delta: bool,
-    /// Index of the vertex in the step's guide batch (`None` where the guide does not serve
-    /// the vertex: at delta vertices, and beyond [`Guide::guided_bounces`]).
-    guided: Option<usize>,
-    /// Selection probability of the guide here.
-    alpha: f32,
-    technique: Technique,
-}
-
-impl Bounce {
-    /// Density of the one-sample guide–BSDF mixture, given the guide's and the BSDF's.
-    fn mixture_pdf(&self, guide_pdf: f32, bsdf_pdf: f32) -> f32 {
-        if self.alpha > 0.0 {
-            self.alpha * guide_pdf + (1.0 - self.alpha) * bsdf_pdf
-        } else {
-            bsdf_pdf
-        }
-    }
-}
-
-/// How a vertex continues its path.
-enum Technique {
-    /// Not decided yet.
-    Pending,
-    /// A direction from the guide: the index of its sample query.
-    Guide(usize),
-    /// The BSDF's sample (`None`: it drew nothing), and the index of the guide-density query of
-    /// its direction (`None` when the guide is off here or the sample is a delta).
-    Bsdf(Option<BsdfSample>, Option<usize>),
-}
-
-/// The guide queries of one wavefront step: the guided vertices, what the guide prepared for
-/// them, and the sample and density queries that refer to them, answered in one batch call each.
-struct GuideBatch<G: Guide + ?Sized> {
-    vertices: Vec<GuideVertex>,
-    prepared: G::Prepared,
-    alphas: Vec<f32>,
-    pdf_queries: Vec<PdfQuery>,
-    pdfs: Vec<f32>,
-    sample_queries: Vec<SampleQuery>,
-    samples: Vec<Option<GuideSample>>,
-}
-
-impl<G: Guide + ?Sized> GuideBatch<G> {
-    fn new() -> Self {
-        Self {
-            vertices: Vec::new(),
-            prepared: G::Prepared::default(),
-            alphas: Vec::new(),
-            pdf_queries: Vec::new(),
-            pdfs: Vec::new(),
-            sample_queries: Vec::new(),
-            samples: Vec::new(),
-        }
-    }
-
-    /// Add a vertex to the batch; returns its index.
-    fn push(&mut self, vertex: GuideVertex) -> usize {
-        self.vertices.push(vertex);
-        self.vertices.len() - 1
-    }
-
-    /// Prepare the guide for the batch's vertices and get their selection probabilities.
-    fn select(&mut self, guide: &G) {
-        self.alphas.clear();
-        self.alphas.resize(self.vertices.len(), 0.0);
-        if !self.vertices.is_empty() {
-            guide.prepare(&self.vertices, &mut self.prepared);
-            guide.selection_probabilities(&self.vertices, &self.prepared, &mut self.alphas);
-        }
-        self.pdf_queries.clear();
-        self.sample_queries.clear();
-    }
-
-    /// Queue the guide's density of `wi` at vertex `vertex`; returns the query's index.
-    fn pdf(&mut self, vertex: usize, wi: Vec3) -> usize {
-        self.pdf_queries.push(PdfQuery { vertex, wi });
-        self.pdf_queries.len() - 1
-    }
-
-    /// Queue a guide sample at vertex `vertex` from `u`; returns the query's index.
-    fn sample(&mut self, vertex: usize, u: Vec2) -> usize {
-        self.sample_queries.push(SampleQuery { vertex, u });
-        self.sample_queries.len() - 1
-    }
-
-    /// Answer all queued queries.
-    fn run(&mut self, guide: &G) {
-        self.pdfs.clear();
-        self.pdfs.resize(self.pdf_queries.len(), 0.0);
-        if !self.pdfs.is_empty() {
-            guide.pdf_batch(
-                &self.vertices,
-                &self.prepared,
-                &self.pdf_queries,
-                &mut self.pdfs,
-            );
-        }
-        self.samples.clear();
-        self.samples.resize(self.sample_queries.len(), None);
-        if !self.samples.is_empty() {
-            guide.sample_batch(
-                &self.vertices,
-                &self.prepared,
-                &self.sample_queries,
-                &mut self.samples,
-            );
-        }
-    }
 }
 
 /// Camera rays traced together, each with its random stream, and where their radiance
