@@ -181,25 +181,7 @@ pub fn run_render(args: &RenderArgs, comm: &Comm) -> Result<(), Box<dyn std::err
         eprintln!("wrote {}", path.display());
         return Ok(());
     }
-    let params = args
-        .define
-        .iter()
-        .map(|d| {
-            d.split_once('=')
-                .map(|(k, v)| (k.to_string(), v.to_string()))
-                .ok_or_else(|| format!("-D expects NAME=VALUE, got '{d}'"))
-        })
-        .collect::<Result<Vec<_>, _>>()?;
-    let mut scene = load(args, &params)?;
-    let width = args.width.or(args.res).unwrap_or(scene.camera.width());
-    let height = args.height.or(args.res).unwrap_or(scene.camera.height());
-    if width == 0 || height == 0 {
-        return Err("the image must have at least one pixel".into());
-    }
-    scene.camera.set_resolution(width, height);
-    if let Some(d) = args.max_depth {
-        scene.settings.max_depth = d;
-    }
+    let (scene, width, height) = scene_of(args)?;
     let strategy = match args.strategy.as_str() {
         "nee" => Strategy::Nee,
         "bsdf" => Strategy::Bsdf,
@@ -250,6 +232,41 @@ pub fn run_render(args: &RenderArgs, comm: &Comm) -> Result<(), Box<dyn std::err
     if !comm.is_root() {
         return Ok(());
     }
+    report(args, &out, width, height)
+}
+
+/// The scene `args` name, with its `-D` parameters, resolution and depth applied: the scene and
+/// the image's width and height.
+fn scene_of(args: &RenderArgs) -> Result<(Scene, u32, u32), Box<dyn std::error::Error>> {
+    let params = args
+        .define
+        .iter()
+        .map(|d| {
+            d.split_once('=')
+                .map(|(k, v)| (k.to_string(), v.to_string()))
+                .ok_or_else(|| format!("-D expects NAME=VALUE, got '{d}'"))
+        })
+        .collect::<Result<Vec<_>, _>>()?;
+    let mut scene = load(args, &params)?;
+    let width = args.width.or(args.res).unwrap_or(scene.camera.width());
+    let height = args.height.or(args.res).unwrap_or(scene.camera.height());
+    if width == 0 || height == 0 {
+        return Err("the image must have at least one pixel".into());
+    }
+    scene.camera.set_resolution(width, height);
+    if let Some(d) = args.max_depth {
+        scene.settings.max_depth = d;
+    }
+    Ok((scene, width, height))
+}
+
+/// Prints what the render `out` took and writes its image to every `--out`.
+fn report(
+    args: &RenderArgs,
+    out: &RenderOutput,
+    width: u32,
+    height: u32,
+) -> Result<(), Box<dyn std::error::Error>> {
     let rays = out.stats.rays + out.stats.shadow_rays;
     println!(
         "{}: {}x{}, {} spp in {:.2} s; {:.2} M rays/s, {:.2} M samples/s; mean radiance {:.6}",

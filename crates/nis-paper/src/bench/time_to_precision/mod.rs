@@ -12,7 +12,7 @@ pub mod ladder;
 mod plot;
 pub mod vegas_package;
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 use nis::integrate::{integrator, Integrand, Method, Settings};
@@ -346,37 +346,44 @@ pub fn run(
     let load = (load_start, load_average());
     let mut md = table(o, &cells, load, versions.as_ref());
     if let Some(docs) = &o.docs {
-        let dir = report::images_dir(docs);
-        md.push_str("\nRelative error against wall time, every run (circles: honest, crosses: |pull| ≥ 4; dashed: the targets):\n\n");
-        for c in &cells {
-            let file = dir.join(format!(
-                "time-to-precision-{}-d{}{}.png",
-                c.name,
-                c.dim,
-                cost_suffix(o.cost_us)
-            ));
-            report::write_file(&file, &plot::png(c, &o.targets)?)?;
-            md.push_str(&format!(
-                "![{} d={}]({})\n",
-                c.name,
-                c.dim,
-                report::relative_to(docs, &file)
-            ));
-        }
-        let (key, title) = if o.cost_us > 0.0 {
-            (
-                "time-to-precision-cost",
-                format!("Time to precision with a synthetic cost of {} µs per point (`nis bench time-to-precision --cost-us {}`)", o.cost_us, o.cost_us),
-            )
-        } else {
-            (
-                "time-to-precision",
-                "Time to precision (`nis bench time-to-precision`)".to_string(),
-            )
-        };
-        report::write_section(docs, key, &title, &md)?;
+        write_docs(o, docs, &cells, &mut md)?;
     }
     Ok((cells, md))
+}
+
+/// Writes the plots of every cell beside `docs`, links them from `md` and writes `md` as the
+/// section of `docs` (a synthetic cost gets a section of its own).
+fn write_docs(o: &Options, docs: &Path, cells: &[CellResult], md: &mut String) -> Result<()> {
+    let dir = report::images_dir(docs);
+    md.push_str("\nRelative error against wall time, every run (circles: honest, crosses: |pull| ≥ 4; dashed: the targets):\n\n");
+    for c in cells {
+        let file = dir.join(format!(
+            "time-to-precision-{}-d{}{}.png",
+            c.name,
+            c.dim,
+            cost_suffix(o.cost_us)
+        ));
+        report::write_file(&file, &plot::png(c, &o.targets)?)?;
+        md.push_str(&format!(
+            "![{} d={}]({})\n",
+            c.name,
+            c.dim,
+            report::relative_to(docs, &file)
+        ));
+    }
+    let (key, title) = if o.cost_us > 0.0 {
+        (
+            "time-to-precision-cost",
+            format!("Time to precision with a synthetic cost of {} µs per point (`nis bench time-to-precision --cost-us {}`)", o.cost_us, o.cost_us),
+        )
+    } else {
+        (
+            "time-to-precision",
+            "Time to precision (`nis bench time-to-precision`)".to_string(),
+        )
+    };
+    report::write_section(docs, key, &title, md)?;
+    Ok(())
 }
 
 /// One fresh run of our `method`, timed around building the integrator and integrating.
