@@ -9,7 +9,7 @@
 use std::path::{Path, PathBuf};
 
 use nis::integrands::{self, Builtin, SUITE};
-use nis::integrate::{integrator, Convergence, Method, Settings, PARETO_K_LIMIT};
+use nis::integrate::{integrator, Convergence, Method, Settings, DIVERGENCE_LIMIT, PARETO_K_LIMIT};
 use nis::loss::Loss;
 use plotters::prelude::*;
 use rayon::prelude::*;
@@ -538,6 +538,63 @@ fn warning_summary(cells: &[Cell], budgets: &[Budget]) -> String {
         }
     }
     md.push('\n');
+    md.push_str(&divergence_sweep(cells, budgets));
+    md
+}
+
+/// The limits on the divergence tried: the runs beyond 4σ left without a warning, the 2σ
+/// coverage of the runs without one, and the share of runs within 2σ warned, per limit.
+fn divergence_sweep(cells: &[Cell], budgets: &[Budget]) -> String {
+    const LIMITS: [f64; 6] = [1.0, 2.0, 3.0, 5.0, 10.0, 30.0];
+    let mut md = format!(
+        "How the limit on the divergence (n/ESS − 1, the result warns above {DIVERGENCE_LIMIT}) \
+         was chosen: per limit, together with the χ² and k̂ warnings, the runs beyond 4σ left \
+         without a warning / the 2σ coverage of the runs without one (band) / the share of \
+         runs within 2σ warned.\n\n| budget | method |"
+    );
+    for l in LIMITS {
+        md.push_str(&format!(" {l} |"));
+    }
+    md.push_str(&format!("\n|---|---|{}\n", "---|".repeat(LIMITS.len())));
+    for &b in budgets {
+        for method in METHODS {
+            let runs: Vec<(f64, &Run)> = cells
+                .iter()
+                .filter(|c| c.evals == b.evals && c.method == method)
+                .flat_map(|c| c.runs.iter().map(move |r| (c.pull(r), r)))
+                .collect();
+            if runs.is_empty() {
+                continue;
+            }
+            md.push_str(&format!("| {} | {method} |", b.evals));
+            for l in LIMITS {
+                let warned =
+                    |r: &Run| warned_before(r) || r.convergence.divergence.is_some_and(|d| d > l);
+                let missed = runs
+                    .iter()
+                    .filter(|(p, r)| p.abs() > 4.0 && !warned(r))
+                    .count();
+                let kept: Vec<f64> = runs
+                    .iter()
+                    .filter(|(_, r)| !warned(r))
+                    .map(|(p, _)| *p)
+                    .collect();
+                let cover = kept.iter().filter(|p| p.abs() <= 2.0).count() as f64
+                    / kept.len().max(1) as f64;
+                let (lo, _) = band(NOMINAL2, kept.len());
+                let within: Vec<&Run> = runs
+                    .iter()
+                    .filter(|(p, _)| p.abs() <= 2.0)
+                    .map(|(_, r)| *r)
+                    .collect();
+                let alarms =
+                    within.iter().filter(|r| warned(r)).count() as f64 / within.len().max(1) as f64;
+                md.push_str(&format!(" {missed} / {cover:.3} ({lo:.3}) / {alarms:.2} |"));
+            }
+            md.push('\n');
+        }
+    }
+    md.push('\n');
     md
 }
 
@@ -717,6 +774,20 @@ mod tests {
         assert_eq!(s.flagged, 0.25);
         let (lo, hi) = band(0.5, 100);
         assert!((lo - 0.4).abs() < 1e-12 && (hi - 0.6).abs() < 1e-12);
+    }
+
+    #[test]
+    fn each_warning_is_named_and_the_divergence_is_one_of_them() {
+        let mut r = run_of(1.0, 1.0, Some(0.7));
+        r.chi2 = Some(4.0);
+        r.convergence.divergence = Some(2.0 * DIVERGENCE_LIMIT);
+        assert_eq!(warning_labels(&r), ["χ²", "k̂", "divergence"]);
+        assert!(warned_before(&r));
+        let mut quiet = run_of(1.0, 1.0, Some(0.1));
+        quiet.convergence.divergence = Some(0.5 * DIVERGENCE_LIMIT);
+        assert!(warning_labels(&quiet).is_empty());
+        quiet.convergence.divergence = Some(2.0 * DIVERGENCE_LIMIT);
+        assert!(!warned_before(&quiet) && warning_labels(&quiet) == ["divergence"]);
     }
 
     #[test]
