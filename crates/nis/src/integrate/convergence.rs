@@ -206,10 +206,13 @@ mod tests {
         (1.0 / (alpha * (2.0 * std::f64::consts::PI).sqrt())).powi(d) - 1.0
     }
 
+    /// NIS with `train_fraction` of `evals` training and an i.i.d. final phase, whose weights
+    /// are drawn from the sampler itself (a stratified one moves points towards the peak).
     fn nis_result(name: &str, dim: usize, train_fraction: f64, evals: u64) -> IntegrationResult {
         let f = crate::integrands::by_name(name, Some(dim)).unwrap();
         let mut s = Settings::default().seed(3);
         s.nis.train_fraction = train_fraction;
+        s.nis.stratify = None;
         integrator(Method::Nis, dim, &s)
             .unwrap()
             .integrate(&f, evals)
@@ -219,13 +222,16 @@ mod tests {
     #[test]
     fn an_untrained_flow_on_a_sharp_peak_warns_and_a_trained_one_on_a_broad_peak_does_not() {
         // gauss-sharp (α = 0.1) d = 4 with too little training for one batch: the flow is as it
-        // was initialised, near uniform, whose divergence is (1/(0.1·√(2π)))⁴ − 1 ≈ 250, ~80×
-        // the limit; the estimate of it from 2·10⁴ points is far better than that factor.
+        // was initialised, uniform, whose divergence is (1/(0.1·√(2π)))⁴ − 1 ≈ 250, ~80× the
+        // limit; its weights are bounded, so 2·10⁴ of them estimate it far better than that.
         let prior = uniform_divergence(0.1, 4);
         assert!(prior > 50.0 * DIVERGENCE_LIMIT);
         let r = nis_result("gauss-sharp", 4, 0.005, 20_000);
         let d = r.convergence.divergence.unwrap();
-        assert!(d > DIVERGENCE_LIMIT, "divergence {d}");
+        assert!(
+            d > prior / 2.0 && d < prior * 2.0,
+            "divergence {d}, uniform's {prior}"
+        );
         assert!(
             r.warnings.iter().any(|w| w.contains("χ² divergence")),
             "{:?}",
