@@ -389,11 +389,12 @@ const NOMINAL2: f64 = 0.954_499_736_103_641_6;
 
 fn markdown(cells: &[Cell], budgets: &[Budget]) -> String {
     let mut md = String::from(
-        "`nis bench coverage` (default cells; `--full` for the whole suite). Per cell: the \
+        "`nis bench coverage` (the default cells; `--peaked` the peaked ones of issue 40; \
+         `--full` the whole suite). Per cell: the \
          fraction of seeds whose 1σ and 2σ intervals cover the exact value (nominal 0.683 and \
          0.954), the mean and the worst pull (value − exact)/σ, the mean χ²/dof between the \
          final phase's iterations, the median Pareto k̂, and the fraction of runs whose k̂ exceeds \
-         the limit 0.5 (the
+         the limit 0.5 (the \
          result then warns that its error bar cannot be trusted). Cells whose 2σ coverage lies \
          below the binomial 95% band are in bold.\n\n",
     );
