@@ -152,7 +152,8 @@ impl Convergence {
     }
 }
 
-/// The divergence above which a result warns.
+/// The divergence above which a result warns: its estimate then rests on fewer than a quarter of
+/// its points. Chosen by the sweep of limits in docs/results/robustness.md (issue-40 section).
 pub const DIVERGENCE_LIMIT: f64 = 3.0;
 
 #[cfg(test)]
