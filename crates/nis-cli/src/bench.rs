@@ -39,6 +39,13 @@ pub struct BenchCoverageArgs {
     /// Only this integrand.
     #[arg(long)]
     only: Option<String>,
+    /// The peaked cells of issue 40 (camel-sharp, gauss-sharp, gauss-diagonal, peaks, ridge in
+    /// d = 4 and 8) instead of the default cells, into a section of their own.
+    #[arg(long)]
+    peaked: bool,
+    /// Seeds per cell instead of each budget's own.
+    #[arg(long)]
+    seeds: Option<u64>,
     /// Only the small budget (2·10⁴ evaluations × 200 seeds).
     #[arg(long)]
     small_only: bool,
@@ -60,6 +67,8 @@ pub fn run_coverage(a: &BenchCoverageArgs) -> Result<(), Box<dyn std::error::Err
     let options = nis_paper::bench::coverage::Options {
         full: a.full,
         only: a.only.clone(),
+        peaked: a.peaked,
+        seeds: a.seeds,
         small_only: a.small_only,
         cache: a.cache.clone(),
         docs: a.docs.clone(),

@@ -9,7 +9,7 @@
 use std::path::{Path, PathBuf};
 
 use nis::integrands::{self, Builtin, SUITE};
-use nis::integrate::{integrator, Method, Settings, PARETO_K_LIMIT};
+use nis::integrate::{integrator, Convergence, Method, Settings, DIVERGENCE_LIMIT, PARETO_K_LIMIT};
 use nis::loss::Loss;
 use plotters::prelude::*;
 use rayon::prelude::*;
@@ -55,6 +55,20 @@ pub const DEFAULT_CELLS: &[(&str, usize)] = &[
     ("ridge", 4),
 ];
 
+/// The peaked cells of issue 40, where small budgets leave the sampler unconverged (`--peaked`).
+pub const PEAKED_CELLS: &[(&str, usize)] = &[
+    ("camel-sharp", 4),
+    ("camel-sharp", 8),
+    ("gauss-sharp", 4),
+    ("gauss-sharp", 8),
+    ("gauss-diagonal", 4),
+    ("gauss-diagonal", 8),
+    ("peaks", 4),
+    ("peaks", 8),
+    ("ridge", 4),
+    ("ridge", 8),
+];
+
 /// The methods, as the table names them.
 pub const METHODS: [&str; 4] = ["NIS-KL", "NIS-χ²", "VEGAS+", "MC"];
 
@@ -64,6 +78,10 @@ pub struct Options {
     pub full: bool,
     /// Only this integrand (all its dimensions in the chosen set).
     pub only: Option<String>,
+    /// [`PEAKED_CELLS`] instead of [`DEFAULT_CELLS`], into the section "coverage-peaked".
+    pub peaked: bool,
+    /// Seeds per cell instead of each budget's own.
+    pub seeds: Option<u64>,
     /// Only the first budget (small).
     pub small_only: bool,
     /// Directory of the per-cell JSON cache.
@@ -89,6 +107,9 @@ pub struct Run {
     pub ess: f64,
     /// Wall seconds.
     pub seconds: f64,
+    /// The sampler's convergence figures.
+    #[serde(default)]
+    pub convergence: Convergence,
 }
 
 /// One cell: an integrand, a method and a budget, all its seeds.
@@ -227,6 +248,7 @@ pub fn run_cell(f: &Builtin, method: &str, budget: Budget) -> Cell {
                 pareto_k: r.pareto_k.is_finite().then_some(r.pareto_k),
                 ess: r.ess,
                 seconds: r.seconds,
+                convergence: r.convergence,
             }),
             Err(e) => cell.errors.push((seed, e.to_string())),
         }
@@ -261,10 +283,12 @@ fn cells(o: &Options) -> Vec<(String, usize)> {
             .flat_map(|e| e.dims.iter().map(|&d| (e.name.to_string(), d)))
             .collect()
     } else {
-        DEFAULT_CELLS
-            .iter()
-            .map(|&(n, d)| (n.to_string(), d))
-            .collect()
+        let set = if o.peaked {
+            PEAKED_CELLS
+        } else {
+            DEFAULT_CELLS
+        };
+        set.iter().map(|&(n, d)| (n.to_string(), d)).collect()
     };
     all.into_iter()
         .filter(|(n, _)| o.only.as_deref().is_none_or(|only| only == n))
@@ -276,11 +300,14 @@ fn cells(o: &Options) -> Vec<(String, usize)> {
 /// the Markdown.
 pub fn run(o: &Options, log: &mut dyn FnMut(usize, usize, &str)) -> Result<String> {
     report::create_dir(&o.cache)?;
-    let budgets: &[Budget] = if o.small_only {
-        &BUDGETS[..1]
-    } else {
-        &BUDGETS
-    };
+    let budgets: Vec<Budget> = BUDGETS[..if o.small_only { 1 } else { 2 }]
+        .iter()
+        .map(|b| Budget {
+            seeds: o.seeds.unwrap_or(b.seeds),
+            ..*b
+        })
+        .collect();
+    let budgets = &budgets[..];
     let list = cells(o);
     if list.is_empty() {
         return Err(Error::Config(format!(
@@ -327,14 +354,27 @@ pub fn run(o: &Options, log: &mut dyn FnMut(usize, usize, &str)) -> Result<Strin
         }
     }
     let md = markdown(&done, budgets);
-    let figure = report::images_dir(&o.docs).join("coverage.png");
+    let figure = report::images_dir(&o.docs).join(if o.peaked {
+        "coverage-peaked.png"
+    } else {
+        "coverage.png"
+    });
     report::create_dir(figure.parent().unwrap_or(Path::new(".")))?;
     report::write_file(&figure, &png_bytes(&plot(&done, budgets)?)?)?;
     let body = format!(
         "{md}\n2σ coverage per cell (x: the cells in the order of the tables) and method:\n\n![2σ coverage per cell and method]({})\n",
         report::relative_to(&o.docs, &figure)
     );
-    report::write_section(&o.docs, "coverage", "Coverage of the error bars", &body)?;
+    if o.peaked {
+        report::write_section(
+            &o.docs,
+            "coverage-peaked",
+            "Coverage on peaked integrands at small budgets, and the warnings",
+            &body,
+        )?;
+    } else {
+        report::write_section(&o.docs, "coverage", "Coverage of the error bars", &body)?;
+    }
     Ok(body)
 }
 
@@ -349,11 +389,12 @@ const NOMINAL2: f64 = 0.954_499_736_103_641_6;
 
 fn markdown(cells: &[Cell], budgets: &[Budget]) -> String {
     let mut md = String::from(
-        "`nis bench coverage` (default cells; `--full` for the whole suite). Per cell: the \
+        "`nis bench coverage` (the default cells; `--peaked` the peaked ones of issue 40; \
+         `--full` the whole suite). Per cell: the \
          fraction of seeds whose 1σ and 2σ intervals cover the exact value (nominal 0.683 and \
          0.954), the mean and the worst pull (value − exact)/σ, the mean χ²/dof between the \
          final phase's iterations, the median Pareto k̂, and the fraction of runs whose k̂ exceeds \
-         the limit 0.5 (the
+         the limit 0.5 (the \
          result then warns that its error bar cannot be trusted). Cells whose 2σ coverage lies \
          below the binomial 95% band are in bold.\n\n",
     );
@@ -390,6 +431,171 @@ fn markdown(cells: &[Cell], budgets: &[Budget]) -> String {
         md.push('\n');
     }
     md.push_str(&diagnostic_summary(cells, budgets));
+    md.push_str(&warning_summary(cells, budgets));
+    md
+}
+
+/// The warnings a run gives, by label: χ² between iterations and k̂ (the result's warnings
+/// before issue 40), then the convergence figures'.
+pub fn warning_labels(r: &Run) -> Vec<&'static str> {
+    let mut out = Vec::new();
+    if r.chi2.is_some_and(|c| c > 3.0) {
+        out.push("χ²");
+    }
+    if r.pareto_k.is_some_and(|k| k > PARETO_K_LIMIT) {
+        out.push("k̂");
+    }
+    out.extend(r.convergence.warnings().iter().map(|w| w.label));
+    out
+}
+
+/// Whether the result warned before the convergence figures (χ² or k̂).
+fn warned_before(r: &Run) -> bool {
+    warning_labels(r).iter().any(|l| *l == "χ²" || *l == "k̂")
+}
+
+/// Before and after the convergence warnings, per budget and method: the runs more than 4σ off
+/// that carry no warning, the 2σ coverage of the runs without one, the share of runs within 2σ
+/// warned anyway, and which warning caught the runs beyond 4σ.
+fn warning_summary(cells: &[Cell], budgets: &[Budget]) -> String {
+    let mut md = String::from(
+        "### Which warning caught which run\n\n\
+         Over all cells of a budget and method, before (the warnings of χ²/dof > 3 and k̂ > 0.5) \
+         and after the convergence warnings (`nis::integrate::Convergence`): the runs more than \
+         4σ off without any warning (the goal is none), the 2σ coverage of the runs without a \
+         warning (their number in brackets) against the binomial 95% band for their number, and \
+         the share of the runs within 2σ that warn anyway (false alarms). Then, for the runs \
+         beyond 4σ, how many each warning caught (a run may carry several).\n\n\
+         | budget | method | runs | beyond 4σ | unwarned beyond 4σ (before → after) | unwarned 2σ before | band | unwarned 2σ after | band | warned within 2σ (before → after) | beyond 4σ caught by |\n\
+         |---|---|---|---|---|---|---|---|---|---|---|\n",
+    );
+    for &b in budgets {
+        for method in METHODS {
+            let runs: Vec<(f64, &Run)> = cells
+                .iter()
+                .filter(|c| c.evals == b.evals && c.method == method)
+                .flat_map(|c| c.runs.iter().map(move |r| (c.pull(r), r)))
+                .collect();
+            if runs.is_empty() {
+                continue;
+            }
+            let after = |r: &Run| !warning_labels(r).is_empty();
+            let far: Vec<&Run> = runs
+                .iter()
+                .filter(|(p, _)| p.abs() > 4.0)
+                .map(|(_, r)| *r)
+                .collect();
+            let missed = |warned: &dyn Fn(&Run) -> bool| far.iter().filter(|r| !warned(r)).count();
+            let unwarned = |warned: &dyn Fn(&Run) -> bool| {
+                let kept: Vec<f64> = runs
+                    .iter()
+                    .filter(|(_, r)| !warned(r))
+                    .map(|(p, _)| *p)
+                    .collect();
+                let cover = kept.iter().filter(|p| p.abs() <= 2.0).count() as f64
+                    / kept.len().max(1) as f64;
+                let (lo, hi) = band(NOMINAL2, kept.len());
+                format!("{cover:.3} ({}) | {lo:.3}–{:.3}", kept.len(), hi.min(1.0))
+            };
+            let within: Vec<&Run> = runs
+                .iter()
+                .filter(|(p, _)| p.abs() <= 2.0)
+                .map(|(_, r)| *r)
+                .collect();
+            let false_alarms = |warned: &dyn Fn(&Run) -> bool| {
+                within.iter().filter(|r| warned(r)).count() as f64 / within.len().max(1) as f64
+            };
+            let mut caught: Vec<(&str, usize)> = Vec::new();
+            for r in &far {
+                for l in warning_labels(r) {
+                    match caught.iter_mut().find(|(k, _)| *k == l) {
+                        Some((_, n)) => *n += 1,
+                        None => caught.push((l, 1)),
+                    }
+                }
+            }
+            let caught = caught
+                .iter()
+                .map(|(l, n)| format!("{l} {n}"))
+                .collect::<Vec<_>>()
+                .join(", ");
+            md.push_str(&format!(
+                "| {} | {method} | {} | {} | {} → {} | {} | {} | {:.2} → {:.2} | {} |\n",
+                b.evals,
+                runs.len(),
+                far.len(),
+                missed(&warned_before),
+                missed(&after),
+                unwarned(&warned_before),
+                unwarned(&after),
+                false_alarms(&warned_before),
+                false_alarms(&after),
+                if caught.is_empty() {
+                    "–".into()
+                } else {
+                    caught
+                },
+            ));
+        }
+    }
+    md.push('\n');
+    md.push_str(&divergence_sweep(cells, budgets));
+    md
+}
+
+/// The limits on the divergence tried: the runs beyond 4σ left without a warning, the 2σ
+/// coverage of the runs without one, and the share of runs within 2σ warned, per limit.
+fn divergence_sweep(cells: &[Cell], budgets: &[Budget]) -> String {
+    const LIMITS: [f64; 6] = [1.0, 2.0, 3.0, 5.0, 10.0, 30.0];
+    let mut md = format!(
+        "How the limit on the divergence (n/ESS − 1, the result warns above {DIVERGENCE_LIMIT}) \
+         was chosen: per limit, together with the χ² and k̂ warnings, the runs beyond 4σ left \
+         without a warning / the 2σ coverage of the runs without one (band) / the share of \
+         runs within 2σ warned.\n\n| budget | method |"
+    );
+    for l in LIMITS {
+        md.push_str(&format!(" {l} |"));
+    }
+    md.push_str(&format!("\n|---|---|{}\n", "---|".repeat(LIMITS.len())));
+    for &b in budgets {
+        for method in METHODS {
+            let runs: Vec<(f64, &Run)> = cells
+                .iter()
+                .filter(|c| c.evals == b.evals && c.method == method)
+                .flat_map(|c| c.runs.iter().map(move |r| (c.pull(r), r)))
+                .collect();
+            if runs.is_empty() {
+                continue;
+            }
+            md.push_str(&format!("| {} | {method} |", b.evals));
+            for l in LIMITS {
+                let warned =
+                    |r: &Run| warned_before(r) || r.convergence.divergence.is_some_and(|d| d > l);
+                let missed = runs
+                    .iter()
+                    .filter(|(p, r)| p.abs() > 4.0 && !warned(r))
+                    .count();
+                let kept: Vec<f64> = runs
+                    .iter()
+                    .filter(|(_, r)| !warned(r))
+                    .map(|(p, _)| *p)
+                    .collect();
+                let cover = kept.iter().filter(|p| p.abs() <= 2.0).count() as f64
+                    / kept.len().max(1) as f64;
+                let (lo, _) = band(NOMINAL2, kept.len());
+                let within: Vec<&Run> = runs
+                    .iter()
+                    .filter(|(p, _)| p.abs() <= 2.0)
+                    .map(|(_, r)| *r)
+                    .collect();
+                let alarms =
+                    within.iter().filter(|r| warned(r)).count() as f64 / within.len().max(1) as f64;
+                md.push_str(&format!(" {missed} / {cover:.3} ({lo:.3}) / {alarms:.2} |"));
+            }
+            md.push('\n');
+        }
+    }
+    md.push('\n');
     md
 }
 
@@ -541,6 +747,7 @@ mod tests {
             pareto_k: k,
             ess: 1.0,
             seconds: 0.0,
+            convergence: Convergence::default(),
         }
     }
 
@@ -568,6 +775,20 @@ mod tests {
         assert_eq!(s.flagged, 0.25);
         let (lo, hi) = band(0.5, 100);
         assert!((lo - 0.4).abs() < 1e-12 && (hi - 0.6).abs() < 1e-12);
+    }
+
+    #[test]
+    fn each_warning_is_named_and_the_divergence_is_one_of_them() {
+        let mut r = run_of(1.0, 1.0, Some(0.7));
+        r.chi2 = Some(4.0);
+        r.convergence.divergence = Some(2.0 * DIVERGENCE_LIMIT);
+        assert_eq!(warning_labels(&r), ["χ²", "k̂", "divergence"]);
+        assert!(warned_before(&r));
+        let mut quiet = run_of(1.0, 1.0, Some(0.1));
+        quiet.convergence.divergence = Some(0.5 * DIVERGENCE_LIMIT);
+        assert!(warning_labels(&quiet).is_empty());
+        quiet.convergence.divergence = Some(2.0 * DIVERGENCE_LIMIT);
+        assert!(!warned_before(&quiet) && warning_labels(&quiet) == ["divergence"]);
     }
 
     #[test]

@@ -16,6 +16,8 @@ True
 - ``integrands``: the built-in test suite with exact values.
 """
 
+import warnings as _warnings
+
 from ._nis import (
     Builtin,
     Flow,
@@ -41,9 +43,13 @@ def _call(self, f, evals=1_000_000):
     vector integrand of one component (its result's warnings say so); return shape (n,) for
     floats. f is called on whole batches, with the GIL held only then. An exception raised by
     f propagates unchanged; NaN or inf raise ``nis.IntegrandError``; Ctrl-C raises
-    KeyboardInterrupt at the next batch.
+    KeyboardInterrupt at the next batch. Each of the result's ``warnings`` (an error bar that
+    cannot be trusted, a sampler that had not converged) is also raised as a ``UserWarning``.
     """
-    return _integrate(self, f, evals=evals)
+    r = _integrate(self, f, evals=evals)
+    for w in r.warnings:
+        _warnings.warn(w, UserWarning, stacklevel=2)
+    return r
 
 
 # PyO3 makes ``__call__`` a type slot, which keeps no docstring: this one carries it.

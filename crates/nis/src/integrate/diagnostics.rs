@@ -211,6 +211,11 @@ impl WeightTail {
         self.n += count;
     }
 
+    /// The weights seen.
+    pub fn count(&self) -> u64 {
+        self.n
+    }
+
     /// An empty tail of the same capacity.
     pub fn emptied(&self) -> WeightTail {
         WeightTail::with_capacity(self.capacity)

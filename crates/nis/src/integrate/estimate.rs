@@ -5,6 +5,7 @@
 
 use std::time::Instant;
 
+use super::convergence::Convergence;
 use super::diagnostics::WeightTail;
 use super::moments::{bytes_to_f64s, f64s_to_bytes};
 use super::result::{ComponentEstimates, IntegrationResult, Iteration, Source};
@@ -17,6 +18,8 @@ pub struct Accumulator {
     iterations: Vec<Iteration>,
     /// This rank's weights (component 0) of every iteration, for k̂, ESS and var_rel_err.
     tail: WeightTail,
+    /// The variance per evaluation of every training batch, in order (NIS), for [`Convergence`].
+    training_var: Vec<f64>,
 }
 
 impl Accumulator {
@@ -25,6 +28,7 @@ impl Accumulator {
         Accumulator {
             iterations: Vec::new(),
             tail: WeightTail::new(planned),
+            training_var: Vec::new(),
         }
     }
 
@@ -51,6 +55,12 @@ impl Accumulator {
     /// reliability figures.
     pub fn observe_tail(&mut self, tail: &WeightTail) {
         self.tail.merge(tail);
+    }
+
+    /// Sets the variance per evaluation of every training batch, in order, for the convergence
+    /// figures.
+    pub fn set_training_variances(&mut self, var: Vec<f64>) {
+        self.training_var = var;
     }
 
     /// Makes the reliability figures those of every rank's weights: the ranks' tails are
@@ -114,6 +124,12 @@ impl Accumulator {
         if let Some(w) = reliability.warning() {
             warnings.push(w);
         }
+        let mut convergence = Convergence::of(&self.iterations, &self.training_var);
+        convergence.divergence =
+            (reliability.ess > 0.0).then(|| self.tail.count() as f64 / reliability.ess - 1.0);
+        if !zero && !rounding {
+            warnings.extend(convergence.warnings().into_iter().map(|w| w.sentence));
+        }
         IntegrationResult {
             value,
             std_err: var.sqrt(),
@@ -134,6 +150,7 @@ impl Accumulator {
             var_rel_err: reliability.var_rel_err,
             seconds: started.elapsed().as_secs_f64(),
             warnings,
+            convergence,
             iterations: self.iterations.clone(),
             components: self.components(shares),
         }

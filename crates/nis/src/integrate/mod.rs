@@ -12,6 +12,7 @@
 //! unbiased mean of i.i.d. (or stratified) weights, and its error bar is the honest standard
 //! error of that mean. The final phase is split into iterations whose spread gives χ²/dof.
 
+mod convergence;
 pub mod diagnostics;
 mod estimate;
 mod integrand;
@@ -31,6 +32,7 @@ use serde::{Deserialize, Serialize};
 use crate::comm::Comm;
 use crate::error::{Error, Result};
 
+pub use convergence::{Convergence, ConvergenceWarning, DIVERGENCE_LIMIT};
 pub use diagnostics::{Reliability, PARETO_K_LIMIT};
 pub use estimate::Accumulator;
 pub use integrand::{check_dim, evaluate, points_per_task, Integrand, TrainOn, VectorFn};

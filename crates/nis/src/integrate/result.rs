@@ -3,6 +3,8 @@
 
 use serde::{Deserialize, Serialize};
 
+use super::convergence::Convergence;
+
 /// The outcome of an integration, the same for every method.
 #[derive(Clone, Debug, Default, Serialize, Deserialize)]
 pub struct IntegrationResult {
@@ -36,6 +38,9 @@ pub struct IntegrationResult {
     /// Things the user should know (not part of the JSON summary).
     #[serde(skip)]
     pub warnings: Vec<String>,
+    /// Whether the sampler had converged (not part of the JSON summary).
+    #[serde(skip)]
+    pub convergence: Convergence,
     /// The iterations that make the estimate, in order: pooled training batches first (NIS with
     /// `reuse_training`), then the final phase's (not part of the JSON summary). Their
     /// evaluations add up to `n_eval` less those that only adapted the sampler.

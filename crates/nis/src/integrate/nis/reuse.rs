@@ -147,6 +147,8 @@ pub(super) struct TrainingPieces {
     /// Per-point variance of f/q (component 0) of the previous batch, and the smallest so far.
     previous_var: Option<f64>,
     best_var: f64,
+    /// The variance per evaluation of every batch, in order (for the convergence figures).
+    history: Vec<f64>,
     /// How the final phase's stratified latent is predicted, when it has one.
     stratified: Option<StratifiedFinal>,
     groups: Vec<Group>,
@@ -217,6 +219,7 @@ impl TrainingPieces {
             remaining: 1.0,
             previous_var: None,
             best_var: f64::INFINITY,
+            history: Vec::new(),
             stratified,
             groups: Vec::new(),
             tail: WeightTail::new(kept as u64 * batch),
@@ -345,6 +348,7 @@ impl TrainingPieces {
             g.sum_abs_w += sum_abs_w;
             g.batches += 1;
         }
+        self.history.push(var);
         self.previous_var = Some(var);
         self.best_var = self.best_var.min(var);
     }
@@ -368,6 +372,7 @@ impl TrainingPieces {
             ))?;
         }
         acc.observe_tail(&self.tail);
+        acc.set_training_variances(self.history.clone());
         Ok(())
     }
 
