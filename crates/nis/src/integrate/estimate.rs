@@ -20,6 +20,9 @@ pub struct Accumulator {
     tail: WeightTail,
     /// The variance per evaluation of every training batch, in order (NIS), for [`Convergence`].
     training_var: Vec<f64>,
+    /// Whether the sampler was learned from the integrand: only then can a large divergence
+    /// mean mass the sampler never found (for plain MC it is the integrand's own peakedness).
+    learned: bool,
 }
 
 impl Accumulator {
@@ -29,6 +32,16 @@ impl Accumulator {
             iterations: Vec::new(),
             tail: WeightTail::new(planned),
             training_var: Vec::new(),
+            learned: true,
+        }
+    }
+
+    /// [`Accumulator::new`] for a sampler that was not learned from the integrand (plain MC):
+    /// its result reports the convergence figures without the divergence warning.
+    pub fn for_fixed_sampler(planned: u64) -> Accumulator {
+        Accumulator {
+            learned: false,
+            ..Accumulator::new(planned)
         }
     }
 
@@ -127,7 +140,7 @@ impl Accumulator {
         let mut convergence = Convergence::of(&self.iterations, &self.training_var);
         convergence.divergence =
             (reliability.ess > 0.0).then(|| self.tail.count() as f64 / reliability.ess - 1.0);
-        if !zero && !rounding {
+        if !zero && !rounding && self.learned {
             warnings.extend(convergence.warnings().into_iter().map(|w| w.sentence));
         }
         IntegrationResult {

@@ -145,7 +145,7 @@ impl PlainMc {
             2 * iterations as u64,
             "two per iteration",
         )?;
-        let mut acc = Accumulator::new(evals);
+        let mut acc = Accumulator::for_fixed_sampler(evals);
         let mut done = 0;
         for it in 0..iterations {
             let n = (evals * (it as u64 + 1) / iterations as u64 - done).max(1);
