@@ -147,7 +147,8 @@ class Integrator:
         vector integrand of one component (its result's warnings say so); return shape (n,) for
         floats. f is called on whole batches, with the GIL held only then. An exception raised by
         f propagates unchanged; NaN or inf raise ``nis.IntegrandError``; Ctrl-C raises
-        KeyboardInterrupt at the next batch.
+        KeyboardInterrupt at the next batch. Each of the result's ``warnings`` (an error bar that
+        cannot be trusted, a sampler that had not converged) is also raised as a ``UserWarning``.
         """
     def train(self, f: IntegrandFn, evals: int) -> None:
         """NIS only: trains on ``evals`` more evaluations without estimating."""
