@@ -20,6 +20,8 @@
 //! records, never on the order in which they arrived.
 
 use glam::{Vec2, Vec3};
+use serde::de::DeserializeOwned;
+use serde::{Deserialize, Serialize};
 
 use crate::geometry::Rgb;
 
@@ -107,7 +109,7 @@ fn bits_key<const N: usize>(values: [f32; N]) -> [u32; N] {
 }
 
 /// What a guide may condition on at a path vertex (world space).
-#[derive(Clone, Copy, Debug)]
+#[derive(Clone, Copy, Debug, Serialize, Deserialize)]
 pub struct GuideVertex {
     /// Position.
     pub p: Vec3,
@@ -124,7 +126,7 @@ pub struct GuideVertex {
 /// mixture density `pdf`, and `radiance` is the (single-sample) estimate of the radiance that
 /// arrived from `wi`, i.e. everything the rest of the path collected divided by the path
 /// throughput up to and including this vertex's scattering.
-#[derive(Clone, Copy, Debug)]
+#[derive(Clone, Copy, Debug, Serialize, Deserialize)]
 pub struct GuideRecord {
     /// Where the direction was sampled.
     pub vertex: GuideVertex,
@@ -171,97 +173,34 @@ pub struct PdfQuery {
 /// vectors of them, no locks or handles) with an associative, order-respecting `merge`, so the
 /// statistics of several waves, threads or processes can be combined (e.g. gathered or summed
 /// over MPI ranks) before one update that every process then applies alike.
-pub trait GuideStatistics: Default + Send {
+///
+/// Between processes they travel as bytes of their serde form ([`to_bytes`], [`from_bytes`]).
+pub trait GuideStatistics: Default + Send + Serialize + DeserializeOwned {
     /// Add `later`'s statistics after this one's.
     fn merge(&mut self, later: Self);
-    /// The statistics as numbers, to send to other processes.
-    fn to_words(&self) -> Vec<f32>;
-    /// The statistics [`GuideStatistics::to_words`] gave `words`.
-    fn from_words(words: &[f32]) -> Self;
 }
 
 /// Nothing to learn from.
 impl GuideStatistics for () {
     fn merge(&mut self, _: Self) {}
-    fn to_words(&self) -> Vec<f32> {
-        Vec::new()
-    }
-    fn from_words(_: &[f32]) -> Self {}
-}
-
-/// A record a guide keeps, as a fixed number of `f32`s (so records can cross processes).
-pub trait Record: Copy + Send {
-    /// Numbers per record.
-    const WORDS: usize;
-    /// Appends the record's `WORDS` numbers to `out`.
-    fn write(&self, out: &mut Vec<f32>);
-    /// The record from its `WORDS` numbers.
-    fn read(words: &[f32]) -> Self;
 }
 
 /// Records (reduced to what a guide keeps), in the order they were made.
-impl<T: Record> GuideStatistics for Vec<T> {
+impl<T: Send + Serialize + DeserializeOwned> GuideStatistics for Vec<T> {
     fn merge(&mut self, later: Self) {
         self.extend(later);
     }
-    fn to_words(&self) -> Vec<f32> {
-        let mut out = Vec::with_capacity(self.len() * T::WORDS);
-        for r in self {
-            r.write(&mut out);
-        }
-        out
-    }
-    fn from_words(words: &[f32]) -> Self {
-        words.chunks_exact(T::WORDS).map(T::read).collect()
-    }
 }
 
-/// Numbers a count takes in [`GuideStatistics::to_words`] (16 bits each, exact in `f32`).
-pub(crate) const COUNT_WORDS: usize = 4;
-
-/// Appends `n` as [`COUNT_WORDS`] numbers, 16 bits each, lowest first.
-pub(crate) fn write_count(n: usize, out: &mut Vec<f32>) {
-    let n = n as u64;
-    out.extend((0..COUNT_WORDS).map(|i| ((n >> (16 * i)) & 0xffff) as f32));
+/// Statistics as bytes, to send to other processes: postcard's compact serde form (floats bit
+/// for bit, counts as varints).
+pub fn to_bytes<S: GuideStatistics>(statistics: &S) -> Vec<u8> {
+    postcard::to_allocvec(statistics).expect("guide statistics are plain values")
 }
 
-/// The count [`write_count`] wrote to the first [`COUNT_WORDS`] numbers of `w`.
-pub(crate) fn read_count(w: &[f32]) -> usize {
-    w[..COUNT_WORDS]
-        .iter()
-        .enumerate()
-        .fold(0u64, |n, (i, &v)| n | (v as u64) << (16 * i)) as usize
-}
-
-/// Three numbers of a vector.
-fn vec3_at(w: &[f32], i: usize) -> Vec3 {
-    Vec3::new(w[i], w[i + 1], w[i + 2])
-}
-
-impl Record for GuideRecord {
-    const WORDS: usize = 21;
-    fn write(&self, out: &mut Vec<f32>) {
-        let v = &self.vertex;
-        for x in [v.p, v.n, v.wo, self.wi, self.bsdf_cos, self.radiance] {
-            out.extend_from_slice(&x.to_array());
-        }
-        out.extend_from_slice(&[self.pdf, self.bsdf_pdf, f32::from(u8::from(v.transmissive))]);
-    }
-    fn read(w: &[f32]) -> Self {
-        GuideRecord {
-            vertex: GuideVertex {
-                p: vec3_at(w, 0),
-                n: vec3_at(w, 3),
-                wo: vec3_at(w, 6),
-                transmissive: w[20] != 0.0,
-            },
-            wi: vec3_at(w, 9),
-            bsdf_cos: vec3_at(w, 12),
-            radiance: vec3_at(w, 15),
-            pdf: w[18],
-            bsdf_pdf: w[19],
-        }
-    }
+/// The statistics [`to_bytes`] made; `None` for bytes that are not such statistics.
+pub fn from_bytes<S: GuideStatistics>(bytes: &[u8]) -> Option<S> {
+    postcard::from_bytes(bytes).ok()
 }
 
 /// A directional sampling distribution over incident directions at path vertices, mixed with

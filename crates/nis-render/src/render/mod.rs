@@ -547,18 +547,12 @@ fn gather_statistics<S: GuideStatistics>(comm: &Comm, statistics: S) -> S {
     if comm.size() == 1 {
         return statistics;
     }
-    let bytes = statistics
-        .to_words()
-        .iter()
-        .flat_map(|w| w.to_le_bytes())
-        .collect();
     let mut all = S::default();
-    for b in comm.all_gather_bytes(bytes) {
-        let words: Vec<f32> = b
-            .chunks_exact(4)
-            .map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]]))
-            .collect();
-        all.merge(S::from_words(&words));
+    for b in comm.all_gather_bytes(crate::guiding::to_bytes(&statistics)) {
+        all.merge(
+            crate::guiding::from_bytes(&b)
+                .expect("every rank serialises its statistics with the same build"),
+        );
     }
     all
 }

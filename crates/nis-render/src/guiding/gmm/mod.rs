@@ -24,6 +24,7 @@
 
 use glam::{DVec2, Vec3};
 use rayon::prelude::*;
+use serde::{Deserialize, Serialize};
 
 use super::spatial::SpatialTree;
 use super::{bits_key, Guide, GuideRecord, GuideSample, GuideVertex, PdfQuery, SampleQuery};
@@ -114,30 +115,12 @@ fn to_local(frame: &[Vec3; 3], w: Vec3) -> Vec3 {
 
 /// One training record reduced to what the mixtures need. A training pass's
 /// [`Guide::Statistics`] are its samples, in the order they were made.
-#[derive(Clone, Copy, Debug)]
+#[derive(Clone, Copy, Debug, Serialize, Deserialize)]
 pub struct Sample {
     p: Vec3,
     n: Vec3,
     wi: Vec3,
     weight: f32,
-}
-
-impl super::Record for Sample {
-    const WORDS: usize = 10;
-    fn write(&self, out: &mut Vec<f32>) {
-        for v in [self.p, self.n, self.wi] {
-            out.extend_from_slice(&v.to_array());
-        }
-        out.push(self.weight);
-    }
-    fn read(w: &[f32]) -> Self {
-        Sample {
-            p: super::vec3_at(w, 0),
-            n: super::vec3_at(w, 3),
-            wi: super::vec3_at(w, 6),
-            weight: w[9],
-        }
-    }
 }
 
 impl Sample {

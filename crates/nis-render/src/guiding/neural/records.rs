@@ -5,13 +5,14 @@
 use std::collections::VecDeque;
 
 use super::CONTEXT_SCALARS;
+use crate::guiding::GuideStatistics;
 #[cfg(doc)]
 use crate::guiding::{Guide, GuideRecord};
-use crate::guiding::{GuideStatistics, COUNT_WORDS};
+use serde::{Deserialize, Serialize};
 
 /// What the neural guide keeps of a training record. A training pass's
 /// [`Guide::Statistics`] are its samples, in the order they were made.
-#[derive(Clone, Copy, Debug)]
+#[derive(Clone, Copy, Debug, Serialize, Deserialize)]
 pub struct Sample {
     /// The vertex's context scalars (position, outgoing direction, normal).
     pub(super) context: [f32; CONTEXT_SCALARS],
@@ -38,7 +39,7 @@ impl Sample {
 /// are kept: the replay buffer would keep no more of them (see `NisGuide::train`), so a pass of
 /// any number of paths holds at most a buffer's worth of records. `seen` counts them all (it
 /// sets the number of steps), so training is the same as with every record kept.
-#[derive(Debug, Default)]
+#[derive(Debug, Default, Serialize, Deserialize)]
 pub struct PassSamples {
     pub(super) samples: VecDeque<Sample>,
     pub(super) seen: usize,
@@ -55,34 +56,6 @@ impl PassSamples {
     }
 }
 
-impl crate::guiding::Record for Sample {
-    const WORDS: usize = CONTEXT_SCALARS + 6;
-    fn write(&self, out: &mut Vec<f32>) {
-        out.extend_from_slice(&self.context);
-        out.extend_from_slice(&[
-            self.x[0],
-            self.x[1],
-            self.f,
-            self.pdf,
-            self.bsdf_pdf,
-            self.jacobian,
-        ]);
-    }
-    fn read(w: &[f32]) -> Self {
-        let c = CONTEXT_SCALARS;
-        let mut context = [0.0; CONTEXT_SCALARS];
-        context.copy_from_slice(&w[..c]);
-        Sample {
-            context,
-            x: [w[c], w[c + 1]],
-            f: w[c + 2],
-            pdf: w[c + 3],
-            bsdf_pdf: w[c + 4],
-            jacobian: w[c + 5],
-        }
-    }
-}
-
 impl GuideStatistics for PassSamples {
     fn merge(&mut self, later: Self) {
         self.cap = match (self.cap, later.cap) {
@@ -92,32 +65,5 @@ impl GuideStatistics for PassSamples {
         self.seen += later.seen;
         self.samples.extend(later.samples);
         self.trim();
-    }
-    /// The cap plus one (0 for none) and the count of records seen, then the kept records.
-    fn to_words(&self) -> Vec<f32> {
-        use crate::guiding::Record;
-        let mut out = Vec::with_capacity(2 * COUNT_WORDS + self.samples.len() * Sample::WORDS);
-        crate::guiding::write_count(self.cap.map_or(0, |c| c + 1), &mut out);
-        crate::guiding::write_count(self.seen, &mut out);
-        for s in &self.samples {
-            s.write(&mut out);
-        }
-        out
-    }
-    fn from_words(words: &[f32]) -> Self {
-        use crate::guiding::Record;
-        let (head, records) = words.split_at((2 * COUNT_WORDS).min(words.len()));
-        if head.len() < 2 * COUNT_WORDS {
-            return PassSamples::default();
-        }
-        let cap = crate::guiding::read_count(&head[..COUNT_WORDS]);
-        PassSamples {
-            samples: records
-                .chunks_exact(Sample::WORDS)
-                .map(Sample::read)
-                .collect(),
-            seen: crate::guiding::read_count(&head[COUNT_WORDS..]),
-            cap: cap.checked_sub(1),
-        }
     }
 }

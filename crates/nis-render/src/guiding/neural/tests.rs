@@ -4,7 +4,6 @@
 
 use super::records::{PassSamples, Sample};
 use super::*;
-use crate::guiding::GuideStatistics;
 use crate::guiding::{PdfQuery, SampleQuery};
 use nis::flow::{Bijection, Density};
 use rand::{Rng, SeedableRng};
@@ -328,8 +327,8 @@ fn pass_samples_cross_processes_whole() {
         jacobian: 0.125,
     };
     let bits = |s: &Sample| {
-        let mut w = Vec::new();
-        crate::guiding::Record::write(s, &mut w);
+        let mut w = s.context.to_vec();
+        w.extend([s.x[0], s.x[1], s.f, s.pdf, s.bsdf_pdf, s.jacobian]);
         w.iter().map(|v| v.to_bits()).collect::<Vec<_>>()
     };
     for cap in [None, Some(0), Some(3), Some(1 << 40)] {
@@ -338,13 +337,15 @@ fn pass_samples_cross_processes_whole() {
             seen: (1 << 33) + 12_345,
             cap,
         };
-        let back = PassSamples::from_words(&pass.to_words());
+        let back: PassSamples =
+            crate::guiding::from_bytes(&crate::guiding::to_bytes(&pass)).unwrap();
         assert_eq!((back.seen, back.cap), (pass.seen, pass.cap));
         assert_eq!(back.samples.len(), 3);
         for (a, b) in pass.samples.iter().zip(&back.samples) {
             assert_eq!(bits(a), bits(b));
         }
     }
-    let empty = PassSamples::from_words(&PassSamples::default().to_words());
+    let empty: PassSamples =
+        crate::guiding::from_bytes(&crate::guiding::to_bytes(&PassSamples::default())).unwrap();
     assert_eq!((empty.seen, empty.cap, empty.samples.len()), (0, None, 0));
 }

@@ -29,6 +29,7 @@
 use std::f64::consts::PI;
 
 use glam::Vec3;
+use serde::{Deserialize, Serialize};
 
 use super::spatial::SpatialTree;
 use super::{
@@ -122,27 +123,11 @@ struct Leaf {
 
 /// One training record reduced to what PPG keeps: position, direction and flux. A training
 /// pass's [`Guide::Statistics`] are its deposits, in the order they were made.
-#[derive(Clone, Copy, Debug)]
+#[derive(Clone, Copy, Debug, Serialize, Deserialize)]
 pub struct Deposit {
     p: Vec3,
     wi: Vec3,
     flux: f32,
-}
-
-impl super::Record for Deposit {
-    const WORDS: usize = 7;
-    fn write(&self, out: &mut Vec<f32>) {
-        out.extend_from_slice(&[
-            self.p.x, self.p.y, self.p.z, self.wi.x, self.wi.y, self.wi.z, self.flux,
-        ]);
-    }
-    fn read(w: &[f32]) -> Self {
-        Deposit {
-            p: super::vec3_at(w, 0),
-            wi: super::vec3_at(w, 3),
-            flux: w[6],
-        }
-    }
 }
 
 impl Deposit {
