@@ -96,11 +96,7 @@ pub(super) fn warning_summary(cells: &[Cell], budgets: &[Budget]) -> String {
     );
     for &b in budgets {
         for method in METHODS {
-            let runs: Vec<(f64, &Run)> = cells
-                .iter()
-                .filter(|c| c.evals == b.evals && c.method == method)
-                .flat_map(|c| c.runs.iter().map(move |r| (c.pull(r), r)))
-                .collect();
+            let runs = pooled_runs(cells, b, method);
             if runs.is_empty() {
                 continue;
             }
@@ -184,11 +180,7 @@ pub(super) fn divergence_sweep(cells: &[Cell], budgets: &[Budget]) -> String {
     md.push_str(&format!("\n|---|---|{}\n", "---|".repeat(LIMITS.len())));
     for &b in budgets {
         for method in METHODS {
-            let runs: Vec<(f64, &Run)> = cells
-                .iter()
-                .filter(|c| c.evals == b.evals && c.method == method)
-                .flat_map(|c| c.runs.iter().map(move |r| (c.pull(r), r)))
-                .collect();
+            let runs = pooled_runs(cells, b, method);
             if runs.is_empty() {
                 continue;
             }
@@ -238,11 +230,7 @@ pub(super) fn diagnostic_summary(cells: &[Cell], budgets: &[Budget]) -> String {
     );
     for &b in budgets {
         for method in METHODS {
-            let runs: Vec<(f64, &Run)> = cells
-                .iter()
-                .filter(|c| c.evals == b.evals && c.method == method)
-                .flat_map(|c| c.runs.iter().map(move |r| (c.pull(r), r)))
-                .collect();
+            let runs = pooled_runs(cells, b, method);
             if runs.is_empty() {
                 continue;
             }
@@ -357,4 +345,13 @@ pub(super) fn plot(cells: &[Cell], budgets: &[Budget]) -> Result<image::RgbImage
         root.present().map_err(figure_error)?;
     }
     image::RgbImage::from_raw(W, H, buffer).ok_or_else(|| figure_error("plot buffer size"))
+}
+
+/// Every run of `method` at budget `b` over all cells, with its pull.
+fn pooled_runs<'a>(cells: &'a [Cell], b: Budget, method: &str) -> Vec<(f64, &'a Run)> {
+    cells
+        .iter()
+        .filter(|c| c.evals == b.evals && c.method == method)
+        .flat_map(|c| c.runs.iter().map(move |r| (c.pull(r), r)))
+        .collect()
 }
