@@ -11,7 +11,7 @@ use nis::integrands::{self, Builtin, SUITE};
 use nis::integrate::unweight::{SampleFormat, SampleWriter};
 use nis::integrate::{
     disagreements, nis::NisConfig, nis::NisIntegrator, IntegrationResult, Integrator, Method,
-    Settings, DISAGREEMENT_SIGMAS,
+    Settings, Target, DEFAULT_MAX_EVALS, DISAGREEMENT_SIGMAS,
 };
 use nis::loss::Loss;
 
@@ -66,9 +66,23 @@ pub struct IntegrateArgs {
     /// docs/results/integration.md, "Flow masks: binary against codes").
     #[arg(long, conflicts_with = "load")]
     pub masks: Option<Masks>,
-    /// Evaluations per method (NIS training included).
+    /// Evaluations per method (NIS training included). A target (--rel-err, --abs-err)
+    /// replaces it.
     #[arg(long, default_value_t = 1_000_000)]
     pub evals: u64,
+    /// Integrate until the standard error is at most this fraction of |value| (or --abs-err is
+    /// met), or a limit (--max-evals, --seconds) is reached; the result says which.
+    #[arg(long, conflicts_with = "load")]
+    pub rel_err: Option<f64>,
+    /// Integrate until the standard error is at most this (or --rel-err is met).
+    #[arg(long, conflicts_with = "load")]
+    pub abs_err: Option<f64>,
+    /// With a target: the most evaluations per method, training included [default: 10^8].
+    #[arg(long, conflicts_with = "load")]
+    pub max_evals: Option<u64>,
+    /// With a target: the most wall-clock seconds per method, training included.
+    #[arg(long, conflicts_with = "load")]
+    pub seconds: Option<f64>,
     /// Random seed.
     #[arg(long, default_value_t = 0)]
     pub seed: u64,
@@ -121,6 +135,27 @@ impl IntegrateArgs {
                 .map_err(|e| format!("--nis-config: {e}"))?;
         }
         Ok(s)
+    }
+}
+
+impl IntegrateArgs {
+    /// The precision target of --rel-err/--abs-err with its limits, `None` for a budget
+    /// (--evals); an error for limits without a target.
+    pub fn target(&self) -> Result<Option<Target>, Error> {
+        if self.rel_err.is_none() && self.abs_err.is_none() {
+            if self.max_evals.is_some() || self.seconds.is_some() {
+                return Err("--max-evals and --seconds limit a precision target: give \
+                            --rel-err or --abs-err too (or --evals for a fixed budget)"
+                    .into());
+            }
+            return Ok(None);
+        }
+        Ok(Some(Target {
+            rel_err: self.rel_err,
+            abs_err: self.abs_err,
+            max_evals: self.max_evals.unwrap_or(DEFAULT_MAX_EVALS),
+            max_seconds: self.seconds,
+        }))
     }
 }
 
@@ -207,7 +242,10 @@ pub fn run_method(
             let mut nis = NisIntegrator::new(f.dim, args.settings()?.nis)?;
             nis.set_comm(comm.clone());
             nis.set_progress(Some(Box::new(progress)));
-            let r = nis.integrate(f, args.evals)?;
+            let r = match args.target()? {
+                Some(t) => nis.integrate_to(f, &t)?,
+                None => nis.integrate(f, args.evals)?,
+            };
             sums = rank_checksums(comm, nis.flow().params());
             // Every rank holds the same flow; one file, written by rank 0 (atomically).
             if let (Some(path), true) = (&args.save, comm.is_root()) {
@@ -219,7 +257,10 @@ pub fn run_method(
             let mut integ = nis::integrate::integrator(method, f.dim, &args.settings()?)?;
             integ.set_comm(comm.clone());
             integ.set_progress(Some(Box::new(progress)));
-            integ.integrate(f, args.evals)?
+            match args.target()? {
+                Some(t) => integ.integrate_to(f, &t)?,
+                None => integ.integrate(f, args.evals)?,
+            }
         }
     };
     pb.finish_and_clear();
@@ -295,6 +336,9 @@ pub fn run(args: &IntegrateArgs, comm: &Comm) -> Result<(), Error> {
         let r = run_method(&f, m, args, comm)?.result;
         if !args.json && root {
             println!("{}", row(m.label(), &r, f.exact));
+            if let Some(stop) = r.stop {
+                println!("{:<8} stopped by {}", "", stop.name());
+            }
             for w in &r.warnings {
                 eprintln!("warning ({}): {w}", m.label());
             }

@@ -23,6 +23,9 @@ pub struct Accumulator {
     /// Whether the sampler was learned from the integrand: only then can a large divergence
     /// mean mass the sampler never found (for plain MC it is the integrand's own peakedness).
     learned: bool,
+    /// Whether the iterations all come from one frozen sampler, also when pooled by shares (a
+    /// run to a target): χ² then compares them with the variance per evaluation they share.
+    frozen: bool,
 }
 
 impl Accumulator {
@@ -33,6 +36,7 @@ impl Accumulator {
             tail: WeightTail::new(planned),
             training_var: Vec::new(),
             learned: true,
+            frozen: false,
         }
     }
 
@@ -43,6 +47,11 @@ impl Accumulator {
             learned: false,
             ..Accumulator::new(planned)
         }
+    }
+
+    /// Marks the iterations as drawn from one frozen sampler (see the field `frozen`).
+    pub(crate) fn set_frozen_sampler(&mut self) {
+        self.frozen = true;
     }
 
     /// The iterations so far.
@@ -107,7 +116,7 @@ impl Accumulator {
             assert_eq!(a.len(), self.iterations.len(), "one share per iteration");
         }
         let (value, var) = self.pooled(shares);
-        let chi2 = self.chi2(value, shares.is_some());
+        let chi2 = self.chi2(value, shares.is_some() && !self.frozen);
         let finals = || self.iterations.iter().filter(|i| i.source == Source::Final);
         let max_abs_w = finals().fold(0.0f64, |m, i| m.max(i.max_abs_w));
         let sum_abs_w: f64 = finals().map(|i| i.sum_abs_w).sum();
@@ -166,6 +175,7 @@ impl Accumulator {
             convergence,
             iterations: self.iterations.clone(),
             components: self.components(shares),
+            stop: None,
         }
     }
 
@@ -208,7 +218,7 @@ impl Accumulator {
             };
         }
         // Against the variance an iteration of its size has by the pooled estimate (iterations
-        // are of nearly equal size): dividing by each iteration's own variance estimate instead
+        // are of nearly equal size, or of one frozen sampler): dividing by each iteration's own variance estimate instead
         // pulls χ² far below 1 for heavy-tailed weights, whose large deviations come with large
         // variance estimates. The per-evaluation variance of each iteration, averaged over the
         // iterations weighted by their sizes:

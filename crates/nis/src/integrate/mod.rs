@@ -20,6 +20,7 @@ mod moments;
 pub mod nis;
 mod result;
 pub mod settings;
+mod target;
 pub mod uniform;
 pub mod unweight;
 pub mod vegas;
@@ -40,6 +41,7 @@ pub use result::{
     disagreements, ComponentEstimates, IntegrationResult, Iteration, IterationComponents, Source,
     DISAGREEMENT_SIGMAS,
 };
+pub use target::{Stop, Target, DEFAULT_MAX_EVALS};
 
 /// Receives progress reports: evaluations done so far in the current call, evaluations planned
 /// for it, and a short status. Closures `FnMut(u64, u64, &str) + Send` are observers.
@@ -101,6 +103,14 @@ pub trait Integrator: Send {
     /// earlier calls), then estimates ∫ f with the rest, the sampler frozen. The result covers
     /// this call's final phase only. An error of the integrand stops the call and is returned.
     fn integrate(&mut self, f: &dyn Integrand, evals: u64) -> Result<IntegrationResult>;
+    /// Integrates until the error bar meets `target` or one of its limits is reached, whichever
+    /// comes first; the result's [`IntegrationResult::stop`] says which, and a limit adds a
+    /// warning, not an error. Adapts as [`Integrator::integrate`] does (NIS decides how long to
+    /// train from the costs and the progress it measures), then estimates with iterations whose
+    /// shares are fixed before they are drawn, so the stopped estimate stays unbiased
+    /// (docs/ESTIMATE.md, "Precision targets"). An error, before any evaluation, for a target
+    /// that cannot be met or limits below one estimate's needs.
+    fn integrate_to(&mut self, f: &dyn Integrand, target: &Target) -> Result<IntegrationResult>;
     /// Sets (or removes) the observer of progress; the default is none.
     fn set_progress(&mut self, progress: Option<Box<dyn Progress>>);
     /// Runs data-parallel over the ranks of `comm` (e.g. [`crate::comm::mpi::MpiComm`]) from

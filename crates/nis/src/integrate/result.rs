@@ -4,6 +4,7 @@
 use serde::{Deserialize, Serialize};
 
 use super::convergence::Convergence;
+use super::target::Stop;
 
 /// The outcome of an integration, the same for every method.
 #[derive(Clone, Debug, Default, Serialize, Deserialize)]
@@ -46,6 +47,9 @@ pub struct IntegrationResult {
     /// evaluations add up to `n_eval` less those that only adapted the sampler.
     #[serde(skip)]
     pub iterations: Vec<Iteration>,
+    /// Why a run to a precision target stopped (`None` for a run on a budget).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub stop: Option<Stop>,
     /// Every component's estimate, for integrands with more than one component (`None` for
     /// scalar integrands, whose one component is `value` ± `std_err`; see
     /// [`IntegrationResult::estimates`] for a view that covers both).

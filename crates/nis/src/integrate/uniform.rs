@@ -7,9 +7,10 @@ use rand_pcg::Pcg64Mcg;
 use serde::{Deserialize, Serialize};
 
 use super::moments::iid_iteration;
+use super::target::{Prior, Pursuit, AIM};
 use super::{
     check_budget, check_dim, evaluate, report, Accumulator, Integrand, IntegrationResult,
-    Integrator, Method, Progress,
+    Integrator, Method, Progress, Target,
 };
 use crate::comm::Comm;
 use crate::error::{Error, Result};
@@ -129,7 +130,15 @@ impl Integrator for PlainMc {
     fn integrate(&mut self, f: &dyn Integrand, evals: u64) -> Result<IntegrationResult> {
         in_pool(|| self.run(f, evals))
     }
+
+    /// A pilot of [`PILOT`] points, kept out of the estimate, plans the iterations that make it.
+    fn integrate_to(&mut self, f: &dyn Integrand, target: &Target) -> Result<IntegrationResult> {
+        in_pool(|| self.run_to(f, target))
+    }
 }
+
+/// Points of plain MC's pilot when integrating to a target: they only predict the variance.
+const PILOT: u64 = 1000;
 
 impl PlainMc {
     /// The iterations of [`Integrator::integrate`].
@@ -160,5 +169,58 @@ impl PlainMc {
         }
         acc.reduce_tail(&self.comm);
         Ok(acc.finish(None, done, started))
+    }
+
+    /// [`Integrator::integrate_to`]: the pilot, then iterations planned by a [`Pursuit`].
+    fn run_to(&mut self, f: &dyn Integrand, target: &Target) -> Result<IntegrationResult> {
+        let dim = self.dim;
+        check_dim(f, dim)?;
+        let k = f.components();
+        target.check("plain Monte Carlo", PILOT + 2)?;
+        let started = Instant::now();
+        let rng = &mut self.rng;
+        let mut draw = |m: usize| {
+            let x: Vec<f64> = (0..m * dim).map(|_| rng.random::<f64>()).collect();
+            evaluate(f, &x, dim)
+        };
+        let mut pilot_acc = Accumulator::for_fixed_sampler(PILOT);
+        let pilot = iid_iteration(&self.comm, PILOT, k, &mut pilot_acc, &mut draw)?;
+        let mut pursuit = Pursuit::new(*target, started, PILOT);
+        let mut prior = Prior {
+            var_per_eval: pilot.variance * PILOT as f64,
+            estimate: pilot.estimate,
+            seconds_per_eval: pursuit.elapsed(&self.comm) / PILOT as f64,
+        };
+        let wanted = target.error_for(prior.estimate);
+        let predicted = if wanted > 0.0 {
+            (prior.var_per_eval / (AIM * wanted).powi(2)).min(target.max_evals as f64)
+        } else {
+            target.max_evals as f64
+        };
+        let chunk = (predicted / self.config.iterations as f64) as u64;
+        let mut acc = Accumulator::for_fixed_sampler(predicted as u64);
+        acc.set_frozen_sampler();
+        let mut done = 0;
+        loop {
+            let elapsed = pursuit.elapsed(&self.comm);
+            let Some(step) = pursuit.next(prior, 2, chunk, elapsed)? else {
+                break;
+            };
+            let iteration = iid_iteration(&self.comm, step.evals, k, &mut acc, &mut draw)?;
+            done += iteration.evals;
+            prior.seconds_per_eval = pursuit.elapsed(&self.comm) / (PILOT + done) as f64;
+            pursuit.record(step, &iteration);
+            acc.add(iteration)?;
+            report(
+                &mut self.progress,
+                PILOT + done,
+                PILOT + (predicted as u64).max(done),
+                "uniform: to the target",
+            );
+        }
+        acc.reduce_tail(&self.comm);
+        let mut result = acc.finish(Some(pursuit.shares()), PILOT + done, started);
+        pursuit.finish(&mut result);
+        Ok(result)
     }
 }

@@ -49,6 +49,11 @@ impl ParamAverage {
         (1.0 - 1.0 / horizon) as f32
     }
 
+    /// The decay `β` of the steps from now on.
+    pub fn decay(&self) -> f32 {
+        self.decay
+    }
+
     /// The decay `β ∈ [0, 1)` of the steps from now on.
     pub fn set_decay(&mut self, decay: f32) {
         self.decay = decay;

@@ -21,10 +21,10 @@ use std::time::Instant;
 use rand::SeedableRng;
 use rand_pcg::Pcg64Mcg;
 
-use super::moments::iid_iteration;
+use super::moments::{iid_iteration, Moments};
 use super::{
     check_budget, check_dim, evaluate, report, Accumulator, Integrand, IntegrationResult,
-    Integrator, Method, Progress,
+    Integrator, Method, Progress, Target,
 };
 use crate::comm::Comm;
 use crate::error::{Error, Result};
@@ -34,10 +34,13 @@ use crate::kernels::in_pool;
 use crate::nn::ParamAverage;
 use crate::train::Learner;
 use reuse::{ReplayBuffer, TrainingPieces};
+use training_length::{BatchReport, TrainingLength};
 
 mod config;
 mod reuse;
 mod stratified_latent;
+mod to_target;
+mod training_length;
 
 pub use config::{NisConfig, NisConfigBuilder, Stratify};
 use stratified_latent::{FinalPlan, LatentStrata};
@@ -159,22 +162,36 @@ impl NisIntegrator {
         evals: u64,
         pieces: Option<&mut TrainingPieces>,
     ) -> Result<()> {
+        let batches = (evals / self.config.batch as u64) as usize;
+        self.train_keeping_for(f, batches, pieces, None)
+    }
+
+    /// [`NisIntegrator::train_keeping`] for `batches` batches, or fewer when `length` says stop.
+    fn train_keeping_for(
+        &mut self,
+        f: &dyn Integrand,
+        batches: usize,
+        pieces: Option<&mut TrainingPieces>,
+        length: Option<&mut TrainingLength>,
+    ) -> Result<()> {
         if let Some(a) = &self.average {
             a.resume(&mut [self.sampler.density.params_mut()]);
         }
-        let trained = self.train_steps(f, evals, pieces);
+        let trained = self.train_steps(f, batches, pieces, length);
         if let Some(a) = &mut self.average {
             a.use_average(&mut [self.sampler.density.params_mut()]);
         }
         trained
     }
 
-    /// The batches and steps of [`NisIntegrator::train_keeping`].
+    /// The batches and steps of [`NisIntegrator::train_keeping_for`]: `steps` batches, or fewer
+    /// when `length` (integrating to a target) says stop.
     fn train_steps(
         &mut self,
         f: &dyn Integrand,
-        evals: u64,
+        steps: usize,
         mut pieces: Option<&mut TrainingPieces>,
+        mut length: Option<&mut TrainingLength>,
     ) -> Result<()> {
         let dim = self.flow().dim();
         check_dim(f, dim)?;
@@ -189,20 +206,32 @@ impl NisIntegrator {
         }
         // This rank's share of every batch; the steps are the whole batch's.
         let share = self.comm.share(batch as u64) as usize;
-        let steps = (evals / batch as u64) as usize;
         if !self.scheduled {
             self.schedule(steps)?;
         }
-        let anneal = self.trained_evals == 0 && steps > 1;
+        // The tempered target rises to |f| over the first half of a first training, or over
+        // `ANNEAL_BATCHES` when a rule decides its length (then the average restarts there).
+        let anneal = (self.trained_evals == 0 && steps > 1).then(|| match length {
+            Some(_) => training_length::ANNEAL_BATCHES as f64,
+            None => steps as f64 / 2.0,
+        });
+        let evals = (steps * batch) as u64;
         let mut replay = ReplayBuffer::new(self.config.replay_batches);
         let mut done = 0;
         for step in 0..steps {
-            let beta = if anneal {
-                let t = (2.0 * step as f64 / steps as f64).min(1.0);
-                self.config.anneal_from + t * (1.0 - self.config.anneal_from)
-            } else {
-                1.0
+            let beta = match anneal {
+                Some(span) => {
+                    let t = (step as f64 / span).min(1.0);
+                    self.config.anneal_from + t * (1.0 - self.config.anneal_from)
+                }
+                None => 1.0,
             };
+            if length.is_some() && anneal == Some(step as f64) {
+                if let Some(a) = &mut self.average {
+                    *a = ParamAverage::new(a.decay(), &[self.sampler.density.params()]);
+                }
+            }
+            let started = Instant::now();
             self.learner.set_temperature(beta);
             // The flow's latents are the first numbers of the stream (`Flow::sample`): a copy of
             // it redraws them for the prediction of the stratified final phase.
@@ -221,12 +250,18 @@ impl NisIntegrator {
             let (b, fx) = self
                 .comm
                 .check(drawn.and_then(|(b, x64)| Ok((b, evaluate(f, &x64, dim)?))))?;
+            let drawn_in = started.elapsed().as_secs_f64();
             if let Some(p) = pieces.as_deref_mut() {
                 let z = latent_rng.map_or_else(Vec::new, |mut rng| {
                     crate::flow::uniform_latents(b.density_part.len() * dim, &mut rng)
                 });
                 p.observe(step, &b, &z, &fx, &self.comm);
             }
+            let moments = length.is_some().then(|| {
+                let mut m = Moments::new(k);
+                m.add(&reuse::batch_weights(&b, &fx, k));
+                m.across(&self.comm)
+            });
             let target = self.config.train_on.target(&fx, k);
             self.trained_evals += batch as u64;
             done += batch as u64;
@@ -263,6 +298,21 @@ impl NisIntegrator {
                 );
             }
             report(&mut self.progress, done, evals, "nis: training");
+            if let (Some(rule), Some(m)) = (length.as_deref_mut(), moments) {
+                // Times as the slowest rank saw them, so every rank decides alike.
+                let mut t = [drawn_in, started.elapsed().as_secs_f64()];
+                self.comm.max_f64(&mut t);
+                let (mean, cov) = m.mean_and_cov_of_mean();
+                let go_on = rule.go_on(BatchReport {
+                    var_per_eval: cov[0] * m.n() as f64,
+                    estimate: mean[0],
+                    seconds_per_eval: t[0] / batch as f64,
+                    seconds: t[1],
+                });
+                if !go_on {
+                    break;
+                }
+            }
         }
         Ok(())
     }
@@ -477,6 +527,10 @@ impl Integrator for NisIntegrator {
             self.train_keeping(f, train, pieces.as_mut())?;
             self.final_phase(f, plan, train, started, pieces)
         })
+    }
+
+    fn integrate_to(&mut self, f: &dyn Integrand, target: &Target) -> Result<IntegrationResult> {
+        in_pool(|| self.run_to(f, target))
     }
 
     fn save(&self, path: &Path) -> Result<()> {

@@ -400,7 +400,7 @@ impl TrainingPieces {
 /// The weights f/q (`n × k`) of a training batch, q being the mixture with the batch's own share
 /// of uniform points, n_u/n: with the counts fixed per batch this is the balance heuristic, whose
 /// mean is unbiased for exactly those counts.
-fn batch_weights(b: &MixtureBatch, fx: &[f64], k: usize) -> Vec<f64> {
+pub(super) fn batch_weights(b: &MixtureBatch, fx: &[f64], k: usize) -> Vec<f64> {
     let n = b.log_q_mix.len();
     let n_u = b.uniform_log_q.len();
     let lambda = n_u as f64 / n as f64;

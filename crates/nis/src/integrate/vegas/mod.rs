@@ -19,6 +19,7 @@ pub(crate) mod adaptive_strata;
 mod iteration;
 mod map;
 mod shares;
+mod to_target;
 
 use std::time::Instant;
 
@@ -28,7 +29,7 @@ use serde::{Deserialize, Serialize};
 
 use super::{
     check_budget, check_dim, report, Accumulator, Integrand, IntegrationResult, Integrator, Method,
-    Progress, TrainOn,
+    Progress, Target, TrainOn,
 };
 use crate::comm::Comm;
 use crate::error::{Error, Result};
@@ -265,6 +266,10 @@ impl Integrator for Vegas {
     /// Runs on a worker of rayon's pool (`kernels::in_pool`), as the NIS integrator does.
     fn integrate(&mut self, f: &dyn Integrand, evals: u64) -> Result<IntegrationResult> {
         in_pool(|| self.run(f, evals))
+    }
+
+    fn integrate_to(&mut self, f: &dyn Integrand, target: &Target) -> Result<IntegrationResult> {
+        in_pool(|| self.run_to(f, target))
     }
 }
 

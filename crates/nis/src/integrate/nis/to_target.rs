@@ -1,0 +1,140 @@
+//! NIS to a precision target ([`crate::integrate::Integrator::integrate_to`]): training whose
+//! length the rule of [`super::training_length`] decides, then a final phase whose iterations a
+//! [`Pursuit`] plans, each with its share fixed before it is drawn (`integrate::target`). The
+//! training batches do not enter the estimate here (their shares would need the final phase's
+//! size in advance); they predict it.
+
+use std::time::Instant;
+
+use super::stratified_latent::{FinalPlan, LatentStrata};
+use super::training_length::{TrainingLength, ANNEAL_BATCHES};
+use super::{draw, weights, NisIntegrator};
+use crate::error::{Error, Result};
+use crate::flow::mixture::Record;
+use crate::flow::Density;
+use crate::integrate::moments::iid_iteration;
+use crate::integrate::target::{Prior, Pursuit, AIM};
+use crate::integrate::{check_dim, report, Accumulator, Integrand, IntegrationResult, Target};
+
+/// Training batches at most when integrating to a target: the learning rate decays over them,
+/// and the rule usually stops training well before.
+const HORIZON_BATCHES: usize = 1000;
+
+impl NisIntegrator {
+    /// [`crate::integrate::Integrator::integrate_to`] for NIS.
+    pub(super) fn run_to(
+        &mut self,
+        f: &dyn Integrand,
+        target: &Target,
+    ) -> Result<IntegrationResult> {
+        let started = Instant::now();
+        let dim = self.flow().dim();
+        check_dim(f, dim)?;
+        self.config.train_on.check(f.components())?;
+        let batch = self.config.batch as u64;
+        let iters = self.config.final_iterations as u64;
+        let least_final = FinalPlan::new(&self.config, dim, 0).least * iters;
+        let share = self.config.train_fraction;
+        if share <= 0.0 {
+            return Err(Error::Config(
+                "precision target: NIS needs train_fraction > 0 (the share of max_evals and \
+                 max_seconds training may take)"
+                    .into(),
+            ));
+        }
+        let least_train = ((2 * ANNEAL_BATCHES) as f64 * batch as f64 / share).ceil() as u64;
+        target.check("nis", least_train + least_final)?;
+        if let Some(seconds) = target.max_seconds {
+            // One batch of the flow alone, from a copy of the stream: a limit below it can be
+            // refused before the integrand is called.
+            let t = Instant::now();
+            draw(
+                &self.sampler,
+                batch as usize,
+                &mut self.streams.train.clone(),
+                Record::Nothing,
+            )?;
+            let one = t.elapsed().as_secs_f64();
+            if seconds * share < one {
+                return Err(Error::Config(format!(
+                    "precision target: max_seconds = {seconds} leaves {:.2e} s to train, less \
+                     than one batch of the flow takes ({one:.2e} s) before any evaluation",
+                    seconds * share
+                )));
+            }
+        }
+        let max_batches = ((target.max_evals as f64 * share) as u64 / batch) as usize;
+        let max_seconds = target.max_seconds.map_or(f64::INFINITY, |s| s * share);
+        let mut length =
+            TrainingLength::new(*target, max_batches.min(HORIZON_BATCHES), max_seconds);
+        let before = self.trained_evals;
+        self.train_keeping_for(f, max_batches.min(HORIZON_BATCHES), None, Some(&mut length))?;
+        let trained = self.trained_evals - before;
+        let (var_per_eval, estimate, seconds_per_eval) =
+            length.latest().expect("at least one batch trained");
+        let mut prior = Prior {
+            var_per_eval,
+            estimate,
+            seconds_per_eval,
+        };
+        // The final phase's layout (its latent grid) for the size the training predicts.
+        let wanted = target.error_for(estimate);
+        let room = target.max_evals.saturating_sub(trained) as f64;
+        let predicted = if wanted > 0.0 {
+            (var_per_eval / (AIM * wanted).powi(2)).min(room)
+        } else {
+            room
+        };
+        let plan = FinalPlan::new(&self.config, dim, (predicted as u64).max(least_final));
+        let chunk = plan.evals / iters;
+        let least = plan.least.max(chunk / 2);
+        let k = f.components();
+        let lambda = self.sampler.lambda();
+        let train_on = self.config.train_on;
+        let mut latent = plan
+            .latent
+            .map(|(strata, s)| LatentStrata::new(strata, s, lambda, k, train_on));
+        let mut acc = Accumulator::new(plan.evals);
+        acc.set_frozen_sampler();
+        acc.set_training_variances(length.variances());
+        let mut pursuit = Pursuit::new(*target, started, trained);
+        let (mut seconds, mut done) = (0.0, 0u64);
+        loop {
+            let elapsed = pursuit.elapsed(&self.comm);
+            let Some(step) = pursuit.next(prior, least, chunk, elapsed)? else {
+                break;
+            };
+            let t = Instant::now();
+            let rng = &mut self.streams.estimate;
+            let iteration = match latent.as_mut() {
+                Some(latent) => {
+                    let observe = &mut |w: &[f64]| acc.observe(w);
+                    latent.iteration(&self.sampler, f, step.evals, rng, &self.comm, observe)?
+                }
+                None => {
+                    let sampler = &self.sampler;
+                    iid_iteration(&self.comm, step.evals, k, &mut acc, |m| {
+                        weights(sampler, f, m, rng).map(|(_, w)| w)
+                    })?
+                }
+            };
+            let mut spent = [t.elapsed().as_secs_f64()];
+            self.comm.max_f64(&mut spent);
+            seconds += spent[0];
+            done += iteration.evals;
+            prior.seconds_per_eval = seconds / done as f64;
+            pursuit.record(step, &iteration);
+            acc.add(iteration)?;
+            report(
+                &mut self.progress,
+                trained + done,
+                trained + plan.evals.max(done),
+                "nis: estimating to the target",
+            );
+        }
+        acc.reduce_tail(&self.comm);
+        let mut result = acc.finish(Some(pursuit.shares()), trained + done, started);
+        pursuit.finish(&mut result);
+        Ok(result)
+    }
+}

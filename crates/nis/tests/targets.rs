@@ -1,0 +1,176 @@
+//! Runs to a precision target (`Integrator::integrate_to`): every method stops at the target
+//! with an unbiased estimate whose error bar covers the truth at its nominal rate, limits end a
+//! run with a warning, and bad targets are refused before the integrand is called.
+
+use std::sync::atomic::{AtomicU64, Ordering};
+
+use nis::integrands;
+use nis::integrate::nis::{NisConfig, NisIntegrator};
+use nis::integrate::uniform::{PlainMc, PlainMcConfig};
+use nis::integrate::vegas::{Vegas, VegasConfig};
+use nis::integrate::{Integrand, IntegrationResult, Integrator, Stop, Target};
+use nis::{FlowConfig, TransformKind};
+
+/// Runs 0..`runs` of `run`: each must stop at its target; their errors must have a mean within
+/// 4 standard errors of zero (no bias from stopping), and at least `least` of them must lie
+/// within 2σ (the binomial band of 95.4% coverage, 4 standard deviations below).
+fn check_stopped(label: &str, exact: f64, runs: u64, run: impl Fn(u64) -> IntegrationResult) {
+    let results: Vec<IntegrationResult> = (0..runs).map(run).collect();
+    let n = runs as f64;
+    for r in &results {
+        assert_eq!(r.stop, Some(Stop::Target), "{label}: {r:?}");
+    }
+    let pulls: Vec<f64> = results
+        .iter()
+        .map(|r| (r.value - exact) / r.std_err)
+        .collect();
+    let covered = pulls.iter().filter(|p| p.abs() <= 2.0).count() as f64;
+    let p = 0.9545;
+    let least = n * p - 4.0 * (n * p * (1.0 - p)).sqrt();
+    // The bias of the value itself (the pulls' mean is not zero for skewed weights even at a
+    // fixed sample size: σ̂ is correlated with the value).
+    let errors: Vec<f64> = results.iter().map(|r| r.value - exact).collect();
+    let mean = errors.iter().sum::<f64>() / n;
+    let se = (errors.iter().map(|e| (e - mean).powi(2)).sum::<f64>() / (n - 1.0) / n).sqrt();
+    eprintln!(
+        "{label}: {covered}/{runs} within 2σ (≥ {least:.1}), mean error {mean:.2e} ± {se:.2e}"
+    );
+    assert!(covered >= least, "{label}: only {covered}/{runs} within 2σ");
+    assert!(
+        mean.abs() <= 4.0 * se,
+        "{label}: mean error {mean} against its standard error {se}"
+    );
+}
+
+/// ∏ 3x_i² on [0, 1]²: ∫ = 1, skewed weights (relative variance 2.24 per evaluation), whose mean
+/// and variance estimates are correlated: the case where stopping on the running error biases.
+fn skewed(x: &[f64]) -> f64 {
+    x.iter().map(|v| 3.0 * v * v).product()
+}
+
+#[test]
+fn plain_mc_stopped_at_a_target_is_unbiased_and_covers() {
+    for rel in [0.05, 0.01] {
+        check_stopped(&format!("uniform rel {rel}"), 1.0, 1000, |seed| {
+            let config = PlainMcConfig::builder().seed(seed).build().unwrap();
+            let mut mc = PlainMc::new(2, config).unwrap();
+            let r = mc.integrate_to(&skewed, &Target::rel(rel)).unwrap();
+            assert!(r.std_err <= rel * r.value.abs());
+            r
+        });
+    }
+}
+
+#[test]
+fn vegas_stopped_at_a_target_is_unbiased_and_covers() {
+    let f = integrands::by_name("gauss", Some(4)).unwrap();
+    check_stopped("vegas+ gauss d4", f.exact, 100, |seed| {
+        let config = VegasConfig::builder().seed(seed).build().unwrap();
+        let mut v = Vegas::new(4, config).unwrap();
+        v.integrate_to(&f, &Target::rel(2e-3)).unwrap()
+    });
+}
+
+fn small_nis(seed: u64) -> NisConfig {
+    NisConfig::builder()
+        .flow(FlowConfig {
+            transform: TransformKind::Quadratic { bins: 8 },
+            hidden_layers: 2,
+            hidden_width: 16,
+            blob_bins: 8,
+            seed,
+            ..FlowConfig::default()
+        })
+        .batch(256)
+        .seed(seed)
+        .build()
+        .unwrap()
+}
+
+#[test]
+fn nis_stopped_at_a_target_is_unbiased_and_covers() {
+    for (name, dim, rel) in [("camel", 2, 2e-3), ("gauss", 4, 2e-3)] {
+        let f = integrands::by_name(name, Some(dim)).unwrap();
+        check_stopped(&format!("nis {name} d{dim}"), f.exact, 60, |seed| {
+            let mut nis = NisIntegrator::new(dim, small_nis(seed)).unwrap();
+            let r = nis.integrate_to(&f, &Target::rel(rel)).unwrap();
+            assert!(r.std_err <= rel * r.value.abs());
+            r
+        });
+    }
+}
+
+#[test]
+fn a_limit_ends_the_run_with_a_warning_and_its_reason() {
+    let f = integrands::by_name("camel", Some(2)).unwrap();
+    let mut mc = PlainMc::new(2, PlainMcConfig::default()).unwrap();
+    let r = mc
+        .integrate_to(&f, &Target::rel(1e-4).max_evals(50_000))
+        .unwrap();
+    assert_eq!(r.stop, Some(Stop::MaxEvals));
+    assert!(r.n_eval <= 50_000, "{}", r.n_eval);
+    assert!(
+        r.warnings.iter().any(|w| w.contains("max_evals")),
+        "{:?}",
+        r.warnings
+    );
+    // A time limit: a slow integrand (50 µs a point) against 0.3 s.
+    let slow = |x: &[f64]| {
+        std::thread::sleep(std::time::Duration::from_micros(50));
+        f.value(x)
+    };
+    let mut v = Vegas::new(2, VegasConfig::default()).unwrap();
+    let r = v
+        .integrate_to(&slow, &Target::rel(1e-5).max_seconds(0.3))
+        .unwrap();
+    assert_eq!(r.stop, Some(Stop::MaxSeconds));
+    assert!(r.seconds < 3.0, "{}", r.seconds);
+    assert!(
+        r.warnings.iter().any(|w| w.contains("max_seconds")),
+        "{:?}",
+        r.warnings
+    );
+}
+
+/// Counts its calls: bad targets must be refused before the first.
+struct Counted(AtomicU64);
+
+impl Integrand for Counted {
+    fn eval_batch(&self, x: &[f64], _dim: usize, out: &mut [f64]) -> nis::Result<()> {
+        self.0.fetch_add(1, Ordering::Relaxed);
+        out.iter_mut().zip(x).for_each(|(o, v)| *o = *v);
+        Ok(())
+    }
+}
+
+#[test]
+fn bad_targets_are_refused_before_any_evaluation() {
+    let f = Counted(AtomicU64::new(0));
+    let bad = [
+        Target::default(),
+        Target::rel(0.0),
+        Target::rel(f64::NAN),
+        Target::abs(-1.0),
+        Target::rel(1e-3).max_seconds(0.0),
+        Target::rel(1e-3).max_evals(10),
+    ];
+    let mut integrators: Vec<Box<dyn Integrator>> = vec![
+        Box::new(PlainMc::new(1, PlainMcConfig::default()).unwrap()),
+        Box::new(Vegas::new(1, VegasConfig::default()).unwrap()),
+        Box::new(NisIntegrator::new(1, small_nis(0)).unwrap()),
+    ];
+    for integ in integrators.iter_mut() {
+        for t in &bad {
+            let e = integ.integrate_to(&f, t).unwrap_err().to_string();
+            assert!(e.contains("precision target"), "{e}");
+        }
+    }
+    assert_eq!(f.0.load(Ordering::Relaxed), 0);
+    // Only a relative error of an integrand that is zero wherever sampled: an error, no result.
+    let zero = |_: &[f64]| 0.0;
+    let mut mc = PlainMc::new(1, PlainMcConfig::default()).unwrap();
+    let e = mc.integrate_to(&zero, &Target::rel(1e-3)).unwrap_err();
+    assert!(e.to_string().contains("abs_err"), "{e}");
+    let r = mc.integrate_to(&zero, &Target::abs(1e-3)).unwrap();
+    assert_eq!((r.value, r.stop), (0.0, Some(Stop::Target)));
+}
