@@ -64,6 +64,15 @@ int main(void) {
     ok = ok && fabs(mean - 0.5) < 0.03;
     free(x);
     free(w);
+
+    /* To a precision instead of a budget, as Cuba's epsrel: 0.1%, at most 10^7 evaluations. */
+    if (nis_integrate_to(integ, camel, NULL, 1e-3, 0.0, 10000000, 0.0, &r) != NIS_OK)
+        return fail("integrate_to");
+    printf("to 1e-3: %.6f +- %.6f, n_eval %llu, stopped by %s\n", r.value, r.std_err,
+           (unsigned long long)r.n_eval,
+           nis_result_stop(integ) == NIS_STOP_TARGET ? "the target" : "a limit");
+    ok = ok && nis_result_stop(integ) == NIS_STOP_TARGET && r.std_err <= 1e-3 * fabs(r.value) &&
+         fabs(r.value - exact) < 5.0 * r.std_err;
     nis_free(integ);
     printf(ok ? "camel: ok\n" : "camel: FAILED\n");
     return ok ? 0 : 1;

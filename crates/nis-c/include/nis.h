@@ -91,6 +91,26 @@
 #define NIS_ERR_PANIC 9
 
 /**
+ * The last result was not a run to a target (`nis_integrate`).
+ */
+#define NIS_STOP_NONE 0
+
+/**
+ * The error bar met the target.
+ */
+#define NIS_STOP_TARGET 1
+
+/**
+ * `max_evals` ended the run first (a result warning says how far from the target it was).
+ */
+#define NIS_STOP_MAX_EVALS 2
+
+/**
+ * `max_seconds` ended the run first (a result warning says how far from the target it was).
+ */
+#define NIS_STOP_MAX_SECONDS 3
+
+/**
  * An integrator (opaque): the method's adapted state, the callback settings and the last result.
  */
 typedef struct nis_integrator nis_integrator;
@@ -326,6 +346,46 @@ size_t nis_last_error_copy(char *buffer, size_t capacity);
  * `NIS_ERR_CALLBACK` (0 before any such failure).
  */
 int nis_last_callback_status(void);
+
+/**
+ * Integrates `f` until the standard error is at most max(`abs_err`, `rel_err`·|value|) or a
+ * limit is reached, as Cuba's `epsrel`/`epsabs`/`maxeval`: 0 leaves `rel_err` or `abs_err` out
+ * (one of them must be given), `max_evals` 0 means 10⁸, `max_seconds` 0 no time limit.
+ * [`nis_result_stop`] then says which ended the run; a limit is not an error. Negative or NaN
+ * values are `NIS_ERR_INVALID_ARGUMENT`, a `max_evals` below what one estimate of the method
+ * needs `NIS_ERR_CONFIG`, both before `f` is called.
+ *
+ * # Safety
+ * As `nis_integrate`.
+ */
+int nis_integrate_to(struct nis_integrator *integ,
+                     nis_integrand_fn f,
+                     void *user,
+                     double rel_err,
+                     double abs_err,
+                     uint64_t max_evals,
+                     double max_seconds,
+                     struct nis_result *result);
+
+/**
+ * Why the last result's run stopped: `NIS_STOP_TARGET`, `NIS_STOP_MAX_EVALS`,
+ * `NIS_STOP_MAX_SECONDS`, or `NIS_STOP_NONE` for a run on a budget or no result yet.
+ *
+ * # Safety
+ * `integ` must be a live integrator or NULL (then `NIS_STOP_NONE`).
+ */
+int nis_result_stop(const struct nis_integrator *integ);
+
+/**
+ * Copies the last result's warnings (sentences that say what to do; none: an empty string),
+ * one per line, into `buffer` as `nis_last_error_copy` copies a message: at most `capacity`
+ * bytes with the terminating NUL, truncated to fit. Returns the text's full length in bytes
+ * without the NUL (so a NULL `buffer` with `capacity` 0 asks for the size).
+ *
+ * # Safety
+ * `integ` must be a live integrator; `buffer` NULL or writable for `capacity` bytes.
+ */
+size_t nis_result_warnings(const struct nis_integrator *integ, char *buffer, size_t capacity);
 
 #ifdef __cplusplus
 }  // extern "C"

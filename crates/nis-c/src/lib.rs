@@ -30,6 +30,7 @@
 mod callback;
 mod config;
 mod status;
+mod target;
 
 use std::ffi::{c_char, c_int, c_void, CStr};
 use std::path::PathBuf;
@@ -42,6 +43,7 @@ use rand_pcg::Pcg64Mcg;
 
 pub use callback::{nis_integrand_fn, NIS_CONCURRENT_CHUNK};
 pub use status::*;
+pub use target::*;
 
 use callback::Callback;
 use config::Config;

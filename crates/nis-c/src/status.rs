@@ -122,19 +122,26 @@ pub extern "C" fn nis_last_error_message() -> *const c_char {
 /// `buffer` must point to `capacity` writable bytes (or be NULL with `capacity` 0).
 #[no_mangle]
 pub unsafe extern "C" fn nis_last_error_copy(buffer: *mut c_char, capacity: usize) -> usize {
-    LAST_ERROR.with(|e| {
-        let e = e.borrow();
-        let bytes = e.as_bytes();
-        if !buffer.is_null() && capacity > 0 {
-            let n = bytes.len().min(capacity - 1);
-            // SAFETY: the caller provides `capacity` writable bytes; n + 1 <= capacity.
-            unsafe {
-                std::ptr::copy_nonoverlapping(bytes.as_ptr().cast::<c_char>(), buffer, n);
-                *buffer.add(n) = 0;
-            }
+    // SAFETY: forwarded under the same contract.
+    LAST_ERROR.with(|e| unsafe { copy_text(e.borrow().as_bytes(), buffer, capacity) })
+}
+
+/// Copies `text` into `buffer` (at most `capacity` bytes with the terminating NUL, truncated to
+/// fit; nothing when `buffer` is NULL or `capacity` 0) and returns its full length without the
+/// NUL.
+///
+/// # Safety
+/// `buffer` must point to `capacity` writable bytes (or be NULL).
+pub(crate) unsafe fn copy_text(text: &[u8], buffer: *mut c_char, capacity: usize) -> usize {
+    if !buffer.is_null() && capacity > 0 {
+        let n = text.len().min(capacity - 1);
+        // SAFETY: the caller provides `capacity` writable bytes; n + 1 <= capacity.
+        unsafe {
+            std::ptr::copy_nonoverlapping(text.as_ptr().cast::<c_char>(), buffer, n);
+            *buffer.add(n) = 0;
         }
-        bytes.len()
-    })
+    }
+    text.len()
 }
 
 /// The value the integrand callback returned when the last call on this thread failed with

@@ -381,3 +381,121 @@ fn a_failing_callback_reports_its_status_and_keeps_the_last_result() {
         nis_free(integ);
     }
 }
+
+#[test]
+fn runs_to_a_target_match_the_library_and_say_why_they_stopped() {
+    use nis::integrate::Target;
+    // Plain MC and VEGAS+ plan from counts alone without a time limit: bit-identical.
+    for method in [Method::Uniform, Method::Vegas] {
+        let integ = create(&format!(r#"{{"method": "{method}", "dim": 3, "seed": 5}}"#));
+        let mut rust = integrator(method, 3, &Settings::default().seed(5)).unwrap();
+        let mut c = nis_result::default();
+        let status = unsafe {
+            nis_integrate_to(
+                integ,
+                Some(bump_c),
+                std::ptr::null_mut(),
+                1e-2,
+                0.0,
+                0,
+                0.0,
+                &mut c,
+            )
+        };
+        assert_eq!(status, NIS_OK, "{method}: {}", last_error());
+        let r = rust.integrate_to(&bump, &Target::rel(1e-2)).unwrap();
+        assert!(
+            same(c.value, r.value) && same(c.std_err, r.std_err),
+            "{c:?} vs {r:?}"
+        );
+        assert!(c.std_err <= 1e-2 * c.value);
+        assert_eq!(unsafe { nis_result_stop(integ) }, NIS_STOP_TARGET);
+        // A limit: not an error, a stop reason and a warning that names it.
+        let status = unsafe {
+            nis_integrate_to(
+                integ,
+                Some(bump_c),
+                std::ptr::null_mut(),
+                1e-6,
+                0.0,
+                30_000,
+                0.0,
+                &mut c,
+            )
+        };
+        assert_eq!(status, NIS_OK, "{method}: {}", last_error());
+        assert_eq!(unsafe { nis_result_stop(integ) }, NIS_STOP_MAX_EVALS);
+        let len = unsafe { nis_result_warnings(integ, std::ptr::null_mut(), 0) };
+        let mut text = vec![0 as std::ffi::c_char; len + 1];
+        unsafe { nis_result_warnings(integ, text.as_mut_ptr(), text.len()) };
+        let text = unsafe { CStr::from_ptr(text.as_ptr()) }.to_string_lossy();
+        assert!(text.contains("max_evals = 30000"), "{text}");
+        unsafe { nis_free(integ) };
+    }
+    // NIS's training length depends on measured times: only the outcome is compared.
+    let integ = create(r#"{"method": "nis", "dim": 3, "seed": 5}"#);
+    let mut c = nis_result::default();
+    let status = unsafe {
+        nis_integrate_to(
+            integ,
+            Some(bump_c),
+            std::ptr::null_mut(),
+            0.0,
+            1e-4,
+            0,
+            0.0,
+            &mut c,
+        )
+    };
+    assert_eq!(status, NIS_OK, "{}", last_error());
+    assert!(c.std_err <= 1e-4);
+    assert_eq!(unsafe { nis_result_stop(integ) }, NIS_STOP_TARGET);
+    // Bad targets: NIS_ERR_INVALID before the callback is called, the last result kept.
+    let calls = AtomicUsize::new(0);
+    unsafe extern "C" fn counting(
+        x: *const f64,
+        n: usize,
+        dim: usize,
+        out: *mut f64,
+        user: *mut c_void,
+    ) -> c_int {
+        unsafe { &*(user as *const AtomicUsize) }.fetch_add(1, Ordering::Relaxed);
+        unsafe { bump_c(x, n, dim, out, user) }
+    }
+    let user = &calls as *const AtomicUsize as *mut c_void;
+    for (rel, abs, max_evals, seconds) in [
+        (0.0, 0.0, 0, 0.0),
+        (-1e-3, 0.0, 0, 0.0),
+        (f64::NAN, 0.0, 0, 0.0),
+        (1e-3, 0.0, 10, 0.0),
+        (1e-3, 0.0, 0, -1.0),
+        (0.0, 0.0, 1000, 0.0),
+    ] {
+        let status = unsafe {
+            nis_integrate_to(
+                integ,
+                Some(counting),
+                user,
+                rel,
+                abs,
+                max_evals,
+                seconds,
+                &mut c,
+            )
+        };
+        let expected = if max_evals == 10 {
+            NIS_ERR_CONFIG
+        } else {
+            NIS_ERR_INVALID_ARGUMENT
+        };
+        assert_eq!(status, expected, "{rel} {abs} {max_evals} {seconds}");
+        assert!(
+            last_error().contains("precision target"),
+            "{}",
+            last_error()
+        );
+    }
+    assert_eq!(calls.load(Ordering::Relaxed), 0);
+    assert_eq!(unsafe { nis_result_stop(integ) }, NIS_STOP_TARGET);
+    unsafe { nis_free(integ) };
+}

@@ -11,7 +11,7 @@ use nis::integrands::{self, Builtin, SUITE};
 use nis::integrate::unweight::{SampleFormat, SampleWriter};
 use nis::integrate::{
     disagreements, nis::NisConfig, nis::NisIntegrator, IntegrationResult, Integrator, Method,
-    Settings, Target, DEFAULT_MAX_EVALS, DISAGREEMENT_SIGMAS,
+    Settings, Target, DISAGREEMENT_SIGMAS,
 };
 use nis::loss::Loss;
 
@@ -142,20 +142,12 @@ impl IntegrateArgs {
     /// The precision target of --rel-err/--abs-err with its limits, `None` for a budget
     /// (--evals); an error for limits without a target.
     pub fn target(&self) -> Result<Option<Target>, Error> {
-        if self.rel_err.is_none() && self.abs_err.is_none() {
-            if self.max_evals.is_some() || self.seconds.is_some() {
-                return Err("--max-evals and --seconds limit a precision target: give \
-                            --rel-err or --abs-err too (or --evals for a fixed budget)"
-                    .into());
-            }
-            return Ok(None);
-        }
-        Ok(Some(Target {
-            rel_err: self.rel_err,
-            abs_err: self.abs_err,
-            max_evals: self.max_evals.unwrap_or(DEFAULT_MAX_EVALS),
-            max_seconds: self.seconds,
-        }))
+        Ok(Target::from_options(
+            self.rel_err,
+            self.abs_err,
+            self.max_evals,
+            self.seconds,
+        )?)
     }
 }
 

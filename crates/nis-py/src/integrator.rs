@@ -6,7 +6,7 @@ use std::sync::{Arc, Mutex};
 
 use nis::flow::Density;
 use nis::integrate::nis::NisIntegrator;
-use nis::integrate::{integrator, IntegrationResult, Integrator, Method, Settings};
+use nis::integrate::{integrator, IntegrationResult, Integrator, Method, Settings, Target};
 use nis::loss::Loss;
 use numpy::{PyArray1, PyArray2, PyArrayMethods};
 use pyo3::exceptions::PyValueError;
@@ -110,18 +110,42 @@ impl PyIntegrator {
 
     /// Spends `evals` evaluations of `f`: adapts, then estimates ∫ f (the docstring Python
     /// shows is in python/nis/__init__.py: PyO3 makes `__call__` a type slot, which keeps none).
-    #[pyo3(signature = (f, evals = 1_000_000))]
+    #[pyo3(signature = (
+        f, evals = None, *, rel_err = None, abs_err = None, max_evals = None, max_seconds = None
+    ))]
+    #[allow(clippy::too_many_arguments)]
     fn __call__(
         &mut self,
         py: Python<'_>,
         f: &Bound<'_, PyAny>,
-        evals: i64,
+        evals: Option<i64>,
+        rel_err: Option<f64>,
+        abs_err: Option<f64>,
+        max_evals: Option<i64>,
+        max_seconds: Option<f64>,
     ) -> PyResult<PyIntegrationResult> {
-        let evals = count("evals", evals)? as u64;
+        let max_evals = max_evals.map(|m| count("max_evals", m)).transpose()?;
+        let target =
+            Target::from_options(rel_err, abs_err, max_evals.map(|m| m as u64), max_seconds)
+                .map_err(to_py_err)?;
+        let evals = match (target.is_some(), evals) {
+            (true, Some(_)) => {
+                return Err(PyValueError::new_err(
+                    "give evals (a budget) or rel_err/abs_err (a precision target), not both",
+                ))
+            }
+            (_, evals) => count("evals", evals.unwrap_or(1_000_000))? as u64,
+        };
         let pool = self.pool.clone();
         let integ = self.integrator();
+        if let Some(t) = &target {
+            integ.check_target(t).map_err(to_py_err)?;
+        }
         with_integrand(py, f, integ.dim(), |g, vector| {
-            let r = run(py, pool.as_deref(), g.call, || integ.integrate(g.f, evals))?;
+            let r = run(py, pool.as_deref(), g.call, || match &target {
+                Some(t) => integ.integrate_to(g.f, t),
+                None => integ.integrate(g.f, evals),
+            })?;
             Ok(PyIntegrationResult::new(r, vector))
         })
     }
@@ -398,6 +422,13 @@ impl PyIntegrationResult {
     #[getter]
     fn seconds(&self) -> f64 {
         self.r.seconds
+    }
+
+    /// Why a run to a precision target stopped: "target", "max_evals" or "max_seconds"
+    /// (None for a run on a budget).
+    #[getter]
+    fn stop(&self) -> Option<&'static str> {
+        self.r.stop.map(|s| s.name())
     }
 
     /// What the user should know (e.g. a large χ²/dof).

@@ -70,10 +70,20 @@ program gauss_nis
   end if
   print '(a, f10.6, a, f10.6, a, f10.6, a, i0, a, i0)', 'gauss 3d: ', r%value, ' +- ', &
        r%std_err, ' (exact ', exact, '), calls ', calls, ', points ', points
-  call nis_free(integ)
-
   ok = abs(r%value - exact) < 5 * r%std_err .and. r%std_err < 0.01d0 &
        .and. points == r%n_eval .and. overlaps == 0
+
+  ! To a precision instead of a budget: 0.1% relative error, at most 10**7 evaluations.
+  if (nis_integrate_to(integ, c_funloc(gauss), c_null_ptr, 1d-3, 0d0, 10000000_c_int64_t, &
+       0d0, r) /= NIS_OK) then
+     print '(a, a)', 'integrate_to: ', nis_last_error()
+     stop 1
+  end if
+  print '(a, f10.6, a, f10.6, a, i0)', 'gauss 3d to 1e-3: ', r%value, ' +- ', r%std_err, &
+       ', evaluations ', r%n_eval
+  ok = ok .and. nis_result_stop(integ) == NIS_STOP_TARGET .and. r%std_err <= 1d-3 * r%value &
+       .and. abs(r%value - exact) < 5 * r%std_err
+  call nis_free(integ)
   if (ok) then
      print '(a)', 'fortran: ok'
   else

@@ -14,6 +14,9 @@ module nis
        NIS_ERR_INVALID_ARGUMENT = 2, NIS_ERR_CONFIG = 3, NIS_ERR_CALLBACK = 4, &
        NIS_ERR_NON_FINITE = 5, NIS_ERR_FILE = 6, NIS_ERR_UNSUPPORTED = 7, &
        NIS_ERR_NO_RESULT = 8, NIS_ERR_PANIC = 9
+  !> Why a run to a precision target stopped (nis_result_stop).
+  integer(c_int), parameter, public :: NIS_STOP_NONE = 0, NIS_STOP_TARGET = 1, &
+       NIS_STOP_MAX_EVALS = 2, NIS_STOP_MAX_SECONDS = 3
 
   !> The summary of a result (nis_result in nis.h).
   type, bind(c), public :: nis_result
@@ -25,7 +28,8 @@ module nis
   end type nis_result
 
   public :: nis_integrand, nis_version, nis_create, nis_load, nis_free, nis_dim, nis_set_seed, &
-       nis_integrate, nis_integrate_vector, nis_result_estimates, nis_sample, &
+       nis_integrate, nis_integrate_vector, nis_integrate_to, nis_result_stop, &
+       nis_result_warnings, nis_result_estimates, nis_sample, &
        nis_sample_weighted, nis_unweighted, nis_save, nis_last_error_copy, &
        nis_last_callback_status, nis_last_error
 
@@ -90,6 +94,32 @@ module nis
        integer(c_int64_t), value :: evals
        type(nis_result), intent(out) :: result
      end function nis_integrate_vector
+
+     !> Until std_err <= max(abs_err, rel_err*|value|) or a limit (0: not given; max_evals 0:
+     !> 10**8, max_seconds 0: none); nis_result_stop says which ended the run.
+     integer(c_int) function nis_integrate_to(integ, f, user, rel_err, abs_err, max_evals, &
+          max_seconds, result) bind(c)
+       import :: c_int, c_int64_t, c_double, c_ptr, c_funptr, nis_result
+       type(c_ptr), value :: integ, user
+       type(c_funptr), value :: f
+       real(c_double), value :: rel_err, abs_err
+       integer(c_int64_t), value :: max_evals
+       real(c_double), value :: max_seconds
+       type(nis_result), intent(out) :: result
+     end function nis_integrate_to
+
+     integer(c_int) function nis_result_stop(integ) bind(c)
+       import :: c_int, c_ptr
+       type(c_ptr), value :: integ
+     end function nis_result_stop
+
+     !> The last result's warnings, one per line (as nis_last_error_copy copies a message).
+     integer(c_size_t) function nis_result_warnings(integ, buffer, capacity) bind(c)
+       import :: c_size_t, c_char, c_ptr
+       type(c_ptr), value :: integ
+       character(kind=c_char), intent(out) :: buffer(*)
+       integer(c_size_t), value :: capacity
+     end function nis_result_warnings
 
      !> mean(k), std_err(k), cov(k, k) of the last result (cov is symmetric, so its layout is
      !> the same in both orders).

@@ -32,10 +32,17 @@ from . import integrands
 _integrate = Integrator.__call__
 
 
-def _call(self, f, evals=1_000_000):
-    """Spends ``evals`` evaluations of ``f``: adapts on a share of them (continuing from
-    earlier calls), then estimates ∫ f with the rest, the sampler frozen; returns an
-    ``IntegrationResult``.
+def _call(self, f, evals=None, *, rel_err=None, abs_err=None, max_evals=None, max_seconds=None):
+    """Spends ``evals`` evaluations of ``f`` (default 10⁶): adapts on a share of them
+    (continuing from earlier calls), then estimates ∫ f with the rest, the sampler frozen;
+    returns an ``IntegrationResult``.
+
+    With ``rel_err`` and/or ``abs_err`` instead of ``evals`` it integrates until
+    ``sdev <= max(abs_err, rel_err * |mean|)`` or a limit is reached: ``max_evals``
+    (default 10⁸, training included) or ``max_seconds``. ``r.stop`` then says which
+    ("target", "max_evals", "max_seconds"); a limit is a warning, not an error. NIS decides
+    how long to train from the costs it measures. A target that cannot be met raises
+    ``ValueError`` before ``f`` is called.
 
     ``f`` takes an (n, dim) float64 array and returns n values, shape (n,), or n vectors,
     shape (n, k): every component is then estimated from the same points, with covariance,
@@ -46,7 +53,15 @@ def _call(self, f, evals=1_000_000):
     KeyboardInterrupt at the next batch. Each of the result's ``warnings`` (an error bar that
     cannot be trusted, a sampler that had not converged) is also raised as a ``UserWarning``.
     """
-    r = _integrate(self, f, evals=evals)
+    r = _integrate(
+        self,
+        f,
+        evals,
+        rel_err=rel_err,
+        abs_err=abs_err,
+        max_evals=max_evals,
+        max_seconds=max_seconds,
+    )
     for w in r.warnings:
         _warnings.warn(w, UserWarning, stacklevel=2)
     return r

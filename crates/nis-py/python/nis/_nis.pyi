@@ -62,6 +62,10 @@ class IntegrationResult:
     def seconds(self) -> float:
         """Wall time of the call."""
     @property
+    def stop(self) -> Optional[str]:
+        """Why a run to a precision target stopped: "target", "max_evals" or "max_seconds"
+        (None for a run on a budget)."""
+    @property
     def warnings(self) -> List[str]:
         """What the user should know (e.g. a large χ²/dof)."""
     @property
@@ -136,10 +140,26 @@ class Integrator:
         min_per_cube: Optional[int] = None,
         train_on: Optional[Union[int, str, Dict[str, int]]] = None,
     ) -> None: ...
-    def __call__(self, f: IntegrandFn, evals: int = 1_000_000) -> IntegrationResult:
-        """Spends ``evals`` evaluations of ``f``: adapts on a share of them (continuing from
-        earlier calls), then estimates ∫ f with the rest, the sampler frozen; returns an
-        ``IntegrationResult``.
+    def __call__(
+        self,
+        f: IntegrandFn,
+        evals: Optional[int] = None,
+        *,
+        rel_err: Optional[float] = None,
+        abs_err: Optional[float] = None,
+        max_evals: Optional[int] = None,
+        max_seconds: Optional[float] = None,
+    ) -> IntegrationResult:
+        """Spends ``evals`` evaluations of ``f`` (default 10⁶): adapts on a share of them
+        (continuing from earlier calls), then estimates ∫ f with the rest, the sampler frozen;
+        returns an ``IntegrationResult``.
+
+        With ``rel_err`` and/or ``abs_err`` instead of ``evals`` it integrates until
+        ``sdev <= max(abs_err, rel_err * |mean|)`` or a limit is reached: ``max_evals``
+        (default 10⁸, training included) or ``max_seconds``. ``r.stop`` then says which
+        ("target", "max_evals", "max_seconds"); a limit is a warning, not an error. NIS decides
+        how long to train from the costs it measures. A target that cannot be met raises
+        ``ValueError`` before ``f`` is called.
 
         ``f`` takes an (n, dim) float64 array and returns n values, shape (n,), or n vectors,
         shape (n, k): every component is then estimated from the same points, with covariance,

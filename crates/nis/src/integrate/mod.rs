@@ -111,6 +111,9 @@ pub trait Integrator: Send {
     /// (docs/ESTIMATE.md, "Precision targets"). An error, before any evaluation, for a target
     /// that cannot be met or limits below one estimate's needs.
     fn integrate_to(&mut self, f: &dyn Integrand, target: &Target) -> Result<IntegrationResult>;
+    /// The error [`Integrator::integrate_to`] would return for `target` before evaluating
+    /// anything (front ends call it before they probe the integrand).
+    fn check_target(&self, target: &Target) -> Result<()>;
     /// Sets (or removes) the observer of progress; the default is none.
     fn set_progress(&mut self, progress: Option<Box<dyn Progress>>);
     /// Runs data-parallel over the ranks of `comm` (e.g. [`crate::comm::mpi::MpiComm`]) from

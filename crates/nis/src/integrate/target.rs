@@ -89,6 +89,33 @@ impl Target {
         self
     }
 
+    /// The target the front ends' options describe: `None` when neither error is given (a run on
+    /// a budget), an error when a limit is given without an error to reach. `max_evals` defaults
+    /// to [`DEFAULT_MAX_EVALS`]. Not checked: [`Target::check`] does that, before a run.
+    pub fn from_options(
+        rel_err: Option<f64>,
+        abs_err: Option<f64>,
+        max_evals: Option<u64>,
+        max_seconds: Option<f64>,
+    ) -> Result<Option<Target>> {
+        if rel_err.is_none() && abs_err.is_none() {
+            if max_evals.is_some() || max_seconds.is_some() {
+                return Err(Error::Config(
+                    "precision target: max_evals and max_seconds limit a run to a target; give \
+                     rel_err or abs_err too (or evals for a fixed budget)"
+                        .into(),
+                ));
+            }
+            return Ok(None);
+        }
+        Ok(Some(Target {
+            rel_err,
+            abs_err,
+            max_evals: max_evals.unwrap_or(DEFAULT_MAX_EVALS),
+            max_seconds,
+        }))
+    }
+
     /// The error bar that meets the target for an estimate `value`: max(abs_err, rel_err·|value|).
     pub fn error_for(&self, value: f64) -> f64 {
         let rel = self.rel_err.map_or(0.0, |r| r * value.abs());

@@ -135,6 +135,10 @@ impl Integrator for PlainMc {
     fn integrate_to(&mut self, f: &dyn Integrand, target: &Target) -> Result<IntegrationResult> {
         in_pool(|| self.run_to(f, target))
     }
+
+    fn check_target(&self, target: &Target) -> Result<()> {
+        target.check("plain Monte Carlo", PILOT + 2)
+    }
 }
 
 /// Points of plain MC's pilot when integrating to a target: they only predict the variance.
@@ -176,7 +180,7 @@ impl PlainMc {
         let dim = self.dim;
         check_dim(f, dim)?;
         let k = f.components();
-        target.check("plain Monte Carlo", PILOT + 2)?;
+        self.check_target(target)?;
         let started = Instant::now();
         let rng = &mut self.rng;
         let mut draw = |m: usize| {

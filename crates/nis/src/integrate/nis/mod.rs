@@ -533,6 +533,10 @@ impl Integrator for NisIntegrator {
         in_pool(|| self.run_to(f, target))
     }
 
+    fn check_target(&self, target: &Target) -> Result<()> {
+        self.check_target_plan(target)
+    }
+
     fn save(&self, path: &Path) -> Result<()> {
         NisIntegrator::save(self, path)
     }

@@ -21,6 +21,24 @@ use crate::integrate::{check_dim, report, Accumulator, Integrand, IntegrationRes
 const HORIZON_BATCHES: usize = 1000;
 
 impl NisIntegrator {
+    /// [`crate::integrate::Integrator::check_target`]: the least training the rule may stop at,
+    /// within `train_fraction` of `max_evals`, and one final iteration must fit.
+    pub(super) fn check_target_plan(&self, target: &Target) -> Result<()> {
+        let share = self.config.train_fraction;
+        if share <= 0.0 {
+            return Err(Error::Config(
+                "precision target: NIS needs train_fraction > 0 (the share of max_evals and \
+                 max_seconds training may take)"
+                    .into(),
+            ));
+        }
+        let batch = self.config.batch as f64;
+        let least_train = ((2 * ANNEAL_BATCHES) as f64 * batch / share).ceil() as u64;
+        let iters = self.config.final_iterations as u64;
+        let least_final = FinalPlan::new(&self.config, self.flow().dim(), 0).least * iters;
+        target.check("nis", least_train + least_final)
+    }
+
     /// [`crate::integrate::Integrator::integrate_to`] for NIS.
     pub(super) fn run_to(
         &mut self,
@@ -31,19 +49,11 @@ impl NisIntegrator {
         let dim = self.flow().dim();
         check_dim(f, dim)?;
         self.config.train_on.check(f.components())?;
+        self.check_target_plan(target)?;
         let batch = self.config.batch as u64;
         let iters = self.config.final_iterations as u64;
         let least_final = FinalPlan::new(&self.config, dim, 0).least * iters;
         let share = self.config.train_fraction;
-        if share <= 0.0 {
-            return Err(Error::Config(
-                "precision target: NIS needs train_fraction > 0 (the share of max_evals and \
-                 max_seconds training may take)"
-                    .into(),
-            ));
-        }
-        let least_train = ((2 * ANNEAL_BATCHES) as f64 * batch as f64 / share).ceil() as u64;
-        target.check("nis", least_train + least_final)?;
         if let Some(seconds) = target.max_seconds {
             // One batch of the flow alone, from a copy of the stream: a limit below it can be
             // refused before the integrand is called.

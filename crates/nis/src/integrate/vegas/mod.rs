@@ -271,6 +271,10 @@ impl Integrator for Vegas {
     fn integrate_to(&mut self, f: &dyn Integrand, target: &Target) -> Result<IntegrationResult> {
         in_pool(|| self.run_to(f, target))
     }
+
+    fn check_target(&self, target: &Target) -> Result<()> {
+        self.check_target_plan(target)
+    }
 }
 
 impl Vegas {

@@ -19,6 +19,12 @@ const NOMINAL_EVALS: u64 = 100_000;
 const RESULT_ITERATIONS: f64 = 10.0;
 
 impl Vegas {
+    /// [`crate::integrate::Integrator::check_target`]: the warm-up and one iteration must fit.
+    pub(super) fn check_target_plan(&self, target: &Target) -> Result<()> {
+        let plan = self.plan(NOMINAL_EVALS.min(target.max_evals));
+        target.check("vegas+", ((plan.warmup + 1) * plan.per_iter) as u64)
+    }
+
     /// [`crate::integrate::Integrator::integrate_to`] for VEGAS+.
     pub(super) fn run_to(
         &mut self,
@@ -30,9 +36,9 @@ impl Vegas {
         let k = f.components();
         let train_on = self.config.train_on;
         train_on.check(k)?;
+        self.check_target_plan(target)?;
         let plan = self.plan(NOMINAL_EVALS.min(target.max_evals));
         let per_iter = plan.per_iter;
-        target.check("vegas+", ((plan.warmup + 1) * per_iter) as u64)?;
         let started = Instant::now();
         let (min_per_cube, alpha, beta) = (
             self.config.min_per_cube,
