@@ -159,8 +159,14 @@ pub struct BenchTimeToPrecisionArgs {
     /// ridge d = 4.
     #[arg(long, num_args = 1.., value_delimiter = ',')]
     only: Vec<String>,
-    /// Methods, from nis, nis-codes (the flow of fewer layers), vegas+, mc, vegas-py.
-    #[arg(long, num_args = 1.., value_delimiter = ',', default_value = "nis,vegas+,mc,vegas-py")]
+    /// Methods, from nis-target and vegas+-target (one run to each target), nis, nis-codes (the
+    /// flow of fewer layers), vegas+, mc (ladders of budgets), vegas-py (the Python package).
+    #[arg(
+        long,
+        num_args = 1..,
+        value_delimiter = ',',
+        default_value = "nis-target,nis,vegas+-target,vegas+,mc,vegas-py"
+    )]
     methods: Vec<String>,
     /// Target relative errors.
     #[arg(long, num_args = 1.., value_delimiter = ',', default_value = "1e-3,1e-4")]

@@ -12,9 +12,16 @@ use nis::integrate::{Integrand, IntegrationResult, Integrator, Stop, Target};
 use nis::{FlowConfig, TransformKind};
 
 /// Runs 0..`runs` of `run`: each must stop at its target; their errors must have a mean within
-/// 4 standard errors of zero (no bias from stopping), and at least `least` of them must lie
-/// within 2σ (the binomial band of 95.4% coverage, 4 standard deviations below).
-fn check_stopped(label: &str, exact: f64, runs: u64, run: impl Fn(u64) -> IntegrationResult) {
+/// 4 standard errors of zero plus `bias` times the runs' mean σ (the bias a run may have, in
+/// units of its own error bar: 0 where the estimate is unbiased), and at least `least` of them
+/// must lie within 2σ (the binomial band of 95.4% coverage, 4 standard deviations below).
+fn check_stopped(
+    label: &str,
+    exact: f64,
+    runs: u64,
+    bias: f64,
+    run: impl Fn(u64) -> IntegrationResult,
+) {
     let results: Vec<IntegrationResult> = (0..runs).map(run).collect();
     let n = runs as f64;
     for r in &results {
@@ -36,9 +43,10 @@ fn check_stopped(label: &str, exact: f64, runs: u64, run: impl Fn(u64) -> Integr
         "{label}: {covered}/{runs} within 2σ (≥ {least:.1}), mean error {mean:.2e} ± {se:.2e}"
     );
     assert!(covered >= least, "{label}: only {covered}/{runs} within 2σ");
+    let sigma = results.iter().map(|r| r.std_err).sum::<f64>() / n;
     assert!(
-        mean.abs() <= 4.0 * se,
-        "{label}: mean error {mean} against its standard error {se}"
+        mean.abs() <= 4.0 * se + bias * sigma,
+        "{label}: mean error {mean} against its standard error {se} (runs' σ {sigma})"
     );
 }
 
@@ -51,7 +59,7 @@ fn skewed(x: &[f64]) -> f64 {
 #[test]
 fn plain_mc_stopped_at_a_target_is_unbiased_and_covers() {
     for rel in [0.05, 0.01] {
-        check_stopped(&format!("uniform rel {rel}"), 1.0, 1000, |seed| {
+        check_stopped(&format!("uniform rel {rel}"), 1.0, 1000, 0.0, |seed| {
             let config = PlainMcConfig::builder().seed(seed).build().unwrap();
             let mut mc = PlainMc::new(2, config).unwrap();
             let r = mc.integrate_to(&skewed, &Target::rel(rel)).unwrap();
@@ -61,10 +69,28 @@ fn plain_mc_stopped_at_a_target_is_unbiased_and_covers() {
     }
 }
 
+/// 0.6·x₀^(−0.4) on [0, 1]: ∫ = 1 with a heavy tail of weights (finite variance, Pareto k̂ 0.4):
+/// the pilot often underestimates the variance, so rounds end short of the target and are
+/// extended (the one step whose share depends on the round's own error).
+fn heavy(x: &[f64]) -> f64 {
+    0.6 * x[0].powf(-0.4)
+}
+
+#[test]
+fn plain_mc_with_extended_rounds_is_unbiased_and_covers() {
+    // Extensions are the one biased step (docs/ESTIMATE.md): at most a tenth of σ measured here
+    // (−0.11σ ± 0.03σ), bounded at a fifth.
+    check_stopped("uniform heavy rel 0.01", 1.0, 1000, 0.2, |seed| {
+        let config = PlainMcConfig::builder().seed(seed).build().unwrap();
+        let mut mc = PlainMc::new(1, config).unwrap();
+        mc.integrate_to(&heavy, &Target::rel(1e-2)).unwrap()
+    });
+}
+
 #[test]
 fn vegas_stopped_at_a_target_is_unbiased_and_covers() {
     let f = integrands::by_name("gauss", Some(4)).unwrap();
-    check_stopped("vegas+ gauss d4", f.exact, 100, |seed| {
+    check_stopped("vegas+ gauss d4", f.exact, 100, 0.0, |seed| {
         let config = VegasConfig::builder().seed(seed).build().unwrap();
         let mut v = Vegas::new(4, config).unwrap();
         v.integrate_to(&f, &Target::rel(2e-3)).unwrap()
@@ -91,7 +117,7 @@ fn small_nis(seed: u64) -> NisConfig {
 fn nis_stopped_at_a_target_is_unbiased_and_covers() {
     for (name, dim, rel) in [("camel", 2, 2e-3), ("gauss", 4, 2e-3)] {
         let f = integrands::by_name(name, Some(dim)).unwrap();
-        check_stopped(&format!("nis {name} d{dim}"), f.exact, 60, |seed| {
+        check_stopped(&format!("nis {name} d{dim}"), f.exact, 60, 0.0, |seed| {
             let mut nis = NisIntegrator::new(dim, small_nis(seed)).unwrap();
             let r = nis.integrate_to(&f, &Target::rel(rel)).unwrap();
             assert!(r.std_err <= rel * r.value.abs());

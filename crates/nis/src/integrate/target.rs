@@ -8,10 +8,10 @@
 //! with every share a_i fixed *before* iteration i draws its points, from the iterations before it
 //! ([`Pursuit`]): the error is then a sum of martingale differences whatever the stopping rule,
 //! and the estimate is unbiased, as for the reused training batches (docs/ESTIMATE.md, "Precision
-//! targets"). The plan aims at 0.95 of the target so that the round whose last iteration takes
-//! the remaining share usually meets it; when it does not, an extension re-opens a share b of
-//! the estimate decided from that round's own error, the one step whose bias is not zero: it is
-//! bounded by b·|corr(σ̂, Î)|·σ, with b a few per cent (docs/ESTIMATE.md).
+//! targets"). The plan aims at 0.95 of the target so that a round usually meets it; a round that
+//! does not (its variance was underestimated, or a heavy-tailed weight spent its whole variance)
+//! is extended, diluted by new evaluations as a pooled mean would be: the one step whose share
+//! depends on the round's own error, measured to bias heavy-tailed weights by a tenth of σ.
 
 use std::time::Instant;
 
@@ -209,6 +209,9 @@ pub(crate) struct Pursuit {
     var_evals: f64,
     sum_evals: f64,
     extensions: usize,
+    /// The fewest evaluations the current round was planned with so far, and those it has drawn.
+    round_plan: f64,
+    round_evals: u64,
     stop: Option<Stop>,
     /// The sampler still adapts: the prior (the latest iteration) predicts the next iteration,
     /// not the iterations pooled.
@@ -230,6 +233,8 @@ impl Pursuit {
             var_evals: 0.0,
             sum_evals: 0.0,
             extensions: 0,
+            round_plan: 0.0,
+            round_evals: 0,
             stop: None,
             adapting: false,
         }
@@ -322,6 +327,16 @@ impl Pursuit {
                 Stop::MaxSeconds
             }
         };
+        if self.remaining > 0.0 && self.sum_evals > 0.0 && self.var >= aim {
+            // The iterations so far already spend the whole variance allowed (one of them was
+            // far noisier than planned): no share left can bring it down, so the round ends
+            // here, its shares normalised to one, and the extension below dilutes it.
+            let kept = 1.0 - self.remaining;
+            self.shares.iter_mut().for_each(|a| *a /= kept);
+            self.weighted /= kept;
+            self.var /= kept * kept;
+            self.remaining = 0.0;
+        }
         if self.remaining <= 0.0 {
             // A round is over: met, or extended, or out of evaluations or time.
             if self.var.sqrt() <= wanted {
@@ -332,30 +347,51 @@ impl Pursuit {
                 self.stop = Some(bound_by());
                 return Ok(None);
             }
-            // The extension's evaluations M and share b: inverse-variance weights of the round
-            // (variance v) and M more evaluations, v·(V/M)/(v + V/M) = aim.
-            let v = self.var;
-            let more = if v > aim {
-                var_per_eval * (v - aim) / (aim * v)
-            } else {
-                least as f64
+            // The extension: M more evaluations and their share b = M/(N + M), the rounds so far
+            // (N evaluations, variance v) keeping 1 − b, as a mean pooled by evaluations would;
+            // M the fewest with (1 − b)²·v + b²·V/M at the aim (found by bisection on ln M).
+            let (v, n) = (self.var, self.evals as f64);
+            let combined = |m: f64| {
+                let b = m / (n + m);
+                (1.0 - b).powi(2) * v + b * b * var_per_eval / m
             };
-            let more = more.clamp(least as f64, affordable.max(least as f64));
-            let b = v / (v + var_per_eval / more);
+            let (mut lo, mut hi) = (least as f64, affordable.max(least as f64));
+            if combined(hi) <= aim {
+                for _ in 0..60 {
+                    let mid = (lo * hi).sqrt();
+                    if combined(mid) <= aim {
+                        hi = mid;
+                    } else {
+                        lo = mid;
+                    }
+                }
+            }
+            let more = hi.ceil();
+            let b = more / (n + more);
             self.shares.iter_mut().for_each(|a| *a *= 1.0 - b);
             self.weighted *= 1.0 - b;
             self.var *= (1.0 - b).powi(2);
             self.remaining = b;
             self.extensions += 1;
+            self.round_plan = more;
+            self.round_evals = 0;
         }
         let r = self.remaining;
-        // Evaluations that bring Σ a²V/n to the aim when the rest of the share goes to them.
+        // Evaluations that bring Σ a²V/n to the aim when the rest of the share goes to them; at
+        // most twice the round's smallest plan: a round that an iteration far noisier than planned
+        // (a heavy tail) has set back ends near its plan, and an extension dilutes it, instead
+        // of spreading what is left of its share thinly over many more evaluations.
         let room = aim - self.var;
-        let needed = if room > 0.0 {
+        let mut needed = if room > 0.0 {
             (r * r * var_per_eval / room).ceil().max(least as f64)
         } else {
             least as f64
         };
+        let planned = self.round_evals as f64 + needed;
+        if self.round_plan == 0.0 || planned < self.round_plan {
+            self.round_plan = planned;
+        }
+        needed = needed.min((2.0 * self.round_plan - self.round_evals as f64).max(least as f64));
         let (needed, limited) = if needed > affordable {
             (affordable.max(least as f64), true)
         } else {
@@ -386,6 +422,7 @@ impl Pursuit {
         };
         let n = iteration.evals as f64;
         self.evals += iteration.evals;
+        self.round_evals += iteration.evals;
         self.var_evals += n * n * iteration.variance;
         self.sum_evals += n;
     }

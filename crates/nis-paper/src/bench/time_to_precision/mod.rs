@@ -15,7 +15,7 @@ pub mod vegas_package;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
-use nis::integrate::{integrator, Integrand, Method, Settings};
+use nis::integrate::{integrator, Integrand, Method, Settings, Target};
 
 use self::cost::SyntheticCost;
 use self::ladder::{Outcome, Run};
@@ -56,21 +56,29 @@ pub enum Contender {
     VegasPackage,
     /// NIS with the flow of fewer layers (`"masks": "codes"`), for cheap integrands.
     NisCodes,
+    /// NIS asked for the target itself (`integrate_to`): one run per target, no ladder.
+    NisTarget,
+    /// Our VEGAS+ asked for the target itself.
+    VegasTarget,
 }
 
 impl Contender {
     /// Every contender, in table order.
-    pub const ALL: [Contender; 5] = [
+    pub const ALL: [Contender; 7] = [
+        Contender::NisTarget,
         Contender::Nis,
         Contender::NisCodes,
+        Contender::VegasTarget,
         Contender::Vegas,
         Contender::Uniform,
         Contender::VegasPackage,
     ];
 
     /// The contenders a run has unless told otherwise.
-    pub const DEFAULT: [Contender; 4] = [
+    pub const DEFAULT: [Contender; 6] = [
+        Contender::NisTarget,
         Contender::Nis,
+        Contender::VegasTarget,
         Contender::Vegas,
         Contender::Uniform,
         Contender::VegasPackage,
@@ -84,6 +92,8 @@ impl Contender {
             Contender::Uniform => "mc",
             Contender::VegasPackage => "vegas-py",
             Contender::NisCodes => "nis-codes",
+            Contender::NisTarget => "nis-target",
+            Contender::VegasTarget => "vegas+-target",
         }
     }
 
@@ -96,11 +106,16 @@ impl Contender {
         settings
     }
 
+    /// Whether it integrates to each target itself instead of running a ladder of budgets.
+    fn asks_for_target(self) -> bool {
+        matches!(self, Contender::NisTarget | Contender::VegasTarget)
+    }
+
     /// Our library's method, if it is one of ours.
     fn method(self) -> Option<Method> {
         match self {
-            Contender::Nis | Contender::NisCodes => Some(Method::Nis),
-            Contender::Vegas => Some(Method::Vegas),
+            Contender::Nis | Contender::NisCodes | Contender::NisTarget => Some(Method::Nis),
+            Contender::Vegas | Contender::VegasTarget => Some(Method::Vegas),
             Contender::Uniform => Some(Method::Uniform),
             Contender::VegasPackage => None,
         }
@@ -115,7 +130,8 @@ impl std::str::FromStr for Contender {
             .find(|c| c.name() == s)
             .ok_or_else(|| {
                 Error::Config(format!(
-                    "unknown method {s:?}: expected nis, nis-codes, vegas+, mc or vegas-py"
+                    "unknown method {s:?}: expected nis-target, nis, nis-codes, vegas+-target, \
+                     vegas+, mc or vegas-py"
                 ))
             })
     }
@@ -287,15 +303,26 @@ pub fn run(
                     done += 1;
                     continue;
                 }
-                let runs = ladder::ladder(&o.targets, f.exact, o.cap, |evals| {
-                    let r = match (contender.method(), package.as_mut()) {
-                        (Some(method), _) => {
-                            ours(method, &contender.settings(seed), &costly, f.dim, evals)
-                        }
-                        (None, Some(p)) => p.run(seed, evals),
-                        (None, None) => Err(Error::Config("no vegas package".into())),
-                    }?;
-                    progress(Progress {
+                let runs = if contender.asks_for_target() {
+                    let method = contender.method().expect("one of ours");
+                    to_targets(
+                        method,
+                        &contender.settings(seed),
+                        &costly,
+                        f.dim,
+                        &o.targets,
+                        o.cap,
+                    )?
+                } else {
+                    ladder::ladder(&o.targets, f.exact, o.cap, |evals| {
+                        let r = match (contender.method(), package.as_mut()) {
+                            (Some(method), _) => {
+                                ours(method, &contender.settings(seed), &costly, f.dim, evals)
+                            }
+                            (None, Some(p)) => p.run(seed, evals),
+                            (None, None) => Err(Error::Config("no vegas package".into())),
+                        }?;
+                        progress(Progress {
                         done,
                         total,
                         message: &format!(
@@ -306,8 +333,9 @@ pub fn run(
                         ),
                         finished: false,
                     });
-                    Ok::<Run, Error>(r)
-                })?;
+                        Ok::<Run, Error>(r)
+                    })?
+                };
                 for (t, out) in o.targets.iter().zip(&mut outcomes) {
                     out.push(ladder::outcome(&runs, *t, f.exact, o.cap));
                 }
@@ -402,6 +430,34 @@ fn ours(
         value: r.value,
         std_err: r.std_err,
     })
+}
+
+/// One run to each target (loosest first, so that [`ladder::outcome`] takes each target's own
+/// run), capped at `cap` seconds.
+fn to_targets(
+    method: Method,
+    settings: &Settings,
+    f: &dyn Integrand,
+    dim: usize,
+    targets: &[f64],
+    cap: f64,
+) -> Result<Vec<Run>> {
+    let mut sorted = targets.to_vec();
+    sorted.sort_by(|a, b| b.total_cmp(a));
+    sorted
+        .iter()
+        .map(|&t| {
+            let start = Instant::now();
+            let r = integrator(method, dim, settings)?
+                .integrate_to(f, &Target::rel(t).max_seconds(cap))?;
+            Ok(Run {
+                evals: r.n_eval,
+                seconds: start.elapsed().as_secs_f64(),
+                value: r.value,
+                std_err: r.std_err,
+            })
+        })
+        .collect()
 }
 
 fn cost_suffix(cost_us: f64) -> String {

@@ -16,6 +16,8 @@ fn colour(contender: Contender) -> RGBColor {
         Contender::Uniform => RGBColor(127, 127, 127),
         Contender::VegasPackage => RGBColor(44, 160, 44),
         Contender::NisCodes => RGBColor(148, 103, 189),
+        Contender::NisTarget => RGBColor(23, 190, 207),
+        Contender::VegasTarget => RGBColor(214, 39, 40),
     }
 }
 

@@ -64,7 +64,10 @@ impl NisIntegrator {
                 &mut self.streams.train.clone(),
                 Record::Nothing,
             )?;
-            let one = t.elapsed().as_secs_f64();
+            // Every rank decides alike: on the slowest rank's time.
+            let mut one = [t.elapsed().as_secs_f64()];
+            self.comm.max_f64(&mut one);
+            let one = one[0];
             if seconds * share < one {
                 return Err(Error::Config(format!(
                     "precision target: max_seconds = {seconds} leaves {:.2e} s to train, less \
