@@ -40,7 +40,7 @@ impl BreitWigner {
     /// The density ∝ 1/((s − centre)² + half_width²) on [lo, hi]. Errors: a half-width that is
     /// not finite and > 0, limits that are not finite with lo < hi, a centre not finite.
     pub fn new(centre: f64, half_width: f64, lo: f64, hi: f64) -> Result<BreitWigner> {
-        if !(half_width.is_finite() && half_width > 0.0) || !centre.is_finite() {
+        if !(half_width.is_finite() && half_width > 0.0 && centre.is_finite()) {
             return Err(Error::Config(format!(
                 "a Breit–Wigner needs a finite centre and half-width > 0, not {centre}, {half_width}"
             )));

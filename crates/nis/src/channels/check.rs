@@ -52,7 +52,10 @@ pub fn check_sampled(channel: usize, dim: usize, u: &[f64], x: &[f64], g: &[f64]
         let at = |reason: String| Error::Channel {
             channel,
             point: p.to_vec(),
-            reason: format!("{reason} (point {i} of the batch, from u = {:?})", &u[i * dim..(i + 1) * dim]),
+            reason: format!(
+                "{reason} (point {i} of the batch, from u = {:?})",
+                &u[i * dim..(i + 1) * dim]
+            ),
         };
         if let Some(j) = p.iter().position(|v| !(0.0..=1.0).contains(v)) {
             return Err(at(format!(

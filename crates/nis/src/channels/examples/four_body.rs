@@ -35,7 +35,8 @@ pub(crate) const Z: (f64, f64) = (91.1876 / 125.0, 2.4952 / 125.0);
 pub(crate) const X_TREE: [usize; 4] = [0, 1, 2, 3];
 /// The channels' trees, the pair whose resonance each flattens first: (12), (34), (14), (32).
 pub(crate) const TREES: [[usize; 4]; 4] = [[0, 1, 2, 3], [2, 3, 0, 1], [0, 3, 2, 1], [2, 1, 0, 3]];
-/// The coordinates of x that are azimuths φ/2π (periodic).
+/// The coordinates of x that are azimuths φ/2π (periodic; the tests' finite differences wrap).
+#[cfg(test)]
 pub(crate) const AZIMUTHS: [usize; 3] = [3, 5, 7];
 /// The relative tolerance of each level of the nested quadrature.
 const QUAD_TOL: f64 = 1e-12;
@@ -96,7 +97,11 @@ fn decay(e: f64, p: [f64; 3], m: f64, n: [f64; 3]) -> [[f64; 4]; 2] {
 fn rest_direction(e: f64, p: [f64; 3], m: f64, k: [f64; 4]) -> [f64; 3] {
     let v = [k[1], k[2], k[3]];
     let t = k[0] - dot(p, v) / (e + m);
-    [m * v[0] - p[0] * t, m * v[1] - p[1] * t, m * v[2] - p[2] * t]
+    [
+        m * v[0] - p[0] * t,
+        m * v[1] - p[1] * t,
+        m * v[2] - p[2] * t,
+    ]
 }
 
 /// The momenta of tree `tree` at its coordinates z ∈ [0, 1]^8.
@@ -136,7 +141,11 @@ pub(crate) fn coordinates(tree: [usize; 4], p: &Momenta) -> [f64; 8] {
     let (x2, x3) = angles(qa);
     let (x4, x5) = angles(rest_direction(ea, qa, sa.sqrt(), a1));
     let (x6, x7) = angles(rest_direction(eb, qb, sb.sqrt(), b1));
-    let x1 = if room > 0.0 { (sb / room).clamp(0.0, 1.0) } else { 0.0 };
+    let x1 = if room > 0.0 {
+        (sb / room).clamp(0.0, 1.0)
+    } else {
+        0.0
+    };
     [sa, x1, x2, x3, x4, x5, x6, x7]
 }
 
@@ -214,7 +223,10 @@ fn tree_channel(tree: [usize; 4]) -> Box<dyn Channel> {
         },
         move |x: &[f64]| {
             let p = momenta(X_TREE, x);
-            let (sa, sb) = (invariant(&p, tree[0], tree[1]), invariant(&p, tree[2], tree[3]));
+            let (sa, sb) = (
+                invariant(&p, tree[0], tree[1]),
+                invariant(&p, tree[2], tree[3]),
+            );
             let psi = bw_a().pdf(sa.min(1.0)) * bw_b(sa).pdf(sb) / (12.0 * sqrt_lambda(sa, sb));
             jacobian(x) * psi
         },

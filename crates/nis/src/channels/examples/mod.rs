@@ -37,7 +37,12 @@ pub struct Example {
 
 impl std::fmt::Debug for Example {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        write!(f, "{:?} with {} channels", self.integrand, self.channels.len())
+        write!(
+            f,
+            "{:?} with {} channels",
+            self.integrand,
+            self.channels.len()
+        )
     }
 }
 

@@ -89,14 +89,20 @@ mod tests {
         // Weights: Σ = 2 on [−1, 1] for both rules.
         let k: f64 = 2.0 * WGK[..7].iter().sum::<f64>() + WGK[7];
         let g: f64 = 2.0 * WG[..3].iter().sum::<f64>() + WG[3];
-        assert!((k - 2.0).abs() < 1e-15 && (g - 2.0).abs() < 1e-15, "{k} {g}");
+        assert!(
+            (k - 2.0).abs() < 1e-15 && (g - 2.0).abs() < 1e-15,
+            "{k} {g}"
+        );
         // K15 integrates degree 22 exactly, one interval.
         let (v, _) = kronrod(&mut |x: f64| x.powi(22), 0.0, 1.0);
         assert!((v - 1.0 / 23.0).abs() < 1e-15);
         // A narrow Cauchy peak and a √x endpoint.
         let (v, e) = integrate(|x| 1e-3 / ((x - 0.3).powi(2) + 1e-6), 0.0, 1.0, 1e-13);
         let want = (0.7f64 / 1e-3).atan() + (0.3f64 / 1e-3).atan();
-        assert!((v / want - 1.0).abs() < 1e-12 && e < 1e-12 * want, "{v} {want} {e}");
+        assert!(
+            (v / want - 1.0).abs() < 1e-12 && e < 1e-12 * want,
+            "{v} {want} {e}"
+        );
         let (v, _) = integrate(f64::sqrt, 0.0, 1.0, 1e-13);
         assert!((v - 2.0 / 3.0).abs() < 1e-12, "{v}");
     }

@@ -1,8 +1,6 @@
 //! Every example's channels are the true densities of their maps, and every exact value agrees
 //! with the classic multi-channel estimate and with an independent quadrature.
 
-use std::f64::consts::PI;
-
 use rand::{Rng, SeedableRng};
 use rand_pcg::Pcg64Mcg;
 
@@ -217,8 +215,15 @@ fn exact_values_agree_with_the_classic_multi_channel_estimate_and_channels_cut_t
             plain_var / (scale * scale),
             mc_var / (scale * scale),
         );
-        assert!((v - ex.exact).abs() < 4.0 * sigma, "{name}: {v} ± {sigma} vs {}", ex.exact);
-        assert!((pv - ex.exact).abs() < 4.0 * perr.hypot(ex.exact_err), "{name} plain: {pv} ± {perr}");
+        assert!(
+            (v - ex.exact).abs() < 4.0 * sigma,
+            "{name}: {v} ± {sigma} vs {}",
+            ex.exact
+        );
+        assert!(
+            (pv - ex.exact).abs() < 4.0 * perr.hypot(ex.exact_err),
+            "{name} plain: {pv} ± {perr}"
+        );
         assert!(ratio > bound, "{name}: variance ratio {ratio} ≤ {bound}");
     }
 }
@@ -230,7 +235,10 @@ fn exact_values_match_independent_quadratures() {
     let ex = by_name("gauss-pm").unwrap();
     let one = |c: f64| integrate(|t| (-(t - c).powi(2) / 0.08).exp(), 0.0, 1.0, 1e-14).0;
     let (pos, neg) = (one(0.2).powi(2), one(0.8).powi(2));
-    assert!((pos - neg).abs() < 1e-14 && ex.exact == 0.0 && pos > 0.1, "{pos} {neg}");
+    assert!(
+        (pos - neg).abs() < 1e-14 && ex.exact == 0.0 && pos > 0.1,
+        "{pos} {neg}"
+    );
 
     // dalitz: nested quadrature of the unit-square integrand itself (x₁ inside, x₀ outside),
     // not of the closed-form s₂₃ integrals.
@@ -240,8 +248,15 @@ fn exact_values_match_independent_quadratures() {
     let peak = (dalitz::KSTAR.0.powi(2) - lo) / (hi - lo);
     let row = |x0: f64| integrate(|x1| f.value(&[x0, x1]), 0.0, 1.0, 1e-13).0;
     let v = integrate(row, 0.0, peak, 1e-12).0 + integrate(row, peak, 1.0, 1e-12).0;
-    println!("dalitz: exact {:.15e}, unit-square quadrature {v:.15e}", ex.exact);
-    assert!((v / ex.exact - 1.0).abs() < tol, "dalitz {v} vs {}", ex.exact);
+    println!(
+        "dalitz: exact {:.15e}, unit-square quadrature {v:.15e}",
+        ex.exact
+    );
+    assert!(
+        (v / ex.exact - 1.0).abs() < tol,
+        "dalitz {v} vs {}",
+        ex.exact
+    );
 
     // resonances-4d: each term as ∫ ρ L by quadrature; the −ln t one after t = e^(−v).
     let ex = by_name("resonances-4d").unwrap();
@@ -252,7 +267,12 @@ fn exact_values_match_independent_quadratures() {
     };
     let sum = split(&|t: f64| t.min(2.0 - t) * l(t, p[0]), 0.0, p[0].0, 2.0);
     let cv = -p[1].0.ln();
-    let prod = split(&|v: f64| v * (-v).exp() * l((-v).exp(), p[1]), 0.0, cv, 60.0);
+    let prod = split(
+        &|v: f64| v * (-v).exp() * l((-v).exp(), p[1]),
+        0.0,
+        cv,
+        60.0,
+    );
     let diff = split(&|t: f64| (1.0 - t.abs()) * l(t, p[2]), -1.0, p[2].0, 1.0);
     let terms = resonances::exact_terms().0;
     for (a, b) in terms.iter().zip([sum, prod, diff]) {
@@ -279,9 +299,17 @@ fn exact_values_match_independent_quadratures() {
     };
     let volume = 12.0 * masses(&|a, b| four_body::sqrt_lambda(a, b));
     assert!((volume - 1.0).abs() < 1e-11, "four-body volume {volume}");
-    let v = 24.0 * masses(&|a, b| four_body::sqrt_lambda(a, b) * four_body::bw2(a) * four_body::bw2(b));
-    println!("phase-space-8d: exact {:.15e}, mass quadrature {v:.15e}", ex.exact);
-    assert!((v / ex.exact - 1.0).abs() < 1e-10, "phase-space-8d {v} vs {}", ex.exact);
+    let v =
+        24.0 * masses(&|a, b| four_body::sqrt_lambda(a, b) * four_body::bw2(a) * four_body::bw2(b));
+    println!(
+        "phase-space-8d: exact {:.15e}, mass quadrature {v:.15e}",
+        ex.exact
+    );
+    assert!(
+        (v / ex.exact - 1.0).abs() < 1e-10,
+        "phase-space-8d {v} vs {}",
+        ex.exact
+    );
     for name in NAMES {
         let ex = by_name(name).unwrap();
         println!("{name}: exact {:.15e} ± {:.1e}", ex.exact, ex.exact_err);
@@ -316,7 +344,6 @@ fn the_four_body_map_round_trips_and_conserves_momentum() {
     let m = j.iter().sum::<f64>() / n as f64;
     let s = (j.iter().map(|v| (v - m).powi(2)).sum::<f64>() / (n * (n - 1)) as f64).sqrt();
     assert!((m - 1.0).abs() < 4.0 * s, "∫J = {m} ± {s}");
-    let _ = PI;
 }
 
 #[test]
