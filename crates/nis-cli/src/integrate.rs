@@ -424,7 +424,8 @@ pub fn eval(args: &EvalArgs) -> Result<(), Error> {
 /// `nis list`.
 pub fn list() {
     println!("{:<14} {:<14} description", "name", "dimensions");
-    for e in SUITE.iter().chain([&integrands::COSTLY]) {
+    let multi = integrands::MULTI_CHANNEL;
+    for e in SUITE.iter().chain([&integrands::COSTLY]).chain(multi) {
         let dims: Vec<String> = e.dims.iter().map(|d| d.to_string()).collect();
         println!("{:<14} {:<14} {}", e.name, dims.join(","), e.description);
     }

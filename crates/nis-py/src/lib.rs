@@ -52,7 +52,8 @@ pub(crate) fn to_py_err(e: nis::Error) -> PyErr {
         Error::Config(_)
         | Error::Dimension { .. }
         | Error::OutOfDomain { .. }
-        | Error::NonFinite { .. } => PyValueError::new_err(message),
+        | Error::NonFinite { .. }
+        | Error::Channel { .. } => PyValueError::new_err(message),
         Error::Integrand { point, value } => Python::attach(|py| {
             let err = IntegrandError::new_err(message);
             let v = err.value(py);

@@ -38,6 +38,17 @@ pub enum Error {
         /// The integrand's own account of what went wrong.
         message: String,
     },
+    /// A channel of a multi-channel integration (`nis::channels`) sampled a point outside the
+    /// unit cube, or gave a density that is not finite and positive at a point it sampled.
+    #[error("channel {channel} at the point {point:?}: {reason}")]
+    Channel {
+        /// The channel's index in its set.
+        channel: usize,
+        /// The point (u or x, as `reason` says) where it went wrong.
+        point: Vec<f64>,
+        /// What went wrong, with the offending value.
+        reason: String,
+    },
     /// Another MPI rank failed (its own error is this message); every rank stops at that batch.
     #[error("rank {rank} failed: {message}")]
     Rank {

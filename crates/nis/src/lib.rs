@@ -18,6 +18,8 @@
 //! - [`integrate`]: the integrand interface and the integrators (NIS, VEGAS+, plain MC), their
 //!   estimates and error bars, unweighted samples.
 //! - [`integrands`]: the built-in test suite with exact values.
+//! - [`channels`]: channels of multi-channel integration (maps of the unit cube with their
+//!   densities, priors, checks) and multi-channel examples with exact values.
 //! - [`io`]: model files (config JSON + safetensors) and atomic writes.
 //! - [`comm`]: the collective operations of data-parallel runs over MPI ranks (feature `mpi`),
 //!   with a single-process implementation that every run uses by default.
@@ -26,6 +28,7 @@
 //! The paper's experiments (2-D image targets, density estimation on real images, figures,
 //! benchmarks) live in the crate `nis-paper`; the path tracer and path guiding in `nis-render`.
 
+pub mod channels;
 pub mod comm;
 pub mod error;
 pub mod flow;

@@ -7,6 +7,7 @@ mod physics;
 
 use std::f64::consts::PI;
 
+use crate::channels::examples;
 use crate::error::{Error, Result};
 use crate::integrate::Integrand;
 
@@ -35,6 +36,24 @@ impl std::fmt::Debug for Builtin {
 }
 
 impl Builtin {
+    /// A built-in from its point function (the name is set by `by_name`).
+    pub(crate) fn from_fn(
+        dim: usize,
+        exact: f64,
+        exact_err: f64,
+        source: &'static str,
+        f: impl Fn(&[f64]) -> f64 + Send + Sync + 'static,
+    ) -> Builtin {
+        Builtin {
+            name: String::new(),
+            dim,
+            exact,
+            exact_err,
+            source,
+            f: Box::new(f),
+        }
+    }
+
     /// f(x) at one point.
     pub fn value(&self, x: &[f64]) -> f64 {
         (self.f)(x)
@@ -141,6 +160,32 @@ pub const SUITE: &[SuiteEntry] = &[
         name: "ridge",
         dims: &[2, 4, 8],
         description: "a peak on a thin curved ridge x_i = g_i(x₁) (non-separable)",
+    },
+];
+
+/// The multi-channel examples (`nis::channels::examples` gives their channels): `by_name` knows
+/// them and `nis integrate` runs them with any method, but the benchmark suite does not (their
+/// point is the channels, and `gauss-pm`'s exact value is 0).
+pub const MULTI_CHANNEL: &[SuiteEntry] = &[
+    SuiteEntry {
+        name: "gauss-pm",
+        dims: &[2],
+        description: "a positive and a negative Gaussian, exact 0 (MadNIS multi-channel toy)",
+    },
+    SuiteEntry {
+        name: "dalitz",
+        dims: &[2],
+        description: "D → Kππ Dalitz plot, coherent K*(892) in s12 and ρ(770) in s23",
+    },
+    SuiteEntry {
+        name: "resonances-4d",
+        dims: &[4],
+        description: "three narrow Cauchy peaks in x0+x1, x2·x3, x1−x3",
+    },
+    SuiteEntry {
+        name: "phase-space-8d",
+        dims: &[8],
+        description: "massless 1→4 phase space, Z-like pairs in s12·s34 and s14·s23",
     },
 ];
 
@@ -315,9 +360,9 @@ fn gamma_half_plus_one(dim: usize) -> f64 {
 
 /// Builds a built-in integrand by name; `dim` defaults to the smallest of its suite dimensions.
 pub fn by_name(name: &str, dim: Option<usize>) -> Result<Builtin> {
-    let mut known = SUITE.iter().chain([&COSTLY]);
-    let entry = known.find(|e| e.name == name).ok_or_else(|| {
-        let names: Vec<&str> = SUITE.iter().chain([&COSTLY]).map(|e| e.name).collect();
+    let all = || SUITE.iter().chain([&COSTLY]).chain(MULTI_CHANNEL);
+    let entry = all().find(|e| e.name == name).ok_or_else(|| {
+        let names: Vec<&str> = all().map(|e| e.name).collect();
         Error::Config(format!(
             "unknown integrand {name:?}; built-ins: {}",
             names.join(", ")
@@ -409,6 +454,15 @@ pub fn by_name(name: &str, dim: Option<usize>) -> Result<Builtin> {
             return Err(Error::Config(format!(
                 "{name} is defined for 2 to 64 dimensions, not {d}"
             )));
+        }
+        "gauss-pm" | "dalitz" | "resonances-4d" | "phase-space-8d" => {
+            fixed(entry.dims[0])?;
+            match name {
+                "gauss-pm" => examples::gauss_pm(),
+                "dalitz" => examples::dalitz(),
+                "resonances-4d" => examples::resonances(),
+                _ => examples::four_body(),
+            }
         }
         "gauss-diagonal" => correlated::gauss_diagonal(d),
         "peaks" => correlated::peaks(d),
