@@ -67,6 +67,8 @@ impl From<nis::Error> for Failure {
             // Another MPI rank's failure; the C ABI runs on one process, where it cannot occur.
             E::IntegrandFailed { .. } | E::Rank { .. } => NIS_ERR_CALLBACK,
             E::Model { .. } | E::Io { .. } => NIS_ERR_FILE,
+            // A channel's map or density broke its contract at a point it names.
+            E::Channel { .. } => NIS_ERR_INVALID_ARGUMENT,
         };
         Failure::new(code, e.to_string())
     }

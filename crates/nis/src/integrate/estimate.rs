@@ -175,6 +175,7 @@ impl Accumulator {
             convergence,
             iterations: self.iterations.clone(),
             components: self.components(shares),
+            channels: None,
             stop: None,
         }
     }

@@ -17,6 +17,7 @@ pub mod diagnostics;
 mod estimate;
 mod integrand;
 mod moments;
+pub mod multichannel;
 pub mod nis;
 mod result;
 pub mod settings;

@@ -47,6 +47,9 @@ pub struct IntegrationResult {
     /// evaluations add up to `n_eval` less those that only adapted the sampler.
     #[serde(skip)]
     pub iterations: Vec<Iteration>,
+    /// Every channel's contribution, for a multi-channel integral (`None` otherwise).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub channels: Option<super::multichannel::ChannelReport>,
     /// Why a run to a precision target stopped (`None` for a run on a budget).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub stop: Option<Stop>,

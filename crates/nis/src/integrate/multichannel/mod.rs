@@ -1,0 +1,402 @@
+//! Multi-channel integration (Kleiss & Pittau 1994, hep-ph/9405257; with a flow per channel as in
+//! MadNIS, Heimel et al. 2023, arXiv:2212.06172) and signed integrands: F = Σ_k ∫ α_k f, each
+//! channel's part written over its own cube, h_k(u) = a_k·f(φ_k(u))/g(φ_k(u)) with
+//! g = Σ_j a_j g_j ([`part`]), and integrated by a sampler of its own: a flow for NIS, a VEGAS+ map
+//! for VEGAS+ (multi-channel VEGAS), uniform points for plain MC (the classic multi-channel
+//! estimator). When f changes sign every channel's part is split into h⁺ and h⁻, each with its
+//! own sampler, so that each can reach zero variance; F = Σ (F⁺_k − F⁻_k).
+//!
+//! One call: a pilot of uniform points per channel decides (once) whether f changes sign; every
+//! part adapts on an equal share of `adapt_fraction` of the budget, which also measures its
+//! standard deviation σ_p and its integral; the a-priori weights a_k move to the variance-minimising
+//! a_k ∝ a_k·√W_k (Kleiss–Pittau, W_k the second moment of channel k's weights, from its parts),
+//! kept above `weight_floor`; the rest of the budget goes to the parts in proportion to σ_p
+//! (Neyman's allocation, with a floor so that no part starves), and each estimates its part with
+//! its sampler frozen (NIS) or still adapting (VEGAS+). The allocation and the weights are fixed
+//! before the estimate draws a point, so each part's estimate is unbiased and F's is too
+//! (docs/ESTIMATE.md, "Channels and signs"); its variance is the sum of the parts'.
+
+mod part;
+mod report;
+
+use std::time::Instant;
+
+use rand::{Rng, SeedableRng};
+use rand_pcg::Pcg64Mcg;
+use serde::{Deserialize, Serialize};
+
+pub use part::Sign;
+pub use report::{ChannelReport, SignReport};
+
+use self::part::PartIntegrand;
+use super::{integrator, Integrand, IntegrationResult, Integrator, Method, Settings};
+use crate::channels::{ChannelFn, ChannelSet};
+use crate::comm::Comm;
+use crate::error::{Error, Result};
+
+/// Whether the integrand is split by sign.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Signs {
+    /// Split when the pilot sees both signs.
+    #[default]
+    Auto,
+    /// Always split into f⁺ and f⁻.
+    Split,
+    /// Never split (a sampler per channel learns |h_k|).
+    Whole,
+}
+
+/// Settings of [`MultiChannel`] (the method's own settings are [`Settings`]).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct MultiChannelConfig {
+    /// Splitting by sign.
+    pub signs: Signs,
+    /// Share of a call's evaluations the parts adapt on (the rest makes the estimate).
+    pub adapt_fraction: f64,
+    /// Whether the a-priori weights adapt (Kleiss–Pittau) between adapting and estimating.
+    pub adapt_weights: bool,
+    /// Smallest a-priori weight a channel keeps, as a fraction of 1/K (channel dropping leaves
+    /// it this much).
+    pub weight_floor: f64,
+    /// Uniform points per channel of the pilot that decides the sign split.
+    pub pilot: usize,
+}
+
+impl Default for MultiChannelConfig {
+    fn default() -> Self {
+        MultiChannelConfig {
+            signs: Signs::Auto,
+            adapt_fraction: 0.4,
+            adapt_weights: true,
+            weight_floor: 0.01,
+            pilot: 1000,
+        }
+    }
+}
+
+impl MultiChannelConfig {
+    fn validate(&self) -> Result<()> {
+        let ok = self.adapt_fraction > 0.0
+            && self.adapt_fraction < 1.0
+            && self.weight_floor > 0.0
+            && self.weight_floor <= 1.0
+            && self.pilot >= 2;
+        if ok {
+            return Ok(());
+        }
+        Err(Error::Config(format!(
+            "multi-channel settings: adapt_fraction must be in (0, 1), weight_floor in (0, 1] and \
+             pilot at least 2: {self:?}"
+        )))
+    }
+}
+
+/// One part: channel, sign and its integrator.
+struct Part {
+    channel: usize,
+    sign: Sign,
+    integrator: Box<dyn Integrator>,
+}
+
+/// A multi-channel integrator: the channels, their a-priori weights, and an integrator of
+/// `method` per channel and sign, all of which persist between calls.
+pub struct MultiChannel {
+    set: ChannelSet,
+    method: Method,
+    settings: Settings,
+    config: MultiChannelConfig,
+    /// The a-priori weights a_k, summing to one.
+    weights: Vec<f64>,
+    parts: Vec<Part>,
+    comm: Comm,
+}
+
+impl MultiChannel {
+    /// Integrates over the channels of `set` with `method` (its settings and seed from
+    /// `settings`).
+    pub fn new(
+        set: ChannelSet,
+        method: Method,
+        settings: Settings,
+        config: MultiChannelConfig,
+    ) -> Result<MultiChannel> {
+        config.validate()?;
+        // Builds one to check the settings now rather than at the first call.
+        integrator(method, set.dim(), &settings)?;
+        Ok(MultiChannel {
+            weights: set.weights(),
+            set,
+            method,
+            settings,
+            config,
+            parts: Vec::new(),
+            comm: Comm::default(),
+        })
+    }
+
+    /// One channel, the identity map: a single-channel integral whose integrand may be split by
+    /// sign (`config.signs`).
+    pub fn single(
+        dim: usize,
+        method: Method,
+        settings: Settings,
+        config: MultiChannelConfig,
+    ) -> Result<MultiChannel> {
+        if dim == 0 {
+            return Err(Error::Config("dimension must be at least 1".into()));
+        }
+        let identity = ChannelFn::new(
+            dim,
+            |u: &[f64], x: &mut [f64]| x.copy_from_slice(u),
+            |_| 1.0,
+        );
+        MultiChannel::new(
+            ChannelSet::new(vec![Box::new(identity)])?,
+            method,
+            settings,
+            config,
+        )
+    }
+
+    /// The dimension.
+    pub fn dim(&self) -> usize {
+        self.set.dim()
+    }
+
+    /// The a-priori weights a_k the next estimate starts from.
+    pub fn weights(&self) -> &[f64] {
+        &self.weights
+    }
+
+    /// Runs data-parallel over the ranks of `comm` (see [`Integrator::set_comm`]).
+    pub fn set_comm(&mut self, comm: Comm) {
+        for p in &mut self.parts {
+            p.integrator.set_comm(comm.clone());
+        }
+        self.comm = comm;
+    }
+
+    /// Spends `evals` evaluations of `f` (every channel's and sign's, the pilot included):
+    /// adapts, moves the weights, allocates, estimates (module docs).
+    pub fn integrate(&mut self, f: &dyn Integrand, evals: u64) -> Result<IntegrationResult> {
+        let started = Instant::now();
+        let dim = self.dim();
+        super::check_dim(f, dim)?;
+        if f.components() != 1 {
+            return Err(Error::Config(
+                "multi-channel integration takes scalar integrands".into(),
+            ));
+        }
+        let channels = self.set.len();
+        let mut spent = 0u64;
+        if self.parts.is_empty() {
+            spent += self.make_parts(f)?;
+        }
+        let parts = self.parts.len() as u64;
+        let least_per_part = 2 * MIN_PART_EVALS;
+        if evals < spent + parts * least_per_part {
+            return Err(Error::Config(format!(
+                "{} parts ({channels} channels{}) need at least {} evaluations, got {evals}",
+                parts,
+                if parts as usize > channels {
+                    ", split by sign"
+                } else {
+                    ""
+                },
+                spent + parts * least_per_part
+            )));
+        }
+        // Adapt: an equal share per part; each part's result gives its σ and integral.
+        let adapt =
+            ((evals as f64 * self.config.adapt_fraction) as u64 / parts).max(MIN_PART_EVALS);
+        let mut measured = Vec::with_capacity(self.parts.len());
+        for p in self.parts.iter_mut() {
+            let h = PartIntegrand::new(f, &self.set, &self.weights, p.channel, p.sign);
+            let r = adapt_part(p.integrator.as_mut(), &h, adapt)?;
+            spent += r.n_eval;
+            measured.push(r);
+        }
+        if self.config.adapt_weights && channels > 1 {
+            self.weights = self.adapted_weights(&measured);
+        }
+        // Estimate: the rest in proportion to each part's σ per evaluation, with a floor.
+        let rest = evals.saturating_sub(spent);
+        let floor = (rest / (50 * parts)).max(MIN_PART_EVALS);
+        let sd: Vec<f64> = measured
+            .iter()
+            .map(|r| {
+                r.std_err * ((r.iterations.iter().map(|i| i.evals).sum::<u64>()) as f64).sqrt()
+            })
+            .collect();
+        let total_sd: f64 = sd.iter().sum();
+        let spare = rest.saturating_sub(floor * parts) as f64;
+        let mut results = Vec::with_capacity(self.parts.len());
+        for (p, s) in self.parts.iter_mut().zip(&sd) {
+            let share = if total_sd > 0.0 {
+                s / total_sd
+            } else {
+                1.0 / parts as f64
+            };
+            let n = floor + (spare * share) as u64;
+            let h = PartIntegrand::new(f, &self.set, &self.weights, p.channel, p.sign);
+            let r = estimate_part(p.integrator.as_mut(), &h, n)?;
+            spent += r.n_eval;
+            results.push(r);
+        }
+        Ok(report::combine(
+            &self.parts_index(),
+            &results,
+            &self.weights,
+            channels,
+            spent,
+            started,
+        ))
+    }
+
+    /// (channel, sign) of every part, in order.
+    fn parts_index(&self) -> Vec<(usize, Sign)> {
+        self.parts.iter().map(|p| (p.channel, p.sign)).collect()
+    }
+
+    /// Decides the sign split from a pilot of uniform points per channel (returns the pilot's
+    /// evaluations) and makes the parts, each integrator seeded from the settings' seed and its
+    /// index.
+    fn make_parts(&mut self, f: &dyn Integrand) -> Result<u64> {
+        let dim = self.dim();
+        let channels = self.set.len();
+        let (split, spent) = match self.config.signs {
+            Signs::Split => (true, 0),
+            Signs::Whole => (false, 0),
+            Signs::Auto => {
+                let mut rng = Pcg64Mcg::seed_from_u64(self.seed() ^ PILOT_SALT);
+                let (mut positive, mut negative) = (false, false);
+                let n = self.config.pilot;
+                for k in 0..channels {
+                    let h = PartIntegrand::new(f, &self.set, &self.weights, k, Sign::Both);
+                    let u: Vec<f64> = (0..n * dim).map(|_| rng.random::<f64>()).collect();
+                    super::evaluate(&h, &u, dim)?;
+                    positive |= h.saw_positive.into_inner();
+                    negative |= h.saw_negative.into_inner();
+                }
+                (
+                    self.comm.any(positive) && self.comm.any(negative),
+                    (n * channels) as u64,
+                )
+            }
+        };
+        let signs: &[Sign] = if split {
+            &[Sign::Plus, Sign::Minus]
+        } else {
+            &[Sign::Both]
+        };
+        for channel in 0..channels {
+            for &sign in signs {
+                let index = self.parts.len() as u64;
+                let seed = part_seed(self.seed(), index);
+                let mut integrator =
+                    integrator(self.method, dim, &self.settings.clone().seed(seed))?;
+                integrator.set_comm(self.comm.clone());
+                self.parts.push(Part {
+                    channel,
+                    sign,
+                    integrator,
+                });
+            }
+        }
+        Ok(spent)
+    }
+
+    /// The seed of the settings (every method's is the same after `Settings::seed`).
+    fn seed(&self) -> u64 {
+        match self.method {
+            Method::Nis => self.settings.nis.seed,
+            Method::Vegas => self.settings.vegas.seed,
+            Method::Uniform => self.settings.uniform.seed,
+        }
+    }
+
+    /// a_k ∝ a_k·√W_k, W_k = Σ over channel k's parts of their weights' second moment
+    /// (σ² per evaluation + F²) over a_k², normalised, each at least `weight_floor`/K.
+    fn adapted_weights(&self, measured: &[IntegrationResult]) -> Vec<f64> {
+        let k = self.set.len();
+        let mut w = vec![0.0; k];
+        for (p, r) in self.parts.iter().zip(measured) {
+            let n: u64 = r.iterations.iter().map(|i| i.evals).sum();
+            let second = r.std_err * r.std_err * n as f64 + r.value * r.value;
+            w[p.channel] += second;
+        }
+        let mut a: Vec<f64> = self
+            .weights
+            .iter()
+            .zip(&w)
+            .map(|(a, w)| a * (w / (a * a)).sqrt())
+            .collect();
+        normalise_with_floor(&mut a, self.config.weight_floor / k as f64);
+        if a.iter().all(|v| v.is_finite()) {
+            a
+        } else {
+            self.weights.clone()
+        }
+    }
+}
+
+/// Fewest evaluations a part adapts or estimates with.
+const MIN_PART_EVALS: u64 = 2000;
+/// Salt of the pilot's stream ("pilo").
+const PILOT_SALT: u64 = 0x7069_6c6f;
+
+/// A seed per part, decorrelated from the base seed by a SplitMix64 step.
+fn part_seed(seed: u64, index: u64) -> u64 {
+    let mut z = seed ^ (index + 1).wrapping_mul(0x9e37_79b9_7f4a_7c15);
+    z = (z ^ (z >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
+    z = (z ^ (z >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
+    z ^ (z >> 31)
+}
+
+/// Normalises `a` to sum to one with every entry at least `floor` (the entries below it are
+/// raised to it, the others share the rest in proportion).
+fn normalise_with_floor(a: &mut [f64], floor: f64) {
+    let total: f64 = a.iter().sum();
+    a.iter_mut().for_each(|v| *v /= total);
+    for _ in 0..a.len() {
+        let low = a.iter().filter(|v| **v < floor).count();
+        if low == 0 {
+            break;
+        }
+        let high: f64 = a.iter().filter(|v| **v >= floor).sum();
+        let left = 1.0 - floor * low as f64;
+        a.iter_mut().for_each(|v| {
+            *v = if *v < floor { floor } else { *v * left / high };
+        });
+    }
+}
+
+/// Adapts a part on `n` evaluations and measures it: NIS trains on most of them and estimates
+/// with the rest; the others integrate (VEGAS+ adapts while it does).
+fn adapt_part(integ: &mut dyn Integrator, h: &dyn Integrand, n: u64) -> Result<IntegrationResult> {
+    if let Some(nis) = integ.as_nis() {
+        let train = n * 4 / 5;
+        nis.train(h, train)?;
+        let mut r = nis.estimate(h, n - train)?;
+        r.n_eval += train;
+        return Ok(r);
+    }
+    integ.integrate(h, n)
+}
+
+/// The estimate of a part from `n` evaluations: NIS's frozen flow alone, the others' `integrate`.
+fn estimate_part(
+    integ: &mut dyn Integrator,
+    h: &dyn Integrand,
+    n: u64,
+) -> Result<IntegrationResult> {
+    if let Some(nis) = integ.as_nis() {
+        return nis.estimate(h, n);
+    }
+    integ.integrate(h, n)
+}
+
+#[cfg(test)]
+mod tests;

@@ -1,0 +1,110 @@
+//! One part of a multi-channel integral as an integrand of its own over the channel's cube:
+//! h_k(u) = a_k·f(x)/g(x) at x = φ_k(u), g = Σ_j a_j g_j the mixture of the channels' densities
+//! (Kleiss & Pittau 1994: ∫ α_k f dx with α_k = a_k g_k/g, written over u), or its positive or
+//! negative part, max(±h_k, 0), when the integrand changes sign.
+
+use std::sync::atomic::{AtomicBool, Ordering};
+
+use serde::{Deserialize, Serialize};
+
+use crate::channels::ChannelSet;
+use crate::error::{Error, Result};
+use crate::integrate::{evaluate, Integrand};
+
+/// Which part of the integrand a part integrates.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Sign {
+    /// f itself (it does not change sign, or the split is off).
+    Both,
+    /// f⁺ = max(f, 0).
+    Plus,
+    /// f⁻ = max(−f, 0), entering the integral with a minus sign.
+    Minus,
+}
+
+impl Sign {
+    /// +1 for [`Sign::Minus`]'s −1: how the part enters F.
+    pub fn factor(self) -> f64 {
+        if self == Sign::Minus {
+            -1.0
+        } else {
+            1.0
+        }
+    }
+}
+
+/// The integrand h_k of channel `k` (and `sign`) for the integrand `f` under the a-priori
+/// weights `a`; it records whether it saw values of either sign.
+pub(super) struct PartIntegrand<'a> {
+    pub(super) f: &'a dyn Integrand,
+    pub(super) set: &'a ChannelSet,
+    pub(super) a: &'a [f64],
+    pub(super) k: usize,
+    pub(super) sign: Sign,
+    pub(super) saw_positive: AtomicBool,
+    pub(super) saw_negative: AtomicBool,
+}
+
+impl<'a> PartIntegrand<'a> {
+    pub(super) fn new(
+        f: &'a dyn Integrand,
+        set: &'a ChannelSet,
+        a: &'a [f64],
+        k: usize,
+        sign: Sign,
+    ) -> PartIntegrand<'a> {
+        PartIntegrand {
+            f,
+            set,
+            a,
+            k,
+            sign,
+            saw_positive: AtomicBool::new(false),
+            saw_negative: AtomicBool::new(false),
+        }
+    }
+}
+
+impl Integrand for PartIntegrand<'_> {
+    fn eval_batch(&self, u: &[f64], dim: usize, out: &mut [f64]) -> Result<()> {
+        let n = out.len();
+        let mut x = vec![0.0; u.len()];
+        // Maps and checks: x in the cube, g_k(x) finite and > 0 where channel k put a point.
+        self.set.sample(self.k, u, &mut x)?;
+        let fx = evaluate(self.f, &x, dim)?;
+        let channels = self.set.len();
+        let mut g = vec![0.0; n * channels];
+        self.set.densities(&x, &mut g)?;
+        for (i, (o, row)) in out.iter_mut().zip(g.chunks_exact(channels)).enumerate() {
+            let mixture: f64 = row.iter().zip(self.a).map(|(g, a)| g * a).sum();
+            let v = fx[i];
+            if v > 0.0 {
+                self.saw_positive.store(true, Ordering::Relaxed);
+            } else if v < 0.0 {
+                self.saw_negative.store(true, Ordering::Relaxed);
+            }
+            // g_k(x) > 0 was checked, so the mixture is > 0 unless a weight underflowed.
+            if !(mixture > 0.0 && mixture.is_finite()) {
+                return Err(Error::Channel {
+                    channel: self.k,
+                    point: x[i * dim..(i + 1) * dim].to_vec(),
+                    reason: format!(
+                        "the mixture Σ a_j g_j of the channels' densities is {mixture} there"
+                    ),
+                });
+            }
+            let h = self.a[self.k] * v / mixture;
+            *o = match self.sign {
+                Sign::Both => h,
+                Sign::Plus => h.max(0.0),
+                Sign::Minus => (-h).max(0.0),
+            };
+        }
+        Ok(())
+    }
+
+    fn dim(&self) -> Option<usize> {
+        Some(self.set.dim())
+    }
+}

@@ -1,0 +1,148 @@
+//! The result of a multi-channel integral: the parts' estimates summed, and what each channel
+//! and sign contributed ([`ChannelReport`]).
+
+use std::time::Instant;
+
+use serde::{Deserialize, Serialize};
+
+use super::part::Sign;
+use crate::integrate::IntegrationResult;
+
+/// Every channel's contribution to a multi-channel estimate.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct ChannelReport {
+    /// The a-priori weights a_k the estimate used (summing to one).
+    pub weights: Vec<f64>,
+    /// Each channel's contribution F_k = ∫ α_k f (F⁺_k − F⁻_k when split by sign).
+    pub means: Vec<f64>,
+    /// Their standard errors.
+    pub std_errs: Vec<f64>,
+    /// The estimate's evaluations in each channel.
+    pub evals: Vec<u64>,
+    /// F⁺ and F⁻ when the integrand was split by sign.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub signs: Option<SignReport>,
+}
+
+/// The positive and negative parts of a signed integral, F = F⁺ − F⁻.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct SignReport {
+    /// F⁺ = ∫ max(f, 0).
+    pub positive: f64,
+    pub positive_err: f64,
+    /// F⁻ = ∫ max(−f, 0).
+    pub negative: f64,
+    pub negative_err: f64,
+    /// F⁻/(F⁺ + F⁻): the share of unweighted events that carry a negative weight.
+    pub negative_fraction: f64,
+}
+
+/// Sums the parts' `results` ((channel, sign) each in `index`) into one result.
+pub(super) fn combine(
+    index: &[(usize, Sign)],
+    results: &[IntegrationResult],
+    weights: &[f64],
+    channels: usize,
+    n_eval: u64,
+    started: Instant,
+) -> IntegrationResult {
+    let mut report = ChannelReport {
+        weights: weights.to_vec(),
+        means: vec![0.0; channels],
+        std_errs: vec![0.0; channels],
+        evals: vec![0; channels],
+        signs: None,
+    };
+    let (mut value, mut var) = (0.0, 0.0);
+    let mut signs = SignReport::default();
+    let mut split = false;
+    let mut warnings = Vec::new();
+    let (mut chi2_sum, mut chi2_evals) = (0.0, 0.0);
+    let (mut pareto_k, mut ess, mut estimate_evals) = (f64::NAN, 0.0, 0u64);
+    let mut trials = 0.0;
+    for (&(k, sign), r) in index.iter().zip(results) {
+        let v = r.std_err * r.std_err;
+        value += sign.factor() * r.value;
+        var += v;
+        report.means[k] += sign.factor() * r.value;
+        report.std_errs[k] += v;
+        let evals: u64 = r.iterations.iter().map(|i| i.evals).sum();
+        report.evals[k] += evals;
+        estimate_evals += evals;
+        match sign {
+            Sign::Plus => {
+                split = true;
+                signs.positive += r.value;
+                signs.positive_err += v;
+            }
+            Sign::Minus => {
+                split = true;
+                signs.negative += r.value;
+                signs.negative_err += v;
+            }
+            Sign::Both => {}
+        }
+        if r.chi2_per_dof.is_finite() {
+            chi2_sum += r.chi2_per_dof * evals as f64;
+            chi2_evals += evals as f64;
+        }
+        if r.pareto_k.is_finite() {
+            pareto_k = if pareto_k.is_nan() {
+                r.pareto_k
+            } else {
+                pareto_k.max(r.pareto_k)
+            };
+        }
+        ess += r.ess;
+        if r.unweighting_efficiency > 0.0 {
+            trials += r.value.abs() / r.unweighting_efficiency;
+        }
+        // A part that is zero wherever it looked is normal here (the negative part of a channel
+        // where f > 0): its warning would only be noise.
+        let zero = r.value == 0.0 && r.std_err == 0.0;
+        if !zero {
+            let label = match sign {
+                Sign::Both => format!("channel {k}"),
+                Sign::Plus => format!("channel {k} (f > 0)"),
+                Sign::Minus => format!("channel {k} (f < 0)"),
+            };
+            warnings.extend(r.warnings.iter().map(|w| format!("{label}: {w}")));
+        }
+    }
+    report.std_errs.iter_mut().for_each(|v| *v = v.sqrt());
+    if split {
+        signs.positive_err = signs.positive_err.sqrt();
+        signs.negative_err = signs.negative_err.sqrt();
+        let total = signs.positive + signs.negative;
+        signs.negative_fraction = if total > 0.0 {
+            signs.negative / total
+        } else {
+            0.0
+        };
+        report.signs = Some(signs);
+    }
+    let abs_total: f64 = results.iter().map(|r| r.value.abs()).sum();
+    IntegrationResult {
+        value,
+        std_err: var.sqrt(),
+        chi2_per_dof: if chi2_evals > 0.0 {
+            chi2_sum / chi2_evals
+        } else {
+            f64::NAN
+        },
+        n_eval,
+        rel_var_per_eval: estimate_evals as f64 * var / (value * value),
+        unweighting_efficiency: if trials > 0.0 {
+            abs_total / trials
+        } else {
+            0.0
+        },
+        pareto_k,
+        ess,
+        var_rel_err: f64::NAN,
+        seconds: started.elapsed().as_secs_f64(),
+        warnings,
+        channels: Some(report),
+        ..IntegrationResult::default()
+    }
+}
