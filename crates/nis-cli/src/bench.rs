@@ -283,6 +283,44 @@ pub fn run_mpi(
     Ok(())
 }
 
+/// Arguments of `nis bench channels`.
+#[derive(clap::Args)]
+pub struct BenchChannelsArgs {
+    /// The multi-channel examples.
+    #[arg(
+        long,
+        value_delimiter = ',',
+        default_value = "resonances-4d,phase-space-8d,dalitz"
+    )]
+    examples: Vec<String>,
+    /// Evaluations per run on the examples.
+    #[arg(long, default_value_t = 1_000_000)]
+    evals: u64,
+    /// Evaluations per run of the signed comparison.
+    #[arg(long, default_value_t = 2_000_000)]
+    signed_evals: u64,
+    /// Seeds 1..=SEEDS.
+    #[arg(long, default_value_t = 3)]
+    seeds: u64,
+    /// Markdown file the results go to ("-": none).
+    #[arg(long, default_value = "docs/results/integration.md")]
+    docs: PathBuf,
+}
+
+/// `nis bench channels`: a line per run.
+pub fn run_channels(a: &BenchChannelsArgs) -> Result<(), Box<dyn std::error::Error>> {
+    let options = nis_paper::bench::channels::Options {
+        examples: a.examples.clone(),
+        evals: a.evals,
+        signed_evals: a.signed_evals,
+        seeds: a.seeds,
+    };
+    let docs = (a.docs.as_os_str() != "-").then_some(a.docs.as_path());
+    let md = nis_paper::bench::channels::run(&options, docs, &mut |line| eprintln!("{line}"))?;
+    println!("{md}");
+    Ok(())
+}
+
 /// Arguments of `nis bench reuse`.
 #[derive(clap::Args)]
 pub struct BenchReuseArgs {

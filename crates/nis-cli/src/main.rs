@@ -141,6 +141,11 @@ enum BenchCommand {
     /// d4, d8, gauss d8), with the training's wall time; into docs/results/integration.md (~10 minutes on
     /// two cores). Example: nis bench reuse --evals 200000 --seeds 1
     Reuse(bench::BenchReuseArgs),
+    /// Multi-channel integration against one channel on the built-in multi-channel examples
+    /// (NIS with a flow per channel, NIS without channels, the classic estimator with equal
+    /// fixed weights, VEGAS+ per channel), and a flow per sign against one on |f|, 3 seeds; into
+    /// docs/results/integration.md. Example: nis bench channels --evals 200000 --seeds 1
+    Channels(bench::BenchChannelsArgs),
     /// Strong scaling over MPI ranks (1 vs 2, one thread each) for a ~100 µs/point and a cheap
     /// integrand, the communication of a training step, and the scaling model in
     /// docs/results/scaling.md. Starts mpirun with binaries built with the feature `mpi`
@@ -228,6 +233,7 @@ fn main() -> ExitCode {
         Command::Bench(BenchCommand::Memory(args)) => bench::run_memory(&args),
         Command::Bench(BenchCommand::TimeToPrecision(args)) => bench::run_time_to_precision(&args),
         Command::Bench(BenchCommand::Reuse(args)) => bench::run_reuse(&args),
+        Command::Bench(BenchCommand::Channels(args)) => bench::run_channels(&args),
         Command::Bench(BenchCommand::Mpi {
             mpi_nis,
             mpi_example,

@@ -3,6 +3,8 @@
 //! long-running step (a fit, a training run) or a line logger as closures, so the command line can
 //! show bars and a test can run them silently.
 //!
+//! - [`channels`]: multi-channel integration and sign splitting against one channel
+//!   (`docs/results/integration.md`).
 //! - [`coverage`]: error bars against exact values over many seeds (`docs/results/robustness.md`).
 //! - [`flow`]: flow throughput against bare gemm and PyTorch (`docs/results/integration.md`).
 //! - [`integrate`]: the integration suite with every method at one budget (`docs/results/integration.md`).
@@ -15,6 +17,7 @@
 //! - [`reuse`]: training evaluations in the estimate and replayed training (`docs/results/integration.md`).
 //! - [`mpi`]: strong scaling over MPI ranks and the scaling model (`docs/results/scaling.md`).
 
+pub mod channels;
 pub mod coverage;
 pub mod density;
 pub mod fit_image;

@@ -1,0 +1,251 @@
+//! `nis bench channels`: multi-channel integration and sign splitting (issue 39), measured.
+//!
+//! - **Channels**: on the built-in multi-channel examples, the relative variance per evaluation
+//!   (every evaluation counted, adapting and pilot included: σ²·n_eval/F²) of NIS with a flow per
+//!   channel, NIS without channels, the classic multi-channel estimator (uniform points per
+//!   channel, fixed equal weights) and multi-channel VEGAS+, with the worst |pull| and the wall
+//!   time; medians over seeds.
+//! - **Signs**: a positive and a negative Gaussian peak in 4-d (weights 1 and −0.6) and MadNIS's
+//!   ±Gaussian toy (∫ = 0): NIS with a sampler per sign against NIS trained on |f|.
+//!
+//! Writes the section "channels" of `docs/results/integration.md`.
+
+use std::path::Path;
+use std::time::Instant;
+
+use nis::channels::{examples, ChannelSet};
+use nis::integrate::multichannel::{MultiChannel, MultiChannelConfig, Signs};
+use nis::integrate::{integrator, Integrand, IntegrationResult, Method, Settings};
+
+use crate::error::Result;
+use crate::report;
+
+/// What to run.
+#[derive(Clone, Debug)]
+pub struct Options {
+    /// The multi-channel examples.
+    pub examples: Vec<String>,
+    /// Evaluations per run on the examples.
+    pub evals: u64,
+    /// Evaluations per run of the signed comparison.
+    pub signed_evals: u64,
+    /// Seeds 1..=seeds.
+    pub seeds: u64,
+}
+
+impl Default for Options {
+    fn default() -> Self {
+        Options {
+            examples: ["resonances-4d", "phase-space-8d", "dalitz"]
+                .map(String::from)
+                .to_vec(),
+            evals: 1_000_000,
+            signed_evals: 2_000_000,
+            seeds: 3,
+        }
+    }
+}
+
+/// A contender on a multi-channel example.
+#[derive(Clone, Copy)]
+enum Row {
+    /// A method through the channels, weights adapted unless `fixed`.
+    Channels { method: Method, fixed: bool },
+    /// A method on the integrand alone.
+    Plain(Method),
+}
+
+impl Row {
+    fn label(self, k: usize) -> String {
+        match self {
+            Row::Channels { method, fixed } => format!(
+                "{} ×{k}{}",
+                method.label(),
+                if fixed { ", equal fixed weights" } else { "" }
+            ),
+            Row::Plain(m) => format!("{}, no channels", m.label()),
+        }
+    }
+}
+
+const ROWS: [Row; 5] = [
+    Row::Channels {
+        method: Method::Nis,
+        fixed: false,
+    },
+    Row::Plain(Method::Nis),
+    Row::Channels {
+        method: Method::Uniform,
+        fixed: true,
+    },
+    Row::Channels {
+        method: Method::Vegas,
+        fixed: false,
+    },
+    Row::Plain(Method::Vegas),
+];
+
+/// One run: the result and its wall time.
+fn timed(run: impl FnOnce() -> nis::Result<IntegrationResult>) -> Result<(IntegrationResult, f64)> {
+    let t = Instant::now();
+    let r = run()?;
+    Ok((r, t.elapsed().as_secs_f64()))
+}
+
+/// σ²·n_eval/scale² (scale: F, or 1 for an integral of zero).
+fn rel_var(r: &IntegrationResult, scale: f64) -> f64 {
+    r.std_err * r.std_err * r.n_eval as f64 / (scale * scale)
+}
+
+fn median(mut v: Vec<f64>) -> f64 {
+    v.sort_by(f64::total_cmp);
+    v[v.len() / 2]
+}
+
+/// Runs both comparisons; `log(line)` after every run. Writes the section "channels" of `docs`
+/// (when given) and returns its Markdown.
+pub fn run(o: &Options, docs: Option<&Path>, log: &mut dyn FnMut(&str)) -> Result<String> {
+    let mut md = format!(
+        "Command: `nis bench channels` (defaults). Relative variance per evaluation σ²·n_eval/F² with every evaluation counted (the sign \
+         pilot and adapting included), median over seeds 1–{}; worst |pull| over the seeds; \
+         median wall time (2 cores, shared machine). {} evaluations per run. Channels are each \
+         example's own (docs/INTEGRANDS.md, \"Multi-channel examples\").\n\n\
+         | example | d | method | rel. var./eval | worst \\|pull\\| | seconds |\n\
+         |---|---:|---|---:|---:|---:|\n",
+        o.seeds, o.evals
+    );
+    for name in &o.examples {
+        let ex = examples::by_name(name)?;
+        let (dim, k, exact) = (ex.integrand.dim, ex.channels.len(), ex.exact);
+        for row in ROWS {
+            let (mut vars, mut pulls, mut secs) = (Vec::new(), Vec::new(), Vec::new());
+            for seed in 1..=o.seeds {
+                let settings = Settings::default().seed(seed);
+                let (r, s) = match row {
+                    Row::Channels { method, fixed } => {
+                        let set = ChannelSet::new(examples::by_name(name)?.channels)?;
+                        let config = MultiChannelConfig {
+                            adapt_weights: !fixed,
+                            ..MultiChannelConfig::default()
+                        };
+                        let mut mc = MultiChannel::new(set, method, settings, config)?;
+                        timed(|| mc.integrate(&ex.integrand, o.evals))?
+                    }
+                    Row::Plain(method) => {
+                        let mut integ = integrator(method, dim, &settings)?;
+                        timed(|| integ.integrate(&ex.integrand, o.evals))?
+                    }
+                };
+                let v = rel_var(&r, exact);
+                let pull = (r.value - exact) / r.std_err;
+                log(&format!(
+                    "{name} {} seed {seed}: rel.var {v:.3e}, pull {pull:.2}, {s:.1} s",
+                    row.label(k)
+                ));
+                vars.push(v);
+                pulls.push(pull.abs());
+                secs.push(s);
+            }
+            md.push_str(&format!(
+                "| {name} | {dim} | {} | {:.3e} | {:.2} | {:.1} |\n",
+                row.label(k),
+                median(vars),
+                pulls.iter().fold(0.0f64, |a, b| a.max(*b)),
+                median(secs)
+            ));
+        }
+    }
+    md.push_str(&signed(o, log)?);
+    if let Some(docs) = docs {
+        report::write_section(
+            docs,
+            "channels",
+            "Channels and signed integrands (`nis bench channels`)",
+            &md,
+        )?;
+    }
+    Ok(md)
+}
+
+/// f = N(x; 0.3, σ) − 0.6·N(x; 0.7, σ) in 4-d, σ = 0.05, Gaussians normalised over R⁴.
+fn signed_pair(x: &[f64]) -> f64 {
+    let g = |c: f64| {
+        let s2 = 0.05f64 * 0.05;
+        let r2: f64 = x.iter().map(|v| (v - c).powi(2)).sum();
+        (-r2 / (2.0 * s2)).exp() / (2.0 * std::f64::consts::PI * s2).powi(2)
+    };
+    g(0.3) - 0.6 * g(0.7)
+}
+
+/// ∫ over [0, 1]⁴ of [`signed_pair`]: each Gaussian's mass in the cube, Π ½[erf((1−c)/√2σ) +
+/// erf(c/√2σ)].
+fn signed_pair_exact() -> f64 {
+    let mass = |c: f64| {
+        let s = 0.05 * std::f64::consts::SQRT_2;
+        (0.5 * (libm::erf((1.0 - c) / s) + libm::erf(c / s))).powi(4)
+    };
+    mass(0.3) - 0.6 * mass(0.7)
+}
+
+/// The signed comparison: a sampler per sign against one trained on |f|.
+fn signed(o: &Options, log: &mut dyn FnMut(&str)) -> Result<String> {
+    let mut md = format!(
+        "\nSigned integrands, {} evaluations per run, seeds 1–{}: NIS with a flow per sign \
+         (`MultiChannel::single`, `signs: split`) against NIS whose flow learns |f|. For \
+         MadNIS's ±Gaussian toy (∫ = 0) the figure is the absolute σ²·n_eval.\n\n\
+         | integrand | d | method | rel. var./eval | worst \\|pull\\| | seconds |\n\
+         |---|---:|---|---:|---:|---:|\n",
+        o.signed_evals, o.seeds
+    );
+    let toy = examples::by_name("gauss-pm")?;
+    let cases: [(&str, usize, &dyn Integrand, f64, f64); 2] = [
+        (
+            "± peaks (1, −0.6)",
+            4,
+            &signed_pair,
+            signed_pair_exact(),
+            signed_pair_exact(),
+        ),
+        // ∫ = 0: the absolute variance per evaluation.
+        ("gauss-pm", 2, &toy.integrand, 0.0, 1.0),
+    ];
+    for (label, dim, f, exact, scale) in cases {
+        for split in [true, false] {
+            let (mut vars, mut pulls, mut secs) = (Vec::new(), Vec::new(), Vec::new());
+            for seed in 1..=o.seeds {
+                let settings = Settings::default().seed(seed);
+                let (r, s) = if split {
+                    let config = MultiChannelConfig {
+                        signs: Signs::Split,
+                        ..MultiChannelConfig::default()
+                    };
+                    let mut mc = MultiChannel::single(dim, Method::Nis, settings, config)?;
+                    timed(|| mc.integrate(f, o.signed_evals))?
+                } else {
+                    let mut integ = integrator(Method::Nis, dim, &settings)?;
+                    timed(|| integ.integrate(f, o.signed_evals))?
+                };
+                let v = rel_var(&r, scale);
+                let pull = (r.value - exact) / r.std_err;
+                log(&format!(
+                    "{label} split {split} seed {seed}: rel.var {v:.3e}, pull {pull:.2}, {s:.1} s"
+                ));
+                vars.push(v);
+                pulls.push(pull.abs());
+                secs.push(s);
+            }
+            md.push_str(&format!(
+                "| {label} | {dim} | {} | {:.3e} | {:.2} | {:.1} |\n",
+                if split {
+                    "nis, a flow per sign"
+                } else {
+                    "nis on \\|f\\|"
+                },
+                median(vars),
+                pulls.iter().fold(0.0f64, |a, b| a.max(*b)),
+                median(secs)
+            ));
+        }
+    }
+    Ok(md)
+}
