@@ -18,6 +18,7 @@
 
 mod part;
 mod report;
+mod saved;
 
 use std::time::Instant;
 
@@ -270,13 +271,16 @@ impl MultiChannel {
             Signs::Split => (true, 0),
             Signs::Whole => (false, 0),
             Signs::Auto => {
-                let mut rng = Pcg64Mcg::seed_from_u64(self.seed() ^ PILOT_SALT);
+                // Each rank its share of the pilot, from its own stream.
+                let seed = self.comm.stream_seed(self.seed() ^ PILOT_SALT);
+                let mut rng = Pcg64Mcg::seed_from_u64(seed);
                 let (mut positive, mut negative) = (false, false);
                 let n = self.config.pilot;
+                let mine = self.comm.share(n as u64) as usize;
                 for k in 0..channels {
                     let h = PartIntegrand::new(f, &self.set, &self.weights, k, Sign::Both);
-                    let u: Vec<f64> = (0..n * dim).map(|_| rng.random::<f64>()).collect();
-                    super::evaluate(&h, &u, dim)?;
+                    let u: Vec<f64> = (0..mine * dim).map(|_| rng.random::<f64>()).collect();
+                    self.comm.check(super::evaluate(&h, &u, dim))?;
                     positive |= h.saw_positive.into_inner();
                     negative |= h.saw_negative.into_inner();
                 }

@@ -158,3 +158,42 @@ fn bad_input_is_an_error_before_the_estimate() {
     };
     assert!(MultiChannel::single(2, Method::Nis, Settings::default(), bad).is_err());
 }
+
+#[test]
+fn a_saved_multi_channel_integrator_loads_for_the_same_channels_only() {
+    let dir = std::env::temp_dir().join(format!("nis-multichannel-{}", std::process::id()));
+    let ex = examples::by_name("dalitz").unwrap();
+    let set = ChannelSet::new(ex.channels).unwrap();
+    let mut mc = MultiChannel::new(
+        set,
+        Method::Nis,
+        Settings::default().seed(2),
+        Default::default(),
+    )
+    .unwrap();
+    // Nothing to save before the first call; VEGAS+ has nothing to save at all.
+    assert!(mc.save(&dir).is_err());
+    mc.integrate(&ex.integrand, 60_000).unwrap();
+    mc.save(&dir).unwrap();
+    let set = ChannelSet::new(examples::by_name("dalitz").unwrap().channels).unwrap();
+    let mut loaded = MultiChannel::load(&dir, set).unwrap();
+    assert_eq!(loaded.weights(), mc.weights());
+    let r = loaded.integrate(&ex.integrand, 60_000).unwrap();
+    assert!((r.value - ex.exact).abs() < 5.0 * r.std_err, "{r:?}");
+    // Other channels: a clear error naming the manifest.
+    let other = ChannelSet::new(examples::by_name("resonances-4d").unwrap().channels).unwrap();
+    let e = MultiChannel::load(&dir, other)
+        .err()
+        .expect("an error")
+        .to_string();
+    assert!(
+        e.contains("channels.json") && e.contains("3 channels in 4"),
+        "{e}"
+    );
+    let set = ChannelSet::new(examples::by_name("dalitz").unwrap().channels).unwrap();
+    let mut vegas =
+        MultiChannel::new(set, Method::Vegas, Settings::default(), Default::default()).unwrap();
+    vegas.integrate(&ex.integrand, 60_000).unwrap();
+    assert!(vegas.save(&dir).is_err());
+    std::fs::remove_dir_all(&dir).unwrap();
+}
