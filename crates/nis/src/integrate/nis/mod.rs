@@ -209,10 +209,10 @@ impl NisIntegrator {
         if !self.scheduled {
             self.schedule(steps)?;
         }
-        // The tempered target rises to |f| over the first half of a first training, or over
-        // `ANNEAL_BATCHES` when a rule decides its length (then the average restarts there).
-        let anneal = (self.trained_evals == 0 && steps > 1).then(|| match length {
-            Some(_) => training_length::ANNEAL_BATCHES as f64,
+        // The tempered target rises to |f| over the first half of a first training, or over the
+        // rule's annealing batches when it decides the length (then the average restarts there).
+        let anneal = (self.trained_evals == 0 && steps > 1).then(|| match &length {
+            Some(rule) => rule.anneal() as f64,
             None => steps as f64 / 2.0,
         });
         let evals = (steps * batch) as u64;

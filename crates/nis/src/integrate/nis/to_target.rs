@@ -7,7 +7,7 @@
 use std::time::Instant;
 
 use super::stratified_latent::{FinalPlan, LatentStrata};
-use super::training_length::{TrainingLength, ANNEAL_BATCHES};
+use super::training_length::{anneal_batches, TrainingLength};
 use super::{draw, weights, NisIntegrator};
 use crate::error::{Error, Result};
 use crate::flow::mixture::Record;
@@ -16,8 +16,8 @@ use crate::integrate::moments::iid_iteration;
 use crate::integrate::target::{Prior, Pursuit, AIM};
 use crate::integrate::{check_dim, report, Accumulator, Integrand, IntegrationResult, Target};
 
-/// Training batches at most when integrating to a target: the learning rate decays over them,
-/// and the rule usually stops training well before.
+/// Training batches at most when integrating to a target (or four times the annealing's): the
+/// learning rate decays over them, and the rule usually stops training well before.
 const HORIZON_BATCHES: usize = 1000;
 
 impl NisIntegrator {
@@ -33,7 +33,8 @@ impl NisIntegrator {
             ));
         }
         let batch = self.config.batch as f64;
-        let least_train = ((2 * ANNEAL_BATCHES) as f64 * batch / share).ceil() as u64;
+        let anneal = anneal_batches(self.flow().dim());
+        let least_train = ((2 * anneal) as f64 * batch / share).ceil() as u64;
         let iters = self.config.final_iterations as u64;
         let least_final = FinalPlan::new(&self.config, self.flow().dim(), 0).least * iters;
         target.check("nis", least_train + least_final)
@@ -77,9 +78,11 @@ impl NisIntegrator {
             }
         }
         let max_batches = ((target.max_evals as f64 * share) as u64 / batch) as usize;
+        let anneal = anneal_batches(dim);
+        let horizon = HORIZON_BATCHES.max(4 * anneal);
         let max_seconds = target.max_seconds.map_or(f64::INFINITY, |s| s * share);
         let mut length =
-            TrainingLength::new(*target, max_batches.min(HORIZON_BATCHES), max_seconds);
+            TrainingLength::new(*target, anneal, max_batches.min(horizon), max_seconds);
         let before = self.trained_evals;
         self.train_keeping_for(f, max_batches.min(HORIZON_BATCHES), None, Some(&mut length))?;
         let trained = self.trained_evals - before;
