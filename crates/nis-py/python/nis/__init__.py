@@ -10,7 +10,9 @@ with VEGAS+ and plain Monte Carlo as baselines.
 True
 
 - ``Integrator``: NIS, VEGAS+ or plain MC by name; ``integ(f, evals=...)`` adapts and
-  estimates, like ``vegas.Integrator``.
+  estimates, like ``vegas.Integrator``. With ``channels=[...]`` (``Channel``s) and/or
+  ``signs=`` it is a multi-channel integrator (a sampler per channel and sign).
+- ``Channel``: a mapping of the unit cube with its density, for multi-channel integration.
 - ``IntegrationResult``: ``mean``, ``sdev``, ``cov``, ``chi2_dof``, ... and ``str(r)``.
 - ``Flow``: a coupling flow as a distribution (``sample``, ``log_prob``, ``fit``).
 - ``integrands``: the built-in test suite with exact values.
@@ -20,6 +22,7 @@ import warnings as _warnings
 
 from ._nis import (
     Builtin,
+    Channel,
     Flow,
     IntegrandError,
     IntegrationResult,
@@ -75,6 +78,7 @@ del _call
 
 __all__ = [
     "Builtin",
+    "Channel",
     "Flow",
     "IntegrandError",
     "IntegrationResult",
