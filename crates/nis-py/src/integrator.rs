@@ -37,6 +37,15 @@ use crate::{check_parent, count, path_of, to_py_err, PointsAndValues};
 ///     print(r)                        # mean ± sdev, χ²/dof, ...
 ///
 /// A second call adapts further from where the first stopped, then estimates anew.
+///
+/// Multi-channel: `channels=[nis.Channel(...), ...]` integrates with a sampler of `method` per
+/// channel (and per sign of f when it changes sign: `signs="auto"`, the default, or "split",
+/// "whole"); `signs=` alone splits a single-channel integral by sign. Results then carry
+/// `channel_weights`, `channel_means`, `channel_sdevs`, `channel_evals` and `signs`; precision
+/// targets and the NIS-only methods raise ValueError.
+///
+///     integ = nis.Integrator(4, "vegas", channels=nis.integrands.channels("resonances-4d"))
+///     r = integ(nis.integrands.example("resonances-4d"), evals=300_000)
 #[pyclass(module = "nis", name = "Integrator")]
 pub(crate) struct PyIntegrator {
     // A Mutex only to make the class Sync; methods take `&mut self`, so it is never contended.
@@ -493,7 +502,8 @@ fn channel_set(
 /// The outcome of an integration, like a `vegas` result: `mean`, `sdev` (floats for a scalar
 /// integrand, arrays for a vector one, with `cov`), `chi2_dof`, `n_eval`, `rel_var_per_eval`,
 /// `unweighting_efficiency`, the reliability figures `pareto_k`, `ess`, `var_rel_err`, `seconds`;
-/// `str(r)` is a readable summary.
+/// for a multi-channel integrator also `channel_weights`, `channel_means`, `channel_sdevs`,
+/// `channel_evals` and `signs` (None otherwise); `str(r)` is a readable summary.
 #[pyclass(module = "nis", name = "IntegrationResult", frozen)]
 pub(crate) struct PyIntegrationResult {
     r: IntegrationResult,

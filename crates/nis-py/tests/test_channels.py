@@ -2,14 +2,18 @@
 `channels` and `signs`, the per-channel parts of a result, the built-in examples' channels, and
 the errors of bad channels (which name the channel)."""
 
+import os
+import signal
+import threading
+
 import numpy as np
 import pytest
 
 import nis
 
-# Two Cauchy (Breit–Wigner) peaks on [0, 1]^2, each a product of L(t) = γ/((t − m)² + γ²) in both
-# coordinates: f = c₁ L₁(x₀) L₁(x₁) + c₂ L₂(x₀) L₂(x₁). With I(m) = ∫₀¹ L = atan((1 − m)/γ) +
-# atan(m/γ), the exact value is c₁ I₁² + c₂ I₂².
+# Two Cauchy (Breit–Wigner) peaks on [0, 1]^2, each a product of L(t) = γ/((t − m)² + γ²)
+# in both coordinates: f = c₁ L₁(x₀) L₁(x₁) + c₂ L₂(x₀) L₂(x₁). With
+# I(m) = ∫₀¹ L = atan((1 − m)/γ) + atan(m/γ), the exact value is c₁ I₁² + c₂ I₂².
 GAMMA = 0.02
 PEAKS = [(0.3, 1.0), (0.75, 2.0)]  # (m, c)
 
@@ -52,7 +56,9 @@ def within(r, exact, sigmas=4.0, exact_err=0.0):
     return abs(r.mean - exact) < sigmas * r.sdev + exact_err
 
 
-@pytest.mark.parametrize("method, evals", [("nis", 100_000), ("vegas", 200_000), ("uniform", 200_000)])
+@pytest.mark.parametrize(
+    "method, evals", [("nis", 100_000), ("vegas", 200_000), ("uniform", 200_000)]
+)
 def test_two_cauchy_peaks_are_unbiased_with_every_method(method, evals):
     integ = nis.Integrator(2, method, channels=channels(), seed=1)
     assert integ.channels == 2 and integ.method == method
@@ -106,7 +112,8 @@ def test_resonances_4d_through_the_builtin_channels():
     assert chans[0].dim == 4 and chans[0].name == "resonances-4d[0]"
     f = nis.integrands.example("resonances-4d")
     assert f.dim == 4 and f.exact > 0
-    assert set(nis.integrands.examples()) >= {"dalitz", "resonances-4d", "phase-space-8d", "gauss-pm"}
+    examples = {"dalitz", "resonances-4d", "phase-space-8d", "gauss-pm"}
+    assert set(nis.integrands.examples()) >= examples
     r = nis.Integrator(4, "vegas", channels=chans, seed=3)(f, evals=300_000)
     assert within(r, f.exact, exact_err=4 * f.exact_err), (r.mean, r.sdev, f.exact)
     assert r.channel_means.shape == (3,)
@@ -151,14 +158,17 @@ def test_a_plus_minus_pair_is_split_by_sign():
 def test_two_peaks_of_opposite_sign_with_channels():
     def f(x):
         (m1, _), (m2, _) = PEAKS
-        return lorentz(x[:, 0], m1) * lorentz(x[:, 1], m1) - 0.5 * lorentz(x[:, 0], m2) * lorentz(x[:, 1], m2)
+        peak1 = lorentz(x[:, 0], m1) * lorentz(x[:, 1], m1)
+        peak2 = lorentz(x[:, 0], m2) * lorentz(x[:, 1], m2)
+        return peak1 - 0.5 * peak2
 
     exact = mass(PEAKS[0][0]) ** 2 - 0.5 * mass(PEAKS[1][0]) ** 2
     r = nis.Integrator(2, "uniform", channels=channels(), signs="split", seed=5)(f, evals=200_000)
     assert within(r, exact)
     assert r.signs["negative"] > 0 and 0 < r.signs["negative_fraction"] < 1
     g = nis.integrands.example("gauss-pm")
-    r = nis.Integrator(2, "vegas", channels=nis.integrands.channels("gauss-pm"), seed=6)(g, evals=200_000)
+    chans = nis.integrands.channels("gauss-pm")
+    r = nis.Integrator(2, "vegas", channels=chans, seed=6)(g, evals=200_000)
     assert r.signs is not None and within(r, g.exact)
 
 
@@ -175,7 +185,9 @@ def test_precision_targets_are_refused_before_f_is_called():
     assert calls[0] == 0
 
 
-@pytest.mark.parametrize("what", ["train", "estimate", "sample", "unweighted", "save", "flow", "trained_evals"])
+@pytest.mark.parametrize(
+    "what", ["train", "estimate", "sample", "unweighted", "save", "flow", "trained_evals"]
+)
 def test_nis_only_methods_raise_for_a_multi_channel_integrator(what, tmp_path):
     integ = nis.Integrator(2, "nis", channels=channels())
     calls = {
@@ -197,6 +209,10 @@ def good(u):
 
 def flat(x):
     return np.ones(len(x))
+
+
+def good_channel():
+    return nis.Channel(good, flat)
 
 
 @pytest.mark.parametrize(
@@ -235,12 +251,12 @@ def test_a_bad_channel_raises_value_error_naming_it_at_the_first_batch(sample, d
         (lambda: nis.Channel(good, flat, prior=-1.0), "prior"),
         (lambda: nis.Channel(good, flat, prior=float("nan")), "prior"),
         (lambda: nis.Channel(good, 3), "callable"),
-        (lambda: nis.Integrator(2, channels=[nis.Channel(good, flat), nis.Channel(good, flat, dim=3)]),
+        (lambda: nis.Integrator(2, channels=[good_channel(), nis.Channel(good, flat, dim=3)]),
          "channel 1 has dimension 3"),
         (lambda: nis.Integrator(2, channels=nis.integrands.channels("resonances-4d")),
          r"channel 0 \(resonances-4d\[0\]\) has dimension 4"),
         (lambda: nis.Integrator(2, signs="sometimes"), "signs"),
-        (lambda: nis.Integrator(2, channels=[nis.Channel(good, flat)], coupling="nope"), "coupling"),
+        (lambda: nis.Integrator(2, channels=[good_channel()], coupling="nope"), "coupling"),
     ],
 )
 def test_bad_channel_arguments_raise_value_error_before_any_call(make, needle):
@@ -293,3 +309,34 @@ def test_a_vector_integrand_is_refused_with_channels():
     integ = nis.Integrator(2, "uniform", channels=channels())
     with pytest.raises(ValueError, match="scalar"):
         integ(lambda x: np.ones((len(x), 2)), evals=100_000)
+
+
+@pytest.mark.parametrize("method", ["uniform", "vegas", "nis"])
+def test_a_seed_gives_the_same_bits_with_or_without_a_thread_pool(method):
+    a = nis.Integrator(2, method, channels=channels(), seed=1)(two_peaks, evals=100_000)
+    b = nis.Integrator(2, method, channels=channels(), seed=1, threads=1)(two_peaks, evals=100_000)
+    assert (a.mean, a.sdev) == (b.mean, b.sdev)
+    assert list(a.channel_means) == list(b.channel_means)
+
+
+@pytest.mark.skipif(threading.current_thread() is not threading.main_thread(), reason="signals")
+def test_ctrl_c_interrupts_a_multi_channel_run():
+    calls = [0]
+    after = [0]
+
+    def density(x):
+        calls[0] += 1
+        if calls[0] == 5:
+            os.kill(os.getpid(), signal.SIGINT)
+        if calls[0] > 5:
+            after[0] += 1
+        return flat(x)
+
+    integ = nis.Integrator(2, "vegas", channels=[nis.Channel(good, density), good_channel()])
+    previous = signal.signal(signal.SIGINT, signal.default_int_handler)
+    try:
+        with pytest.raises(KeyboardInterrupt):
+            integ(lambda x: np.ones(len(x)), evals=50_000_000)  # minutes if not interrupted
+    finally:
+        signal.signal(signal.SIGINT, previous)
+    assert after[0] < 1000, "the run went on long after Ctrl-C"
