@@ -58,7 +58,7 @@ pub(crate) struct PyIntegrator {
 enum Engine {
     Single(Box<dyn Integrator>),
     Multi {
-        mc: MultiChannel,
+        mc: Box<MultiChannel>,
         method: Method,
         /// Channels given (0: `signs` alone, the identity channel).
         channels: usize,
@@ -173,14 +173,14 @@ impl PyIntegrator {
         let signs = config.signs;
         let (mc, n) = match channels {
             None => (
-                MultiChannel::single(dim, method, settings, config).map_err(to_py_err)?,
+                Box::new(MultiChannel::single(dim, method, settings, config).map_err(to_py_err)?),
                 0,
             ),
             Some(list) => {
                 let set = channel_set(py, list, dim, &raised)?;
                 let n = set.len();
                 (
-                    MultiChannel::new(set, method, settings, config).map_err(to_py_err)?,
+                    Box::new(MultiChannel::new(set, method, settings, config).map_err(to_py_err)?),
                     n,
                 )
             }

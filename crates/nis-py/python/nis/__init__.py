@@ -55,6 +55,9 @@ def _call(self, f, evals=None, *, rel_err=None, abs_err=None, max_evals=None, ma
     f propagates unchanged; NaN or inf raise ``nis.IntegrandError``; Ctrl-C raises
     KeyboardInterrupt at the next batch. Each of the result's ``warnings`` (an error bar that
     cannot be trusted, a sampler that had not converged) is also raised as a ``UserWarning``.
+
+    A multi-channel integrator (made with ``channels`` or ``signs``) takes scalar integrands
+    and a budget: precision targets raise ``ValueError`` before ``f`` is called.
     """
     r = _integrate(
         self,

@@ -201,6 +201,9 @@ class Integrator:
         f propagates unchanged; NaN or inf raise ``nis.IntegrandError``; Ctrl-C raises
         KeyboardInterrupt at the next batch. Each of the result's ``warnings`` (an error bar that
         cannot be trusted, a sampler that had not converged) is also raised as a ``UserWarning``.
+
+        A multi-channel integrator (made with ``channels`` or ``signs``) takes scalar integrands
+        and a budget: precision targets raise ``ValueError`` before ``f`` is called.
         """
     def train(self, f: IntegrandFn, evals: int) -> None:
         """NIS only: trains on ``evals`` more evaluations without estimating."""
