@@ -18,7 +18,7 @@ use pyo3::types::PyDict;
 use crate::call::{run, with_integrand};
 use crate::channel::{PyChannel, Raised};
 use crate::flow::PyFlow;
-use crate::settings::keywords;
+use crate::settings::{json_of, keywords};
 use crate::{check_parent, count, path_of, to_py_err, PointsAndValues};
 
 /// A Monte Carlo integrator over [0, 1]^dim that owns its adapted state, like
@@ -42,7 +42,9 @@ use crate::{check_parent, count, path_of, to_py_err, PointsAndValues};
 /// channel (and per sign of f when it changes sign: `signs="auto"`, the default, or "split",
 /// "whole"); `signs=` alone splits a single-channel integral by sign. Results then carry
 /// `channel_weights`, `channel_means`, `channel_sdevs`, `channel_evals` and `signs`; precision
-/// targets and the NIS-only methods raise ValueError.
+/// targets and the NIS-only methods raise ValueError. `channel_settings` (a dict:
+/// `adapt_fraction`, `adapt_weights`, `weight_floor`, `pilot`) tunes the multi-channel
+/// integrator.
 ///
 ///     integ = nis.Integrator(4, "vegas", channels=nis.integrands.channels("resonances-4d"))
 ///     r = integ(nis.integrands.example("resonances-4d"), evals=300_000)
@@ -130,14 +132,17 @@ impl PyIntegrator {
 impl PyIntegrator {
     #[new]
     #[pyo3(signature = (
-        dim, method = "nis", *, channels = None, signs = None, threads = None, **settings
+        dim, method = "nis", *, channels = None, signs = None, channel_settings = None,
+        threads = None, **settings
     ))]
+    #[allow(clippy::too_many_arguments)]
     fn new(
         py: Python<'_>,
         dim: i64,
         method: &str,
         channels: Option<&Bound<'_, PyAny>>,
         signs: Option<&str>,
+        channel_settings: Option<&Bound<'_, PyDict>>,
         threads: Option<i64>,
         settings: Option<&Bound<'_, PyDict>>,
     ) -> PyResult<PyIntegrator> {
@@ -151,23 +156,34 @@ impl PyIntegrator {
             )
             .map_err(to_py_err)?;
         if channels.is_none() && signs.is_none() {
+            if channel_settings.is_some() {
+                return Err(PyValueError::new_err(
+                    "channel_settings needs channels or signs (a multi-channel integrator)",
+                ));
+            }
             return PyIntegrator::with(
                 Engine::Single(integrator(method, dim, &settings).map_err(to_py_err)?),
                 threads,
             );
         }
-        let config = MultiChannelConfig {
-            signs: match signs {
-                None | Some("auto") => Signs::Auto,
-                Some("split") => Signs::Split,
-                Some("whole") => Signs::Whole,
-                Some(s) => {
-                    return Err(PyValueError::new_err(format!(
-                        "signs must be \"auto\", \"split\" or \"whole\", got {s:?}"
-                    )))
-                }
-            },
-            ..MultiChannelConfig::default()
+        let mut config = match channel_settings {
+            None => MultiChannelConfig::default(),
+            Some(d) => {
+                let value = json_of(d.as_any(), "channel_settings")?;
+                serde_json::from_value::<MultiChannelConfig>(value)
+                    .map_err(|e| PyValueError::new_err(format!("channel_settings: {e}")))?
+            }
+        };
+        config.signs = match signs {
+            None => config.signs,
+            Some("auto") => Signs::Auto,
+            Some("split") => Signs::Split,
+            Some("whole") => Signs::Whole,
+            Some(s) => {
+                return Err(PyValueError::new_err(format!(
+                    "signs must be \"auto\", \"split\" or \"whole\", got {s:?}"
+                )))
+            }
         };
         let raised = Arc::new(Raised::default());
         let signs = config.signs;

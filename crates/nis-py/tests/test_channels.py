@@ -93,6 +93,23 @@ def test_priors_set_the_starting_weights():
     assert "Channel" in repr(tan_channel(a))
 
 
+def test_channel_settings_tune_the_multi_channel_integrator():
+    a, b = PEAKS[0][0], PEAKS[1][0]
+    fixed = [tan_channel(a, prior=1), tan_channel(b, prior=3)]
+    r = nis.Integrator(2, "uniform", channels=fixed, channel_settings={"adapt_weights": False})(
+        two_peaks, evals=100_000
+    )
+    assert list(r.channel_weights) == [0.25, 0.75] and within(r, EXACT)
+    moved = nis.Integrator(2, "uniform", channels=channels())(two_peaks, evals=100_000)
+    assert moved.channel_weights[0] != 0.5
+    with pytest.raises(ValueError, match="channel_settings needs channels or signs"):
+        nis.Integrator(2, channel_settings={"pilot": 10})
+    with pytest.raises(ValueError, match="colour"):
+        nis.Integrator(2, channels=channels(), channel_settings={"colour": 1})
+    with pytest.raises(ValueError, match="adapt_fraction"):
+        nis.Integrator(2, channels=channels(), channel_settings={"adapt_fraction": 2.0})
+
+
 def test_a_channel_is_callable_from_python_with_the_checks():
     c = tan_channel(0.3)
     u = np.random.default_rng(0).random((1000, 2))

@@ -129,7 +129,11 @@ class Integrator:
     (``integ(f, evals)``; precision targets raise ValueError), its results carry
     ``channel_weights``, ``channel_means``, ``channel_sdevs``, ``channel_evals`` and
     ``signs``, and the NIS-only methods (``train``, ``estimate``, ``sample``, ``unweighted``,
-    ``save``, ``flow``, ``trained_evals``) raise ValueError.
+    ``save``, ``flow``, ``trained_evals``) raise ValueError. ``channel_settings``, a dict:
+    ``adapt_fraction`` (share of a call's evaluations the samplers adapt on, default 0.4),
+    ``adapt_weights`` (whether the priors adapt, default True), ``weight_floor`` (smallest
+    weight a channel keeps, as a fraction of 1/K, default 0.01), ``pilot`` (uniform points per
+    channel of the pilot that decides the sign split, default 1000).
     """
 
     def __init__(
@@ -139,6 +143,7 @@ class Integrator:
         *,
         channels: Optional[Sequence["Channel"]] = None,
         signs: Optional[str] = None,
+        channel_settings: Optional[Dict[str, Any]] = None,
         threads: Optional[int] = None,
         seed: Optional[int] = None,
         coupling: Optional[str] = None,
