@@ -4,7 +4,9 @@
 
 use std::sync::{Arc, Mutex};
 
+use nis::channels::ChannelSet;
 use nis::flow::Density;
+use nis::integrate::multichannel::{MultiChannel, MultiChannelConfig, Signs};
 use nis::integrate::nis::NisIntegrator;
 use nis::integrate::{integrator, IntegrationResult, Integrator, Method, Settings, Target};
 use nis::loss::Loss;
@@ -14,8 +16,9 @@ use pyo3::prelude::*;
 use pyo3::types::PyDict;
 
 use crate::call::{run, with_integrand};
+use crate::channel::{PyChannel, Raised};
 use crate::flow::PyFlow;
-use crate::settings::keywords;
+use crate::settings::{json_of, keywords};
 use crate::{check_parent, count, path_of, to_py_err, PointsAndValues};
 
 /// A Monte Carlo integrator over [0, 1]^dim that owns its adapted state, like
@@ -34,26 +37,68 @@ use crate::{check_parent, count, path_of, to_py_err, PointsAndValues};
 ///     print(r)                        # mean ± sdev, χ²/dof, ...
 ///
 /// A second call adapts further from where the first stopped, then estimates anew.
+///
+/// Multi-channel: `channels=[nis.Channel(...), ...]` integrates with a sampler of `method` per
+/// channel (and per sign of f when it changes sign: `signs="auto"`, the default, or "split",
+/// "whole"); `signs=` alone splits a single-channel integral by sign. Results then carry
+/// `channel_weights`, `channel_means`, `channel_sdevs`, `channel_evals` and `signs`; precision
+/// targets and the NIS-only methods raise ValueError. `channel_settings` (a dict:
+/// `adapt_fraction`, `adapt_weights`, `weight_floor`, `pilot`) tunes the multi-channel
+/// integrator.
+///
+///     integ = nis.Integrator(4, "vegas", channels=nis.integrands.channels("resonances-4d"))
+///     r = integ(nis.integrands.example("resonances-4d"), evals=300_000)
 #[pyclass(module = "nis", name = "Integrator")]
 pub(crate) struct PyIntegrator {
     // A Mutex only to make the class Sync; methods take `&mut self`, so it is never contended.
-    integrator: Mutex<Box<dyn Integrator>>,
+    integrator: Mutex<Engine>,
     threads: Option<usize>,
     pool: Option<Arc<rayon::ThreadPool>>,
 }
 
+/// What integrates: one integrator, or a multi-channel one (channels and/or sign splitting).
+enum Engine {
+    Single(Box<dyn Integrator>),
+    Multi {
+        mc: Box<MultiChannel>,
+        method: Method,
+        /// Channels given (0: `signs` alone, the identity channel).
+        channels: usize,
+        signs: Signs,
+        /// The first exception a Python channel raised in the current call.
+        raised: Arc<Raised>,
+    },
+}
+
 impl PyIntegrator {
-    /// The integrator, NIS or not.
-    fn integrator(&mut self) -> &mut dyn Integrator {
-        self.integrator
-            .get_mut()
-            .unwrap_or_else(|p| p.into_inner())
-            .as_mut()
+    /// What integrates.
+    fn engine(&mut self) -> &mut Engine {
+        self.integrator.get_mut().unwrap_or_else(|p| p.into_inner())
+    }
+
+    /// The single-channel integrator, for `what` that a multi-channel one does not do.
+    fn integrator(&mut self, what: &str) -> PyResult<&mut dyn Integrator> {
+        match self.engine() {
+            Engine::Single(i) => Ok(i.as_mut()),
+            Engine::Multi { .. } => Err(PyValueError::new_err(format!(
+                "{what} is not available for a multi-channel integrator (one made with channels \
+                 or signs): it holds a sampler per channel and sign; use a single-channel \
+                 Integrator for it"
+            ))),
+        }
+    }
+
+    /// The method.
+    fn method_of(&mut self) -> Method {
+        match self.engine() {
+            Engine::Single(i) => i.method(),
+            Engine::Multi { method, .. } => *method,
+        }
     }
 
     /// The integrator as NIS, for `what` that only NIS does.
     fn nis(&mut self, what: &str) -> PyResult<&mut NisIntegrator> {
-        let integ = self.integrator();
+        let integ = self.integrator(what)?;
         let method = integ.method();
         integ.as_nis().ok_or_else(|| {
             PyValueError::new_err(format!(
@@ -63,7 +108,7 @@ impl PyIntegrator {
         })
     }
 
-    fn with(integrator: Box<dyn Integrator>, threads: Option<i64>) -> PyResult<PyIntegrator> {
+    fn with(integrator: Engine, threads: Option<i64>) -> PyResult<PyIntegrator> {
         let threads = threads.map(|t| count("threads", t)).transpose()?;
         let pool = match threads {
             Some(0) => return Err(PyValueError::new_err("threads must be at least 1")),
@@ -86,10 +131,18 @@ impl PyIntegrator {
 #[pymethods]
 impl PyIntegrator {
     #[new]
-    #[pyo3(signature = (dim, method = "nis", *, threads = None, **settings))]
+    #[pyo3(signature = (
+        dim, method = "nis", *, channels = None, signs = None, channel_settings = None,
+        threads = None, **settings
+    ))]
+    #[allow(clippy::too_many_arguments)]
     fn new(
+        py: Python<'_>,
         dim: i64,
         method: &str,
+        channels: Option<&Bound<'_, PyAny>>,
+        signs: Option<&str>,
+        channel_settings: Option<&Bound<'_, PyDict>>,
         threads: Option<i64>,
         settings: Option<&Bound<'_, PyDict>>,
     ) -> PyResult<PyIntegrator> {
@@ -102,8 +155,60 @@ impl PyIntegrator {
                 keywords.iter().map(|(k, v)| (k.as_str(), v.clone())),
             )
             .map_err(to_py_err)?;
+        if channels.is_none() && signs.is_none() {
+            if channel_settings.is_some() {
+                return Err(PyValueError::new_err(
+                    "channel_settings needs channels or signs (a multi-channel integrator)",
+                ));
+            }
+            return PyIntegrator::with(
+                Engine::Single(integrator(method, dim, &settings).map_err(to_py_err)?),
+                threads,
+            );
+        }
+        let mut config = match channel_settings {
+            None => MultiChannelConfig::default(),
+            Some(d) => {
+                let value = json_of(d.as_any(), "channel_settings")?;
+                serde_json::from_value::<MultiChannelConfig>(value)
+                    .map_err(|e| PyValueError::new_err(format!("channel_settings: {e}")))?
+            }
+        };
+        config.signs = match signs {
+            None => config.signs,
+            Some("auto") => Signs::Auto,
+            Some("split") => Signs::Split,
+            Some("whole") => Signs::Whole,
+            Some(s) => {
+                return Err(PyValueError::new_err(format!(
+                    "signs must be \"auto\", \"split\" or \"whole\", got {s:?}"
+                )))
+            }
+        };
+        let raised = Arc::new(Raised::default());
+        let signs = config.signs;
+        let (mc, n) = match channels {
+            None => (
+                Box::new(MultiChannel::single(dim, method, settings, config).map_err(to_py_err)?),
+                0,
+            ),
+            Some(list) => {
+                let set = channel_set(py, list, dim, &raised)?;
+                let n = set.len();
+                (
+                    Box::new(MultiChannel::new(set, method, settings, config).map_err(to_py_err)?),
+                    n,
+                )
+            }
+        };
         PyIntegrator::with(
-            integrator(method, dim, &settings).map_err(to_py_err)?,
+            Engine::Multi {
+                mc,
+                method,
+                channels: n,
+                signs,
+                raised,
+            },
             threads,
         )
     }
@@ -137,16 +242,35 @@ impl PyIntegrator {
             (_, evals) => count("evals", evals.unwrap_or(1_000_000))? as u64,
         };
         let pool = self.pool.clone();
-        let integ = self.integrator();
-        if let Some(t) = &target {
-            integ.check_target(t).map_err(to_py_err)?;
+        let (mc, raised) = match self.engine() {
+            Engine::Single(integ) => {
+                let integ = integ.as_mut();
+                if let Some(t) = &target {
+                    integ.check_target(t).map_err(to_py_err)?;
+                }
+                return with_integrand(py, f, integ.dim(), |g, vector| {
+                    let r = run(py, pool.as_deref(), g.call, || match &target {
+                        Some(t) => integ.integrate_to(g.f, t),
+                        None => integ.integrate(g.f, evals),
+                    })?;
+                    Ok(PyIntegrationResult::new(r, vector))
+                });
+            }
+            Engine::Multi { mc, raised, .. } => (mc, raised.clone()),
+        };
+        if target.is_some() {
+            return Err(PyValueError::new_err(
+                "precision targets with channels are not supported yet: give evals",
+            ));
         }
-        with_integrand(py, f, integ.dim(), |g, vector| {
-            let r = run(py, pool.as_deref(), g.call, || match &target {
-                Some(t) => integ.integrate_to(g.f, t),
-                None => integ.integrate(g.f, evals),
-            })?;
-            Ok(PyIntegrationResult::new(r, vector))
+        with_integrand(py, f, mc.dim(), |g, vector| {
+            raised.take();
+            let r = run(py, pool.as_deref(), g.call, || mc.integrate(g.f, evals));
+            // A channel's own exception wins over the library's error it caused.
+            if let (Err(_), Some(e)) = (&r, raised.take()) {
+                return Err(e);
+            }
+            Ok(PyIntegrationResult::new(r?, vector))
         })
     }
 
@@ -249,7 +373,7 @@ impl PyIntegrator {
     fn save(&mut self, path: &Bound<'_, PyAny>) -> PyResult<()> {
         let path = path_of(path)?;
         check_parent(&path)?;
-        self.integrator().save(&path).map_err(to_py_err)
+        self.integrator("save")?.save(&path).map_err(to_py_err)
     }
 
     /// Loads an integrator saved by `save` (or `nis integrate --save`).
@@ -258,19 +382,41 @@ impl PyIntegrator {
     fn load(path: &Bound<'_, PyAny>, threads: Option<i64>) -> PyResult<PyIntegrator> {
         let path = path_of(path)?;
         let nis = NisIntegrator::load(&path).map_err(to_py_err)?;
-        PyIntegrator::with(Box::new(nis), threads)
+        PyIntegrator::with(Engine::Single(Box::new(nis)), threads)
     }
 
     /// The method: "nis", "vegas" or "uniform".
     #[getter]
     fn method(&mut self) -> &'static str {
-        self.integrator().method().name()
+        self.method_of().name()
     }
 
     /// The dimension.
     #[getter]
     fn dim(&mut self) -> usize {
-        self.integrator().dim()
+        match self.engine() {
+            Engine::Single(i) => i.dim(),
+            Engine::Multi { mc, .. } => mc.dim(),
+        }
+    }
+
+    /// The number of channels (None for a single-channel integrator; 1 for `signs` alone).
+    #[getter]
+    fn channels(&mut self) -> Option<usize> {
+        match self.engine() {
+            Engine::Single(_) => None,
+            Engine::Multi { channels, .. } => Some((*channels).max(1)),
+        }
+    }
+
+    /// The a-priori channel weights the next call starts from (they adapt between calls;
+    /// None for a single-channel integrator).
+    #[getter]
+    fn channel_weights<'py>(&mut self, py: Python<'py>) -> Option<Bound<'py, PyArray1<f64>>> {
+        match self.engine() {
+            Engine::Single(_) => None,
+            Engine::Multi { mc, .. } => Some(PyArray1::from_slice(py, mc.weights())),
+        }
     }
 
     /// Threads of its own rayon pool (None: the global pool).
@@ -293,7 +439,31 @@ impl PyIntegrator {
     }
 
     fn __repr__(&mut self) -> String {
-        let integ = self.integrator();
+        let integ = match self.engine() {
+            Engine::Single(i) => i.as_mut(),
+            Engine::Multi {
+                mc,
+                method,
+                channels,
+                signs,
+                ..
+            } => {
+                let (dim, method) = (mc.dim(), method.name());
+                let signs = match signs {
+                    Signs::Auto => "auto",
+                    Signs::Split => "split",
+                    Signs::Whole => "whole",
+                };
+                let channels = match channels {
+                    0 => String::new(),
+                    1 => ", channels=[1 channel]".into(),
+                    n => format!(", channels=[{n} channels]"),
+                };
+                return format!(
+                    "nis.Integrator(dim={dim}, method={method:?}{channels}, signs={signs:?})"
+                );
+            }
+        };
         let (dim, method) = (integ.dim(), integ.method().name());
         match integ.as_nis() {
             Some(n) => format!(
@@ -311,10 +481,45 @@ impl PyIntegrator {
     }
 }
 
+/// The `channels` argument, a non-empty list of `nis.Channel`, as a channel set of dimension
+/// `dim` whose Python channels record their exceptions in `raised`.
+fn channel_set(
+    py: Python<'_>,
+    list: &Bound<'_, PyAny>,
+    dim: usize,
+    raised: &Arc<Raised>,
+) -> PyResult<ChannelSet> {
+    let not_list = || PyValueError::new_err("channels must be a non-empty list of nis.Channel");
+    let items: Vec<Bound<'_, PyAny>> = list
+        .try_iter()
+        .map_err(|_| not_list())?
+        .collect::<PyResult<_>>()?;
+    if items.is_empty() {
+        return Err(not_list());
+    }
+    let (mut channels, mut priors) = (Vec::new(), Vec::new());
+    for (k, item) in items.iter().enumerate() {
+        let c = item.cast::<PyChannel>().map_err(|_| {
+            PyValueError::new_err(format!(
+                "channel {k} is a {}, not a nis.Channel",
+                item.get_type()
+                    .name()
+                    .map(|n| n.to_string())
+                    .unwrap_or_default()
+            ))
+        })?;
+        let c = c.get();
+        channels.push(c.channel(py, k, dim, raised)?);
+        priors.push(c.prior());
+    }
+    ChannelSet::with_priors(channels, priors).map_err(to_py_err)
+}
+
 /// The outcome of an integration, like a `vegas` result: `mean`, `sdev` (floats for a scalar
 /// integrand, arrays for a vector one, with `cov`), `chi2_dof`, `n_eval`, `rel_var_per_eval`,
 /// `unweighting_efficiency`, the reliability figures `pareto_k`, `ess`, `var_rel_err`, `seconds`;
-/// `str(r)` is a readable summary.
+/// for a multi-channel integrator also `channel_weights`, `channel_means`, `channel_sdevs`,
+/// `channel_evals` and `signs` (None otherwise); `str(r)` is a readable summary.
 #[pyclass(module = "nis", name = "IntegrationResult", frozen)]
 pub(crate) struct PyIntegrationResult {
     r: IntegrationResult,
@@ -445,6 +650,52 @@ impl PyIntegrationResult {
             .iter()
             .map(|i| (i.estimate, i.variance, i.evals))
             .collect()
+    }
+
+    /// Multi-channel results: each channel's a-priori weight a_k in the estimate (summing to 1),
+    /// a float64 array of K (None for a single-channel result).
+    #[getter]
+    fn channel_weights<'py>(&self, py: Python<'py>) -> Option<Bound<'py, PyArray1<f64>>> {
+        let c = self.r.channels.as_ref()?;
+        Some(PyArray1::from_slice(py, &c.weights))
+    }
+
+    /// Multi-channel results: each channel's contribution F_k = ∫ α_k f (they sum to `mean`).
+    #[getter]
+    fn channel_means<'py>(&self, py: Python<'py>) -> Option<Bound<'py, PyArray1<f64>>> {
+        let c = self.r.channels.as_ref()?;
+        Some(PyArray1::from_slice(py, &c.means))
+    }
+
+    /// Multi-channel results: the standard errors of `channel_means`.
+    #[getter]
+    fn channel_sdevs<'py>(&self, py: Python<'py>) -> Option<Bound<'py, PyArray1<f64>>> {
+        let c = self.r.channels.as_ref()?;
+        Some(PyArray1::from_slice(py, &c.std_errs))
+    }
+
+    /// Multi-channel results: the estimate's evaluations in each channel (uint64).
+    #[getter]
+    fn channel_evals<'py>(&self, py: Python<'py>) -> Option<Bound<'py, PyArray1<u64>>> {
+        let c = self.r.channels.as_ref()?;
+        Some(PyArray1::from_slice(py, &c.evals))
+    }
+
+    /// When the integrand was split by sign: a dict with `positive` (F⁺ = ∫ max(f, 0)),
+    /// `positive_sdev`, `negative` (F⁻ = ∫ max(−f, 0)), `negative_sdev` and
+    /// `negative_fraction` (F⁻/(F⁺ + F⁻)); None otherwise.
+    #[getter]
+    fn signs<'py>(&self, py: Python<'py>) -> PyResult<Option<Bound<'py, PyDict>>> {
+        let Some(s) = self.r.channels.as_ref().and_then(|c| c.signs) else {
+            return Ok(None);
+        };
+        let d = PyDict::new(py);
+        d.set_item("positive", s.positive)?;
+        d.set_item("positive_sdev", s.positive_err)?;
+        d.set_item("negative", s.negative)?;
+        d.set_item("negative_sdev", s.negative_err)?;
+        d.set_item("negative_fraction", s.negative_fraction)?;
+        Ok(Some(d))
     }
 
     /// The readable summary (`str(r)`), as `vegas`'s `result.summary()`.

@@ -9,10 +9,13 @@
 //!
 //! - [`call`]: a Python function as a fallible [`nis::integrate::Integrand`], and the runner that
 //!   releases the GIL, polls for Ctrl-C and re-raises the integrand's own exception.
-//! - [`integrator`]: `nis.Integrator` (NIS, VEGAS+, plain MC by name) and `nis.IntegrationResult`.
+//! - [`integrator`]: `nis.Integrator` (NIS, VEGAS+, plain MC by name; multi-channel with
+//!   `channels`/`signs`) and `nis.IntegrationResult`.
 //! - [`flow`]: `nis.Flow`, a coupling flow as a distribution.
 //! - [`settings`]: keyword arguments as the library's settings keywords (one reader for Python,
 //!   the C ABI and the CLI).
+//! - [`channel`]: `nis.Channel`, a channel of multi-channel integration (Python callbacks or a
+//!   built-in example's).
 //! - [`builtin`]: the built-in suite, `nis.integrands.*`.
 
 use std::path::Path;
@@ -25,6 +28,7 @@ use pyo3::prelude::*;
 
 mod builtin;
 mod call;
+mod channel;
 mod flow;
 mod integrator;
 mod settings;
@@ -157,6 +161,9 @@ fn _nis(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<integrator::PyIntegrationResult>()?;
     m.add_class::<flow::PyFlow>()?;
     m.add_class::<builtin::PyBuiltin>()?;
+    m.add_class::<channel::PyChannel>()?;
+    m.add_function(wrap_pyfunction!(channel::example_names, m)?)?;
+    m.add_function(wrap_pyfunction!(channel::example_channels, m)?)?;
     m.add_function(wrap_pyfunction!(builtin::suite, m)?)?;
     m.add_function(wrap_pyfunction!(settings::_keywords, m)?)?;
     Ok(())

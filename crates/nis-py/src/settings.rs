@@ -23,7 +23,7 @@ pub(crate) fn keywords(given: Option<&Bound<'_, PyDict>>) -> PyResult<Vec<(Strin
 
 /// A Python value as JSON: None, bool, int, finite float, str, and lists, tuples and dicts (str
 /// keys) of them. `name` names the keyword in errors.
-fn json_of(v: &Bound<'_, PyAny>, name: &str) -> PyResult<Value> {
+pub(crate) fn json_of(v: &Bound<'_, PyAny>, name: &str) -> PyResult<Value> {
     if v.is_none() {
         return Ok(Value::Null);
     }

@@ -12,7 +12,7 @@ import nis
 
 STUB = pathlib.Path(__file__).resolve().parents[1] / "python" / "nis" / "_nis.pyi"
 # Keywords of the constructor that are not settings.
-NOT_SETTINGS = {"threads"}
+NOT_SETTINGS = {"threads", "channels", "signs", "channel_settings"}
 
 
 def stub_class(name):

@@ -10,7 +10,9 @@ with VEGAS+ and plain Monte Carlo as baselines.
 True
 
 - ``Integrator``: NIS, VEGAS+ or plain MC by name; ``integ(f, evals=...)`` adapts and
-  estimates, like ``vegas.Integrator``.
+  estimates, like ``vegas.Integrator``. With ``channels=[...]`` (``Channel``s) and/or
+  ``signs=`` it is a multi-channel integrator (a sampler per channel and sign).
+- ``Channel``: a mapping of the unit cube with its density, for multi-channel integration.
 - ``IntegrationResult``: ``mean``, ``sdev``, ``cov``, ``chi2_dof``, ... and ``str(r)``.
 - ``Flow``: a coupling flow as a distribution (``sample``, ``log_prob``, ``fit``).
 - ``integrands``: the built-in test suite with exact values.
@@ -20,6 +22,7 @@ import warnings as _warnings
 
 from ._nis import (
     Builtin,
+    Channel,
     Flow,
     IntegrandError,
     IntegrationResult,
@@ -52,6 +55,9 @@ def _call(self, f, evals=None, *, rel_err=None, abs_err=None, max_evals=None, ma
     f propagates unchanged; NaN or inf raise ``nis.IntegrandError``; Ctrl-C raises
     KeyboardInterrupt at the next batch. Each of the result's ``warnings`` (an error bar that
     cannot be trusted, a sampler that had not converged) is also raised as a ``UserWarning``.
+
+    A multi-channel integrator (made with ``channels`` or ``signs``) takes scalar integrands
+    and a budget: precision targets raise ``ValueError`` before ``f`` is called.
     """
     r = _integrate(
         self,
@@ -75,6 +81,7 @@ del _call
 
 __all__ = [
     "Builtin",
+    "Channel",
     "Flow",
     "IntegrandError",
     "IntegrationResult",

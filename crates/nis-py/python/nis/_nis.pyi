@@ -1,7 +1,7 @@
 """Type stubs of the compiled module ``nis._nis`` (re-exported by ``nis``)."""
 
 import os
-from typing import Any, Callable, Dict, List, Optional, Tuple, Union
+from typing import Any, Callable, Dict, List, Optional, Sequence, Tuple, Union
 
 import numpy as np
 import numpy.typing as npt
@@ -71,6 +71,24 @@ class IntegrationResult:
     @property
     def iterations(self) -> List[Tuple[float, float, int]]:
         """The final phase's iterations: (estimate, variance, evaluations)."""
+    @property
+    def channel_weights(self) -> Optional[npt.NDArray[np.float64]]:
+        """Multi-channel results: each channel's a-priori weight in the estimate (summing to 1);
+        None for a single-channel result."""
+    @property
+    def channel_means(self) -> Optional[npt.NDArray[np.float64]]:
+        """Multi-channel results: each channel's contribution ∫ α_k f (they sum to ``mean``)."""
+    @property
+    def channel_sdevs(self) -> Optional[npt.NDArray[np.float64]]:
+        """Multi-channel results: the standard errors of ``channel_means``."""
+    @property
+    def channel_evals(self) -> Optional[npt.NDArray[np.uint64]]:
+        """Multi-channel results: the estimate's evaluations in each channel."""
+    @property
+    def signs(self) -> Optional[Dict[str, float]]:
+        """When the integrand was split by sign: ``positive`` (∫ max(f, 0)), ``positive_sdev``,
+        ``negative`` (∫ max(−f, 0)), ``negative_sdev``, ``negative_fraction``
+        (negative/(positive + negative)); None otherwise."""
     def summary(self) -> str:
         """The readable summary, ``str(r)``."""
 
@@ -100,6 +118,22 @@ class Integrator:
     off-policy in training). VEGAS+: ``increments``, ``alpha``, ``beta``, ``iterations``,
     ``warmup``, ``min_per_cube``. Plain MC: ``iterations``. NIS and VEGAS+: ``train_on``
     (component index or "sum_abs").
+
+    Multi-channel integration: ``channels``, a non-empty list of ``Channel`` (mappings of the
+    cube, one per peak, with their priors), makes an integrator that integrates
+    ∫ f = Σ_k ∫ α_k f, α_k = a_k g_k/Σ_j a_j g_j, with a sampler of ``method`` per channel;
+    the priors adapt between adapting and estimating. ``signs``: "auto" (the default with
+    channels: split f into f⁺ and f⁻, a sampler each, when a pilot sees both signs), "split"
+    (always) or "whole" (never); ``signs`` without ``channels`` splits a single-channel
+    integral by sign. Such an integrator integrates scalar integrands on a budget
+    (``integ(f, evals)``; precision targets raise ValueError), its results carry
+    ``channel_weights``, ``channel_means``, ``channel_sdevs``, ``channel_evals`` and
+    ``signs``, and the NIS-only methods (``train``, ``estimate``, ``sample``, ``unweighted``,
+    ``save``, ``flow``, ``trained_evals``) raise ValueError. ``channel_settings``, a dict:
+    ``adapt_fraction`` (share of a call's evaluations the samplers adapt on, default 0.4),
+    ``adapt_weights`` (whether the priors adapt, default True), ``weight_floor`` (smallest
+    weight a channel keeps, as a fraction of 1/K, default 0.01), ``pilot`` (uniform points per
+    channel of the pilot that decides the sign split, default 1000).
     """
 
     def __init__(
@@ -107,6 +141,9 @@ class Integrator:
         dim: int,
         method: str = "nis",
         *,
+        channels: Optional[Sequence["Channel"]] = None,
+        signs: Optional[str] = None,
+        channel_settings: Optional[Dict[str, Any]] = None,
         threads: Optional[int] = None,
         seed: Optional[int] = None,
         coupling: Optional[str] = None,
@@ -169,6 +206,9 @@ class Integrator:
         f propagates unchanged; NaN or inf raise ``nis.IntegrandError``; Ctrl-C raises
         KeyboardInterrupt at the next batch. Each of the result's ``warnings`` (an error bar that
         cannot be trusted, a sampler that had not converged) is also raised as a ``UserWarning``.
+
+        A multi-channel integrator (made with ``channels`` or ``signs``) takes scalar integrands
+        and a budget: precision targets raise ``ValueError`` before ``f`` is called.
         """
     def train(self, f: IntegrandFn, evals: int) -> None:
         """NIS only: trains on ``evals`` more evaluations without estimating."""
@@ -194,6 +234,13 @@ class Integrator:
     def dim(self) -> int: ...
     @property
     def threads(self) -> Optional[int]: ...
+    @property
+    def channels(self) -> Optional[int]:
+        """The number of channels (None for a single-channel integrator, 1 for ``signs``
+        alone)."""
+    @property
+    def channel_weights(self) -> Optional[npt.NDArray[np.float64]]:
+        """The a-priori channel weights the next call starts from (they adapt)."""
     @property
     def flow(self) -> "Flow":
         """NIS only: a copy of the trained flow."""
@@ -279,6 +326,46 @@ class Builtin:
     def exact_err(self) -> float: ...
     @property
     def source(self) -> str: ...
+
+class Channel:
+    """A channel of multi-channel integration: a map of the unit cube onto [0, 1]^d and the
+    density of its points, with an a-priori weight ``prior`` (finite, > 0).
+
+    ``sample`` takes an (n, d) float64 array u of uniform points and returns x, shape (n, d),
+    inside the cube; ``density`` takes an (n, d) array x (any points of the cube) and returns
+    g(x), shape (n,): the density of ``sample``'s points, finite and ≥ 0 (> 0 where the channel
+    puts points). Both are called on whole batches with the GIL held only then; an exception
+    they raise propagates unchanged; wrong shapes, points outside the cube and NaN or negative
+    densities raise ValueError naming the channel's index and the point. ``dim``, if given, is
+    checked against the integrator's. Built-in examples' channels:
+    ``nis.integrands.channels(name)``.
+    """
+
+    def __init__(
+        self,
+        sample: Callable[[npt.NDArray[np.float64]], npt.ArrayLike],
+        density: Callable[[npt.NDArray[np.float64]], npt.ArrayLike],
+        prior: float = 1.0,
+        *,
+        dim: Optional[int] = None,
+    ) -> None: ...
+    def sample(self, u: Points) -> npt.NDArray[np.float64]:
+        """x for the uniform points u, checked as an integrator checks them."""
+    def density(self, x: Points) -> npt.NDArray[np.float64]:
+        """g at each row of x."""
+    @property
+    def prior(self) -> float: ...
+    @property
+    def dim(self) -> Optional[int]: ...
+    @property
+    def name(self) -> Optional[str]:
+        """A built-in channel's name ("resonances-4d[0]"); None for a Python one."""
+
+def example_names() -> List[str]:
+    """The multi-channel examples' names (``nis.integrands.examples()``)."""
+
+def example_channels(name: str) -> List[Channel]:
+    """The channels of a multi-channel example (``nis.integrands.channels(name)``)."""
 
 def suite() -> List[Tuple[str, List[int], str]]:
     """The suite: (name, benchmark dimensions, description) per member."""

@@ -4,11 +4,17 @@
 (``camel_sharp`` is ``camel-sharp``).
 
 The functions are made at import from the compiled suite, so they always match it.
+
+The multi-channel examples (``examples()``: "gauss-pm", "dalitz", "resonances-4d",
+"phase-space-8d") are not suite members: ``example(name)`` returns the integrand (a
+``nis.Builtin`` with ``.exact``), ``channels(name)`` the channels written for it (a list of
+``nis.Channel``), to give to ``nis.Integrator(dim, channels=...)``.
 """
 
 from typing import Callable, List, Optional
 
-from ._nis import Builtin, suite as _suite
+from ._nis import Builtin, Channel, suite as _suite
+from ._nis import example_channels as _example_channels, example_names as _example_names
 
 __all__: List[str] = []
 
@@ -36,3 +42,25 @@ del _name, _dims, _description, _f
 def names() -> List[str]:
     """The suite's names as the command line spells them (e.g. "camel-sharp")."""
     return [name for name, _, _ in _suite()]
+
+
+def examples() -> List[str]:
+    """The multi-channel examples' names (e.g. "resonances-4d")."""
+    return list(_example_names())
+
+
+def example(name: str) -> Builtin:
+    """The integrand of the multi-channel example ``name`` (one of ``examples()``), a
+    ``nis.Builtin`` with its exact value ``.exact`` (and ``.exact_err``)."""
+    if name not in _example_names():
+        raise ValueError(
+            f"unknown multi-channel example {name!r}; examples: {', '.join(_example_names())}"
+        )
+    return Builtin(name)
+
+
+def channels(name: str) -> List[Channel]:
+    """The channels of the multi-channel example ``name`` (one of ``examples()``), one per peak
+    (resonance, Gaussian), equal priors: ``nis.Channel``s evaluated in Rust, for
+    ``nis.Integrator(dim, channels=nis.integrands.channels(name))``."""
+    return list(_example_channels(name))
