@@ -116,6 +116,11 @@
 typedef struct nis_integrator nis_integrator;
 
 /**
+ * A multi-channel integrator (opaque).
+ */
+typedef struct nis_multichannel nis_multichannel;
+
+/**
  * The integrand: writes f at `n` points `x` (row-major, `dim` coordinates each, in [0, 1]) into
  * `out` (row-major, `k` values per point for an integrand with `k` components) and returns 0, or
  * a non-zero status that stops the integration (the call then fails with `NIS_ERR_CALLBACK` and
@@ -170,6 +175,26 @@ typedef struct nis_result {
    */
   double ess;
 } nis_result;
+
+/**
+ * A channel's map or density: reads `n` points `in` (row-major, `dim` coordinates each) and
+ * writes `out` (the mapped points, n × dim, for `sample`; the densities, n values, for
+ * `density`); returns 0, or non-zero to stop the integration with `NIS_ERR_INVALID_ARGUMENT`.
+ */
+typedef int (*nis_channel_fn)(const double *input, size_t n, size_t dim, double *out, void *user);
+
+/**
+ * A channel: `sample` maps uniform points u of the unit cube to x = φ(u) in it, `density` gives
+ * the density g(x) of those points at any x of the cube (0 where φ does not reach), `user` is
+ * handed to both, `prior` is its a-priori weight (0: 1). The callbacks of one channel are never
+ * called from two threads at once.
+ */
+typedef struct nis_channel {
+  nis_channel_fn sample;
+  nis_channel_fn density;
+  void *user;
+  double prior;
+} nis_channel;
 
 #ifdef __cplusplus
 extern "C" {
@@ -323,6 +348,83 @@ int nis_unweighted(struct nis_integrator *integ,
  * `integ` must be a live integrator; `path` a NUL-terminated string.
  */
 int nis_save(struct nis_integrator *integ, const char *path);
+
+/**
+ * Creates a multi-channel integrator from the JSON config of `nis_create` (method, dim, seed,
+ * the methods' sections; `"components"` must be 1) and `count` channels, and stores it in `*out`
+ * (NULL on failure). `signs` is `"auto"` (split f into f > 0 and f < 0 when a pilot sees both),
+ * `"split"`, `"whole"`, or NULL for auto. `count` 0 with `channels` NULL integrates without
+ * channels (one identity channel), split by sign; `count` 0 with channels given is an error.
+ *
+ * # Safety
+ * `json` and a non-NULL `signs` must be NUL-terminated; `channels` must hold `count` channels
+ * whose callbacks and user pointers stay valid while the integrator lives; `out` writable.
+ */
+int nis_multichannel_create(const char *json,
+                            const struct nis_channel *channels,
+                            size_t count,
+                            const char *signs,
+                            struct nis_multichannel **out);
+
+/**
+ * Frees a multi-channel integrator (NULL is ignored).
+ *
+ * # Safety
+ * `mc` must come from [`nis_multichannel_create`] and not be used afterwards.
+ */
+void nis_multichannel_free(struct nis_multichannel *mc);
+
+/**
+ * Integrates `f` with `evals` evaluations through the channels (see `nis::integrate::multichannel`)
+ * and writes the summary into `*result` (which may be NULL); the channels' and signs' parts are
+ * then read with [`nis_multichannel_channels`] and [`nis_multichannel_signs`].
+ *
+ * # Safety
+ * `mc` must be live; `result` NULL or writable; `f` must honour `nis_integrand_fn`'s contract.
+ */
+int nis_multichannel_integrate(struct nis_multichannel *mc,
+                               nis_integrand_fn f,
+                               void *user,
+                               uint64_t evals,
+                               struct nis_result *result);
+
+/**
+ * Copies the last result's per-channel figures: the weights a_k, each channel's contribution
+ * and its standard error, and its evaluations in the estimate. Any buffer may be NULL; `k` must
+ * equal the number of channels (1 without channels).
+ *
+ * # Safety
+ * `mc` must be live; non-NULL buffers must hold `k` values.
+ */
+int nis_multichannel_channels(const struct nis_multichannel *mc,
+                              double *weights,
+                              double *means,
+                              double *std_errs,
+                              uint64_t *evals,
+                              size_t k);
+
+/**
+ * Copies the last result's positive and negative parts, F = F⁺ − F⁻, with their standard errors
+ * and the share of negative weights F⁻/(F⁺ + F⁻) (any pointer may be NULL); `NIS_ERR_NO_RESULT`
+ * when the last result was not split by sign.
+ *
+ * # Safety
+ * `mc` must be live; non-NULL pointers writable.
+ */
+int nis_multichannel_signs(const struct nis_multichannel *mc,
+                           double *positive,
+                           double *positive_err,
+                           double *negative,
+                           double *negative_err,
+                           double *negative_fraction);
+
+/**
+ * Copies the last result's warnings as `nis_result_warnings` does.
+ *
+ * # Safety
+ * `mc` must be live; `buffer` NULL or writable for `capacity` bytes.
+ */
+size_t nis_multichannel_warnings(const struct nis_multichannel *mc, char *buffer, size_t capacity);
 
 /**
  * The message of the last failed call on this thread ("" before any failure), NUL-terminated.

@@ -29,6 +29,7 @@
 
 mod callback;
 mod config;
+mod multichannel;
 mod status;
 mod target;
 
@@ -42,6 +43,7 @@ use rand::SeedableRng;
 use rand_pcg::Pcg64Mcg;
 
 pub use callback::{nis_integrand_fn, NIS_CONCURRENT_CHUNK};
+pub use multichannel::*;
 pub use status::*;
 pub use target::*;
 

@@ -499,3 +499,249 @@ fn runs_to_a_target_match_the_library_and_say_why_they_stopped() {
     assert_eq!(unsafe { nis_result_stop(integ) }, NIS_STOP_TARGET);
     unsafe { nis_free(integ) };
 }
+
+/// Two Cauchy peaks in x₀ (at 0.2 and 0.7, width γ), flat in x₁, and a channel per peak.
+const GAMMA: f64 = 1e-3;
+
+fn peak(x: f64, c: f64) -> f64 {
+    GAMMA / (GAMMA * GAMMA + (x - c).powi(2))
+}
+
+fn angles(c: f64) -> (f64, f64) {
+    ((-c / GAMMA).atan(), ((1.0 - c) / GAMMA).atan())
+}
+
+unsafe extern "C" fn peaks_c(
+    x: *const f64,
+    n: usize,
+    dim: usize,
+    out: *mut f64,
+    _: *mut c_void,
+) -> c_int {
+    let x = unsafe { std::slice::from_raw_parts(x, n * dim) };
+    let out = unsafe { std::slice::from_raw_parts_mut(out, n) };
+    for (o, p) in out.iter_mut().zip(x.chunks_exact(dim)) {
+        *o = peak(p[0], 0.2) + 0.5 * peak(p[0], 0.7);
+    }
+    0
+}
+
+/// The channel's centre is the f64 behind `user`.
+unsafe extern "C" fn cauchy_sample(
+    u: *const f64,
+    n: usize,
+    dim: usize,
+    x: *mut f64,
+    user: *mut c_void,
+) -> c_int {
+    let c = unsafe { *(user as *const f64) };
+    let (lo, hi) = angles(c);
+    let u = unsafe { std::slice::from_raw_parts(u, n * dim) };
+    let x = unsafe { std::slice::from_raw_parts_mut(x, n * dim) };
+    for (x, u) in x.chunks_exact_mut(dim).zip(u.chunks_exact(dim)) {
+        x[0] = (c + GAMMA * (lo + u[0] * (hi - lo)).tan()).clamp(0.0, 1.0);
+        x[1] = u[1];
+    }
+    0
+}
+
+unsafe extern "C" fn cauchy_density(
+    x: *const f64,
+    n: usize,
+    dim: usize,
+    g: *mut f64,
+    user: *mut c_void,
+) -> c_int {
+    let c = unsafe { *(user as *const f64) };
+    let (lo, hi) = angles(c);
+    let x = unsafe { std::slice::from_raw_parts(x, n * dim) };
+    let g = unsafe { std::slice::from_raw_parts_mut(g, n) };
+    for (g, x) in g.iter_mut().zip(x.chunks_exact(dim)) {
+        *g = peak(x[0], c) / (hi - lo);
+    }
+    0
+}
+
+/// A sample callback that leaves the cube.
+unsafe extern "C" fn outside(
+    _: *const f64,
+    n: usize,
+    dim: usize,
+    x: *mut f64,
+    _: *mut c_void,
+) -> c_int {
+    unsafe { std::slice::from_raw_parts_mut(x, n * dim) }.fill(1.5);
+    0
+}
+
+#[test]
+fn channels_through_c_integrate_and_report_each_channel() {
+    let mass = |c: f64| angles(c).1 - angles(c).0;
+    let exact = mass(0.2) + 0.5 * mass(0.7);
+    let centres = [0.2f64, 0.7];
+    let channels: Vec<nis_channel> = centres
+        .iter()
+        .map(|c| nis_channel {
+            sample: Some(cauchy_sample),
+            density: Some(cauchy_density),
+            user: c as *const f64 as *mut c_void,
+            prior: 0.0,
+        })
+        .collect();
+    for method in ["uniform", "vegas", "nis"] {
+        let json =
+            CString::new(format!(r#"{{"method": "{method}", "dim": 2, "seed": 4}}"#)).unwrap();
+        let mut mc = std::ptr::null_mut();
+        let status = unsafe {
+            nis_multichannel_create(
+                json.as_ptr(),
+                channels.as_ptr(),
+                2,
+                std::ptr::null(),
+                &mut mc,
+            )
+        };
+        assert_eq!(status, NIS_OK, "{}", last_error());
+        let mut r = nis_result::default();
+        let status = unsafe {
+            nis_multichannel_integrate(mc, Some(peaks_c), std::ptr::null_mut(), 200_000, &mut r)
+        };
+        assert_eq!(status, NIS_OK, "{method}: {}", last_error());
+        assert!(
+            (r.value - exact).abs() < 5.0 * r.std_err,
+            "{method}: {r:?} vs {exact}"
+        );
+        let (mut w, mut m, mut s, mut e) = ([0.0; 2], [0.0; 2], [0.0; 2], [0u64; 2]);
+        let status = unsafe {
+            nis_multichannel_channels(
+                mc,
+                w.as_mut_ptr(),
+                m.as_mut_ptr(),
+                s.as_mut_ptr(),
+                e.as_mut_ptr(),
+                2,
+            )
+        };
+        assert_eq!(status, NIS_OK);
+        assert!((w[0] + w[1] - 1.0).abs() < 1e-12 && e.iter().all(|n| *n > 0));
+        assert!((m[0] + m[1] - r.value).abs() < 1e-9 * r.value.abs());
+        // Not split by sign: no signs to read.
+        let status = unsafe {
+            nis_multichannel_signs(
+                mc,
+                std::ptr::null_mut(),
+                std::ptr::null_mut(),
+                std::ptr::null_mut(),
+                std::ptr::null_mut(),
+                std::ptr::null_mut(),
+            )
+        };
+        assert_eq!(status, NIS_ERR_NO_RESULT);
+        unsafe { nis_multichannel_free(mc) };
+    }
+    // A channel that leaves the cube: an error naming it.
+    let bad = [nis_channel {
+        sample: Some(outside),
+        density: Some(cauchy_density),
+        user: &centres[0] as *const f64 as *mut c_void,
+        prior: 1.0,
+    }];
+    let json = CString::new(r#"{"method": "uniform", "dim": 2}"#).unwrap();
+    let mut mc = std::ptr::null_mut();
+    assert_eq!(
+        unsafe {
+            nis_multichannel_create(json.as_ptr(), bad.as_ptr(), 1, std::ptr::null(), &mut mc)
+        },
+        NIS_OK
+    );
+    let status = unsafe {
+        nis_multichannel_integrate(
+            mc,
+            Some(peaks_c),
+            std::ptr::null_mut(),
+            100_000,
+            std::ptr::null_mut(),
+        )
+    };
+    assert_eq!(status, NIS_ERR_INVALID_ARGUMENT);
+    assert!(last_error().contains("channel 0"), "{}", last_error());
+    unsafe { nis_multichannel_free(mc) };
+    // Zero channels given, a bad sign mode, a vector integrand: errors, nothing handed out.
+    for (ptr, count, signs, json) in [
+        (bad.as_ptr(), 0, None, r#"{"method": "uniform", "dim": 2}"#),
+        (
+            std::ptr::null(),
+            0,
+            Some("both"),
+            r#"{"method": "uniform", "dim": 2}"#,
+        ),
+        (
+            bad.as_ptr(),
+            1,
+            None,
+            r#"{"method": "uniform", "dim": 2, "components": 2}"#,
+        ),
+    ] {
+        let json = CString::new(json).unwrap();
+        let signs = signs.map(|s| CString::new(s).unwrap());
+        let mut mc = std::ptr::null_mut();
+        let status = unsafe {
+            nis_multichannel_create(
+                json.as_ptr(),
+                ptr,
+                count,
+                signs.as_ref().map_or(std::ptr::null(), |s| s.as_ptr()),
+                &mut mc,
+            )
+        };
+        assert_eq!(status, NIS_ERR_INVALID_ARGUMENT, "{}", last_error());
+        assert!(mc.is_null());
+    }
+}
+
+/// f = x₀ − 0.3: F⁺ = 0.245, F⁻ = 0.045.
+unsafe extern "C" fn signed_c(
+    x: *const f64,
+    n: usize,
+    dim: usize,
+    out: *mut f64,
+    _: *mut c_void,
+) -> c_int {
+    let x = unsafe { std::slice::from_raw_parts(x, n * dim) };
+    let out = unsafe { std::slice::from_raw_parts_mut(out, n) };
+    for (o, p) in out.iter_mut().zip(x.chunks_exact(dim)) {
+        *o = p[0] - 0.3;
+    }
+    0
+}
+
+#[test]
+fn a_signed_integrand_splits_without_channels() {
+    let json = CString::new(r#"{"method": "vegas", "dim": 2, "seed": 1}"#).unwrap();
+    let mut mc = std::ptr::null_mut();
+    let status = unsafe {
+        nis_multichannel_create(
+            json.as_ptr(),
+            std::ptr::null(),
+            0,
+            std::ptr::null(),
+            &mut mc,
+        )
+    };
+    assert_eq!(status, NIS_OK, "{}", last_error());
+    let mut r = nis_result::default();
+    let status = unsafe {
+        nis_multichannel_integrate(mc, Some(signed_c), std::ptr::null_mut(), 200_000, &mut r)
+    };
+    assert_eq!(status, NIS_OK, "{}", last_error());
+    let (mut p, mut pe, mut m, mut me, mut frac) = (0.0, 0.0, 0.0, 0.0, 0.0);
+    let status = unsafe { nis_multichannel_signs(mc, &mut p, &mut pe, &mut m, &mut me, &mut frac) };
+    assert_eq!(status, NIS_OK);
+    assert!(
+        (p - 0.245).abs() < 5.0 * pe && (m - 0.045).abs() < 5.0 * me,
+        "{p} ± {pe}, {m} ± {me}"
+    );
+    assert!((r.value - 0.2).abs() < 5.0 * r.std_err);
+    assert!((frac - 0.045 / 0.29).abs() < 0.01);
+    unsafe { nis_multichannel_free(mc) };
+}

@@ -18,6 +18,15 @@ module nis
   integer(c_int), parameter, public :: NIS_STOP_NONE = 0, NIS_STOP_TARGET = 1, &
        NIS_STOP_MAX_EVALS = 2, NIS_STOP_MAX_SECONDS = 3
 
+  !> A channel (nis_channel in nis.h): its sample and density callbacks (bind(c) functions with
+  !> the interface nis_channel_fn below, as c_funloc), a user pointer and an a-priori weight
+  !> (0: 1).
+  type, bind(c), public :: nis_channel
+     type(c_funptr) :: sample, density
+     type(c_ptr) :: user
+     real(c_double) :: prior
+  end type nis_channel
+
   !> The summary of a result (nis_result in nis.h).
   type, bind(c), public :: nis_result
      real(c_double) :: value, std_err, chi2_per_dof
@@ -31,7 +40,8 @@ module nis
        nis_integrate, nis_integrate_vector, nis_integrate_to, nis_result_stop, &
        nis_result_warnings, nis_result_estimates, nis_sample, &
        nis_sample_weighted, nis_unweighted, nis_save, nis_last_error_copy, &
-       nis_last_callback_status, nis_last_error
+       nis_last_callback_status, nis_last_error, nis_channel_fn, nis_multichannel_create, &
+       nis_multichannel_integrate, nis_multichannel_channels, nis_multichannel_free
 
   abstract interface
      !> A scalar integrand: out(i) = f(x(:, i)); return 0, or non-zero to stop the integration.
@@ -42,6 +52,14 @@ module nis
        real(c_double), intent(out) :: out(n)
        type(c_ptr), value :: user
      end function nis_integrand
+     !> A channel's map (out = x(dim, n)) or density (out = g(n)) of the points in(dim, n).
+     integer(c_int) function nis_channel_fn(input, n, dim, out, user) bind(c)
+       import :: c_int, c_size_t, c_double, c_ptr
+       integer(c_size_t), value :: n, dim
+       real(c_double), intent(in) :: input(dim, n)
+       real(c_double), intent(out) :: out(*)
+       type(c_ptr), value :: user
+     end function nis_channel_fn
   end interface
 
   interface
@@ -120,6 +138,40 @@ module nis
        character(kind=c_char), intent(out) :: buffer(*)
        integer(c_size_t), value :: capacity
      end function nis_result_warnings
+
+     !> A multi-channel integrator (signs: c_null_ptr for auto, or "auto"/"split"/"whole" //
+     !> c_null_char passed as c_loc of a target string); free it with nis_multichannel_free.
+     integer(c_int) function nis_multichannel_create(json, channels, count, signs, mc) bind(c)
+       import :: c_int, c_char, c_size_t, c_ptr, nis_channel
+       character(kind=c_char), intent(in) :: json(*)
+       type(nis_channel), intent(in) :: channels(*)
+       integer(c_size_t), value :: count
+       type(c_ptr), value :: signs
+       type(c_ptr), intent(out) :: mc
+     end function nis_multichannel_create
+
+     integer(c_int) function nis_multichannel_integrate(mc, f, user, evals, result) bind(c)
+       import :: c_int, c_int64_t, c_ptr, c_funptr, nis_result
+       type(c_ptr), value :: mc, user
+       type(c_funptr), value :: f
+       integer(c_int64_t), value :: evals
+       type(nis_result), intent(out) :: result
+     end function nis_multichannel_integrate
+
+     !> weights(k), means(k), std_errs(k), evals(k) of the last result's channels.
+     integer(c_int) function nis_multichannel_channels(mc, weights, means, std_errs, evals, k) &
+          bind(c)
+       import :: c_int, c_int64_t, c_size_t, c_double, c_ptr
+       type(c_ptr), value :: mc
+       real(c_double), intent(out) :: weights(*), means(*), std_errs(*)
+       integer(c_int64_t), intent(out) :: evals(*)
+       integer(c_size_t), value :: k
+     end function nis_multichannel_channels
+
+     subroutine nis_multichannel_free(mc) bind(c)
+       import :: c_ptr
+       type(c_ptr), value :: mc
+     end subroutine nis_multichannel_free
 
      !> mean(k), std_err(k), cov(k, k) of the last result (cov is symmetric, so its layout is
      !> the same in both orders).
