@@ -322,3 +322,67 @@ fn a_plain_path_traced_image_is_bit_identical_to_one_process() {
         }
     }
 }
+
+/// `nis integrate …` under `mpirun -n ranks` with `args`, its JSON result.
+fn run_json(ranks: usize, args: &[&str]) -> Value {
+    result(&ok(mpirun(ranks, &env_path("NIS_MPI_BIN"), args)))
+}
+
+#[test]
+#[ignore = "needs MPI: scripts/test/test-mpi.sh"]
+fn targets_and_channels_run_alike_on_every_rank() {
+    let pull = |v: &Value| {
+        (v["value"].as_f64().unwrap() - v["exact"].as_f64().unwrap())
+            / v["std_err"].as_f64().unwrap()
+    };
+    for ranks in [2, 3] {
+        // To a target: VEGAS+ and plain MC plan from counts alone, so two runs agree to the bit;
+        // NIS decides its training from the slowest rank's times, the same on every rank.
+        for method in ["vegas", "uniform", "nis"] {
+            let args = [
+                "integrate",
+                "camel",
+                "--dim",
+                "2",
+                "--json",
+                "--seed",
+                "3",
+                "--method",
+                method,
+                "--rel-err",
+                "1e-2",
+            ];
+            let a = run_json(ranks, &args);
+            assert_eq!(a["stop"], "target", "{method}, {ranks} ranks: {a}");
+            assert!(pull(&a).abs() < 5.0, "{method}, {ranks} ranks: {a}");
+            if method == "nis" {
+                let sums = a["rank_checksums"].as_array().unwrap();
+                assert!(sums.iter().all(|s| s == &sums[0]), "{sums:?}");
+            } else {
+                assert_eq!(
+                    a,
+                    run_json(ranks, &args),
+                    "{method}, {ranks} ranks, two runs"
+                );
+            }
+        }
+        // Through channels, split by sign where the pilot sees both: one result per seed.
+        for (name, method) in [("dalitz", "vegas"), ("gauss-pm", "uniform")] {
+            let args = [
+                "integrate",
+                name,
+                "--channels",
+                "--json",
+                "--seed",
+                "3",
+                "--method",
+                method,
+                "--evals",
+                "100000",
+            ];
+            let a = run_json(ranks, &args);
+            assert!(pull(&a).abs() < 5.0, "{name}, {ranks} ranks: {a}");
+            assert_eq!(a, run_json(ranks, &args), "{name}, {ranks} ranks, two runs");
+        }
+    }
+}
