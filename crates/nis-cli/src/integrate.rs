@@ -70,7 +70,7 @@ pub struct IntegrateArgs {
     pub masks: Option<Masks>,
     /// Evaluations per method (NIS training included). A target (--rel-err, --abs-err)
     /// replaces it.
-    #[arg(long, default_value_t = 1_000_000)]
+    #[arg(long, default_value_t = 1_000_000, conflicts_with_all = ["rel_err", "abs_err"])]
     pub evals: u64,
     /// Integrate until the standard error is at most this fraction of |value| (or --abs-err is
     /// met), or a limit (--max-evals, --seconds) is reached; the result says which.

@@ -230,3 +230,92 @@ fn eval_serves_the_same_values_with_a_synthetic_cost() {
     assert_eq!(plain.len(), 3 * 8);
     assert_eq!(serve(&["--spins", "5000"]), plain);
 }
+
+#[test]
+fn a_target_stops_each_method_and_bad_targets_are_errors() {
+    let out = nis(&[
+        "integrate",
+        "camel",
+        "--dim",
+        "2",
+        "--method",
+        "uniform",
+        "--rel-err",
+        "1e-2",
+        "--json",
+    ]);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    assert_eq!(v["stop"], "target");
+    assert!(v["std_err"].as_f64().unwrap() <= 1e-2 * v["value"].as_f64().unwrap());
+    // A limit: not an error, the reason and a warning on stderr.
+    let out = nis(&[
+        "integrate",
+        "camel",
+        "--dim",
+        "2",
+        "--method",
+        "uniform",
+        "--rel-err",
+        "1e-5",
+        "--max-evals",
+        "20000",
+        "--json",
+    ]);
+    assert!(out.status.success());
+    let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    assert_eq!(v["stop"], "max_evals");
+    assert!(String::from_utf8_lossy(&out.stderr).contains("was not met"));
+    // A budget and a target, a limit without a target, a non-positive target: errors.
+    for args in [
+        &["--evals", "1000", "--rel-err", "1e-2"][..],
+        &["--max-evals", "1000"][..],
+        &["--rel-err", "0"][..],
+        &["--rel-err", "1e-2", "--seconds", "-1"][..],
+    ] {
+        let mut all = vec!["integrate", "camel", "--dim", "2", "--method", "vegas"];
+        all.extend_from_slice(args);
+        let out = nis(&all);
+        assert!(!out.status.success(), "{args:?} was accepted");
+    }
+}
+
+#[test]
+fn channels_run_on_the_multi_channel_examples_only() {
+    let out = nis(&[
+        "integrate",
+        "dalitz",
+        "--channels",
+        "--method",
+        "vegas",
+        "--evals",
+        "100000",
+        "--json",
+    ]);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    let c = &v["channels"];
+    assert_eq!(c["means"].as_array().unwrap().len(), 2);
+    let pull = (v["value"].as_f64().unwrap() - v["exact"].as_f64().unwrap())
+        / v["std_err"].as_f64().unwrap();
+    assert!(pull.abs() < 5.0, "{v}");
+    let out = nis(&[
+        "integrate",
+        "camel",
+        "--dim",
+        "2",
+        "--channels",
+        "--method",
+        "vegas",
+    ]);
+    assert!(!out.status.success());
+    assert!(String::from_utf8_lossy(&out.stderr).contains("resonances-4d"));
+}
