@@ -7,7 +7,7 @@
 use std::time::Instant;
 
 use super::stratified_latent::{FinalPlan, LatentStrata};
-use super::training_length::{anneal_batches, TrainingLength};
+use super::training_length::{anneal_batches, TrainingLength, SETTLE_BATCHES};
 use super::{draw, weights, NisIntegrator};
 use crate::error::{Error, Result};
 use crate::flow::mixture::Record;
@@ -16,8 +16,8 @@ use crate::integrate::moments::iid_iteration;
 use crate::integrate::target::{Prior, Pursuit, AIM};
 use crate::integrate::{check_dim, report, Accumulator, Integrand, IntegrationResult, Target};
 
-/// Training batches at most when integrating to a target (or four times the annealing's): the
-/// learning rate decays over them, and the rule usually stops training well before.
+/// Training batches at most when integrating to a target (or twice the annealing's and the
+/// settling's): the learning rate decays over them, and the rule usually stops well before.
 const HORIZON_BATCHES: usize = 1000;
 
 impl NisIntegrator {
@@ -34,7 +34,7 @@ impl NisIntegrator {
         }
         let batch = self.config.batch as f64;
         let anneal = anneal_batches(self.flow().dim());
-        let least_train = ((2 * anneal) as f64 * batch / share).ceil() as u64;
+        let least_train = ((anneal + SETTLE_BATCHES) as f64 * batch / share).ceil() as u64;
         let iters = self.config.final_iterations as u64;
         let least_final = FinalPlan::new(&self.config, self.flow().dim(), 0).least * iters;
         target.check("nis", least_train + least_final)
@@ -79,12 +79,12 @@ impl NisIntegrator {
         }
         let max_batches = ((target.max_evals as f64 * share) as u64 / batch) as usize;
         let anneal = anneal_batches(dim);
-        let horizon = HORIZON_BATCHES.max(4 * anneal);
+        let horizon = HORIZON_BATCHES.max(2 * anneal + SETTLE_BATCHES);
         let max_seconds = target.max_seconds.map_or(f64::INFINITY, |s| s * share);
         let mut length =
             TrainingLength::new(*target, anneal, max_batches.min(horizon), max_seconds);
         let before = self.trained_evals;
-        self.train_keeping_for(f, max_batches.min(HORIZON_BATCHES), None, Some(&mut length))?;
+        self.train_keeping_for(f, max_batches.min(horizon), None, Some(&mut length))?;
         let trained = self.trained_evals - before;
         let (var_per_eval, estimate, seconds_per_eval) =
             length.latest().expect("at least one batch trained");

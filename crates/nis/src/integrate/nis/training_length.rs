@@ -13,13 +13,16 @@
 use crate::integrate::Target;
 
 /// Batches over which the tempered target |f|^β rises to |f| in target mode, in `dim`
-/// dimensions; the rule decides only after twice as many. Finding every mode takes longer in
-/// more dimensions: on camel-sharp d = 16 (two peaks), 50 such batches, and 25 per dimension,
+/// dimensions; the rule decides from [`SETTLE_BATCHES`] after. Finding every mode takes longer
+/// in more dimensions: on camel-sharp d = 16 (two peaks), 50 such batches, and 25 per dimension,
 /// left seed 1 with one peak of two (0.50 ± 5·10⁻⁴ of 1, no warning); 40 per dimension found
 /// both on seeds 1–3.
 pub(super) fn anneal_batches(dim: usize) -> usize {
     (40 * dim).max(50)
 }
+/// Batches after the annealing before the rule first decides (its windows need batches of the
+/// plain target).
+pub(super) const SETTLE_BATCHES: usize = 50;
 /// The rule decides every this many batches.
 const CHECK_EVERY: usize = 10;
 /// Fewest batches in a window of the trend.
@@ -88,7 +91,7 @@ impl TrainingLength {
         if n >= self.max_batches || self.seconds.iter().sum::<f64>() >= self.max_seconds {
             return false;
         }
-        if n < 2 * self.anneal || n % CHECK_EVERY != 0 {
+        if n < self.anneal + SETTLE_BATCHES || n % CHECK_EVERY != 0 {
             return true;
         }
         let w = (n / 5).max(MIN_WINDOW);
