@@ -66,6 +66,15 @@ impl Callback {
         }
     }
 
+    /// The failure `e` ended a call with: when it is the callback's own, its status is kept for
+    /// `nis_last_callback_status`.
+    pub(crate) fn failure(&self, e: nis::Error) -> crate::status::Failure {
+        if let (nis::Error::IntegrandFailed { .. }, Some(s)) = (&e, self.failed_status()) {
+            crate::status::set_last_callback_status(s);
+        }
+        crate::status::Failure::from(e)
+    }
+
     /// The non-zero status the callback returned, if it did.
     pub(crate) fn failed_status(&self) -> Option<c_int> {
         Some(self.status.load(Ordering::SeqCst)).filter(|s| *s != 0)

@@ -38,7 +38,7 @@ use std::path::PathBuf;
 
 use nis::flow::mixture;
 use nis::integrate::nis::NisIntegrator;
-use nis::integrate::{integrator, Integrand, IntegrationResult, Integrator, Method};
+use nis::integrate::{integrator, Integrand, IntegrationResult, Integrator};
 use rand::SeedableRng;
 use rand_pcg::Pcg64Mcg;
 
@@ -204,11 +204,7 @@ pub unsafe extern "C" fn nis_create(json: *const c_char, out: *mut *mut nis_inte
         }
         let settings = config.settings()?;
         let integrator = integrator(config.method, config.dim, &settings)?;
-        let seed = match config.method {
-            Method::Nis => settings.nis.seed,
-            Method::Vegas => settings.vegas.seed,
-            Method::Uniform => settings.uniform.seed,
-        };
+        let seed = settings.seed_of(config.method);
         let integ = nis_integrator {
             integrator,
             components: config.components,
@@ -345,12 +341,18 @@ fn with_callback<T>(
     }
     let dim = integ.integrator.dim();
     let callback = Callback::new(f, user, dim, k, integ.concurrent_callback);
-    body(integ.integrator.as_mut(), &callback).map_err(|e| {
-        if let (nis::Error::IntegrandFailed { .. }, Some(s)) = (&e, callback.failed_status()) {
-            status::set_last_callback_status(s);
-        }
-        Failure::from(e)
-    })
+    body(integ.integrator.as_mut(), &callback).map_err(|e| callback.failure(e))
+}
+
+/// Writes the summary of `r` into `*result` when it is not NULL.
+///
+/// # Safety
+/// `result` must be NULL or writable.
+unsafe fn write_result(result: *mut nis_result, r: &IntegrationResult) {
+    // SAFETY: NULL or writable (caller's contract).
+    if let Some(out) = unsafe { result.as_mut() } {
+        *out = nis_result::from(r);
+    }
 }
 
 unsafe fn integrate(
@@ -370,9 +372,7 @@ unsafe fn integrate(
         }
         let r = with_callback(integ, f, user, components, |m, f| m.integrate(f, evals))?;
         // SAFETY: NULL or writable (caller's contract).
-        if let Some(out) = unsafe { result.as_mut() } {
-            *out = nis_result::from(&r);
-        }
+        unsafe { write_result(result, &r) };
         integ.last = Some(r);
         Ok(())
     })

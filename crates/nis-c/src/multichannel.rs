@@ -13,7 +13,7 @@ use nis::integrate::IntegrationResult;
 
 use super::callback::Callback;
 use super::config::Config;
-use super::{nis_integrand_fn, nis_result, text};
+use super::{nis_integrand_fn, nis_result, text, write_result};
 use crate::status::{copy_text, guard, Failure, Outcome, NIS_ERR_CONFIG, NIS_ERR_NO_RESULT};
 
 /// A channel's map or density: reads `n` points `in` (row-major, `dim` coordinates each) and
@@ -226,16 +226,12 @@ pub unsafe extern "C" fn nis_multichannel_integrate(
         let mc = unsafe { multichannel(mc) }?;
         let f = f.ok_or_else(|| Failure::null("the integrand callback"))?;
         let callback = Callback::new(f, user, mc.integrator.dim(), 1, mc.concurrent_callback);
-        let r = mc.integrator.integrate(&callback, evals).map_err(|e| {
-            if let (nis::Error::IntegrandFailed { .. }, Some(s)) = (&e, callback.failed_status()) {
-                crate::status::set_last_callback_status(s);
-            }
-            Failure::from(e)
-        })?;
+        let r = mc
+            .integrator
+            .integrate(&callback, evals)
+            .map_err(|e| callback.failure(e))?;
         // SAFETY: NULL or writable (caller's contract).
-        if let Some(out) = unsafe { result.as_mut() } {
-            *out = nis_result::from(&r);
-        }
+        unsafe { write_result(result, &r) };
         mc.last = Some(r);
         Ok(())
     })

@@ -5,7 +5,7 @@ use std::ffi::{c_char, c_int, c_void};
 
 use nis::integrate::{Stop, Target};
 
-use super::{handle, nis_integrand_fn, nis_integrator, nis_result, with_callback};
+use super::{handle, nis_integrand_fn, nis_integrator, nis_result, with_callback, write_result};
 use crate::status::{copy_text, guard, Failure};
 
 /// The last result was not a run to a target (`nis_integrate`).
@@ -56,9 +56,7 @@ pub unsafe extern "C" fn nis_integrate_to(
         integ.integrator.check_target(&target)?;
         let r = with_callback(integ, f, user, None, |m, f| m.integrate_to(f, &target))?;
         // SAFETY: NULL or writable (caller's contract).
-        if let Some(out) = unsafe { result.as_mut() } {
-            *out = nis_result::from(&r);
-        }
+        unsafe { write_result(result, &r) };
         integ.last = Some(r);
         Ok(())
     })

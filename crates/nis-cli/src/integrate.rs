@@ -4,12 +4,12 @@ use std::path::PathBuf;
 
 use clap::builder::{PossibleValuesParser, TypedValueParser};
 use indicatif::{ProgressBar, ProgressStyle};
-use nis::channels::{examples, ChannelSet};
 use nis::comm::Comm;
+
+use crate::channels::{channel_lines, run_multichannel, SignsArg};
 use nis::flow::mask::Masks;
 use nis::flow::Density;
 use nis::integrands::{self, Builtin, SUITE};
-use nis::integrate::multichannel::{MultiChannel, MultiChannelConfig, Signs};
 use nis::integrate::unweight::{SampleFormat, SampleWriter};
 use nis::integrate::{
     disagreements, nis::NisConfig, nis::NisIntegrator, IntegrationResult, Integrator, Method,
@@ -115,86 +115,6 @@ pub struct IntegrateArgs {
 }
 
 type Error = Box<dyn std::error::Error>;
-
-/// `--signs`.
-#[derive(Clone, Copy, Debug, clap::ValueEnum)]
-pub enum SignsArg {
-    Auto,
-    Split,
-    Whole,
-}
-
-impl SignsArg {
-    fn signs(self) -> Signs {
-        match self {
-            SignsArg::Auto => Signs::Auto,
-            SignsArg::Split => Signs::Split,
-            SignsArg::Whole => Signs::Whole,
-        }
-    }
-}
-
-impl IntegrateArgs {
-    /// Whether the run goes through [`MultiChannel`] (`--channels` or `--signs`).
-    fn multichannel(&self) -> bool {
-        self.channels || self.signs.is_some()
-    }
-}
-
-/// One method through the channels of the example `f` (`--channels`), or through one identity
-/// channel (`--signs` alone).
-fn run_multichannel(
-    f: &Builtin,
-    method: Method,
-    args: &IntegrateArgs,
-    comm: &Comm,
-) -> Result<IntegrationResult, Error> {
-    let config = MultiChannelConfig {
-        signs: args.signs.map_or(Signs::Auto, SignsArg::signs),
-        ..MultiChannelConfig::default()
-    };
-    let settings = args.settings()?;
-    let mut mc = if args.channels {
-        let ex = examples::by_name(&f.name).map_err(|_| {
-            format!(
-                "--channels: {} has no channels; the multi-channel examples are {}",
-                f.name,
-                examples::names().join(", ")
-            )
-        })?;
-        MultiChannel::new(ChannelSet::new(ex.channels)?, method, settings, config)?
-    } else {
-        MultiChannel::single(f.dim, method, settings, config)?
-    };
-    mc.set_comm(comm.clone());
-    Ok(mc.integrate(f, args.evals)?)
-}
-
-/// The lines of a multi-channel result's channels and signs, for the text table.
-fn channel_lines(r: &IntegrationResult) -> Vec<String> {
-    let Some(c) = &r.channels else {
-        return Vec::new();
-    };
-    let mut lines: Vec<String> = (0..c.means.len())
-        .map(|k| {
-            format!(
-                "         channel {k}: a = {:.4}, {:.6e} ± {:.2e}, {} evaluations",
-                c.weights[k], c.means[k], c.std_errs[k], c.evals[k]
-            )
-        })
-        .collect();
-    if let Some(s) = &c.signs {
-        lines.push(format!(
-            "         f > 0: {:.6e} ± {:.2e}; f < 0: {:.6e} ± {:.2e}; negative weights {:.1}%",
-            s.positive,
-            s.positive_err,
-            s.negative,
-            s.negative_err,
-            100.0 * s.negative_fraction
-        ));
-    }
-    lines
-}
 
 impl IntegrateArgs {
     /// Every method's settings: the named flags as the library's keywords (as Python's are;

@@ -2,6 +2,7 @@
 //! it parses arguments, shows progress and prints; all logic lives in the library.
 
 mod bench;
+mod channels;
 mod density;
 mod fit_image;
 mod guiding;

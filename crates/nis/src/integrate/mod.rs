@@ -217,6 +217,15 @@ impl Settings {
         self
     }
 
+    /// The seed `method` runs with.
+    pub fn seed_of(&self, method: Method) -> u64 {
+        match method {
+            Method::Nis => self.nis.seed,
+            Method::Vegas => self.vegas.seed,
+            Method::Uniform => self.uniform.seed,
+        }
+    }
+
     /// Makes every adaptive method adapt to `train_on`.
     pub fn train_on(mut self, train_on: TrainOn) -> Settings {
         self.nis.train_on = train_on;

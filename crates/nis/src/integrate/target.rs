@@ -292,17 +292,11 @@ impl Pursuit {
         if self.stop.is_some() {
             return Ok(None);
         }
-        let (var_per_eval, estimate) = if self.sum_evals > 0.0 {
-            (
-                if self.adapting {
-                    prior.var_per_eval
-                } else {
-                    self.var_evals / self.sum_evals
-                },
-                self.weighted / (1.0 - self.remaining).max(f64::MIN_POSITIVE),
-            )
+        let estimate = self.estimate().unwrap_or(prior.estimate);
+        let var_per_eval = if self.sum_evals > 0.0 && !self.adapting {
+            self.var_evals / self.sum_evals
         } else {
-            (prior.var_per_eval, prior.estimate)
+            prior.var_per_eval
         };
         let wanted = self.target.error_for(estimate);
         if wanted == 0.0 && var_per_eval == 0.0 {
@@ -327,7 +321,7 @@ impl Pursuit {
                 Stop::MaxSeconds
             }
         };
-        if self.remaining > 0.0 && self.sum_evals > 0.0 && self.var >= aim {
+        if self.remaining > 0.0 && self.round_evals > 0 && self.var >= aim {
             // The iterations so far already spend the whole variance allowed (one of them was
             // far noisier than planned): no share left can bring it down, so the round ends
             // here, its shares normalised to one, and the extension below dilutes it.
@@ -382,10 +376,12 @@ impl Pursuit {
         // (a heavy tail) has set back ends near its plan, and an extension dilutes it, instead
         // of spreading what is left of its share thinly over many more evaluations.
         let room = aim - self.var;
+        // No room (an extension that the limits keep short of the aim): the round spends what
+        // it was planned with, and the limit then ends the run.
         let mut needed = if room > 0.0 {
             (r * r * var_per_eval / room).ceil().max(least as f64)
         } else {
-            least as f64
+            (self.round_plan - self.round_evals as f64).max(least as f64)
         };
         let planned = self.round_evals as f64 + needed;
         if self.round_plan == 0.0 || planned < self.round_plan {
@@ -463,6 +459,34 @@ impl Pursuit {
 mod tests {
     use super::*;
 
+    /// A pursuit of `target` whose iterations all have the variance per evaluation `var` (prior:
+    /// 1, estimate 1), each of about `chunk` evaluations, run to its end.
+    fn pursue(target: Target, var: f64, chunk: u64) -> Pursuit {
+        let prior = Prior {
+            var_per_eval: 1.0,
+            estimate: 1.0,
+            seconds_per_eval: 0.0,
+        };
+        let mut p = Pursuit::new(target, Instant::now(), 0);
+        let mut steps = 0;
+        while let Some(step) = p.next(prior, 10, chunk, 0.0).unwrap() {
+            let n = step.evals;
+            let cov = vec![var / n as f64];
+            let it = Iteration::new(
+                super::super::Source::Final,
+                vec![1.0],
+                cov,
+                n,
+                1.0,
+                n as f64,
+            );
+            p.record(step, &it);
+            steps += 1;
+            assert!(steps < 100);
+        }
+        p
+    }
+
     #[test]
     fn bad_targets_are_refused_before_any_evaluation() {
         let ok = Target::rel(1e-3);
@@ -496,27 +520,7 @@ mod tests {
     #[test]
     fn shares_sum_to_one_and_the_last_iteration_meets_the_plan() {
         // Iterations of exactly the planned variance: the first round meets the target.
-        let mut p = Pursuit::new(Target::rel(1e-2), Instant::now(), 0);
-        let prior = Prior {
-            var_per_eval: 1.0,
-            estimate: 1.0,
-            seconds_per_eval: 0.0,
-        };
-        let mut steps = 0;
-        while let Some(step) = p.next(prior, 10, 2_000, 0.0).unwrap() {
-            let n = step.evals;
-            let it = Iteration::new(
-                super::super::Source::Final,
-                vec![1.0],
-                vec![1.0 / n as f64],
-                n,
-                1.0,
-                n as f64,
-            );
-            p.record(step, &it);
-            steps += 1;
-            assert!(steps < 100);
-        }
+        let p = pursue(Target::rel(1e-2), 1.0, 2_000);
         assert_eq!(p.stop(), Some(Stop::Target));
         let total: f64 = p.shares().iter().sum();
         assert!((total - 1.0).abs() < 1e-12);
@@ -527,43 +531,14 @@ mod tests {
 
     #[test]
     fn a_round_that_misses_is_extended_and_a_limit_ends_the_run() {
-        let prior = Prior {
-            var_per_eval: 1.0,
-            estimate: 1.0,
-            seconds_per_eval: 0.0,
-        };
         // The iterations are 4× noisier than the prior said: the plan adapts, and any round
         // that ends short of the target is extended until it is met.
-        let mut p = Pursuit::new(Target::rel(1e-2), Instant::now(), 0);
-        while let Some(step) = p.next(prior, 10, 5_000, 0.0).unwrap() {
-            let n = step.evals;
-            let it = Iteration::new(
-                super::super::Source::Final,
-                vec![1.0],
-                vec![4.0 / n as f64],
-                n,
-                1.0,
-                n as f64,
-            );
-            p.record(step, &it);
-        }
+        let p = pursue(Target::rel(1e-2), 4.0, 5_000);
         assert_eq!(p.stop(), Some(Stop::Target));
         assert!(p.var.sqrt() <= 1e-2);
         assert!((p.shares().iter().sum::<f64>() - 1.0).abs() < 1e-12);
         // The same with room for 20 000 evaluations: the limit ends it, short of the target.
-        let mut p = Pursuit::new(Target::rel(1e-2).max_evals(20_000), Instant::now(), 0);
-        while let Some(step) = p.next(prior, 10, 5_000, 0.0).unwrap() {
-            let n = step.evals;
-            let it = Iteration::new(
-                super::super::Source::Final,
-                vec![1.0],
-                vec![4.0 / n as f64],
-                n,
-                1.0,
-                n as f64,
-            );
-            p.record(step, &it);
-        }
+        let p = pursue(Target::rel(1e-2).max_evals(20_000), 4.0, 5_000);
         assert_eq!(p.stop(), Some(Stop::MaxEvals));
         assert!(p.evals <= 20_000);
         assert!((p.shares().iter().sum::<f64>() - 1.0).abs() < 1e-12);

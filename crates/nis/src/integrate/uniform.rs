@@ -207,12 +207,12 @@ impl PlainMc {
         let mut done = 0;
         loop {
             let elapsed = pursuit.elapsed(&self.comm);
+            prior.seconds_per_eval = elapsed / (PILOT + done) as f64;
             let Some(step) = pursuit.next(prior, 2, chunk, elapsed)? else {
                 break;
             };
             let iteration = iid_iteration(&self.comm, step.evals, k, &mut acc, &mut draw)?;
             done += iteration.evals;
-            prior.seconds_per_eval = pursuit.elapsed(&self.comm) / (PILOT + done) as f64;
             pursuit.record(step, &iteration);
             acc.add(iteration)?;
             report(

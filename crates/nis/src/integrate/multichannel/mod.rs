@@ -272,7 +272,9 @@ impl MultiChannel {
             Signs::Whole => (false, 0),
             Signs::Auto => {
                 // Each rank its share of the pilot, from its own stream.
-                let seed = self.comm.stream_seed(self.seed() ^ PILOT_SALT);
+                let seed = self
+                    .comm
+                    .stream_seed(self.settings.seed_of(self.method) ^ PILOT_SALT);
                 let mut rng = Pcg64Mcg::seed_from_u64(seed);
                 let (mut positive, mut negative) = (false, false);
                 let n = self.config.pilot;
@@ -298,7 +300,7 @@ impl MultiChannel {
         for channel in 0..channels {
             for &sign in signs {
                 let index = self.parts.len() as u64;
-                let seed = part_seed(self.seed(), index);
+                let seed = part_seed(self.settings.seed_of(self.method), index);
                 let mut integrator =
                     integrator(self.method, dim, &self.settings.clone().seed(seed))?;
                 integrator.set_comm(self.comm.clone());
@@ -310,15 +312,6 @@ impl MultiChannel {
             }
         }
         Ok(spent)
-    }
-
-    /// The seed of the settings (every method's is the same after `Settings::seed`).
-    fn seed(&self) -> u64 {
-        match self.method {
-            Method::Nis => self.settings.nis.seed,
-            Method::Vegas => self.settings.vegas.seed,
-            Method::Uniform => self.settings.uniform.seed,
-        }
     }
 
     /// a_k ∝ a_k·√W_k, W_k = Σ over channel k's parts of their weights' second moment

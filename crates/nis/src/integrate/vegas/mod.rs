@@ -237,6 +237,18 @@ impl Vegas {
     }
 }
 
+impl Vegas {
+    /// Makes the map (of `increments` per axis) on the first call, and takes `strata` unless the
+    /// ones adapted so far have the same hypercubes (then their weights are kept).
+    fn adopt(&mut self, increments: usize, strata: Strata) {
+        let dim = self.dim;
+        self.map.get_or_insert_with(|| Map::new(dim, increments));
+        if !self.strata.as_ref().is_some_and(|s| s.same_cubes(&strata)) {
+            self.strata = Some(strata);
+        }
+    }
+}
+
 /// Iterations of a call by default (a quarter of them warm-up), as in the `vegas` package's
 /// documented use (`integ(f, nitn=…)` to adapt, then again for the result).
 const ITERATIONS: usize = 20;
@@ -300,17 +312,9 @@ impl Vegas {
             "two per hypercube of every iteration",
         )?;
         let started = Instant::now();
-        let map = self
-            .map
-            .get_or_insert_with(|| Map::new(dim, plan.increments));
-        if !self
-            .strata
-            .as_ref()
-            .is_some_and(|s| s.same_cubes(&plan.strata))
-        {
-            self.strata = Some(plan.strata);
-        }
-        let strata = self.strata.as_mut().expect("set above");
+        self.adopt(plan.increments, plan.strata);
+        let map = self.map.as_mut().expect("made by adopt");
+        let strata = self.strata.as_mut().expect("set by adopt");
         let cubes = strata.cubes;
         let volume = 1.0 / cubes as f64;
         let rng = &mut self.rng;

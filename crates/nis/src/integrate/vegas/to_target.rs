@@ -7,7 +7,6 @@ use std::time::Instant;
 
 use super::adaptive_strata::Strata;
 use super::iteration::Measure;
-use super::map::Map;
 use super::Vegas;
 use crate::error::Result;
 use crate::integrate::target::{Prior, Pursuit, AIM};
@@ -45,17 +44,9 @@ impl Vegas {
             self.config.alpha,
             self.config.beta,
         );
-        let map = self
-            .map
-            .get_or_insert_with(|| Map::new(dim, plan.increments));
-        if !self
-            .strata
-            .as_ref()
-            .is_some_and(|s| s.same_cubes(&plan.strata))
-        {
-            self.strata = Some(plan.strata);
-        }
-        let strata = self.strata.as_mut().expect("set above");
+        self.adopt(plan.increments, plan.strata);
+        let map = self.map.as_mut().expect("made by adopt");
+        let strata = self.strata.as_mut().expect("set by adopt");
         let (rng, comm) = (&mut self.rng, &self.comm);
         let mut contribution_var = vec![0.0; strata.cubes];
         let mut n_eval = 0u64;
