@@ -389,6 +389,31 @@ int nis_multichannel_integrate(struct nis_multichannel *mc,
                                struct nis_result *result);
 
 /**
+ * Integrates `f` through the channels until the standard error is at most
+ * max(`abs_err`, `rel_err`·|value|) or a limit is reached, with `nis_integrate_to`'s arguments
+ * and checks (all before `f` is called); [`nis_multichannel_stop`] then says which ended it.
+ *
+ * # Safety
+ * As [`nis_multichannel_integrate`].
+ */
+int nis_multichannel_integrate_to(struct nis_multichannel *mc,
+                                  nis_integrand_fn f,
+                                  void *user,
+                                  double rel_err,
+                                  double abs_err,
+                                  uint64_t max_evals,
+                                  double max_seconds,
+                                  struct nis_result *result);
+
+/**
+ * Why the last result's run stopped, as [`nis_result_stop`] says for one integrator.
+ *
+ * # Safety
+ * `mc` must be a live multi-channel integrator or NULL (then `NIS_STOP_NONE`).
+ */
+int nis_multichannel_stop(const struct nis_multichannel *mc);
+
+/**
  * Copies the last result's per-channel figures: the weights a_k, each channel's contribution
  * and its standard error, and its evaluations in the estimate. Any buffer may be NULL; `k` must
  * equal the number of channels (1 without channels).

@@ -13,6 +13,7 @@ use nis::integrate::IntegrationResult;
 
 use super::callback::Callback;
 use super::config::Config;
+use super::target::{stop_code, target_of};
 use super::{nis_integrand_fn, nis_result, text, write_result};
 use crate::status::{copy_text, guard, Failure, Outcome, NIS_ERR_CONFIG, NIS_ERR_NO_RESULT};
 
@@ -235,6 +236,50 @@ pub unsafe extern "C" fn nis_multichannel_integrate(
         mc.last = Some(r);
         Ok(())
     })
+}
+
+/// Integrates `f` through the channels until the standard error is at most
+/// max(`abs_err`, `rel_err`·|value|) or a limit is reached, with `nis_integrate_to`'s arguments
+/// and checks (all before `f` is called); [`nis_multichannel_stop`] then says which ended it.
+///
+/// # Safety
+/// As [`nis_multichannel_integrate`].
+#[no_mangle]
+pub unsafe extern "C" fn nis_multichannel_integrate_to(
+    mc: *mut nis_multichannel,
+    f: nis_integrand_fn,
+    user: *mut c_void,
+    rel_err: f64,
+    abs_err: f64,
+    max_evals: u64,
+    max_seconds: f64,
+    result: *mut nis_result,
+) -> c_int {
+    guard(|| {
+        let mc = unsafe { multichannel(mc) }?;
+        let f = f.ok_or_else(|| Failure::null("the integrand callback"))?;
+        let target = target_of(rel_err, abs_err, max_evals, max_seconds)?;
+        mc.integrator.check_target(&target)?;
+        let callback = Callback::new(f, user, mc.integrator.dim(), 1, mc.concurrent_callback);
+        let r = mc
+            .integrator
+            .integrate_to(&callback, &target)
+            .map_err(|e| callback.failure(e))?;
+        // SAFETY: NULL or writable (caller's contract).
+        unsafe { write_result(result, &r) };
+        mc.last = Some(r);
+        Ok(())
+    })
+}
+
+/// Why the last result's run stopped, as [`nis_result_stop`] says for one integrator.
+///
+/// # Safety
+/// `mc` must be a live multi-channel integrator or NULL (then `NIS_STOP_NONE`).
+#[no_mangle]
+pub unsafe extern "C" fn nis_multichannel_stop(mc: *const nis_multichannel) -> c_int {
+    // SAFETY: NULL or live (caller's contract).
+    stop_code(unsafe { mc.as_ref() }.and_then(|m| m.last.as_ref()))
 }
 
 /// Copies the last result's per-channel figures: the weights a_k, each channel's contribution

@@ -39,20 +39,7 @@ pub unsafe extern "C" fn nis_integrate_to(
 ) -> c_int {
     guard(|| {
         let integ = unsafe { handle(integ) }?;
-        // 0 is "not given" (Cuba's convention); anything else is checked by the library.
-        let given = |v: f64| (v != 0.0).then_some(v);
-        let target = Target::from_options(
-            given(rel_err),
-            given(abs_err),
-            (max_evals != 0).then_some(max_evals),
-            given(max_seconds),
-        )
-        .map_err(|e| Failure::invalid(e.to_string()))?
-        .unwrap_or_default();
-        // The values themselves, then the method's own minimum (a config matter).
-        target
-            .check("an integrator", 0)
-            .map_err(|e| Failure::invalid(e.to_string()))?;
+        let target = target_of(rel_err, abs_err, max_evals, max_seconds)?;
         integ.integrator.check_target(&target)?;
         let r = with_callback(integ, f, user, None, |m, f| m.integrate_to(f, &target))?;
         // SAFETY: NULL or writable (caller's contract).
@@ -60,6 +47,39 @@ pub unsafe extern "C" fn nis_integrate_to(
         integ.last = Some(r);
         Ok(())
     })
+}
+
+/// The target C's arguments describe, 0 being "not given" (Cuba's convention); its values
+/// checked (a method's own minimum is left to the integrator, a config matter).
+pub(crate) fn target_of(
+    rel_err: f64,
+    abs_err: f64,
+    max_evals: u64,
+    max_seconds: f64,
+) -> Result<Target, Failure> {
+    let given = |v: f64| (v != 0.0).then_some(v);
+    let target = Target::from_options(
+        given(rel_err),
+        given(abs_err),
+        (max_evals != 0).then_some(max_evals),
+        given(max_seconds),
+    )
+    .map_err(|e| Failure::invalid(e.to_string()))?
+    .unwrap_or_default();
+    target
+        .check("an integrator", 0)
+        .map_err(|e| Failure::invalid(e.to_string()))?;
+    Ok(target)
+}
+
+/// The `NIS_STOP_*` code of a result (`NIS_STOP_NONE` for none or a run on a budget).
+pub(crate) fn stop_code(r: Option<&nis::integrate::IntegrationResult>) -> c_int {
+    match r.and_then(|r| r.stop) {
+        None => NIS_STOP_NONE,
+        Some(Stop::Target) => NIS_STOP_TARGET,
+        Some(Stop::MaxEvals) => NIS_STOP_MAX_EVALS,
+        Some(Stop::MaxSeconds) => NIS_STOP_MAX_SECONDS,
+    }
 }
 
 /// Why the last result's run stopped: `NIS_STOP_TARGET`, `NIS_STOP_MAX_EVALS`,
@@ -70,15 +90,7 @@ pub unsafe extern "C" fn nis_integrate_to(
 #[no_mangle]
 pub unsafe extern "C" fn nis_result_stop(integ: *const nis_integrator) -> c_int {
     // SAFETY: NULL or live (caller's contract).
-    let Some(integ) = (unsafe { integ.as_ref() }) else {
-        return NIS_STOP_NONE;
-    };
-    match integ.last.as_ref().and_then(|r| r.stop) {
-        None => NIS_STOP_NONE,
-        Some(Stop::Target) => NIS_STOP_TARGET,
-        Some(Stop::MaxEvals) => NIS_STOP_MAX_EVALS,
-        Some(Stop::MaxSeconds) => NIS_STOP_MAX_SECONDS,
-    }
+    stop_code(unsafe { integ.as_ref() }.and_then(|i| i.last.as_ref()))
 }
 
 /// Copies the last result's warnings (sentences that say what to do; none: an empty string),

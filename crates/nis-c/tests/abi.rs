@@ -743,5 +743,40 @@ fn a_signed_integrand_splits_without_channels() {
     );
     assert!((r.value - 0.2).abs() < 5.0 * r.std_err);
     assert!((frac - 0.045 / 0.29).abs() < 0.01);
+    assert_eq!(unsafe { nis_multichannel_stop(mc) }, NIS_STOP_NONE);
+    // To a target: met, and the stop says so; a bad target is refused before f is called.
+    let status = unsafe {
+        nis_multichannel_integrate_to(
+            mc,
+            Some(signed_c),
+            std::ptr::null_mut(),
+            1e-3,
+            0.0,
+            0,
+            0.0,
+            &mut r,
+        )
+    };
+    assert_eq!(status, NIS_OK, "{}", last_error());
+    assert_eq!(unsafe { nis_multichannel_stop(mc) }, NIS_STOP_TARGET);
+    assert!(r.std_err <= 1e-3 * r.value.abs() && (r.value - 0.2).abs() < 5.0 * r.std_err);
+    for (rel, evals, code) in [
+        (-1.0, 0, NIS_ERR_INVALID_ARGUMENT),
+        (1e-3, 10, NIS_ERR_CONFIG),
+    ] {
+        let status = unsafe {
+            nis_multichannel_integrate_to(
+                mc,
+                Some(signed_c),
+                std::ptr::null_mut(),
+                rel,
+                0.0,
+                evals,
+                0.0,
+                std::ptr::null_mut(),
+            )
+        };
+        assert_eq!(status, code, "{}", last_error());
+    }
     unsafe { nis_multichannel_free(mc) };
 }

@@ -62,7 +62,10 @@ pub(crate) fn run_multichannel(
         MultiChannel::single(f.dim, method, settings, config)?
     };
     mc.set_comm(comm.clone());
-    Ok(mc.integrate(f, args.evals)?)
+    Ok(match args.target()? {
+        Some(t) => mc.integrate_to(f, &t)?,
+        None => mc.integrate(f, args.evals)?,
+    })
 }
 
 /// The lines of a multi-channel result's channels and signs, for the text table.

@@ -81,11 +81,11 @@ pub struct IntegrateArgs {
     pub abs_err: Option<f64>,
     /// Integrate through the example's channels (the multi-channel examples of `nis list`): a
     /// sampler of the method per channel, weights adapted, points allocated by σ.
-    #[arg(long, conflicts_with_all = ["load", "save", "rel_err", "abs_err"])]
+    #[arg(long, conflicts_with_all = ["load", "save"])]
     pub channels: bool,
     /// Split the integrand by sign (auto: when a pilot sees both signs; split; whole), with a
     /// sampler per channel and sign; without --channels, through one identity channel.
-    #[arg(long, value_enum, conflicts_with_all = ["load", "save", "rel_err", "abs_err"])]
+    #[arg(long, value_enum, conflicts_with_all = ["load", "save"])]
     pub signs: Option<SignsArg>,
     /// With a target: the most evaluations per method, training included [default: 10^8].
     #[arg(long, conflicts_with = "load")]

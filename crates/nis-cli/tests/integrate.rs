@@ -307,6 +307,22 @@ fn channels_run_on_the_multi_channel_examples_only() {
     let pull = (v["value"].as_f64().unwrap() - v["exact"].as_f64().unwrap())
         / v["std_err"].as_f64().unwrap();
     assert!(pull.abs() < 5.0, "{v}");
+    // Through the channels to a target: the run stops there.
+    let out = nis(&[
+        "integrate",
+        "dalitz",
+        "--channels",
+        "--method",
+        "uniform",
+        "--rel-err",
+        "1e-2",
+        "--json",
+    ]);
+    assert!(out.status.success());
+    let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    assert_eq!(v["stop"], "target", "{v}");
+    assert!(v["std_err"].as_f64().unwrap() <= 1e-2 * v["value"].as_f64().unwrap());
+    assert_eq!(v["channels"]["means"].as_array().unwrap().len(), 2);
     let out = nis(&[
         "integrate",
         "camel",

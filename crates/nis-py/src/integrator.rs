@@ -258,14 +258,15 @@ impl PyIntegrator {
             }
             Engine::Multi { mc, raised, .. } => (mc, raised.clone()),
         };
-        if target.is_some() {
-            return Err(PyValueError::new_err(
-                "precision targets with channels are not supported yet: give evals",
-            ));
+        if let Some(t) = &target {
+            mc.check_target(t).map_err(to_py_err)?;
         }
         with_integrand(py, f, mc.dim(), |g, vector| {
             raised.take();
-            let r = run(py, pool.as_deref(), g.call, || mc.integrate(g.f, evals));
+            let r = run(py, pool.as_deref(), g.call, || match &target {
+                Some(t) => mc.integrate_to(g.f, t),
+                None => mc.integrate(g.f, evals),
+            });
             // A channel's own exception wins over the library's error it caused.
             if let (Err(_), Some(e)) = (&r, raised.take()) {
                 return Err(e);

@@ -189,7 +189,16 @@ def test_two_peaks_of_opposite_sign_with_channels():
     assert r.signs is not None and within(r, g.exact)
 
 
-def test_precision_targets_are_refused_before_f_is_called():
+def test_a_target_through_channels_stops_there():
+    g = nis.integrands.example("dalitz")
+    integ = nis.Integrator(2, "vegas", channels=nis.integrands.channels("dalitz"), seed=2)
+    r = integ(g, rel_err=1e-2)
+    assert r.stop == "target"
+    assert r.sdev <= 1e-2 * abs(r.mean) and within(r, g.exact)
+    assert len(r.channel_means) == 2
+
+
+def test_a_bad_target_is_refused_before_f_is_called():
     calls = [0]
 
     def f(x):
@@ -197,8 +206,9 @@ def test_precision_targets_are_refused_before_f_is_called():
         return two_peaks(x)
 
     integ = nis.Integrator(2, "vegas", channels=channels())
-    with pytest.raises(ValueError, match="precision targets with channels are not supported yet"):
-        integ(f, rel_err=1e-3)
+    for bad in [dict(rel_err=0.0), dict(rel_err=1e-3, max_evals=10)]:
+        with pytest.raises(ValueError, match="precision target"):
+            integ(f, **bad)
     assert calls[0] == 0
 
 

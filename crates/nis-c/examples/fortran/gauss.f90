@@ -155,6 +155,15 @@ program gauss_nis
   print '(a, f10.6, a, f10.6, a, 2f8.4)', 'gauss 3d, 2 channels: ', r%value, ' +- ', &
        r%std_err, ', weights ', weights
   ok = ok .and. abs(r%value - exact) < 5 * r%std_err .and. abs(sum(means) - r%value) < 1d-9
+  ! The same channels to 0.1 %.
+  if (nis_multichannel_integrate_to(mc, c_funloc(gauss), c_null_ptr, 1d-3, 0d0, 0_c_int64_t, &
+       0d0, r) /= NIS_OK) then
+     print '(a, a)', 'multichannel_integrate_to: ', nis_last_error()
+     stop 1
+  end if
+  print '(a, f10.6, a, f10.6)', 'gauss 3d, 2 channels, to 0.1%: ', r%value, ' +- ', r%std_err
+  ok = ok .and. nis_multichannel_stop(mc) == NIS_STOP_TARGET .and. &
+       r%std_err <= 1d-3 * abs(r%value) .and. abs(r%value - exact) < 5 * r%std_err
   call nis_multichannel_free(mc)
   if (ok) then
      print '(a)', 'fortran: ok'

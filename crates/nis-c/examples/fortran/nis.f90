@@ -41,7 +41,8 @@ module nis
        nis_result_warnings, nis_result_estimates, nis_sample, &
        nis_sample_weighted, nis_unweighted, nis_save, nis_last_error_copy, &
        nis_last_callback_status, nis_last_error, nis_channel_fn, nis_multichannel_create, &
-       nis_multichannel_integrate, nis_multichannel_channels, nis_multichannel_free
+       nis_multichannel_integrate, nis_multichannel_integrate_to, nis_multichannel_stop, &
+       nis_multichannel_channels, nis_multichannel_free
 
   abstract interface
      !> A scalar integrand: out(i) = f(x(:, i)); return 0, or non-zero to stop the integration.
@@ -157,6 +158,23 @@ module nis
        integer(c_int64_t), value :: evals
        type(nis_result), intent(out) :: result
      end function nis_multichannel_integrate
+
+     !> Through the channels to a precision target (arguments as nis_integrate_to).
+     integer(c_int) function nis_multichannel_integrate_to(mc, f, user, rel_err, abs_err, &
+          max_evals, max_seconds, result) bind(c)
+       import :: c_int, c_int64_t, c_double, c_ptr, c_funptr, nis_result
+       type(c_ptr), value :: mc, user
+       type(c_funptr), value :: f
+       real(c_double), value :: rel_err, abs_err
+       integer(c_int64_t), value :: max_evals
+       real(c_double), value :: max_seconds
+       type(nis_result), intent(out) :: result
+     end function nis_multichannel_integrate_to
+
+     integer(c_int) function nis_multichannel_stop(mc) bind(c)
+       import :: c_int, c_ptr
+       type(c_ptr), value :: mc
+     end function nis_multichannel_stop
 
      !> weights(k), means(k), std_errs(k), evals(k) of the last result's channels.
      integer(c_int) function nis_multichannel_channels(mc, weights, means, std_errs, evals, k) &

@@ -19,6 +19,7 @@
 mod part;
 mod report;
 mod saved;
+mod to_target;
 
 use std::time::Instant;
 
@@ -63,6 +64,9 @@ pub struct MultiChannelConfig {
     pub weight_floor: f64,
     /// Uniform points per channel of the pilot that decides the sign split.
     pub pilot: usize,
+    /// Evaluations every part adapts on in a run to a precision target (at most
+    /// `adapt_fraction` of its `max_evals`, shared).
+    pub target_adapt: u64,
 }
 
 impl Default for MultiChannelConfig {
@@ -73,6 +77,7 @@ impl Default for MultiChannelConfig {
             adapt_weights: true,
             weight_floor: 0.01,
             pilot: 1000,
+            target_adapt: 100_000,
         }
     }
 }
@@ -83,13 +88,14 @@ impl MultiChannelConfig {
             && self.adapt_fraction < 1.0
             && self.weight_floor > 0.0
             && self.weight_floor <= 1.0
-            && self.pilot >= 2;
+            && self.pilot >= 2
+            && self.target_adapt >= MIN_PART_EVALS;
         if ok {
             return Ok(());
         }
         Err(Error::Config(format!(
-            "multi-channel settings: adapt_fraction must be in (0, 1), weight_floor in (0, 1] and \
-             pilot at least 2: {self:?}"
+            "multi-channel settings: adapt_fraction must be in (0, 1), weight_floor in (0, 1], \
+             pilot at least 2 and target_adapt at least {MIN_PART_EVALS}: {self:?}"
         )))
     }
 }
@@ -225,12 +231,7 @@ impl MultiChannel {
         // Estimate: the rest in proportion to each part's σ per evaluation, with a floor.
         let rest = evals.saturating_sub(spent);
         let floor = (rest / (50 * parts)).max(MIN_PART_EVALS);
-        let sd: Vec<f64> = measured
-            .iter()
-            .map(|r| {
-                r.std_err * ((r.iterations.iter().map(|i| i.evals).sum::<u64>()) as f64).sqrt()
-            })
-            .collect();
+        let sd = sd_per_eval(&measured);
         let total_sd: f64 = sd.iter().sum();
         let spare = rest.saturating_sub(floor * parts) as f64;
         let mut results = Vec::with_capacity(self.parts.len());
@@ -337,6 +338,14 @@ impl MultiChannel {
             self.weights.clone()
         }
     }
+}
+
+/// Each part's standard deviation per evaluation of its estimate, from its adaptation's result.
+fn sd_per_eval(measured: &[IntegrationResult]) -> Vec<f64> {
+    measured
+        .iter()
+        .map(|r| r.std_err * (r.iterations.iter().map(|i| i.evals).sum::<u64>() as f64).sqrt())
+        .collect()
 }
 
 /// Fewest evaluations a part adapts or estimates with.

@@ -1,5 +1,6 @@
 use super::*;
 use crate::channels::examples;
+use crate::integrate::Target;
 
 fn integrate(
     name: &str,
@@ -196,4 +197,100 @@ fn a_saved_multi_channel_integrator_loads_for_the_same_channels_only() {
     vegas.integrate(&ex.integrand, 60_000).unwrap();
     assert!(vegas.save(&dir).is_err());
     std::fs::remove_dir_all(&dir).unwrap();
+}
+
+/// A multi-channel integrator of example `name` with `method`, adapting on `adapt` evaluations
+/// per part in runs to a target.
+fn to_target(name: &str, method: Method, seed: u64, adapt: u64) -> MultiChannel {
+    let ex = examples::by_name(name).unwrap();
+    let config = MultiChannelConfig {
+        target_adapt: adapt,
+        ..MultiChannelConfig::default()
+    };
+    let set = ChannelSet::new(ex.channels).unwrap();
+    MultiChannel::new(set, method, Settings::default().seed(seed), config).unwrap()
+}
+
+#[test]
+fn runs_to_a_target_through_channels_stop_there_and_cover() {
+    // The classic estimator through resonances-4d's channels to 1% over 200 seeds: every run
+    // stops at the target; at least 180 within 2σ (95.4% of 200 is 190.8, 4 binomial σ below is
+    // 179), and the mean pull is within 4/√200 of zero (unbiased stopping).
+    let ex = examples::by_name("resonances-4d").unwrap();
+    let (mut covered, mut pulls) = (0, 0.0);
+    for seed in 0..200 {
+        let mut mc = to_target("resonances-4d", Method::Uniform, seed, 5_000);
+        let r = mc.integrate_to(&ex.integrand, &Target::rel(1e-2)).unwrap();
+        assert_eq!(r.stop, Some(crate::integrate::Stop::Target));
+        assert!(r.std_err <= 1e-2 * r.value.abs(), "{r:?}");
+        let pull = (r.value - ex.exact) / r.std_err;
+        covered += usize::from(pull.abs() <= 2.0);
+        pulls += pull / 200.0;
+        assert_eq!(r.channels.as_ref().unwrap().means.len(), 3);
+    }
+    eprintln!("resonances-4d to 1%: {covered}/200 within 2σ, mean pull {pulls:+.3}");
+    assert!(covered >= 180, "{covered}/200");
+    assert!(pulls.abs() < 4.0 / 200f64.sqrt(), "{pulls}");
+}
+
+#[test]
+fn nis_and_vegas_through_channels_meet_a_target() {
+    let ex = examples::by_name("dalitz").unwrap();
+    for method in [Method::Nis, Method::Vegas] {
+        let mut mc = to_target("dalitz", method, 4, 20_000);
+        let r = mc.integrate_to(&ex.integrand, &Target::rel(2e-3)).unwrap();
+        assert_eq!(r.stop, Some(crate::integrate::Stop::Target), "{method:?}");
+        assert!(r.std_err <= 2e-3 * r.value.abs());
+        assert!((r.value - ex.exact).abs() < 4.0 * r.std_err, "{r:?}");
+        let report = r.channels.unwrap();
+        let sum: f64 = report.means.iter().sum();
+        assert!((sum - r.value).abs() < 1e-12 * r.value.abs());
+    }
+    // A signed integral of zero to an absolute error, split by sign.
+    let ex = examples::by_name("gauss-pm").unwrap();
+    let mut mc = to_target("gauss-pm", Method::Vegas, 1, 20_000);
+    let r = mc.integrate_to(&ex.integrand, &Target::abs(1e-3)).unwrap();
+    assert!(
+        r.std_err <= 1e-3 && r.value.abs() < 4.0 * r.std_err,
+        "{r:?}"
+    );
+    assert!(r.channels.unwrap().signs.is_some());
+}
+
+#[test]
+fn a_limit_ends_a_multi_channel_run_with_a_warning() {
+    let ex = examples::by_name("resonances-4d").unwrap();
+    let mut mc = to_target("resonances-4d", Method::Uniform, 1, 5_000);
+    let r = mc
+        .integrate_to(&ex.integrand, &Target::rel(1e-4).max_evals(100_000))
+        .unwrap();
+    assert_eq!(r.stop, Some(crate::integrate::Stop::MaxEvals));
+    assert!(r.n_eval <= 100_000, "{}", r.n_eval);
+    assert!(
+        r.warnings.iter().any(|w| w.contains("was not met")),
+        "{:?}",
+        r.warnings
+    );
+    assert!((r.value - ex.exact).abs() < 5.0 * r.std_err);
+}
+
+#[test]
+fn a_bad_target_is_refused_before_the_first_evaluation() {
+    let calls = std::sync::atomic::AtomicU64::new(0);
+    let f = |x: &[f64]| {
+        calls.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+        x[0]
+    };
+    let mut mc = to_target("dalitz", Method::Nis, 1, 5_000);
+    for t in [
+        Target::rel(0.0),
+        Target::rel(f64::NAN),
+        Target::rel(1e-3).max_seconds(-1.0),
+        // Below the pilot and an adaptation and estimate per part (two channels, maybe split).
+        Target::rel(1e-3).max_evals(5_000),
+    ] {
+        let e = mc.integrate_to(&f, &t).unwrap_err().to_string();
+        assert!(e.contains("precision target"), "{e}");
+    }
+    assert_eq!(calls.load(std::sync::atomic::Ordering::Relaxed), 0);
 }

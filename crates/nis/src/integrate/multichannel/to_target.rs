@@ -1,0 +1,208 @@
+//! Multi-channel integration to a precision target ([`MultiChannel::integrate_to`]): every part
+//! adapts on [`MultiChannelConfig::target_adapt`] evaluations, the a-priori weights move, and
+//! then iterations planned by a [`Pursuit`] make the estimate. Each iteration spreads its
+//! evaluations over the parts in proportion to their σ (fixed from the adaptation, as in
+//! [`MultiChannel::integrate`]) and its share of the estimate is fixed before it is drawn, so the
+//! stopped estimate stays unbiased (docs/ESTIMATE.md, "Precision targets"). Each part's
+//! contribution is the same shares applied to its own estimates.
+
+use std::time::Instant;
+
+use super::part::PartIntegrand;
+use super::{adapt_part, estimate_part, report, MultiChannel, MIN_PART_EVALS};
+use crate::error::{Error, Result};
+use crate::integrate::target::{Prior, Pursuit, AIM};
+use crate::integrate::{check_dim, Integrand, IntegrationResult, Iteration, Source, Target};
+
+/// The estimate's iterations a plan aims at (later ones grow at most ×2 each).
+const RESULT_ITERATIONS: f64 = 10.0;
+
+/// One part's estimates of the iterations so far.
+#[derive(Clone, Default)]
+struct PartSum {
+    /// Each iteration's estimate and variance.
+    estimates: Vec<(f64, f64)>,
+    iterations: Vec<Iteration>,
+    /// The part's result of its largest iteration: its weights' diagnostics stand for the part.
+    largest: Option<IntegrationResult>,
+}
+
+impl MultiChannel {
+    /// Parts the next call will have (before the first call: the channels, twice when the sign
+    /// may split them).
+    fn planned_parts(&self) -> u64 {
+        if !self.parts.is_empty() {
+            return self.parts.len() as u64;
+        }
+        let k = self.set.len() as u64;
+        match self.config.signs {
+            super::Signs::Whole => k,
+            _ => 2 * k,
+        }
+    }
+
+    /// The error [`MultiChannel::integrate_to`] would return for `target` before evaluating
+    /// anything: a bad target, or a `max_evals` below the pilot and one adaptation and one
+    /// estimate per part.
+    pub fn check_target(&self, target: &Target) -> Result<()> {
+        let pilot = if self.parts.is_empty() && self.config.signs == super::Signs::Auto {
+            (self.config.pilot * self.set.len()) as u64
+        } else {
+            0
+        };
+        target.check(
+            "multi-channel integration",
+            pilot + self.planned_parts() * 2 * MIN_PART_EVALS,
+        )
+    }
+
+    /// Integrates until the error bar meets `target` or a limit is hit (module docs); the
+    /// result's `stop` says which, and a limit adds a warning.
+    pub fn integrate_to(
+        &mut self,
+        f: &dyn Integrand,
+        target: &Target,
+    ) -> Result<IntegrationResult> {
+        self.check_target(target)?;
+        let started = Instant::now();
+        check_dim(f, self.dim())?;
+        if f.components() != 1 {
+            return Err(Error::Config(
+                "multi-channel integration takes scalar integrands".into(),
+            ));
+        }
+        let channels = self.set.len();
+        let mut spent = 0u64;
+        if self.parts.is_empty() {
+            spent += self.make_parts(f)?;
+        }
+        let parts = self.parts.len() as u64;
+        // Adapt: at most adapt_fraction of max_evals, shared equally.
+        let cap = (target.max_evals as f64 * self.config.adapt_fraction) as u64 / parts;
+        let adapt = self.config.target_adapt.min(cap).max(MIN_PART_EVALS);
+        let mut measured = Vec::with_capacity(self.parts.len());
+        for p in self.parts.iter_mut() {
+            let h = PartIntegrand::new(f, &self.set, &self.weights, p.channel, p.sign);
+            let r = adapt_part(p.integrator.as_mut(), &h, adapt)?;
+            spent += r.n_eval;
+            measured.push(r);
+        }
+        if self.config.adapt_weights && channels > 1 {
+            self.weights = self.adapted_weights(&measured);
+        }
+        let sd = super::sd_per_eval(&measured);
+        let total_sd: f64 = sd.iter().sum();
+        let signs: Vec<f64> = self.parts.iter().map(|p| p.sign.factor()).collect();
+        let mut pursuit = Pursuit::new(*target, started, spent);
+        let mut prior = Prior {
+            // Neyman's allocation: n_p ∝ σ_p gives Var = (Σσ_p)²/n.
+            var_per_eval: total_sd * total_sd,
+            estimate: measured.iter().zip(&signs).map(|(r, s)| s * r.value).sum(),
+            seconds_per_eval: pursuit.elapsed(&self.comm) / spent.max(1) as f64,
+        };
+        let least = parts * MIN_PART_EVALS;
+        let mut chunk = least;
+        let mut sums = vec![PartSum::default(); self.parts.len()];
+        let mut combined: Vec<Iteration> = Vec::new();
+        loop {
+            let wanted = target.error_for(pursuit.estimate().unwrap_or(prior.estimate));
+            if wanted > 0.0 {
+                let need = prior.var_per_eval / (AIM * wanted).powi(2) / RESULT_ITERATIONS;
+                chunk = (need as u64).clamp(least, (2 * chunk).max(least));
+            }
+            let elapsed = pursuit.elapsed(&self.comm);
+            let Some(step) = pursuit.next(prior, least, chunk, elapsed)? else {
+                break;
+            };
+            let spare = step.evals.saturating_sub(least) as f64;
+            let (mut estimate, mut variance, mut evals) = (0.0, 0.0, 0u64);
+            let (mut max_abs_w, mut sum_abs_w) = (0.0f64, 0.0);
+            for (i, p) in self.parts.iter_mut().enumerate() {
+                let share = if total_sd > 0.0 {
+                    sd[i] / total_sd
+                } else {
+                    1.0 / parts as f64
+                };
+                let n = MIN_PART_EVALS + (spare * share) as u64;
+                let h = PartIntegrand::new(f, &self.set, &self.weights, p.channel, p.sign);
+                let r = estimate_part(p.integrator.as_mut(), &h, n)?;
+                spent += r.n_eval;
+                evals += r.iterations.iter().map(|i| i.evals).sum::<u64>();
+                estimate += signs[i] * r.value;
+                variance += r.std_err * r.std_err;
+                max_abs_w = max_abs_w.max(r.iterations.iter().fold(0.0, |m, i| m.max(i.max_abs_w)));
+                sum_abs_w += r.iterations.iter().map(|i| i.sum_abs_w).sum::<f64>();
+                sums[i].add(r);
+            }
+            let iteration = Iteration::new(
+                Source::Final,
+                vec![estimate],
+                vec![variance],
+                evals,
+                max_abs_w,
+                sum_abs_w,
+            );
+            pursuit.record(step, &iteration);
+            combined.push(iteration);
+            prior.seconds_per_eval = pursuit.elapsed(&self.comm) / spent as f64;
+        }
+        // The shares as the run ended (an extension rescales the earlier ones).
+        let shares = pursuit.shares();
+        let results: Vec<IntegrationResult> = sums.into_iter().map(|s| s.finish(shares)).collect();
+        let mut result = report::combine(
+            &self.parts_index(),
+            &results,
+            &self.weights,
+            channels,
+            spent,
+            started,
+        );
+        result.chi2_per_dof = chi2_per_dof(&combined, result.value);
+        result.iterations = combined;
+        pursuit.finish(&mut result);
+        Ok(result)
+    }
+}
+
+impl PartSum {
+    /// Adds a part's estimate of one iteration.
+    fn add(&mut self, r: IntegrationResult) {
+        self.estimates.push((r.value, r.std_err * r.std_err));
+        self.iterations.extend(r.iterations.iter().cloned());
+        let evals = |r: &IntegrationResult| r.iterations.iter().map(|i| i.evals).sum::<u64>();
+        if self.largest.as_ref().is_none_or(|l| evals(&r) >= evals(l)) {
+            self.largest = Some(r);
+        }
+    }
+
+    /// The part's result: its estimates weighted by the iterations' `shares`, its largest
+    /// iteration's diagnostics.
+    fn finish(self, shares: &[f64]) -> IntegrationResult {
+        let (value, var) = self
+            .estimates
+            .iter()
+            .zip(shares)
+            .fold((0.0, 0.0), |(m, v), (&(mi, vi), a)| {
+                (m + a * mi, v + a * a * vi)
+            });
+        let mut r = self.largest.unwrap_or_default();
+        r.value = value;
+        r.std_err = var.sqrt();
+        r.chi2_per_dof = f64::NAN;
+        r.iterations = self.iterations;
+        r
+    }
+}
+
+/// χ²/dof of the iterations' estimates around `value` (`NaN` for fewer than two).
+fn chi2_per_dof(iterations: &[Iteration], value: f64) -> f64 {
+    if iterations.len() < 2 {
+        return f64::NAN;
+    }
+    let chi2: f64 = iterations
+        .iter()
+        .filter(|i| i.variance > 0.0)
+        .map(|i| (i.estimate - value).powi(2) / i.variance)
+        .sum();
+    chi2 / (iterations.len() - 1) as f64
+}
