@@ -1,6 +1,6 @@
-//! `nis.Integrator` and `nis.IntegrationResult`: the library's [`Integrator`] trait, shaped like
-//! the `vegas` package's `Integrator` (every setting a keyword, `integ(f, evals=…)` adapts
-//! further on each call) and its result (`mean`, `sdev`, a printable summary).
+//! `nis.Integrator`: the library's [`Integrator`] trait, shaped like the `vegas` package's
+//! `Integrator` (every setting a keyword, `integ(f, evals=…)` adapts further on each call); its
+//! result is `crate::result`.
 
 use std::sync::{Arc, Mutex};
 
@@ -8,7 +8,7 @@ use nis::channels::ChannelSet;
 use nis::flow::Density;
 use nis::integrate::multichannel::{MultiChannel, MultiChannelConfig, Signs};
 use nis::integrate::nis::NisIntegrator;
-use nis::integrate::{integrator, IntegrationResult, Integrator, Method, Settings, Target};
+use nis::integrate::{integrator, Integrator, Method, Settings, Target};
 use nis::loss::Loss;
 use numpy::{PyArray1, PyArray2, PyArrayMethods};
 use pyo3::exceptions::PyValueError;
@@ -18,6 +18,7 @@ use pyo3::types::PyDict;
 use crate::call::{run, with_integrand};
 use crate::channel::{PyChannel, Raised};
 use crate::flow::PyFlow;
+use crate::result::PyIntegrationResult;
 use crate::settings::{json_of, keywords};
 use crate::{check_parent, count, path_of, to_py_err, PointsAndValues};
 
@@ -42,9 +43,10 @@ use crate::{check_parent, count, path_of, to_py_err, PointsAndValues};
 /// channel (and per sign of f when it changes sign: `signs="auto"`, the default, or "split",
 /// "whole"); `signs=` alone splits a single-channel integral by sign. Results then carry
 /// `channel_weights`, `channel_means`, `channel_sdevs`, `channel_evals` and `signs`; precision
-/// targets and the NIS-only methods raise ValueError. `channel_settings` (a dict:
-/// `adapt_fraction`, `adapt_weights`, `weight_floor`, `pilot`) tunes the multi-channel
-/// integrator.
+/// targets work as for one channel; `events(f, n)` draws unweighted events that carry their
+/// channel (NIS), and the other NIS-only methods raise ValueError. `channel_settings` (a dict:
+/// `adapt_fraction`, `adapt_weights`, `weight_floor`, `pilot`, `target_adapt`) tunes the
+/// multi-channel integrator.
 ///
 ///     integ = nis.Integrator(4, "vegas", channels=nis.integrands.channels("resonances-4d"))
 ///     r = integ(nis.integrands.example("resonances-4d"), evals=300_000)
@@ -55,6 +57,13 @@ pub(crate) struct PyIntegrator {
     threads: Option<usize>,
     pool: Option<Arc<rayon::ThreadPool>>,
 }
+
+/// Events as Python gets them: points (n, dim), weights (n,), channels (n,).
+type Events<'py> = (
+    Bound<'py, PyArray2<f64>>,
+    Bound<'py, PyArray1<f64>>,
+    Bound<'py, PyArray1<u64>>,
+);
 
 /// What integrates: one integrator, or a multi-channel one (channels and/or sign splitting).
 enum Engine {
@@ -369,6 +378,47 @@ impl PyIntegrator {
         })
     }
 
+    /// Multi-channel NIS only, after a first integration: `(x, w, channel)`, n unweighted events
+    /// of |f| through the channels (x of shape (n, dim), w of shape (n,) as for `unweighted`,
+    /// negative for events of f < 0, and the channel of each event, shape (n,)), in random
+    /// order; each call draws new events.
+    #[pyo3(signature = (f, n, overweight = 1e-3))]
+    fn events<'py>(
+        &mut self,
+        py: Python<'py>,
+        f: &Bound<'py, PyAny>,
+        n: i64,
+        overweight: f64,
+    ) -> PyResult<Events<'py>> {
+        let n = count("n", n)?;
+        let pool = self.pool.clone();
+        let Engine::Multi { mc, raised, .. } = self.engine() else {
+            return Err(PyValueError::new_err(
+                "events come from a multi-channel integrator (one made with channels or signs); \
+                 use unweighted for a single-channel one",
+            ));
+        };
+        let raised = raised.clone();
+        let dim = mc.dim();
+        with_integrand(py, f, dim, |g, _| {
+            raised.take();
+            let ev = run(py, pool.as_deref(), g.call, || {
+                mc.unweighted(g.f, n, overweight)
+            });
+            if let (Err(_), Some(e)) = (&ev, raised.take()) {
+                return Err(e);
+            }
+            let ev = ev?;
+            let x = PyArray1::from_vec(py, ev.events.points).reshape([n, dim])?;
+            let channels: Vec<u64> = ev.channels.iter().map(|&k| k as u64).collect();
+            Ok((
+                x,
+                PyArray1::from_vec(py, ev.events.weights),
+                PyArray1::from_vec(py, channels),
+            ))
+        })
+    }
+
     /// NIS only: saves the trained integrator (its flow and settings) as a safetensors file, the
     /// format `nis integrate --save` writes.
     fn save(&mut self, path: &Bound<'_, PyAny>) -> PyResult<()> {
@@ -514,215 +564,4 @@ fn channel_set(
         priors.push(c.prior());
     }
     ChannelSet::with_priors(channels, priors).map_err(to_py_err)
-}
-
-/// The outcome of an integration, like a `vegas` result: `mean`, `sdev` (floats for a scalar
-/// integrand, arrays for a vector one, with `cov`), `chi2_dof`, `n_eval`, `rel_var_per_eval`,
-/// `unweighting_efficiency`, the reliability figures `pareto_k`, `ess`, `var_rel_err`, `seconds`;
-/// for a multi-channel integrator also `channel_weights`, `channel_means`, `channel_sdevs`,
-/// `channel_evals` and `signs` (None otherwise); `str(r)` is a readable summary.
-#[pyclass(module = "nis", name = "IntegrationResult", frozen)]
-pub(crate) struct PyIntegrationResult {
-    r: IntegrationResult,
-    vector: bool,
-}
-
-impl PyIntegrationResult {
-    /// The result of an integrand that returned (n, k) arrays (`vector`) or (n,) ones; an
-    /// (n, 1) array makes a vector integrand of one component, which its warnings say.
-    fn new(mut r: IntegrationResult, vector: bool) -> PyIntegrationResult {
-        if vector && r.estimates().mean.len() == 1 {
-            r.warnings.push(
-                "f returned shape (n, 1): a vector integrand of one component, so mean, sdev \
-                 and cov are arrays; return shape (n,) for floats"
-                    .into(),
-            );
-        }
-        PyIntegrationResult { r, vector }
-    }
-}
-
-#[pymethods]
-impl PyIntegrationResult {
-    /// The estimate of ∫ f (an array of k for a vector integrand, one whose f returns shape
-    /// (n, k), k = 1 included).
-    #[getter]
-    fn mean<'py>(&self, py: Python<'py>) -> Bound<'py, PyAny> {
-        if self.vector {
-            PyArray1::from_vec(py, self.r.estimates().mean).into_any()
-        } else {
-            self.r.value.into_pyobject(py).expect("a float").into_any()
-        }
-    }
-
-    /// Its standard error (an array of k for a vector integrand).
-    #[getter]
-    fn sdev<'py>(&self, py: Python<'py>) -> Bound<'py, PyAny> {
-        if self.vector {
-            PyArray1::from_vec(py, self.r.estimates().std_err).into_any()
-        } else {
-            self.r
-                .std_err
-                .into_pyobject(py)
-                .expect("a float")
-                .into_any()
-        }
-    }
-
-    /// The covariance of the estimates: k × k for a vector integrand, sdev² for a scalar one.
-    #[getter]
-    fn cov<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyAny>> {
-        let e = self.r.estimates();
-        if self.vector {
-            let k = e.mean.len();
-            Ok(PyArray1::from_vec(py, e.cov).reshape([k, k])?.into_any())
-        } else {
-            Ok(e.cov[0].into_pyobject(py).expect("a float").into_any())
-        }
-    }
-
-    /// χ² per degree of freedom of the final phase's iterations (of component 0).
-    #[getter]
-    fn chi2_dof(&self) -> f64 {
-        self.r.chi2_per_dof
-    }
-
-    /// All evaluations of the integrand in the call, training included.
-    #[getter]
-    fn n_eval(&self) -> u64 {
-        self.r.n_eval
-    }
-
-    /// Var(f/q)/F² per evaluation of the final phase (1/n_eff per point; smaller is better).
-    #[getter]
-    fn rel_var_per_eval(&self) -> f64 {
-        self.r.rel_var_per_eval
-    }
-
-    /// mean(|w|)/max(|w|) of the final phase's weights.
-    #[getter]
-    fn unweighting_efficiency(&self) -> f64 {
-        self.r.unweighting_efficiency
-    }
-
-    /// PSIS's Pareto k̂ of the final phase's weights: above 0.5 the error bar cannot be trusted
-    /// (NaN when it cannot be fitted).
-    #[getter]
-    fn pareto_k(&self) -> f64 {
-        self.r.pareto_k
-    }
-
-    /// Effective sample size (Σ|w|)²/Σw² of the final phase's weights.
-    #[getter]
-    fn ess(&self) -> f64 {
-        self.r.ess
-    }
-
-    /// Relative error of the variance estimate behind `sdev`.
-    #[getter]
-    fn var_rel_err(&self) -> f64 {
-        self.r.var_rel_err
-    }
-
-    /// Wall time of the call in seconds.
-    #[getter]
-    fn seconds(&self) -> f64 {
-        self.r.seconds
-    }
-
-    /// Why a run to a precision target stopped: "target", "max_evals" or "max_seconds"
-    /// (None for a run on a budget).
-    #[getter]
-    fn stop(&self) -> Option<&'static str> {
-        self.r.stop.map(|s| s.name())
-    }
-
-    /// What the user should know (e.g. a large χ²/dof).
-    #[getter]
-    fn warnings(&self) -> Vec<String> {
-        self.r.warnings.clone()
-    }
-
-    /// The final phase's iterations: (estimate, variance, evaluations) each.
-    #[getter]
-    fn iterations(&self) -> Vec<(f64, f64, u64)> {
-        self.r
-            .iterations
-            .iter()
-            .map(|i| (i.estimate, i.variance, i.evals))
-            .collect()
-    }
-
-    /// Multi-channel results: each channel's a-priori weight a_k in the estimate (summing to 1),
-    /// a float64 array of K (None for a single-channel result).
-    #[getter]
-    fn channel_weights<'py>(&self, py: Python<'py>) -> Option<Bound<'py, PyArray1<f64>>> {
-        let c = self.r.channels.as_ref()?;
-        Some(PyArray1::from_slice(py, &c.weights))
-    }
-
-    /// Multi-channel results: each channel's contribution F_k = ∫ α_k f (they sum to `mean`).
-    #[getter]
-    fn channel_means<'py>(&self, py: Python<'py>) -> Option<Bound<'py, PyArray1<f64>>> {
-        let c = self.r.channels.as_ref()?;
-        Some(PyArray1::from_slice(py, &c.means))
-    }
-
-    /// Multi-channel results: the standard errors of `channel_means`.
-    #[getter]
-    fn channel_sdevs<'py>(&self, py: Python<'py>) -> Option<Bound<'py, PyArray1<f64>>> {
-        let c = self.r.channels.as_ref()?;
-        Some(PyArray1::from_slice(py, &c.std_errs))
-    }
-
-    /// Multi-channel results: the estimate's evaluations in each channel (uint64).
-    #[getter]
-    fn channel_evals<'py>(&self, py: Python<'py>) -> Option<Bound<'py, PyArray1<u64>>> {
-        let c = self.r.channels.as_ref()?;
-        Some(PyArray1::from_slice(py, &c.evals))
-    }
-
-    /// When the integrand was split by sign: a dict with `positive` (F⁺ = ∫ max(f, 0)),
-    /// `positive_sdev`, `negative` (F⁻ = ∫ max(−f, 0)), `negative_sdev` and
-    /// `negative_fraction` (F⁻/(F⁺ + F⁻)); None otherwise.
-    #[getter]
-    fn signs<'py>(&self, py: Python<'py>) -> PyResult<Option<Bound<'py, PyDict>>> {
-        let Some(s) = self.r.channels.as_ref().and_then(|c| c.signs) else {
-            return Ok(None);
-        };
-        let d = PyDict::new(py);
-        d.set_item("positive", s.positive)?;
-        d.set_item("positive_sdev", s.positive_err)?;
-        d.set_item("negative", s.negative)?;
-        d.set_item("negative_sdev", s.negative_err)?;
-        d.set_item("negative_fraction", s.negative_fraction)?;
-        Ok(Some(d))
-    }
-
-    /// The readable summary (`str(r)`), as `vegas`'s `result.summary()`.
-    fn summary(&self) -> String {
-        self.r.to_string()
-    }
-
-    fn __str__(&self) -> String {
-        self.r.to_string()
-    }
-
-    fn __repr__(&self) -> String {
-        if self.vector {
-            let e = self.r.estimates();
-            let parts: Vec<String> = e
-                .mean
-                .iter()
-                .zip(&e.std_err)
-                .map(|(m, s)| format!("{m:.6e} ± {s:.2e}"))
-                .collect();
-            format!("IntegrationResult([{}])", parts.join(", "))
-        } else {
-            format!(
-                "IntegrationResult({:.8e} ± {:.3e}, chi2_dof={:.2}, n_eval={})",
-                self.r.value, self.r.std_err, self.r.chi2_per_dof, self.r.n_eval
-            )
-        }
-    }
 }

@@ -31,6 +31,7 @@ mod call;
 mod channel;
 mod flow;
 mod integrator;
+mod result;
 mod settings;
 
 pyo3::create_exception!(
@@ -158,7 +159,7 @@ fn _nis(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add("IntegrandError", py.get_type::<IntegrandError>())?;
     m.add("ModelError", py.get_type::<ModelError>())?;
     m.add_class::<integrator::PyIntegrator>()?;
-    m.add_class::<integrator::PyIntegrationResult>()?;
+    m.add_class::<result::PyIntegrationResult>()?;
     m.add_class::<flow::PyFlow>()?;
     m.add_class::<builtin::PyBuiltin>()?;
     m.add_class::<channel::PyChannel>()?;

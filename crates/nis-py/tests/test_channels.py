@@ -367,3 +367,21 @@ def test_ctrl_c_interrupts_a_multi_channel_run():
     finally:
         signal.signal(signal.SIGINT, previous)
     assert after[0] < 1000, "the run went on long after Ctrl-C"
+
+
+def test_events_follow_f_and_carry_their_channel():
+    g = nis.integrands.example("gauss-pm")
+    integ = nis.Integrator(2, "nis", channels=nis.integrands.channels("gauss-pm"), seed=3)
+    with pytest.raises(ValueError, match="integrated"):
+        integ.events(g, 10)
+    integ(g, evals=100_000)
+    n = 10_000
+    x, w, ch = integ.events(g, n)
+    assert x.shape == (n, 2) and w.shape == (n,) and ch.shape == (n,)
+    assert set(np.unique(ch)) == {0, 1}
+    # ∫f = 0: half the events are negative, within 5 binomial σ.
+    assert abs((w < 0).mean() - 0.5) < 5 * 0.5 / np.sqrt(n)
+    x2, _, _ = integ.events(g, 10)
+    assert not np.array_equal(x2, x[:10])
+    with pytest.raises(ValueError, match="multi-channel"):
+        nis.Integrator(2, "nis").events(g, 10)

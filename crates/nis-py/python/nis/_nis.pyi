@@ -223,6 +223,11 @@ class Integrator:
     ) -> Tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]]:
         """NIS only: ``(x, w)``, n unweighted points of |f| and their residual weights
         sign(f)·max(1, |w|/w_max)."""
+    def events(
+        self, f: IntegrandFn, n: int, overweight: float = 1e-3
+    ) -> Tuple[npt.NDArray[np.float64], npt.NDArray[np.float64], npt.NDArray[np.uint64]]:
+        """Multi-channel NIS only: ``(x, w, channel)``, n unweighted events of |f| through the
+        channels, their residual weights (negative where f < 0) and the channel of each."""
     def save(self, path: PathLike) -> None:
         """NIS only: saves the trained integrator (safetensors, as ``nis integrate --save``)."""
     @staticmethod

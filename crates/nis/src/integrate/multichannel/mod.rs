@@ -16,6 +16,7 @@
 //! before the estimate draws a point, so each part's estimate is unbiased and F's is too
 //! (docs/ESTIMATE.md, "Channels and signs"); its variance is the sum of the parts'.
 
+mod events;
 mod part;
 mod report;
 mod saved;
@@ -27,6 +28,7 @@ use rand::{Rng, SeedableRng};
 use rand_pcg::Pcg64Mcg;
 use serde::{Deserialize, Serialize};
 
+pub use events::ChannelEvents;
 pub use part::Sign;
 pub use report::{ChannelReport, SignReport};
 
@@ -118,6 +120,8 @@ pub struct MultiChannel {
     weights: Vec<f64>,
     parts: Vec<Part>,
     comm: Comm,
+    /// Calls of [`MultiChannel::unweighted`] so far: each draws from a stream of its own.
+    event_draws: u64,
 }
 
 impl MultiChannel {
@@ -140,6 +144,7 @@ impl MultiChannel {
             config,
             parts: Vec::new(),
             comm: Comm::default(),
+            event_draws: 0,
         })
     }
 

@@ -128,6 +128,7 @@ impl MultiChannel {
             weights,
             parts,
             comm: Comm::default(),
+            event_draws: 0,
         })
     }
 }
