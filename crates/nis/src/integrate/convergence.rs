@@ -30,6 +30,11 @@ pub struct Convergence {
     /// The final iterations' variance per evaluation, second half over first half: below 1 when
     /// the sampler still improved during them (VEGAS+ adapts between its iterations).
     pub final_trend: Option<f64>,
+    /// NIS: the largest weight |f|/q the final sampler gives a point its training drew, over the
+    /// largest weight of the final phase: far above 1 where the flow dropped a region training
+    /// saw f in (`nis/memory.rs`).
+    #[serde(default)]
+    pub training_weight_ratio: Option<f64>,
 }
 
 /// The smallest training batches per quarter for a trend (fewer: `None`).
@@ -96,6 +101,7 @@ impl Convergence {
             training_trend,
             final_over_training,
             final_trend,
+            training_weight_ratio: None,
         }
     }
 }
@@ -130,9 +136,9 @@ pub struct ConvergenceWarning {
 }
 
 impl Convergence {
-    /// The warnings these figures give. Only the divergence warns: across the peaked cells of
-    /// `nis bench coverage` it is the one figure that separates the runs far off without another
-    /// warning from those within their error bars; the others did not
+    /// The warnings these figures give. The divergence and the recalled training weight warn:
+    /// across the peaked cells of `nis bench coverage` they separate the runs far off without
+    /// another warning from those within their error bars; the others did not
     /// (docs/results/robustness.md).
     pub fn warnings(&self) -> Vec<ConvergenceWarning> {
         let mut out = Vec::new();
@@ -148,9 +154,31 @@ impl Convergence {
                 ),
             });
         }
+        out.extend(self.recalled_warning());
         out
     }
+
+    /// The warning of [`Convergence::training_weight_ratio`] above [`RECALLED_WEIGHT_LIMIT`]
+    /// (NIS adds it once the final phase is done).
+    pub fn recalled_warning(&self) -> Option<ConvergenceWarning> {
+        let r = self
+            .training_weight_ratio
+            .filter(|r| *r > RECALLED_WEIGHT_LIMIT)?;
+        Some(ConvergenceWarning {
+            label: "recalled weight",
+            sentence: format!(
+                "the flow gives far too little density to points where its training saw f (their \
+                 weight f/q is {r:.0}× the estimate's largest): it may have dropped part of the \
+                 integrand, and then the error bar is too small; check with a second seed, train \
+                 longer, or use channels for a multi-peaked integrand"
+            ),
+        })
+    }
 }
+
+/// The ratio of [`Convergence::training_weight_ratio`] above which a result warns. Chosen by the
+/// sweep of limits in docs/results/robustness.md (issue-40 section).
+pub const RECALLED_WEIGHT_LIMIT: f64 = 5.0;
 
 /// The divergence above which a result warns: its estimate then rests on fewer than a quarter of
 /// its points. Chosen by the sweep of limits in docs/results/robustness.md (issue-40 section).

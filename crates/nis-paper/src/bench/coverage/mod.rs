@@ -9,7 +9,10 @@
 use std::path::{Path, PathBuf};
 
 use nis::integrands::{self, Builtin, SUITE};
-use nis::integrate::{integrator, Convergence, Method, Settings, DIVERGENCE_LIMIT, PARETO_K_LIMIT};
+use nis::integrate::{
+    integrator, Convergence, Method, Settings, DIVERGENCE_LIMIT, PARETO_K_LIMIT,
+    RECALLED_WEIGHT_LIMIT,
+};
 use nis::loss::Loss;
 use plotters::prelude::*;
 use rayon::prelude::*;
@@ -437,6 +440,8 @@ mod tests {
         assert!(warning_labels(&quiet).is_empty());
         quiet.convergence.divergence = Some(2.0 * DIVERGENCE_LIMIT);
         assert!(!warned_before(&quiet) && warning_labels(&quiet) == ["divergence"]);
+        quiet.convergence.training_weight_ratio = Some(2.0 * RECALLED_WEIGHT_LIMIT);
+        assert_eq!(warning_labels(&quiet), ["divergence", "recalled weight"]);
     }
 
     #[test]

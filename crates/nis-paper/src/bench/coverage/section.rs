@@ -160,24 +160,59 @@ pub(super) fn warning_summary(cells: &[Cell], budgets: &[Budget]) -> String {
         }
     }
     md.push('\n');
-    md.push_str(&divergence_sweep(cells, budgets));
+    for sweep in &SWEEPS {
+        md.push_str(&limit_sweep(cells, budgets, sweep));
+    }
     md
 }
 
-/// The limits on the divergence tried: the runs beyond 4σ left without a warning, the 2σ
-/// coverage of the runs without one, and the share of runs within 2σ warned, per limit.
-pub(super) fn divergence_sweep(cells: &[Cell], budgets: &[Budget]) -> String {
-    const LIMITS: [f64; 6] = [1.0, 2.0, 3.0, 5.0, 10.0, 30.0];
+/// A convergence figure whose limit a sweep chooses: its name, the limit results warn at, the
+/// limits tried, the figure of a run, and its warning's label (the run's other warnings count as
+/// they are).
+pub(super) struct Sweep {
+    pub(super) name: &'static str,
+    pub(super) limit: f64,
+    pub(super) limits: &'static [f64],
+    pub(super) figure: fn(&Run) -> Option<f64>,
+    pub(super) label: &'static str,
+}
+
+/// The sweeps of the two convergence warnings.
+pub(super) const SWEEPS: [Sweep; 2] = [
+    Sweep {
+        name: "the divergence n/ESS − 1",
+        limit: DIVERGENCE_LIMIT,
+        limits: &[1.0, 2.0, 3.0, 5.0, 10.0, 30.0],
+        figure: |r| r.convergence.divergence,
+        label: "divergence",
+    },
+    Sweep {
+        name: "the recalled weight (the largest weight the final sampler gives a training point \
+               over the estimate's largest)",
+        limit: RECALLED_WEIGHT_LIMIT,
+        limits: &[2.0, 3.0, 5.0, 10.0, 30.0, 100.0],
+        figure: |r| r.convergence.training_weight_ratio,
+        label: "recalled weight",
+    },
+];
+
+/// The limits of `sweep` tried: the runs beyond 4σ left without a warning, the 2σ coverage of
+/// the runs without one, and the share of runs within 2σ warned, per limit.
+pub(super) fn limit_sweep(cells: &[Cell], budgets: &[Budget], sweep: &Sweep) -> String {
     let mut md = format!(
-        "How the limit on the divergence (n/ESS − 1, the result warns above {DIVERGENCE_LIMIT}) \
-         was chosen: per limit, together with the χ² and k̂ warnings, the runs beyond 4σ left \
-         without a warning / the 2σ coverage of the runs without one (band) / the share of \
-         runs within 2σ warned.\n\n| budget | method |"
+        "How the limit on {} was chosen (results warn above {}): per limit, together with the \
+         other warnings, the runs beyond 4σ left without a warning / the 2σ coverage of the \
+         runs without one (band) / the share of runs within 2σ warned.\n\n| budget | method |",
+        sweep.name, sweep.limit
     );
-    for l in LIMITS {
+    for l in sweep.limits {
         md.push_str(&format!(" {l} |"));
     }
-    md.push_str(&format!("\n|---|---|{}\n", "---|".repeat(LIMITS.len())));
+    md.push_str(&format!(
+        "\n|---|---|{}\n",
+        "---|".repeat(sweep.limits.len())
+    ));
+    let others = |r: &Run| warning_labels(r).iter().any(|l| *l != sweep.label);
     for &b in budgets {
         for method in METHODS {
             let runs = pooled_runs(cells, b, method);
@@ -185,9 +220,8 @@ pub(super) fn divergence_sweep(cells: &[Cell], budgets: &[Budget]) -> String {
                 continue;
             }
             md.push_str(&format!("| {} | {method} |", b.evals));
-            for l in LIMITS {
-                let warned =
-                    |r: &Run| warned_before(r) || r.convergence.divergence.is_some_and(|d| d > l);
+            for &l in sweep.limits {
+                let warned = |r: &Run| others(r) || (sweep.figure)(r).is_some_and(|v| v > l);
                 let missed = runs
                     .iter()
                     .filter(|(p, r)| p.abs() > 4.0 && !warned(r))

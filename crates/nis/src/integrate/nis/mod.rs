@@ -33,10 +33,12 @@ use crate::flow::{Density, Flow, FlowConfig};
 use crate::kernels::in_pool;
 use crate::nn::ParamAverage;
 use crate::train::Learner;
+use memory::TrainingMemory;
 use reuse::{ReplayBuffer, TrainingPieces};
 use training_length::{BatchReport, TrainingLength};
 
 mod config;
+mod memory;
 mod reuse;
 mod stratified_latent;
 mod to_target;
@@ -63,6 +65,8 @@ pub struct NisIntegrator {
     /// the flow holds the average, and this the last training step's weights.
     average: Option<ParamAverage>,
     streams: Streams,
+    /// The points of the latest training, to check the final sampler against.
+    memory: TrainingMemory,
     /// The ranks that share every batch (one process by default).
     comm: Comm,
     progress: Option<Box<dyn Progress>>,
@@ -73,12 +77,15 @@ pub struct NisIntegrator {
 const TRAIN_SEED_SALT: u64 = 0x7261_696e;
 const ESTIMATE_SEED_SALT: u64 = 0x6573_7469;
 const UNWEIGHT_SEED_SALT: u64 = 0x756e_7765;
+/// Salt of the training memory's choices ("memo").
+const MEMORY_SEED_SALT: u64 = 0x6d65_6d6f;
 
 /// The random streams, one per use, so that training more does not shift the estimate's points.
 struct Streams {
     train: Pcg64Mcg,
     estimate: Pcg64Mcg,
     unweight: Pcg64Mcg,
+    memory: Pcg64Mcg,
 }
 
 impl Streams {
@@ -87,6 +94,7 @@ impl Streams {
             train: Pcg64Mcg::seed_from_u64(seed ^ TRAIN_SEED_SALT),
             estimate: Pcg64Mcg::seed_from_u64(seed ^ ESTIMATE_SEED_SALT),
             unweight: Pcg64Mcg::seed_from_u64(seed ^ UNWEIGHT_SEED_SALT),
+            memory: Pcg64Mcg::seed_from_u64(seed ^ MEMORY_SEED_SALT),
         }
     }
 }
@@ -103,6 +111,7 @@ impl NisIntegrator {
         let sampler = DefensiveMixture::new(flow, config.uniform_fraction)?;
         Ok(NisIntegrator {
             streams: Streams::new(config.seed),
+            memory: TrainingMemory::new(dim),
             average: None,
             config,
             sampler,
@@ -140,6 +149,7 @@ impl NisIntegrator {
     /// restarts the random streams as this rank's streams of the seed.
     pub fn set_comm(&mut self, comm: Comm) {
         self.learner.set_comm(comm.clone());
+        self.memory.clear();
         self.comm = comm;
         self.set_seed(self.config.seed);
     }
@@ -217,6 +227,7 @@ impl NisIntegrator {
         });
         let evals = (steps * batch) as u64;
         let mut replay = ReplayBuffer::new(self.config.replay_batches);
+        self.memory.clear();
         let mut done = 0;
         for step in 0..steps {
             let beta = match anneal {
@@ -251,6 +262,7 @@ impl NisIntegrator {
                 .comm
                 .check(drawn.and_then(|(b, x64)| Ok((b, evaluate(f, &x64, dim)?))))?;
             let drawn_in = started.elapsed().as_secs_f64();
+            self.memory.observe(&b.x, &fx, k, &mut self.streams.memory);
             if let Some(p) = pieces.as_deref_mut() {
                 let z = latent_rng.map_or_else(Vec::new, |mut rng| {
                     crate::flow::uniform_latents(b.density_part.len() * dim, &mut rng)
@@ -399,7 +411,29 @@ impl NisIntegrator {
         }
         acc.reduce_tail(&self.comm);
         let shares = pieces.map(|p| p.shares(acc.iterations()));
-        Ok(acc.finish(shares.as_deref(), trained + done, started))
+        let mut result = acc.finish(shares.as_deref(), trained + done, started);
+        self.recall_training(&mut result)?;
+        Ok(result)
+    }
+
+    /// Sets `result`'s [`Convergence::training_weight_ratio`](super::Convergence) (the largest
+    /// weight the frozen sampler gives a point of the latest training, over the largest weight
+    /// of the estimate's final phase) and its warning.
+    fn recall_training(&mut self, result: &mut IntegrationResult) -> Result<()> {
+        let largest_final = result
+            .iterations
+            .iter()
+            .filter(|i| i.source == super::Source::Final)
+            .fold(0.0f64, |m, i| m.max(i.max_abs_w));
+        if largest_final == 0.0 {
+            return Ok(());
+        }
+        let recalled = self.memory.largest_weight(&self.sampler, &self.comm)?;
+        result.convergence.training_weight_ratio = recalled.map(|w| w / largest_final);
+        result
+            .warnings
+            .extend(result.convergence.recalled_warning().map(|w| w.sentence));
+        Ok(())
     }
 
     /// `n` weighted points of the frozen sampler (the defensive mixture): the points (`n × d`,
@@ -476,6 +510,7 @@ impl NisIntegrator {
         let sampler = DefensiveMixture::new(flow, config.uniform_fraction)?;
         Ok(NisIntegrator {
             streams: Streams::new(config.seed),
+            memory: TrainingMemory::new(sampler.density.dim()),
             average: None,
             config,
             sampler,
@@ -580,6 +615,46 @@ fn weights(
 mod tests {
     use super::*;
     use crate::TransformKind;
+
+    /// A narrow Gaussian bump (std 0.03) at (c, c), of integral about 1.
+    fn bump(x: &[f64], c: f64) -> f64 {
+        let r2 = (x[0] - c).powi(2) + (x[1] - c).powi(2);
+        (-r2 / (2.0 * 0.03f64.powi(2))).exp() / (2.0 * std::f64::consts::PI * 0.03f64.powi(2))
+    }
+
+    #[test]
+    fn a_flow_that_dropped_a_region_training_saw_warns() {
+        let one = |x: &[f64]| bump(x, 0.25);
+        let config = NisConfig::builder().seed(5).build().unwrap();
+        let mut nis = NisIntegrator::new(2, config).unwrap();
+        nis.train(&one, 60_000).unwrap();
+        // Trained on the bump it is asked about: the recalled weight is of the estimate's size.
+        let r = nis.estimate(&one, 20_000).unwrap();
+        let ratio = r.convergence.training_weight_ratio.unwrap();
+        assert!(ratio < super::super::RECALLED_WEIGHT_LIMIT, "{ratio}");
+        assert!(
+            !r.warnings.iter().any(|w| w.contains("dropped")),
+            "{:?}",
+            r.warnings
+        );
+        // As if training had also seen f at a second bump at (0.75, 0.75) that the flow then
+        // dropped (in 2-d the defensive uniform share would find it again in the estimate, so
+        // the estimate here is of the first bump alone).
+        let x = [0.75f32, 0.75, 0.76, 0.74];
+        let fx = [bump(&[0.75, 0.75], 0.75), bump(&[0.76, 0.74], 0.75)];
+        nis.memory.observe(&x, &fx, 1, &mut nis.streams.memory);
+        let r = nis.estimate(&one, 20_000).unwrap();
+        let ratio = r.convergence.training_weight_ratio.unwrap();
+        assert!(
+            ratio > 10.0 * super::super::RECALLED_WEIGHT_LIMIT,
+            "{ratio}"
+        );
+        assert!(
+            r.warnings.iter().any(|w| w.contains("dropped")),
+            "{:?}",
+            r.warnings
+        );
+    }
 
     #[test]
     fn averaging_the_weights_leaves_the_training_alone() {

@@ -150,6 +150,7 @@ impl NisIntegrator {
         }
         acc.reduce_tail(&self.comm);
         let mut result = acc.finish(Some(pursuit.shares()), trained + done, started);
+        self.recall_training(&mut result)?;
         pursuit.finish(&mut result);
         Ok(result)
     }
