@@ -6,7 +6,7 @@
 The functions are made at import from the compiled suite, so they always match it.
 
 The multi-channel examples (``examples()``: "gauss-pm", "dalitz", "resonances-4d",
-"phase-space-8d") are not suite members: ``example(name)`` returns the integrand (a
+"phase-space-8d", "resonances-100") are not suite members: ``example(name)`` returns the integrand (a
 ``nis.Builtin`` with ``.exact``), ``channels(name)`` the channels written for it (a list of
 ``nis.Channel``), to give to ``nis.Integrator(dim, channels=...)``.
 """

@@ -187,6 +187,11 @@ pub const MULTI_CHANNEL: &[SuiteEntry] = &[
         dims: &[8],
         description: "massless 1→4 phase space, Z-like pairs in s12·s34 and s14·s23",
     },
+    SuiteEntry {
+        name: "resonances-100",
+        dims: &[4],
+        description: "100 narrow Cauchy peaks in sums of coordinate pairs (100 channels)",
+    },
 ];
 
 /// An integrand as slow as a matrix element: `camel` (α = 0.2) times a factor that costs
@@ -455,12 +460,13 @@ pub fn by_name(name: &str, dim: Option<usize>) -> Result<Builtin> {
                 "{name} is defined for 2 to 64 dimensions, not {d}"
             )));
         }
-        "gauss-pm" | "dalitz" | "resonances-4d" | "phase-space-8d" => {
+        "gauss-pm" | "dalitz" | "resonances-4d" | "phase-space-8d" | "resonances-100" => {
             fixed(entry.dims[0])?;
             match name {
                 "gauss-pm" => examples::gauss_pm(),
                 "dalitz" => examples::dalitz(),
                 "resonances-4d" => examples::resonances(),
+                "resonances-100" => examples::many_resonances(),
                 _ => examples::four_body(),
             }
         }

@@ -8,12 +8,14 @@
 mod dalitz;
 mod four_body;
 mod gauss_pm;
+mod many;
 mod quadrature;
 mod resonances;
 
 pub(crate) use dalitz::integrand as dalitz;
 pub(crate) use four_body::integrand as four_body;
 pub(crate) use gauss_pm::integrand as gauss_pm;
+pub(crate) use many::integrand as many_resonances;
 pub(crate) use resonances::integrand as resonances;
 
 use super::Channel;
@@ -64,6 +66,7 @@ pub fn by_name(name: &str) -> Result<Example> {
         "dalitz" => dalitz::channels(),
         "resonances-4d" => resonances::channels(),
         "phase-space-8d" => four_body::channels(),
+        "resonances-100" => many::channels(),
         _ => {
             return Err(Error::Config(format!(
                 "unknown multi-channel example {name:?}; examples: {}",

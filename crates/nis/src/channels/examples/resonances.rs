@@ -36,18 +36,23 @@ pub(crate) fn coords(x: &[f64]) -> [f64; 3] {
 
 /// ∫_a^b t·L(t) dt and ∫_a^b L(t) dt for the Cauchy density L of (c, γ), in closed form:
 /// the antiderivatives (γ/2π)·ln((t − c)² + γ²) + (c/π)·atan((t − c)/γ) and atan((t − c)/γ)/π.
-fn moments(a: f64, b: f64, (c, g): (f64, f64)) -> (f64, f64) {
+pub(crate) fn moments(a: f64, b: f64, (c, g): (f64, f64)) -> (f64, f64) {
     let at = |t: f64| ((t - c) / g).atan() / PI;
     let lg = |t: f64| g / (2.0 * PI) * ((t - c) * (t - c) + g * g).ln();
     (lg(b) - lg(a) + c * (at(b) - at(a)), at(b) - at(a))
 }
 
+/// ∫ ρ L over t = x_a + x_b (the triangle min(t, 2 − t) on [0, 2]) for the Cauchy peak `peak`:
+/// ∫₀¹ t L + ∫₁² (2 − t) L, in closed form.
+pub(crate) fn sum_term(peak: (f64, f64)) -> f64 {
+    let (t01, _) = moments(0.0, 1.0, peak);
+    let (t12, n12) = moments(1.0, 2.0, peak);
+    t01 + 2.0 * n12 - t12
+}
+
 /// ∫ ρ_k L_k for each peak, and the error bound of the one quadrature.
 pub(crate) fn exact_terms() -> ([f64; 3], f64) {
-    // x₀ + x₁: ∫₀¹ t L + ∫₁² (2 − t) L.
-    let (t01, _) = moments(0.0, 1.0, PEAKS[0]);
-    let (t12, n12) = moments(1.0, 2.0, PEAKS[0]);
-    let sum = t01 + 2.0 * n12 - t12;
+    let sum = sum_term(PEAKS[0]);
     // x₂·x₃: ∫₀¹ −ln t · L(t) dt, split at the peak (the log endpoint at 0 is integrable).
     let c = PEAKS[1].0;
     let f = |t: f64| -t.ln() * cauchy(t, PEAKS[1]);
@@ -75,17 +80,17 @@ pub(crate) fn integrand() -> Builtin {
     )
 }
 
-/// The peak in x₀ + x₁: x₁ = t − x₀, t Breit–Wigner on [x₀, x₀ + 1].
-fn sum_channel() -> Box<dyn Channel> {
-    let (c, g) = PEAKS[0];
-    let bw = move |x0: f64| BreitWigner::unchecked(c, g, x0, x0 + 1.0);
+/// The peak `(c, γ)` in x_a + x_b: x_b = t − x_a, t Breit–Wigner on [x_a, x_a + 1], the rest
+/// flat.
+pub(crate) fn sum_channel(a: usize, b: usize, (c, g): (f64, f64)) -> Box<dyn Channel> {
+    let bw = move |xa: f64| BreitWigner::unchecked(c, g, xa, xa + 1.0);
     Box::new(ChannelFn::new(
         4,
         move |u: &[f64], x: &mut [f64]| {
             x.copy_from_slice(u);
-            x[1] = (bw(u[0]).sample(u[1]) - u[0]).clamp(0.0, 1.0);
+            x[b] = (bw(u[a]).sample(u[b]) - u[a]).clamp(0.0, 1.0);
         },
-        move |x: &[f64]| bw(x[0]).pdf(x[0] + x[1]),
+        move |x: &[f64]| bw(x[a]).pdf(x[a] + x[b]),
     ))
 }
 
@@ -131,5 +136,9 @@ fn difference_channel() -> Box<dyn Channel> {
 
 /// One channel per peak, in the order of [`PEAKS`].
 pub(crate) fn channels() -> Vec<Box<dyn Channel>> {
-    vec![sum_channel(), product_channel(), difference_channel()]
+    vec![
+        sum_channel(0, 1, PEAKS[0]),
+        product_channel(),
+        difference_channel(),
+    ]
 }
