@@ -433,15 +433,19 @@ mod tests {
         let mut r = run_of(1.0, 1.0, Some(0.7));
         r.chi2 = Some(4.0);
         r.convergence.divergence = Some(2.0 * DIVERGENCE_LIMIT);
-        assert_eq!(warning_labels(&r), ["χ²", "k̂", "divergence"]);
+        assert_eq!(warning_labels(&r, "NIS-KL"), ["χ²", "k̂", "divergence"]);
+        assert_eq!(warning_labels(&r, "MC"), ["χ²", "k̂"]);
         assert!(warned_before(&r));
         let mut quiet = run_of(1.0, 1.0, Some(0.1));
         quiet.convergence.divergence = Some(0.5 * DIVERGENCE_LIMIT);
-        assert!(warning_labels(&quiet).is_empty());
+        assert!(warning_labels(&quiet, "NIS-KL").is_empty());
         quiet.convergence.divergence = Some(2.0 * DIVERGENCE_LIMIT);
-        assert!(!warned_before(&quiet) && warning_labels(&quiet) == ["divergence"]);
+        assert!(!warned_before(&quiet) && warning_labels(&quiet, "VEGAS+") == ["divergence"]);
         quiet.convergence.training_weight_ratio = Some(2.0 * RECALLED_WEIGHT_LIMIT);
-        assert_eq!(warning_labels(&quiet), ["divergence", "recalled weight"]);
+        assert_eq!(
+            warning_labels(&quiet, "NIS-χ²"),
+            ["divergence", "recalled weight"]
+        );
     }
 
     #[test]

@@ -60,9 +60,10 @@ pub(super) fn markdown(cells: &[Cell], budgets: &[Budget]) -> String {
     md
 }
 
-/// The warnings a run gives, by label: χ² between iterations and k̂ (the result's warnings
-/// before issue 40), then the convergence figures'.
-pub fn warning_labels(r: &Run) -> Vec<&'static str> {
+/// The warnings a run of `method` gives, by label: χ² between iterations and k̂ (the result's
+/// warnings before issue 40), then the convergence figures', which plain MC reports without
+/// warning (a sampler not learned from f).
+pub fn warning_labels(r: &Run, method: &str) -> Vec<&'static str> {
     let mut out = Vec::new();
     if r.chi2.is_some_and(|c| c > 3.0) {
         out.push("χ²");
@@ -70,13 +71,15 @@ pub fn warning_labels(r: &Run) -> Vec<&'static str> {
     if r.pareto_k.is_some_and(|k| k > PARETO_K_LIMIT) {
         out.push("k̂");
     }
-    out.extend(r.convergence.warnings().iter().map(|w| w.label));
+    if method != "MC" {
+        out.extend(r.convergence.warnings().iter().map(|w| w.label));
+    }
     out
 }
 
 /// Whether the result warned before the convergence figures (χ² or k̂).
 pub(super) fn warned_before(r: &Run) -> bool {
-    warning_labels(r).iter().any(|l| *l == "χ²" || *l == "k̂")
+    r.chi2.is_some_and(|c| c > 3.0) || r.pareto_k.is_some_and(|k| k > PARETO_K_LIMIT)
 }
 
 /// Before and after the convergence warnings, per budget and method: the runs more than 4σ off
@@ -100,7 +103,7 @@ pub(super) fn warning_summary(cells: &[Cell], budgets: &[Budget]) -> String {
             if runs.is_empty() {
                 continue;
             }
-            let after = |r: &Run| !warning_labels(r).is_empty();
+            let after = |r: &Run| !warning_labels(r, method).is_empty();
             let far: Vec<&Run> = runs
                 .iter()
                 .filter(|(p, _)| p.abs() > 4.0)
@@ -128,7 +131,7 @@ pub(super) fn warning_summary(cells: &[Cell], budgets: &[Budget]) -> String {
             };
             let mut caught: Vec<(&str, usize)> = Vec::new();
             for r in &far {
-                for l in warning_labels(r) {
+                for l in warning_labels(r, method) {
                     match caught.iter_mut().find(|(k, _)| *k == l) {
                         Some((_, n)) => *n += 1,
                         None => caught.push((l, 1)),
@@ -212,9 +215,9 @@ pub(super) fn limit_sweep(cells: &[Cell], budgets: &[Budget], sweep: &Sweep) -> 
         "\n|---|---|{}\n",
         "---|".repeat(sweep.limits.len())
     ));
-    let others = |r: &Run| warning_labels(r).iter().any(|l| *l != sweep.label);
     for &b in budgets {
         for method in METHODS {
+            let others = |r: &Run| warning_labels(r, method).iter().any(|l| *l != sweep.label);
             let runs = pooled_runs(cells, b, method);
             if runs.is_empty() {
                 continue;
