@@ -194,18 +194,8 @@ impl MultiChannel {
     /// adapts, moves the weights, allocates, estimates (module docs).
     pub fn integrate(&mut self, f: &dyn Integrand, evals: u64) -> Result<IntegrationResult> {
         let started = Instant::now();
-        let dim = self.dim();
-        super::check_dim(f, dim)?;
-        if f.components() != 1 {
-            return Err(Error::Config(
-                "multi-channel integration takes scalar integrands".into(),
-            ));
-        }
         let channels = self.set.len();
-        let mut spent = 0u64;
-        if self.parts.is_empty() {
-            spent += self.make_parts(f)?;
-        }
+        let mut spent = self.prepare(f)?;
         let parts = self.parts.len() as u64;
         let least_per_part = 2 * MIN_PART_EVALS;
         if evals < spent + parts * least_per_part {
@@ -220,19 +210,11 @@ impl MultiChannel {
                 spent + parts * least_per_part
             )));
         }
-        // Adapt: an equal share per part; each part's result gives its σ and integral.
+        // Adapt: an equal share per part.
         let adapt =
             ((evals as f64 * self.config.adapt_fraction) as u64 / parts).max(MIN_PART_EVALS);
-        let mut measured = Vec::with_capacity(self.parts.len());
-        for p in self.parts.iter_mut() {
-            let h = PartIntegrand::new(f, &self.set, &self.weights, p.channel, p.sign);
-            let r = adapt_part(p.integrator.as_mut(), &h, adapt)?;
-            spent += r.n_eval;
-            measured.push(r);
-        }
-        if self.config.adapt_weights && channels > 1 {
-            self.weights = self.adapted_weights(&measured);
-        }
+        let (measured, adapted) = self.adapt_parts(f, adapt)?;
+        spent += adapted;
         // Estimate: the rest in proportion to each part's σ per evaluation, with a floor.
         let rest = evals.saturating_sub(spent);
         let floor = (rest / (50 * parts)).max(MIN_PART_EVALS);
@@ -260,6 +242,41 @@ impl MultiChannel {
             spent,
             started,
         ))
+    }
+
+    /// Checks `f` and makes the parts on the first call (returns the pilot's evaluations).
+    fn prepare(&mut self, f: &dyn Integrand) -> Result<u64> {
+        super::check_dim(f, self.dim())?;
+        if f.components() != 1 {
+            return Err(Error::Config(
+                "multi-channel integration takes scalar integrands".into(),
+            ));
+        }
+        if self.parts.is_empty() {
+            return self.make_parts(f);
+        }
+        Ok(0)
+    }
+
+    /// Adapts every part on `adapt` evaluations and then the weights (Kleiss–Pittau): each
+    /// part's result (its σ and integral) and the evaluations spent.
+    fn adapt_parts(
+        &mut self,
+        f: &dyn Integrand,
+        adapt: u64,
+    ) -> Result<(Vec<IntegrationResult>, u64)> {
+        let mut measured = Vec::with_capacity(self.parts.len());
+        let mut spent = 0;
+        for p in self.parts.iter_mut() {
+            let h = PartIntegrand::new(f, &self.set, &self.weights, p.channel, p.sign);
+            let r = adapt_part(p.integrator.as_mut(), &h, adapt)?;
+            spent += r.n_eval;
+            measured.push(r);
+        }
+        if self.config.adapt_weights && self.set.len() > 1 {
+            self.weights = self.adapted_weights(&measured);
+        }
+        Ok((measured, spent))
     }
 
     /// (channel, sign) of every part, in order.

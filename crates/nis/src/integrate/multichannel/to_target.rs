@@ -9,10 +9,10 @@
 use std::time::Instant;
 
 use super::part::PartIntegrand;
-use super::{adapt_part, estimate_part, report, MultiChannel, MIN_PART_EVALS};
-use crate::error::{Error, Result};
+use super::{estimate_part, report, MultiChannel, MIN_PART_EVALS};
+use crate::error::Result;
 use crate::integrate::target::{Prior, Pursuit, AIM};
-use crate::integrate::{check_dim, Integrand, IntegrationResult, Iteration, Source, Target};
+use crate::integrate::{Integrand, IntegrationResult, Iteration, Source, Target};
 
 /// The estimate's iterations a plan aims at (later ones grow at most ×2 each).
 const RESULT_ITERATIONS: f64 = 10.0;
@@ -65,31 +65,14 @@ impl MultiChannel {
     ) -> Result<IntegrationResult> {
         self.check_target(target)?;
         let started = Instant::now();
-        check_dim(f, self.dim())?;
-        if f.components() != 1 {
-            return Err(Error::Config(
-                "multi-channel integration takes scalar integrands".into(),
-            ));
-        }
         let channels = self.set.len();
-        let mut spent = 0u64;
-        if self.parts.is_empty() {
-            spent += self.make_parts(f)?;
-        }
+        let mut spent = self.prepare(f)?;
         let parts = self.parts.len() as u64;
         // Adapt: at most adapt_fraction of max_evals, shared equally.
         let cap = (target.max_evals as f64 * self.config.adapt_fraction) as u64 / parts;
         let adapt = self.config.target_adapt.min(cap).max(MIN_PART_EVALS);
-        let mut measured = Vec::with_capacity(self.parts.len());
-        for p in self.parts.iter_mut() {
-            let h = PartIntegrand::new(f, &self.set, &self.weights, p.channel, p.sign);
-            let r = adapt_part(p.integrator.as_mut(), &h, adapt)?;
-            spent += r.n_eval;
-            measured.push(r);
-        }
-        if self.config.adapt_weights && channels > 1 {
-            self.weights = self.adapted_weights(&measured);
-        }
+        let (measured, adapted) = self.adapt_parts(f, adapt)?;
+        spent += adapted;
         let sd = super::sd_per_eval(&measured);
         let total_sd: f64 = sd.iter().sum();
         let signs: Vec<f64> = self.parts.iter().map(|p| p.sign.factor()).collect();
