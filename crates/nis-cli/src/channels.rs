@@ -7,7 +7,10 @@ use nis::integrands::Builtin;
 use nis::integrate::multichannel::{MultiChannel, MultiChannelConfig, Signs};
 use nis::integrate::{IntegrationResult, Method};
 
-use crate::integrate::IntegrateArgs;
+use nis::integrate::unweight::{SampleFormat, SampleWriter};
+use nis::integrate::Settings;
+
+use crate::integrate::{IntegrateArgs, SampleArgs};
 
 type Error = Box<dyn std::error::Error>;
 
@@ -50,14 +53,7 @@ pub(crate) fn run_multichannel(
     };
     let settings = args.settings()?;
     let mut mc = if args.channels {
-        let ex = examples::by_name(&f.name).map_err(|_| {
-            format!(
-                "--channels: {} has no channels; the multi-channel examples are {}",
-                f.name,
-                examples::names().join(", ")
-            )
-        })?;
-        MultiChannel::new(ChannelSet::new(ex.channels)?, method, settings, config)?
+        MultiChannel::new(channel_set(&f.name)?, method, settings, config)?
     } else {
         MultiChannel::single(f.dim, method, settings, config)?
     };
@@ -66,6 +62,56 @@ pub(crate) fn run_multichannel(
         Some(t) => mc.integrate_to(f, &t)?,
         None => mc.integrate(f, args.evals)?,
     })
+}
+
+/// The channels of the example `name`, or an error that lists the examples.
+fn channel_set(name: &str) -> Result<ChannelSet, Error> {
+    let ex = examples::by_name(name).map_err(|_| {
+        format!(
+            "--channels: {name} has no channels; the multi-channel examples are {}",
+            examples::names().join(", ")
+        )
+    })?;
+    Ok(ChannelSet::new(ex.channels)?)
+}
+
+/// `nis sample --channels`: a flow per channel (and sign) integrates the example on `--evals`,
+/// then `--n` events, each with its channel, go to `--out`.
+pub(crate) fn sample_events(args: &SampleArgs) -> Result<(), Error> {
+    let f = nis::integrands::by_name(&args.name, args.dim)?;
+    let settings = Settings::default().seed(args.seed);
+    let mut mc = MultiChannel::new(
+        channel_set(&f.name)?,
+        Method::Nis,
+        settings,
+        MultiChannelConfig::default(),
+    )?;
+    let r = mc.integrate(&f, args.evals)?;
+    let ev = mc.unweighted(&f, args.n, args.overweight)?;
+    let mut out = SampleWriter::create_with_channels(
+        &args.out,
+        SampleFormat::for_path(&args.out),
+        f.dim,
+        args.n as u64,
+    )?;
+    let points = ev.events.points.chunks_exact(f.dim);
+    for ((p, &w), &k) in points.zip(&ev.events.weights).zip(&ev.channels) {
+        out.push_event(p, w, k)?;
+    }
+    out.finish()?;
+    println!(
+        "{} events of {} through {} channels written to {} (integral {:.6e} ± {:.1e}): \
+         efficiency {:.4}, {:.1}% negative",
+        args.n,
+        f.name,
+        r.channels.as_ref().map_or(0, |c| c.means.len()),
+        args.out.display(),
+        r.value,
+        r.std_err,
+        ev.events.efficiency,
+        100.0 * ev.negative_fraction
+    );
+    Ok(())
 }
 
 /// The lines of a multi-channel result's channels and signs, for the text table.

@@ -478,10 +478,18 @@ pub struct SampleArgs {
     /// Random seed.
     #[arg(long, default_value_t = 0)]
     pub seed: u64,
+    /// Through the example's channels (the multi-channel examples of `nis list`): a flow per
+    /// channel and sign, integrated on --evals, then events that carry their channel (a column
+    /// `channel`; binary files `NISSMPL2`).
+    #[arg(long, conflicts_with = "load")]
+    pub channels: bool,
 }
 
 /// `nis sample`: trains (or loads) a NIS integrator and writes unweighted points.
 pub fn sample(args: &SampleArgs) -> Result<(), Error> {
+    if args.channels {
+        return crate::channels::sample_events(args);
+    }
     let f = integrands::by_name(&args.name, args.dim)?;
     let pb = bar("sample");
     let progress = shows_on(&pb);

@@ -335,3 +335,43 @@ fn channels_run_on_the_multi_channel_examples_only() {
     assert!(!out.status.success());
     assert!(String::from_utf8_lossy(&out.stderr).contains("resonances-4d"));
 }
+
+#[test]
+fn sampled_events_through_channels_carry_their_channel() {
+    let dir = scratch("events");
+    let out = dir.join("events.csv");
+    let run = |name: &str| {
+        nis(&[
+            "sample",
+            name,
+            "--channels",
+            "--n",
+            "300",
+            "--evals",
+            "60000",
+            "--out",
+            out.to_str().unwrap(),
+        ])
+    };
+    let done = run("dalitz");
+    assert!(
+        done.status.success(),
+        "{}",
+        String::from_utf8_lossy(&done.stderr)
+    );
+    let text = std::fs::read_to_string(&out).unwrap();
+    let mut lines = text.lines();
+    assert_eq!(lines.next(), Some("x0,x1,weight,channel"));
+    let channels: Vec<usize> = lines
+        .map(|l| l.rsplit(',').next().unwrap().parse().unwrap())
+        .collect();
+    assert_eq!(channels.len(), 300);
+    assert!(channels.iter().all(|k| *k < 2));
+    // An integrand without channels: an error that names the examples, no file.
+    std::fs::remove_file(&out).unwrap();
+    let failed = run("camel");
+    assert!(!failed.status.success());
+    assert!(String::from_utf8_lossy(&failed.stderr).contains("resonances-4d"));
+    assert!(!out.exists());
+    std::fs::remove_dir_all(&dir).unwrap();
+}

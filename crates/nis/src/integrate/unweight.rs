@@ -170,11 +170,11 @@ impl Unweighted {
         let mut b = Vec::new();
         let n = self.weights.len() as u64;
         format
-            .write_header(&mut b, self.dim, n)
+            .write_header(&mut b, self.dim, n, false)
             .expect("a Vec takes every write");
         for (p, &w) in self.points.chunks_exact(self.dim).zip(&self.weights) {
             format
-                .write_point(&mut b, p, w)
+                .write_point(&mut b, p, w, None)
                 .expect("a Vec takes every write");
         }
         b
@@ -198,35 +198,59 @@ impl SampleFormat {
         }
     }
 
-    fn write_header(self, out: &mut impl Write, dim: usize, n: u64) -> std::io::Result<()> {
+    /// The header of `n` points of dimension `dim`, with a channel column when `channels`.
+    fn write_header(
+        self,
+        out: &mut impl Write,
+        dim: usize,
+        n: u64,
+        channels: bool,
+    ) -> std::io::Result<()> {
         match self {
             SampleFormat::Csv => {
                 for i in 0..dim {
                     write!(out, "x{i},")?;
                 }
-                out.write_all(b"weight\n")
+                out.write_all(if channels {
+                    b"weight,channel\n"
+                } else {
+                    b"weight\n"
+                })
             }
             SampleFormat::Binary => {
-                out.write_all(b"NISSMPL1")?;
+                out.write_all(if channels { b"NISSMPL2" } else { b"NISSMPL1" })?;
                 out.write_all(&(dim as u32).to_le_bytes())?;
                 out.write_all(&n.to_le_bytes())
             }
         }
     }
 
-    fn write_point(self, out: &mut impl Write, point: &[f64], weight: f64) -> std::io::Result<()> {
+    /// One point, its weight and, in a file with a channel column, its channel.
+    fn write_point(
+        self,
+        out: &mut impl Write,
+        point: &[f64],
+        weight: f64,
+        channel: Option<usize>,
+    ) -> std::io::Result<()> {
         match self {
             SampleFormat::Csv => {
                 for v in point {
                     write!(out, "{v:.17e},")?;
                 }
-                writeln!(out, "{weight}")
+                match channel {
+                    Some(k) => writeln!(out, "{weight},{k}"),
+                    None => writeln!(out, "{weight}"),
+                }
             }
             SampleFormat::Binary => {
                 for v in point.iter().chain(std::iter::once(&weight)) {
                     out.write_all(&v.to_le_bytes())?;
                 }
-                Ok(())
+                match channel {
+                    Some(k) => out.write_all(&(k as u64).to_le_bytes()),
+                    None => Ok(()),
+                }
             }
         }
     }
@@ -251,14 +275,38 @@ pub struct SampleWriter {
     dim: usize,
     expected: u64,
     written: u64,
+    /// Whether every point carries its channel ([`SampleWriter::create_with_channels`]).
+    channels: bool,
 }
 
 impl SampleWriter {
     /// Starts a file for `n` points of dimension `dim` (the binary header records `n`).
     pub fn create(path: &Path, format: SampleFormat, dim: usize, n: u64) -> Result<SampleWriter> {
+        SampleWriter::start(path, format, dim, n, false)
+    }
+
+    /// Starts a file for `n` events of a multi-channel integrator, each with its channel: a
+    /// column `channel` in CSV; in binary the magic `NISSMPL2` and, after each point's weight,
+    /// its channel as u64 LE.
+    pub fn create_with_channels(
+        path: &Path,
+        format: SampleFormat,
+        dim: usize,
+        n: u64,
+    ) -> Result<SampleWriter> {
+        SampleWriter::start(path, format, dim, n, true)
+    }
+
+    fn start(
+        path: &Path,
+        format: SampleFormat,
+        dim: usize,
+        n: u64,
+        channels: bool,
+    ) -> Result<SampleWriter> {
         let mut file = AtomicFile::create(path)?;
         format
-            .write_header(&mut file, dim, n)
+            .write_header(&mut file, dim, n, channels)
             .map_err(|e| io_error(path, e))?;
         Ok(SampleWriter {
             file,
@@ -266,11 +314,29 @@ impl SampleWriter {
             dim,
             expected: n,
             written: 0,
+            channels,
         })
     }
 
     /// Appends one point and its residual weight.
     pub fn push(&mut self, point: &[f64], weight: f64) -> Result<()> {
+        self.write(point, weight, None)
+    }
+
+    /// Appends one event, its residual weight and its channel.
+    pub fn push_event(&mut self, point: &[f64], weight: f64, channel: usize) -> Result<()> {
+        self.write(point, weight, Some(channel))
+    }
+
+    fn write(&mut self, point: &[f64], weight: f64, channel: Option<usize>) -> Result<()> {
+        if channel.is_some() != self.channels {
+            return Err(Error::Config(format!(
+                "sample file {}: a point {} a channel, the file was made {} a channel column",
+                self.file.path().display(),
+                if channel.is_some() { "with" } else { "without" },
+                if self.channels { "with" } else { "without" },
+            )));
+        }
         if point.len() != self.dim || self.written == self.expected {
             return Err(Error::Config(format!(
                 "sample file for {} points of dimension {}: got point {} of dimension {}",
@@ -283,7 +349,7 @@ impl SampleWriter {
         self.written += 1;
         let path = self.file.path().to_path_buf();
         self.format
-            .write_point(&mut self.file, point, weight)
+            .write_point(&mut self.file, point, weight, channel)
             .map_err(|e| io_error(&path, e))
     }
 
@@ -368,6 +434,42 @@ mod tests {
         assert!(out.push(&[0.5], 1.0).is_err());
         assert!(out.finish().is_err());
         assert_eq!(std::fs::read_dir(&dir).unwrap().count(), 2);
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
+
+    #[test]
+    fn event_files_carry_a_channel_column() {
+        let dir = std::env::temp_dir().join(format!("nis-events-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let (csv, bin) = (dir.join("e.csv"), dir.join("e.bin"));
+        for path in [&csv, &bin] {
+            let format = SampleFormat::for_path(path);
+            let mut out = SampleWriter::create_with_channels(path, format, 2, 2).unwrap();
+            out.push_event(&[0.25, 0.5], 1.0, 7).unwrap();
+            // A point without its channel in a file with the column: an error.
+            assert!(out.push(&[0.25, 0.5], 1.0).is_err());
+            out.push_event(&[0.75, 0.5], -1.0, 0).unwrap();
+            out.finish().unwrap();
+        }
+        let text = std::fs::read_to_string(&csv).unwrap();
+        let lines: Vec<&str> = text.lines().collect();
+        assert_eq!(lines[0], "x0,x1,weight,channel");
+        assert!(
+            lines[1].ends_with(",1,7") && lines[2].ends_with(",-1,0"),
+            "{text}"
+        );
+        let b = std::fs::read(&bin).unwrap();
+        let u64_at = |i: usize| u64::from_le_bytes(b[i..i + 8].try_into().unwrap());
+        let f64_at = |i: usize| f64::from_le_bytes(b[i..i + 8].try_into().unwrap());
+        assert_eq!(&b[..8], b"NISSMPL2");
+        assert_eq!(b.len(), 20 + 2 * 8 * (2 + 1 + 1));
+        assert_eq!(
+            (f64_at(20), f64_at(28), f64_at(36), u64_at(44)),
+            (0.25, 0.5, 1.0, 7)
+        );
+        // A plain file refuses a channel.
+        let mut plain = SampleWriter::create(&dir.join("p.csv"), SampleFormat::Csv, 2, 1).unwrap();
+        assert!(plain.push_event(&[0.5, 0.5], 1.0, 1).is_err());
         std::fs::remove_dir_all(&dir).unwrap();
     }
 }
