@@ -406,6 +406,12 @@ impl Pursuit {
         }))
     }
 
+    /// Counts `n` evaluations spent outside the estimate's iterations (a part's own warm-up)
+    /// against `max_evals`.
+    pub(crate) fn spend(&mut self, n: u64) {
+        self.spent_before += n;
+    }
+
     /// Records the iteration drawn for `step`.
     pub(crate) fn record(&mut self, step: Step, iteration: &Iteration) {
         self.shares.push(step.share);

@@ -98,6 +98,7 @@ impl MultiChannel {
                 break;
             };
             let spare = step.evals.saturating_sub(least) as f64;
+            let spent_before = spent;
             let (mut estimate, mut variance, mut evals) = (0.0, 0.0, 0u64);
             let (mut max_abs_w, mut sum_abs_w) = (0.0f64, 0.0);
             for (i, p) in self.parts.iter_mut().enumerate() {
@@ -125,6 +126,8 @@ impl MultiChannel {
                 max_abs_w,
                 sum_abs_w,
             );
+            // VEGAS+ parts warm up in every call: those evaluations count against max_evals.
+            pursuit.spend(spent - spent_before - evals);
             pursuit.record(step, &iteration);
             combined.push(iteration);
             prior.seconds_per_eval = pursuit.elapsed(&self.comm) / spent as f64;
