@@ -219,15 +219,9 @@ impl MultiChannel {
         let rest = evals.saturating_sub(spent);
         let floor = (rest / (50 * parts)).max(MIN_PART_EVALS);
         let sd = sd_per_eval(&measured);
-        let total_sd: f64 = sd.iter().sum();
         let spare = rest.saturating_sub(floor * parts) as f64;
         let mut results = Vec::with_capacity(self.parts.len());
-        for (p, s) in self.parts.iter_mut().zip(&sd) {
-            let share = if total_sd > 0.0 {
-                s / total_sd
-            } else {
-                1.0 / parts as f64
-            };
+        for (p, share) in self.parts.iter_mut().zip(neyman(&sd)) {
             let n = floor + (spare * share) as u64;
             let h = PartIntegrand::new(f, &self.set, &self.weights, p.channel, p.sign);
             let r = estimate_part(p.integrator.as_mut(), &h, n)?;
@@ -367,6 +361,20 @@ fn sd_per_eval(measured: &[IntegrationResult]) -> Vec<f64> {
     measured
         .iter()
         .map(|r| r.std_err * (r.iterations.iter().map(|i| i.evals).sum::<u64>() as f64).sqrt())
+        .collect()
+}
+
+/// Neyman's allocation: each part's share of the points, σ_p/Σσ (equal shares when every σ is 0).
+fn neyman(sd: &[f64]) -> Vec<f64> {
+    let total: f64 = sd.iter().sum();
+    sd.iter()
+        .map(|s| {
+            if total > 0.0 {
+                s / total
+            } else {
+                1.0 / sd.len() as f64
+            }
+        })
         .collect()
 }
 

@@ -75,6 +75,7 @@ impl MultiChannel {
         spent += adapted;
         let sd = super::sd_per_eval(&measured);
         let total_sd: f64 = sd.iter().sum();
+        let shares = super::neyman(&sd);
         let signs: Vec<f64> = self.parts.iter().map(|p| p.sign.factor()).collect();
         let mut pursuit = Pursuit::new(*target, started, spent);
         let mut prior = Prior {
@@ -102,12 +103,7 @@ impl MultiChannel {
             let (mut estimate, mut variance, mut evals) = (0.0, 0.0, 0u64);
             let (mut max_abs_w, mut sum_abs_w) = (0.0f64, 0.0);
             for (i, p) in self.parts.iter_mut().enumerate() {
-                let share = if total_sd > 0.0 {
-                    sd[i] / total_sd
-                } else {
-                    1.0 / parts as f64
-                };
-                let n = MIN_PART_EVALS + (spare * share) as u64;
+                let n = MIN_PART_EVALS + (spare * shares[i]) as u64;
                 let h = PartIntegrand::new(f, &self.set, &self.weights, p.channel, p.sign);
                 let r = estimate_part(p.integrator.as_mut(), &h, n)?;
                 spent += r.n_eval;
