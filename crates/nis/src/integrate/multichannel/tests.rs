@@ -273,6 +273,22 @@ fn a_limit_ends_a_multi_channel_run_with_a_warning() {
         .unwrap();
     assert_eq!(r.stop, Some(crate::integrate::Stop::MaxEvals));
     assert!(r.n_eval <= 200_000, "{}", r.n_eval);
+    // A time limit shorter than the adaptation: one iteration of the estimate still runs, so
+    // the answer is an estimate with its error bar, stopped by max_seconds with the warning.
+    let mut mc = to_target("resonances-4d", Method::Uniform, 2, 5_000);
+    let r = mc
+        .integrate_to(&ex.integrand, &Target::rel(1e-6).max_seconds(1e-3))
+        .unwrap();
+    assert_eq!(r.stop, Some(crate::integrate::Stop::MaxSeconds));
+    assert!(
+        r.std_err > 0.0 && (r.value - ex.exact).abs() < 5.0 * r.std_err,
+        "{r:?}"
+    );
+    assert!(
+        r.warnings.iter().any(|w| w.contains("max_seconds")),
+        "{:?}",
+        r.warnings
+    );
     assert!(
         r.warnings.iter().any(|w| w.contains("was not met")),
         "{:?}",
