@@ -13,9 +13,9 @@ use nis::integrate::IntegrationResult;
 
 use super::callback::Callback;
 use super::config::Config;
-use super::target::{stop_code, target_of};
+use super::target::{copy_warnings, stop_code, target_of};
 use super::{nis_integrand_fn, nis_result, text, write_result};
-use crate::status::{copy_text, guard, Failure, Outcome, NIS_ERR_CONFIG, NIS_ERR_NO_RESULT};
+use crate::status::{guard, Failure, Outcome, NIS_ERR_CONFIG, NIS_ERR_NO_RESULT};
 
 /// A channel's map or density: reads `n` points `in` (row-major, `dim` coordinates each) and
 /// writes `out` (the mapped points, n × dim, for `sample`; the densities, n values, for
@@ -225,17 +225,26 @@ pub unsafe extern "C" fn nis_multichannel_integrate(
 ) -> c_int {
     guard(|| {
         let mc = unsafe { multichannel(mc) }?;
-        let f = f.ok_or_else(|| Failure::null("the integrand callback"))?;
-        let callback = Callback::new(f, user, mc.integrator.dim(), 1, mc.concurrent_callback);
-        let r = mc
-            .integrator
-            .integrate(&callback, evals)
-            .map_err(|e| callback.failure(e))?;
-        // SAFETY: NULL or writable (caller's contract).
-        unsafe { write_result(result, &r) };
-        mc.last = Some(r);
-        Ok(())
+        unsafe { run(mc, f, user, result, |m, f| m.integrate(f, evals)) }
     })
+}
+
+/// Runs `call` on the integrator with `f` wrapped as an integrand, writes its summary into
+/// `*result` (NULL or writable) and keeps it as the last result.
+unsafe fn run(
+    mc: &mut nis_multichannel,
+    f: nis_integrand_fn,
+    user: *mut c_void,
+    result: *mut nis_result,
+    call: impl FnOnce(&mut MultiChannel, &Callback) -> nis::Result<IntegrationResult>,
+) -> Outcome<()> {
+    let f = f.ok_or_else(|| Failure::null("the integrand callback"))?;
+    let callback = Callback::new(f, user, mc.integrator.dim(), 1, mc.concurrent_callback);
+    let r = call(&mut mc.integrator, &callback).map_err(|e| callback.failure(e))?;
+    // SAFETY: NULL or writable (caller's contract).
+    unsafe { write_result(result, &r) };
+    mc.last = Some(r);
+    Ok(())
 }
 
 /// Integrates `f` through the channels until the standard error is at most
@@ -257,18 +266,12 @@ pub unsafe extern "C" fn nis_multichannel_integrate_to(
 ) -> c_int {
     guard(|| {
         let mc = unsafe { multichannel(mc) }?;
-        let f = f.ok_or_else(|| Failure::null("the integrand callback"))?;
+        if f.is_none() {
+            return Err(Failure::null("the integrand callback"));
+        }
         let target = target_of(rel_err, abs_err, max_evals, max_seconds)?;
         mc.integrator.check_target(&target)?;
-        let callback = Callback::new(f, user, mc.integrator.dim(), 1, mc.concurrent_callback);
-        let r = mc
-            .integrator
-            .integrate_to(&callback, &target)
-            .map_err(|e| callback.failure(e))?;
-        // SAFETY: NULL or writable (caller's contract).
-        unsafe { write_result(result, &r) };
-        mc.last = Some(r);
-        Ok(())
+        unsafe { run(mc, f, user, result, |m, f| m.integrate_to(f, &target)) }
     })
 }
 
@@ -381,11 +384,6 @@ pub unsafe extern "C" fn nis_multichannel_warnings(
     buffer: *mut c_char,
     capacity: usize,
 ) -> usize {
-    // SAFETY: NULL or live (caller's contract).
-    let text = unsafe { mc.as_ref() }
-        .and_then(|m| m.last.as_ref())
-        .map(|r| r.warnings.join("\n"))
-        .unwrap_or_default();
-    // SAFETY: forwarded under the same contract.
-    unsafe { copy_text(text.as_bytes(), buffer, capacity) }
+    // SAFETY: NULL or live (caller's contract); the buffer forwarded under the same contract.
+    unsafe { copy_warnings(mc.as_ref().and_then(|m| m.last.as_ref()), buffer, capacity) }
 }

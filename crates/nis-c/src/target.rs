@@ -106,11 +106,27 @@ pub unsafe extern "C" fn nis_result_warnings(
     buffer: *mut c_char,
     capacity: usize,
 ) -> usize {
-    // SAFETY: NULL or live (caller's contract).
-    let text = unsafe { integ.as_ref() }
-        .and_then(|i| i.last.as_ref())
-        .map(|r| r.warnings.join("\n"))
-        .unwrap_or_default();
-    // SAFETY: forwarded under the same contract.
+    // SAFETY: NULL or live (caller's contract); the buffer forwarded under the same contract.
+    unsafe {
+        copy_warnings(
+            integ.as_ref().and_then(|i| i.last.as_ref()),
+            buffer,
+            capacity,
+        )
+    }
+}
+
+/// Copies the warnings of `r` (none: an empty string), one per line, as
+/// [`nis_result_warnings`] documents.
+///
+/// # Safety
+/// `buffer` NULL or writable for `capacity` bytes.
+pub(crate) unsafe fn copy_warnings(
+    r: Option<&nis::integrate::IntegrationResult>,
+    buffer: *mut c_char,
+    capacity: usize,
+) -> usize {
+    let text = r.map(|r| r.warnings.join("\n")).unwrap_or_default();
+    // SAFETY: forwarded under the caller's contract.
     unsafe { copy_text(text.as_bytes(), buffer, capacity) }
 }

@@ -116,7 +116,7 @@ impl Accumulator {
             assert_eq!(a.len(), self.iterations.len(), "one share per iteration");
         }
         let (value, var) = self.pooled(shares);
-        let chi2 = self.chi2(value, shares.is_some() && !self.frozen);
+        let chi2 = chi2_per_dof(&self.iterations, value, shares.is_some() && !self.frozen);
         let finals = || self.iterations.iter().filter(|i| i.source == Source::Final);
         let max_abs_w = finals().fold(0.0f64, |m, i| m.max(i.max_abs_w));
         let sum_abs_w: f64 = finals().map(|i| i.sum_abs_w).sum();
@@ -201,44 +201,6 @@ impl Accumulator {
         }
     }
 
-    /// χ² per degree of freedom of the iterations around `value` (NaN for fewer than two).
-    fn chi2(&self, value: f64, own_variances: bool) -> f64 {
-        let its = &self.iterations;
-        let k = its.len();
-        if k < 2 {
-            return f64::NAN;
-        }
-        if own_variances {
-            return if its.iter().all(|i| i.variance > 0.0) {
-                its.iter()
-                    .map(|i| (i.estimate - value).powi(2) / i.variance)
-                    .sum::<f64>()
-                    / (k - 1) as f64
-            } else {
-                f64::NAN
-            };
-        }
-        // Against the variance an iteration of its size has by the pooled estimate (iterations
-        // are of nearly equal size, or of one frozen sampler): dividing by each iteration's own variance estimate instead
-        // pulls χ² far below 1 for heavy-tailed weights, whose large deviations come with large
-        // variance estimates. The per-evaluation variance of each iteration, averaged over the
-        // iterations weighted by their sizes:
-        let total: f64 = its.iter().map(|i| i.evals as f64).sum();
-        let mean_var_per_eval = its
-            .iter()
-            .map(|i| i.variance * (i.evals as f64).powi(2))
-            .sum::<f64>()
-            / total;
-        if mean_var_per_eval > 0.0 {
-            its.iter()
-                .map(|i| (i.estimate - value).powi(2) * i.evals as f64 / mean_var_per_eval)
-                .sum::<f64>()
-                / (k - 1) as f64
-        } else {
-            f64::NAN
-        }
-    }
-
     /// Every component's pooled estimate and covariance, pooled as [`Accumulator::pooled`]
     /// pools component 0; `None` for a scalar integrand.
     fn components(&self, shares: Option<&[f64]>) -> Option<ComponentEstimates> {
@@ -314,6 +276,45 @@ fn check_representable(estimate: f64, variance: f64, max_abs_w: f64) -> Result<(
          f64 (squares beyond ~10^±308), so no error bar can be given; multiply the integrand by \
          a constant that brings its values nearer 1"
     )))
+}
+
+/// χ² per degree of freedom of `its` around `value` (NaN for fewer than two): against each
+/// iteration's own variance when `own_variances` (a sampler that adapts between them),
+/// else against the pooled variance per evaluation (one fixed sampler).
+pub(crate) fn chi2_per_dof(its: &[Iteration], value: f64, own_variances: bool) -> f64 {
+    let k = its.len();
+    if k < 2 {
+        return f64::NAN;
+    }
+    if own_variances {
+        return if its.iter().all(|i| i.variance > 0.0) {
+            its.iter()
+                .map(|i| (i.estimate - value).powi(2) / i.variance)
+                .sum::<f64>()
+                / (k - 1) as f64
+        } else {
+            f64::NAN
+        };
+    }
+    // Against the variance an iteration of its size has by the pooled estimate (iterations
+    // are of nearly equal size, or of one frozen sampler): dividing by each iteration's own variance estimate instead
+    // pulls χ² far below 1 for heavy-tailed weights, whose large deviations come with large
+    // variance estimates. The per-evaluation variance of each iteration, averaged over the
+    // iterations weighted by their sizes:
+    let total: f64 = its.iter().map(|i| i.evals as f64).sum();
+    let mean_var_per_eval = its
+        .iter()
+        .map(|i| i.variance * (i.evals as f64).powi(2))
+        .sum::<f64>()
+        / total;
+    if mean_var_per_eval > 0.0 {
+        its.iter()
+            .map(|i| (i.estimate - value).powi(2) * i.evals as f64 / mean_var_per_eval)
+            .sum::<f64>()
+            / (k - 1) as f64
+    } else {
+        f64::NAN
+    }
 }
 
 #[cfg(test)]

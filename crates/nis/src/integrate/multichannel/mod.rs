@@ -228,14 +228,25 @@ impl MultiChannel {
             spent += r.n_eval;
             results.push(r);
         }
-        Ok(report::combine(
+        Ok(self.combine(&results, spent, started))
+    }
+
+    /// The parts' `results` summed into one result with its [`ChannelReport`], `spent`
+    /// evaluations in all since `started`.
+    fn combine(
+        &self,
+        results: &[IntegrationResult],
+        spent: u64,
+        started: Instant,
+    ) -> IntegrationResult {
+        report::combine(
             &self.parts_index(),
-            &results,
+            results,
             &self.weights,
-            channels,
+            self.set.len(),
             spent,
             started,
-        ))
+        )
     }
 
     /// Checks `f` and makes the parts on the first call (returns the pilot's evaluations).

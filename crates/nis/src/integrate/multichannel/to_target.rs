@@ -9,10 +9,11 @@
 use std::time::Instant;
 
 use super::part::PartIntegrand;
-use super::{estimate_part, report, MultiChannel, MIN_PART_EVALS};
+use super::{estimate_part, MultiChannel, MIN_PART_EVALS};
 use crate::error::Result;
+use crate::integrate::estimate::chi2_per_dof;
 use crate::integrate::target::{Prior, Pursuit, AIM};
-use crate::integrate::{Integrand, IntegrationResult, Iteration, Source, Target};
+use crate::integrate::{Integrand, IntegrationResult, Iteration, Method, Source, Target};
 
 /// The estimate's iterations a plan aims at (later ones grow at most ×2 each).
 const RESULT_ITERATIONS: f64 = 10.0;
@@ -65,7 +66,6 @@ impl MultiChannel {
     ) -> Result<IntegrationResult> {
         self.check_target(target)?;
         let started = Instant::now();
-        let channels = self.set.len();
         let mut spent = self.prepare(f)?;
         let parts = self.parts.len() as u64;
         // Adapt: at most adapt_fraction of max_evals, shared equally.
@@ -131,15 +131,10 @@ impl MultiChannel {
         // The shares as the run ended (an extension rescales the earlier ones).
         let shares = pursuit.shares();
         let results: Vec<IntegrationResult> = sums.into_iter().map(|s| s.finish(shares)).collect();
-        let mut result = report::combine(
-            &self.parts_index(),
-            &results,
-            &self.weights,
-            channels,
-            spent,
-            started,
-        );
-        result.chi2_per_dof = chi2_per_dof(&combined, result.value);
+        let mut result = self.combine(&results, spent, started);
+        // The parts' samplers are fixed during the estimate but VEGAS+'s, which adapt.
+        let adapting = self.method == Method::Vegas;
+        result.chi2_per_dof = chi2_per_dof(&combined, result.value, adapting);
         result.iterations = combined;
         pursuit.finish(&mut result);
         Ok(result)
@@ -174,17 +169,4 @@ impl PartSum {
         r.iterations = self.iterations;
         r
     }
-}
-
-/// χ²/dof of the iterations' estimates around `value` (`NaN` for fewer than two).
-fn chi2_per_dof(iterations: &[Iteration], value: f64) -> f64 {
-    if iterations.len() < 2 {
-        return f64::NAN;
-    }
-    let chi2: f64 = iterations
-        .iter()
-        .filter(|i| i.variance > 0.0)
-        .map(|i| (i.estimate - value).powi(2) / i.variance)
-        .sum();
-    chi2 / (iterations.len() - 1) as f64
 }

@@ -21,7 +21,7 @@ use std::time::Instant;
 use rand::SeedableRng;
 use rand_pcg::Pcg64Mcg;
 
-use super::moments::{iid_iteration, Moments};
+use super::moments::iid_iteration;
 use super::{
     check_budget, check_dim, evaluate, report, Accumulator, Integrand, IntegrationResult,
     Integrator, Method, Progress, Target,
@@ -34,14 +34,14 @@ use crate::kernels::in_pool;
 use crate::nn::ParamAverage;
 use crate::train::Learner;
 use memory::TrainingMemory;
-use reuse::{ReplayBuffer, TrainingPieces};
-use training_length::{BatchReport, TrainingLength};
+use reuse::TrainingPieces;
 
 mod config;
 mod memory;
 mod reuse;
 mod stratified_latent;
 mod to_target;
+mod training;
 mod training_length;
 
 pub use config::{NisConfig, NisConfigBuilder, Stratify};
@@ -152,202 +152,6 @@ impl NisIntegrator {
         self.memory.clear();
         self.comm = comm;
         self.set_seed(self.config.seed);
-    }
-
-    /// The adaptive phase: `evals` more evaluations in batches, one training step (or
-    /// `steps_per_batch`) per batch. The first training of a new integrator sets the schedule —
-    /// the learning rate decays over its steps to `learning_rate_end` of its start, and an
-    /// untrained flow anneals its target from |f|^`anneal_from` — later ones continue Adam as it
-    /// stands on the plain target.
-    pub fn train(&mut self, f: &dyn Integrand, evals: u64) -> Result<()> {
-        in_pool(|| self.train_keeping(f, evals, None))
-    }
-
-    /// [`NisIntegrator::train`], handing every batch to `pieces` (training reused in the
-    /// estimate) when given. Trains from the last step's weights and leaves the average in the
-    /// flow, also when a step fails.
-    fn train_keeping(
-        &mut self,
-        f: &dyn Integrand,
-        evals: u64,
-        pieces: Option<&mut TrainingPieces>,
-    ) -> Result<()> {
-        let batches = (evals / self.config.batch as u64) as usize;
-        self.train_keeping_for(f, batches, pieces, None)
-    }
-
-    /// [`NisIntegrator::train_keeping`] for `batches` batches, or fewer when `length` says stop.
-    fn train_keeping_for(
-        &mut self,
-        f: &dyn Integrand,
-        batches: usize,
-        pieces: Option<&mut TrainingPieces>,
-        length: Option<&mut TrainingLength>,
-    ) -> Result<()> {
-        if let Some(a) = &self.average {
-            a.resume(&mut [self.sampler.density.params_mut()]);
-        }
-        let trained = self.train_steps(f, batches, pieces, length);
-        if let Some(a) = &mut self.average {
-            a.use_average(&mut [self.sampler.density.params_mut()]);
-        }
-        trained
-    }
-
-    /// The batches and steps of [`NisIntegrator::train_keeping_for`]: `steps` batches, or fewer
-    /// when `length` (integrating to a target) says stop.
-    fn train_steps(
-        &mut self,
-        f: &dyn Integrand,
-        steps: usize,
-        mut pieces: Option<&mut TrainingPieces>,
-        mut length: Option<&mut TrainingLength>,
-    ) -> Result<()> {
-        let dim = self.flow().dim();
-        check_dim(f, dim)?;
-        let k = f.components();
-        self.config.train_on.check(k)?;
-        let batch = self.config.batch;
-        if batch < self.comm.size() {
-            return Err(Error::Config(format!(
-                "a batch of {batch} points cannot be shared by {} ranks",
-                self.comm.size()
-            )));
-        }
-        // This rank's share of every batch; the steps are the whole batch's.
-        let share = self.comm.share(batch as u64) as usize;
-        if !self.scheduled {
-            self.schedule(steps)?;
-        }
-        // The tempered target rises to |f| over the first half of a first training, or over the
-        // rule's annealing batches when it decides the length (then the average restarts there).
-        let anneal = (self.trained_evals == 0 && steps > 1).then(|| match &length {
-            Some(rule) => rule.anneal() as f64,
-            None => steps as f64 / 2.0,
-        });
-        let evals = (steps * batch) as u64;
-        let mut replay = ReplayBuffer::new(self.config.replay_batches);
-        self.memory.clear();
-        let mut done = 0;
-        for step in 0..steps {
-            let beta = match anneal {
-                Some(span) => {
-                    let t = (step as f64 / span).min(1.0);
-                    self.config.anneal_from + t * (1.0 - self.config.anneal_from)
-                }
-                None => 1.0,
-            };
-            if length.is_some() && anneal == Some(step as f64) {
-                if let Some(a) = &mut self.average {
-                    *a = ParamAverage::new(a.decay(), &[self.sampler.density.params()]);
-                }
-            }
-            let started = Instant::now();
-            self.learner.set_temperature(beta);
-            // The flow's latents are the first numbers of the stream (`Flow::sample`): a copy of
-            // it redraws them for the prediction of the stratified final phase.
-            let latent_rng = pieces
-                .as_deref()
-                .is_some_and(TrainingPieces::needs_latents)
-                .then(|| self.streams.train.clone());
-            // Training sees q's share only (on-policy), so only its pass keeps a tape.
-            let drawn = draw(
-                &self.sampler,
-                share,
-                &mut self.streams.train,
-                Record::DensityShare,
-            );
-            // The failure flag of the batch: an error on any rank stops every rank here.
-            let (b, fx) = self
-                .comm
-                .check(drawn.and_then(|(b, x64)| Ok((b, evaluate(f, &x64, dim)?))))?;
-            let drawn_in = started.elapsed().as_secs_f64();
-            self.memory.observe(&b.x, &fx, k, &mut self.streams.memory);
-            if let Some(p) = pieces.as_deref_mut() {
-                let z = latent_rng.map_or_else(Vec::new, |mut rng| {
-                    crate::flow::uniform_latents(b.density_part.len() * dim, &mut rng)
-                });
-                p.observe(step, &b, &z, &fx, &self.comm);
-            }
-            let moments = length.is_some().then(|| {
-                let mut m = Moments::new(k);
-                m.add(&reuse::batch_weights(&b, &fx, k));
-                m.across(&self.comm)
-            });
-            let target = self.config.train_on.target(&fx, k);
-            self.trained_evals += batch as u64;
-            done += batch as u64;
-            let n_f = b.density_part.len();
-            // Skip the step when the flow's share saw nothing: there is no direction to learn.
-            let flow = &mut self.sampler.density;
-            if self.comm.any(target[..n_f].iter().any(|v| *v != 0.0)) {
-                self.learner
-                    .step_on_policy(flow, &b.density_part, &target[..n_f])?;
-                for _ in 1..self.config.steps_per_batch {
-                    self.learner.step(
-                        flow,
-                        &b.density_part.x,
-                        None,
-                        &target[..n_f],
-                        &b.density_part.log_q,
-                    )?;
-                }
-            }
-            // Earlier batches replayed off-policy (their points keep the density that drew them).
-            for _ in 0..self.config.replay_steps {
-                if let Some(r) = replay.next() {
-                    self.learner.step(flow, &r.x, None, &r.target, &r.log_q)?;
-                }
-            }
-            if let Some(a) = &mut self.average {
-                a.add(&[self.sampler.density.params()]);
-            }
-            if self.comm.any(target[..n_f].iter().any(|v| *v != 0.0)) {
-                replay.push(
-                    b.density_part.x,
-                    target[..n_f].to_vec(),
-                    b.density_part.log_q,
-                );
-            }
-            report(&mut self.progress, done, evals, "nis: training");
-            if let (Some(rule), Some(m)) = (length.as_deref_mut(), moments) {
-                // Times as the slowest rank saw them, so every rank decides alike.
-                let mut t = [drawn_in, started.elapsed().as_secs_f64()];
-                self.comm.max_f64(&mut t);
-                let (mean, cov) = m.mean_and_cov_of_mean();
-                let go_on = rule.go_on(BatchReport {
-                    var_per_eval: cov[0] * m.n() as f64,
-                    estimate: mean[0],
-                    seconds_per_eval: t[0] / batch as f64,
-                    seconds: t[1],
-                });
-                if !go_on {
-                    break;
-                }
-            }
-        }
-        Ok(())
-    }
-
-    /// Sets the learning-rate schedule and the weights' average over the `steps` training batches
-    /// of this integrator's first training.
-    fn schedule(&mut self, steps: usize) -> Result<()> {
-        // The rate decays over the Adam steps of the on-policy and the replayed batches.
-        let adam_steps = steps * (1 + self.config.replay_steps);
-        let decay = self
-            .config
-            .learning_rate_end
-            .powf(1.0 / adam_steps.max(1) as f32);
-        self.learner
-            .set_learning_rate_decay(decay * self.config.adam.decay)?;
-        // The average spans a share of the same steps (a loaded integrator's first training
-        // starts an average of its own).
-        if self.config.average_span > 0.0 {
-            let decay = ParamAverage::span_decay(self.config.average_span, steps);
-            self.average = Some(ParamAverage::new(decay, &[self.flow().params()]));
-        }
-        self.scheduled = true;
-        Ok(())
     }
 
     /// The final phase alone: the flow frozen, `evals` evaluations in `final_iterations`
