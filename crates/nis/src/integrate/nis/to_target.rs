@@ -81,8 +81,19 @@ impl NisIntegrator {
         let anneal = anneal_batches(dim);
         let horizon = HORIZON_BATCHES.max(2 * anneal + SETTLE_BATCHES);
         let max_seconds = target.max_seconds.map_or(f64::INFINITY, |s| s * share);
-        let mut length =
-            TrainingLength::new(*target, anneal, max_batches.min(horizon), max_seconds);
+        // A flow trained before (loaded, or trained by hand) starts at β = 1.
+        let beta_from = if self.trained_evals == 0 {
+            self.config.anneal_from
+        } else {
+            1.0
+        };
+        let mut length = TrainingLength::new(
+            *target,
+            anneal,
+            beta_from,
+            max_batches.min(horizon),
+            max_seconds,
+        );
         let before = self.trained_evals;
         self.train_keeping_for(f, max_batches.min(horizon), None, Some(&mut length))?;
         let trained = self.trained_evals - before;

@@ -84,25 +84,23 @@ impl NisIntegrator {
         if !self.scheduled {
             self.schedule(steps)?;
         }
-        // The tempered target rises to |f| over the first half of a first training, or over the
-        // rule's annealing batches when it decides the length (then the average restarts there).
-        let anneal = (self.trained_evals == 0 && steps > 1).then(|| match &length {
-            Some(rule) => rule.anneal() as f64,
-            None => steps as f64 / 2.0,
-        });
+        // The tempered target rises to |f| over the first half of a first training, or at the
+        // pace the rule sets when it decides the length (then the average restarts at β = 1).
+        let anneal = (self.trained_evals == 0 && steps > 1).then_some(steps as f64 / 2.0);
         let evals = (steps * batch) as u64;
         let mut replay = ReplayBuffer::new(self.config.replay_batches);
         self.memory.clear();
         let mut done = 0;
         for step in 0..steps {
-            let beta = match anneal {
-                Some(span) => {
+            let beta = match (&length, anneal) {
+                (Some(rule), _) => rule.beta(),
+                (None, Some(span)) => {
                     let t = (step as f64 / span).min(1.0);
                     self.config.anneal_from + t * (1.0 - self.config.anneal_from)
                 }
-                None => 1.0,
+                (None, None) => 1.0,
             };
-            if length.is_some() && anneal == Some(step as f64) {
+            if length.as_deref().is_some_and(|rule| rule.just_annealed()) {
                 if let Some(a) = &mut self.average {
                     *a = ParamAverage::new(a.decay(), &[self.sampler.density.params()]);
                 }
@@ -140,6 +138,11 @@ impl NisIntegrator {
                 m.across(&self.comm)
             });
             let target = self.config.train_on.target(&fx, k);
+            let tempered_ess = if beta < 1.0 && length.is_some() {
+                tempered_ess(&target, &b.log_q_mix, beta, &self.comm)
+            } else {
+                1.0
+            };
             self.trained_evals += batch as u64;
             done += batch as u64;
             let n_f = b.density_part.len();
@@ -185,6 +188,7 @@ impl NisIntegrator {
                     estimate: mean[0],
                     seconds_per_eval: t[0] / batch as f64,
                     seconds: t[1],
+                    tempered_ess,
                 });
                 if !go_on {
                     break;
@@ -214,4 +218,35 @@ impl NisIntegrator {
         self.scheduled = true;
         Ok(())
     }
+}
+
+/// The ESS fraction (Σw)²/(n·Σw²) of the tempered weights w = |t|^β/q_mix of a batch over all
+/// ranks (`target` the training values t, `log_q_mix` the mixture's ln q_mix of each point); 1 for
+/// a batch where t is zero everywhere.
+fn tempered_ess(target: &[f64], log_q_mix: &[f64], beta: f64, comm: &crate::comm::Comm) -> f64 {
+    let log_w: Vec<f64> = target
+        .iter()
+        .zip(log_q_mix)
+        .map(|(t, l)| {
+            if *t == 0.0 {
+                f64::NEG_INFINITY
+            } else {
+                beta * t.abs().ln() - l
+            }
+        })
+        .collect();
+    // Scaled by the largest weight on any rank, so that no sum overflows.
+    let mut top = [log_w.iter().copied().fold(f64::NEG_INFINITY, f64::max)];
+    comm.max_f64(&mut top);
+    if top[0] == f64::NEG_INFINITY {
+        return 1.0;
+    }
+    let mut sums = [0.0, 0.0, log_w.len() as f64];
+    for l in &log_w {
+        let w = (l - top[0]).exp();
+        sums[0] += w;
+        sums[1] += w * w;
+    }
+    comm.sum_f64(&mut sums);
+    sums[0] * sums[0] / (sums[2] * sums[1])
 }

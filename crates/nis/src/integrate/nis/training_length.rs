@@ -9,14 +9,23 @@
 //! the median ln V_b per batch between the last two windows of W batches (medians, because single
 //! heavy-tailed batches would set the trend). Training goes on while the time it saves exceeds the
 //! time it costs: a cheap integrand stops early, an expensive one trains long.
+//!
+//! The rule also paces the annealing (the tempered target |f|^β, β rising to 1, that lets the
+//! flow find every mode before it sharpens). Annealing need only be slow while the flow lags the
+//! tempered target, which the effective sample size of each batch's tempered weights |f|^β/q_mix
+//! measures, as adaptive tempering in sequential Monte Carlo does (Jasra, Stephens, Doucet,
+//! Tsagaris 2011). The pace at which β rises doubles after every [`PACE_WINDOW`] batches whose
+//! ESS fractions all reach [`TRACKING_ESS`], up to [`MAX_PACE`] times the slow pace, and falls
+//! back to the slow pace at the first batch below it (docs/results/integration.md, "Precision
+//! targets", gives the measurements that set them).
 
 use crate::integrate::Target;
 
 /// Batches over which the tempered target |f|^β rises to |f| in target mode, in `dim`
-/// dimensions; the rule decides from [`SETTLE_BATCHES`] after. Finding every mode takes longer
-/// in more dimensions: on camel-sharp d = 16 (two peaks), 50 such batches, and 25 per dimension,
-/// left seed 1 with one peak of two (0.50 ± 5·10⁻⁴ of 1, no warning); 40 per dimension found
-/// both on seeds 1–3.
+/// dimensions, at the slow pace; the rule decides from [`SETTLE_BATCHES`] after. Finding every
+/// mode takes longer in more dimensions: on camel-sharp d = 16 (two peaks), 50 such batches, and
+/// 25 per dimension, left seed 1 with one peak of two (0.50 ± 5·10⁻⁴ of 1, no warning); 40 per
+/// dimension found both on seeds 1–3.
 pub(super) fn anneal_batches(dim: usize) -> usize {
     (40 * dim).max(50)
 }
@@ -27,6 +36,15 @@ pub(super) const SETTLE_BATCHES: usize = 50;
 const CHECK_EVERY: usize = 10;
 /// Fewest batches in a window of the trend.
 const MIN_WINDOW: usize = 10;
+/// The most times faster than the slow pace that β rises while the flow tracks the tempered
+/// target.
+const MAX_PACE: f64 = 16.0;
+/// Batches of tracking after which the pace doubles.
+const PACE_WINDOW: usize = 10;
+/// The ESS fraction of the tempered weights that every batch of the window must reach for the
+/// fast pace. On the suite's multi-peaked cells at d ≥ 8 no window of the slow annealing reaches
+/// it; on gauss d = 16 nearly every window does.
+const TRACKING_ESS: f64 = 0.8;
 
 /// The measurements of one training batch (over all ranks).
 #[derive(Clone, Copy, Debug)]
@@ -39,13 +57,24 @@ pub(super) struct BatchReport {
     pub(super) seconds_per_eval: f64,
     /// Seconds the whole batch took, its training step included.
     pub(super) seconds: f64,
+    /// The ESS fraction (Σw)²/(n·Σw²) of the tempered weights w = |f|^β/q_mix of the batch
+    /// (1 once β = 1: it only paces the annealing).
+    pub(super) tempered_ess: f64,
 }
 
 /// The decision rule of the module docs, fed one [`BatchReport`] per batch.
 pub(super) struct TrainingLength {
     target: Target,
-    /// Batches of annealing (see [`anneal_batches`]).
+    /// Batches of annealing at the slow pace (see [`anneal_batches`]).
     anneal: usize,
+    /// The tempered target's exponent at the first batch.
+    beta_from: f64,
+    /// The exponent of the next batch.
+    beta: f64,
+    /// Batches trained when β reached 1.
+    annealed_at: Option<usize>,
+    /// How many times the slow pace β rises at, and the batch at which it last changed.
+    pace: (f64, usize),
     /// Batches after which training stops whatever the trend says.
     max_batches: usize,
     /// Seconds of training after which it stops (a share of `max_seconds`).
@@ -54,26 +83,68 @@ pub(super) struct TrainingLength {
     estimates: Vec<f64>,
     seconds_per_eval: Vec<f64>,
     seconds: Vec<f64>,
+    ess: Vec<f64>,
 }
 
 impl TrainingLength {
-    /// For `target`, annealing over `anneal` batches and training at most `max_batches` batches
-    /// and `max_seconds` seconds.
+    /// For `target`, annealing from |f|^`beta_from` over `anneal` batches at the slow pace
+    /// (`beta_from` = 1: none, for a flow trained before) and training at most `max_batches`
+    /// batches and `max_seconds` seconds.
     pub(super) fn new(
         target: Target,
         anneal: usize,
+        beta_from: f64,
         max_batches: usize,
         max_seconds: f64,
     ) -> TrainingLength {
+        let annealed = beta_from >= 1.0 || anneal == 0;
         TrainingLength {
             target,
             anneal,
+            beta_from,
+            beta: if annealed { 1.0 } else { beta_from },
+            annealed_at: annealed.then_some(0),
+            pace: (1.0, 0),
             max_batches,
             max_seconds,
             log_var: Vec::new(),
             estimates: Vec::new(),
             seconds_per_eval: Vec::new(),
             seconds: Vec::new(),
+            ess: Vec::new(),
+        }
+    }
+
+    /// The tempered target's exponent β for the next batch.
+    pub(super) fn beta(&self) -> f64 {
+        self.beta
+    }
+
+    /// Whether β reached 1 with the last batch (and was below 1 before it).
+    pub(super) fn just_annealed(&self) -> bool {
+        self.annealed_at
+            .is_some_and(|a| a > 0 && a == self.ess.len())
+    }
+
+    /// Raises β after a batch by 1/`anneal` of its span times the pace (module docs).
+    fn advance_beta(&mut self) {
+        if self.annealed_at.is_some() {
+            return;
+        }
+        let n = self.ess.len();
+        let (pace, since) = self.pace;
+        self.pace = if self.ess[n - 1] < TRACKING_ESS {
+            (1.0, n)
+        } else if n - since >= PACE_WINDOW {
+            ((2.0 * pace).min(MAX_PACE), n)
+        } else {
+            (pace, since)
+        };
+        self.beta += (1.0 - self.beta_from) / self.anneal as f64 * self.pace.0;
+        // Rounding must not leave β a hair below 1 for one more batch.
+        if self.beta >= 1.0 - 1e-9 {
+            self.beta = 1.0;
+            self.annealed_at = Some(n);
         }
     }
 
@@ -87,11 +158,14 @@ impl TrainingLength {
         self.estimates.push(b.estimate);
         self.seconds_per_eval.push(b.seconds_per_eval);
         self.seconds.push(b.seconds);
+        self.ess.push(b.tempered_ess);
+        self.advance_beta();
         let n = self.log_var.len();
         if n >= self.max_batches || self.seconds.iter().sum::<f64>() >= self.max_seconds {
             return false;
         }
-        if n < self.anneal + SETTLE_BATCHES || n % CHECK_EVERY != 0 {
+        let settled = self.annealed_at.is_some_and(|a| n >= a + SETTLE_BATCHES);
+        if !settled || n % CHECK_EVERY != 0 {
             return true;
         }
         let w = (n / 5).max(MIN_WINDOW);
@@ -112,11 +186,6 @@ impl TrainingLength {
         let estimate_seconds = now.exp() / (wanted * wanted) * per_eval;
         let saved = estimate_seconds * (1.0 - (-fall * w as f64).exp());
         saved > per_batch * w as f64
-    }
-
-    /// Batches of annealing.
-    pub(super) fn anneal(&self) -> usize {
-        self.anneal
     }
 
     /// The variance per evaluation of every batch so far, in order.
@@ -151,8 +220,15 @@ fn median(v: &[f64]) -> f64 {
 mod tests {
     use super::*;
 
-    fn run(var: impl Fn(usize) -> f64, per_eval: f64, step: f64, target: Target) -> usize {
-        let mut rule = TrainingLength::new(target, 50, 5_000, f64::INFINITY);
+    /// Batches until the rule stops, annealing from β = 0.1 over 50 batches at the slow pace.
+    fn run_with(
+        var: impl Fn(usize) -> f64,
+        ess: f64,
+        per_eval: f64,
+        step: f64,
+        target: Target,
+    ) -> usize {
+        let mut rule = TrainingLength::new(target, 50, 0.1, 5_000, f64::INFINITY);
         let mut n = 0;
         loop {
             n += 1;
@@ -161,10 +237,25 @@ mod tests {
                 estimate: 1.0,
                 seconds_per_eval: per_eval,
                 seconds: 256.0 * per_eval + step,
+                tempered_ess: ess,
             });
             if !go_on {
                 return n;
             }
+        }
+    }
+
+    fn run(var: impl Fn(usize) -> f64, per_eval: f64, step: f64, target: Target) -> usize {
+        run_with(var, 0.5, per_eval, step, target)
+    }
+
+    fn report(ess: f64) -> BatchReport {
+        BatchReport {
+            var_per_eval: 1.0,
+            estimate: 1.0,
+            seconds_per_eval: 1e-6,
+            seconds: 1e-3,
+            tempered_ess: ess,
         }
     }
 
@@ -186,15 +277,41 @@ mod tests {
     fn training_stops_when_the_variance_stops_falling_and_at_the_limits() {
         let flat = run(|_| 1.0, 1e-5, 1e-3, Target::rel(1e-4));
         assert_eq!(flat, 100);
-        let mut rule = TrainingLength::new(Target::rel(1e-4), 50, 30, f64::INFINITY);
-        let report = BatchReport {
-            var_per_eval: 1.0,
-            estimate: 1.0,
-            seconds_per_eval: 1e-6,
-            seconds: 1e-3,
-        };
-        assert_eq!((1..).find(|_| !rule.go_on(report)), Some(30));
-        let mut rule = TrainingLength::new(Target::rel(1e-4), 50, 1000, 0.0105);
-        assert_eq!((1..).find(|_| !rule.go_on(report)), Some(11));
+        let mut rule = TrainingLength::new(Target::rel(1e-4), 50, 0.1, 30, f64::INFINITY);
+        assert_eq!((1..).find(|_| !rule.go_on(report(0.5))), Some(30));
+        let mut rule = TrainingLength::new(Target::rel(1e-4), 50, 0.1, 1000, 0.0105);
+        assert_eq!((1..).find(|_| !rule.go_on(report(0.5))), Some(11));
+    }
+
+    #[test]
+    fn annealing_speeds_up_only_while_the_flow_tracks_the_tempered_target() {
+        let mut rule = TrainingLength::new(Target::rel(1e-4), 50, 0.1, 5_000, f64::INFINITY);
+        let mut betas = vec![rule.beta()];
+        while rule.beta() < 1.0 {
+            rule.go_on(report(0.9));
+            betas.push(rule.beta());
+        }
+        // Nine batches at the slow pace, ten at twice it, then 4×: 9 + 20 + 6 × 4 ≥ 50.
+        assert_eq!(betas.len() - 1, 25);
+        let slow = 0.9 / 50.0;
+        assert!((betas[9] - (0.1 + 9.0 * slow)).abs() < 1e-12);
+        assert!((betas[19] - (0.1 + 29.0 * slow)).abs() < 1e-12);
+        assert!(betas.windows(2).all(|w| w[1] > w[0]));
+        assert!(rule.just_annealed());
+        // A batch below the ESS threshold brings back the slow pace, which doubles only after
+        // ten batches of tracking.
+        let mut rule = TrainingLength::new(Target::rel(1e-4), 50, 0.1, 5_000, f64::INFINITY);
+        let ess = [0.9; 14].into_iter().chain([0.79]).chain([0.9; 9]);
+        for e in ess {
+            rule.go_on(report(e));
+        }
+        let expected = 0.1 + (9.0 + 2.0 * 5.0 + 10.0) * slow;
+        assert!((rule.beta() - expected).abs() < 1e-12, "{}", rule.beta());
+        // Flat variance: the rule stops at its first decision 50 batches after the annealing
+        // (at 25 here), however long that took.
+        assert_eq!(run_with(|_| 1.0, 0.9, 1e-5, 1e-3, Target::rel(1e-4)), 80);
+        let mut trained = TrainingLength::new(Target::rel(1e-4), 50, 1.0, 5_000, f64::INFINITY);
+        assert!(trained.beta() == 1.0 && !trained.just_annealed());
+        assert_eq!((1..).find(|_| !trained.go_on(report(0.5))), Some(50));
     }
 }
