@@ -40,7 +40,7 @@ pub struct BenchCoverageArgs {
     #[arg(long)]
     only: Option<String>,
     /// The peaked cells of issue 40 (camel-sharp, gauss-sharp, gauss-diagonal, peaks, ridge in
-    /// d = 4 and 8) instead of the default cells, into a section of their own.
+    /// d = 4, 6 and 8) instead of the default cells, into a section of their own.
     #[arg(long)]
     peaked: bool,
     /// Seeds per cell instead of each budget's own.

@@ -65,14 +65,19 @@ pub const DEFAULT_CELLS: &[(&str, usize)] = &[
 /// The peaked cells of issue 40, where small budgets leave the sampler unconverged (`--peaked`).
 pub const PEAKED_CELLS: &[(&str, usize)] = &[
     ("camel-sharp", 4),
+    ("camel-sharp", 6),
     ("camel-sharp", 8),
     ("gauss-sharp", 4),
+    ("gauss-sharp", 6),
     ("gauss-sharp", 8),
     ("gauss-diagonal", 4),
+    ("gauss-diagonal", 6),
     ("gauss-diagonal", 8),
     ("peaks", 4),
+    ("peaks", 6),
     ("peaks", 8),
     ("ridge", 4),
+    ("ridge", 6),
     ("ridge", 8),
 ];
 
