@@ -355,6 +355,9 @@ int nis_save(struct nis_integrator *integ, const char *path);
  * (NULL on failure). `signs` is `"auto"` (split f into f > 0 and f < 0 when a pilot sees both),
  * `"split"`, `"whole"`, or NULL for auto. `count` 0 with `channels` NULL integrates without
  * channels (one identity channel), split by sign; `count` 0 with channels given is an error.
+ * A key `"multichannel"` of the config patches the multi-channel settings, e.g.
+ * `{"multichannel": {"shared_flow": false, "adapt_fraction": 0.3}}` (NIS with a flow per
+ * channel instead of one shared flow).
  *
  * # Safety
  * `json` and a non-NULL `signs` must be NUL-terminated; `channels` must hold `count` channels

@@ -102,6 +102,9 @@ impl Channel for CChannel {
 /// (NULL on failure). `signs` is `"auto"` (split f into f > 0 and f < 0 when a pilot sees both),
 /// `"split"`, `"whole"`, or NULL for auto. `count` 0 with `channels` NULL integrates without
 /// channels (one identity channel), split by sign; `count` 0 with channels given is an error.
+/// A key `"multichannel"` of the config patches the multi-channel settings, e.g.
+/// `{"multichannel": {"shared_flow": false, "adapt_fraction": 0.3}}` (NIS with a flow per
+/// channel instead of one shared flow).
 ///
 /// # Safety
 /// `json` and a non-NULL `signs` must be NUL-terminated; `channels` must hold `count` channels
@@ -121,8 +124,18 @@ pub unsafe extern "C" fn nis_multichannel_create(
         // SAFETY: checked non-NULL above.
         unsafe { *out = std::ptr::null_mut() };
         let json = unsafe { text(json, "the JSON config") }?;
-        let config: Config = serde_json::from_str(json)
+        let mut config: Config = serde_json::from_str(json)
             .map_err(|e| Failure::new(NIS_ERR_CONFIG, format!("JSON config: {e}")))?;
+        let patch = config.settings.remove("multichannel");
+        let mc_config = match patch {
+            None => MultiChannelConfig::default(),
+            Some(v) => serde_json::from_value::<MultiChannelConfig>(v).map_err(|e| {
+                Failure::new(
+                    NIS_ERR_CONFIG,
+                    format!("JSON config, \"multichannel\": {e}"),
+                )
+            })?,
+        };
         if config.components != 1 {
             return Err(Failure::invalid(
                 "multi-channel integration takes scalar integrands (components 1)",
@@ -143,10 +156,7 @@ pub unsafe extern "C" fn nis_multichannel_create(
             }
         };
         let settings = config.settings()?;
-        let mc_config = MultiChannelConfig {
-            signs,
-            ..MultiChannelConfig::default()
-        };
+        let mc_config = MultiChannelConfig { signs, ..mc_config };
         if count == 0 && !channels.is_null() {
             return Err(Failure::invalid(
                 "zero channels given: pass channels NULL with count 0 to integrate without \

@@ -588,9 +588,14 @@ fn channels_through_c_integrate_and_report_each_channel() {
             prior: 0.0,
         })
         .collect();
-    for method in ["uniform", "vegas", "nis"] {
-        let json =
-            CString::new(format!(r#"{{"method": "{method}", "dim": 2, "seed": 4}}"#)).unwrap();
+    // The three methods, and NIS with a flow per channel instead of the shared one.
+    let own = r#""multichannel": {"shared_flow": false}"#;
+    for (method, extra) in [("uniform", ""), ("vegas", ""), ("nis", ""), ("nis", own)] {
+        let comma = if extra.is_empty() { "" } else { ", " };
+        let json = CString::new(format!(
+            r#"{{"method": "{method}", "dim": 2, "seed": 4{comma}{extra}}}"#
+        ))
+        .unwrap();
         let mut mc = std::ptr::null_mut();
         let status = unsafe {
             nis_multichannel_create(
@@ -639,6 +644,25 @@ fn channels_through_c_integrate_and_report_each_channel() {
         assert_eq!(status, NIS_ERR_NO_RESULT);
         unsafe { nis_multichannel_free(mc) };
     }
+    // Multi-channel settings that do not exist: a config error.
+    let json =
+        CString::new(r#"{"method": "nis", "dim": 2, "multichannel": {"shared": 1}}"#).unwrap();
+    let mut mc = std::ptr::null_mut();
+    let status = unsafe {
+        nis_multichannel_create(
+            json.as_ptr(),
+            channels.as_ptr(),
+            2,
+            std::ptr::null(),
+            &mut mc,
+        )
+    };
+    assert_eq!(status, NIS_ERR_CONFIG);
+    assert!(
+        mc.is_null() && last_error().contains("multichannel"),
+        "{}",
+        last_error()
+    );
     // A channel that leaves the cube: an error naming it.
     let bad = [nis_channel {
         sample: Some(outside),

@@ -143,9 +143,9 @@ enum BenchCommand {
     /// two cores). Example: nis bench reuse --evals 200000 --seeds 1
     Reuse(bench::BenchReuseArgs),
     /// Multi-channel integration against one channel on the built-in multi-channel examples
-    /// (NIS with a flow per channel, NIS without channels, the classic estimator with equal
-    /// fixed weights, VEGAS+ per channel), and a flow per sign against one on |f|, 3 seeds; into
-    /// docs/results/integration.md. Example: nis bench channels --evals 200000 --seeds 1
+    /// (NIS with a flow per channel and with one shared flow, NIS without channels, the classic
+    /// estimator with equal fixed weights, VEGAS+ per channel), and a flow per sign against one
+    /// on |f|, 3 seeds; into docs/results/integration.md. Example: nis bench channels --evals 200000 --seeds 1
     Channels(bench::BenchChannelsArgs),
     /// Strong scaling over MPI ranks (1 vs 2, one thread each) for a ~100 µs/point and a cheap
     /// integrand, the communication of a training step, and the scaling model in

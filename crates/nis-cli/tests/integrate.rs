@@ -334,6 +334,27 @@ fn channels_run_on_the_multi_channel_examples_only() {
     ]);
     assert!(!out.status.success());
     assert!(String::from_utf8_lossy(&out.stderr).contains("resonances-4d"));
+    // NIS with a flow per channel instead of the shared one; the flag needs channels or signs.
+    let args = [
+        "integrate",
+        "dalitz",
+        "--method",
+        "nis",
+        "--evals",
+        "100000",
+        "--json",
+    ];
+    let out = nis(&[&args[..], &["--channels", "--flow-per-channel"]].concat());
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    assert_eq!(v["channels"]["means"].as_array().unwrap().len(), 2);
+    let out = nis(&[&args[..], &["--flow-per-channel"]].concat());
+    assert!(!out.status.success());
+    assert!(String::from_utf8_lossy(&out.stderr).contains("--channels or --signs"));
 }
 
 #[test]

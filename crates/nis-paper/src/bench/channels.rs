@@ -51,6 +51,9 @@ impl Default for Options {
 enum Row {
     /// A method through the channels, weights adapted unless `fixed`.
     Channels { method: Method, fixed: bool },
+    /// NIS through the channels with one flow conditioned on the channel (the default; the
+    /// `Channels` row of NIS has a flow per channel).
+    Shared,
     /// A method on the integrand alone.
     Plain(Method),
 }
@@ -59,20 +62,27 @@ impl Row {
     fn label(self, k: usize) -> String {
         match self {
             Row::Channels { method, fixed } => format!(
-                "{} ×{k}{}",
+                "{} ×{k}{}{}",
                 method.label(),
+                if method == Method::Nis {
+                    ", a flow per channel"
+                } else {
+                    ""
+                },
                 if fixed { ", equal fixed weights" } else { "" }
             ),
+            Row::Shared => format!("{} ×{k}, one shared flow", Method::Nis.label()),
             Row::Plain(m) => format!("{}, no channels", m.label()),
         }
     }
 }
 
-const ROWS: [Row; 5] = [
+const ROWS: [Row; 6] = [
     Row::Channels {
         method: Method::Nis,
         fixed: false,
     },
+    Row::Shared,
     Row::Plain(Method::Nis),
     Row::Channels {
         method: Method::Uniform,
@@ -122,10 +132,15 @@ pub fn run(o: &Options, docs: Option<&Path>, log: &mut dyn FnMut(&str)) -> Resul
             for seed in 1..=o.seeds {
                 let settings = Settings::default().seed(seed);
                 let (r, s) = match row {
-                    Row::Channels { method, fixed } => {
+                    Row::Channels { .. } | Row::Shared => {
+                        let (method, fixed) = match row {
+                            Row::Channels { method, fixed } => (method, fixed),
+                            _ => (Method::Nis, false),
+                        };
                         let set = ChannelSet::new(examples::by_name(name)?.channels)?;
                         let config = MultiChannelConfig {
                             adapt_weights: !fixed,
+                            shared_flow: matches!(row, Row::Shared),
                             ..MultiChannelConfig::default()
                         };
                         let mut mc = MultiChannel::new(set, method, settings, config)?;

@@ -126,14 +126,18 @@ class Integrator:
     channels: split f into f⁺ and f⁻, a sampler each, when a pilot sees both signs), "split"
     (always) or "whole" (never); ``signs`` without ``channels`` splits a single-channel
     integral by sign. Such an integrator integrates scalar integrands on a budget
-    (``integ(f, evals)``; precision targets raise ValueError), its results carry
+    (``integ(f, evals)``) or to a precision target (``integ(f, rel_err=…)``), its results carry
     ``channel_weights``, ``channel_means``, ``channel_sdevs``, ``channel_evals`` and
-    ``signs``, and the NIS-only methods (``train``, ``estimate``, ``sample``, ``unweighted``,
-    ``save``, ``flow``, ``trained_evals``) raise ValueError. ``channel_settings``, a dict:
+    ``signs``, ``events(f, n)`` draws unweighted events that carry their channel (NIS), and the
+    other NIS-only methods (``train``, ``estimate``, ``sample``, ``unweighted``, ``save``,
+    ``flow``, ``trained_evals``) raise ValueError. ``channel_settings``, a dict:
     ``adapt_fraction`` (share of a call's evaluations the samplers adapt on, default 0.4),
     ``adapt_weights`` (whether the priors adapt, default True), ``weight_floor`` (smallest
     weight a channel keeps, as a fraction of 1/K, default 0.01), ``pilot`` (uniform points per
-    channel of the pilot that decides the sign split, default 1000).
+    channel of the pilot that decides the sign split, default 1000), ``target_adapt``
+    (evaluations each sampler adapts on in a run to a target, default 100000), ``shared_flow``
+    (NIS: one flow for every channel and sign, conditioned on it, default True; False: a flow
+    each).
     """
 
     def __init__(

@@ -32,7 +32,7 @@ use rayon::prelude::*;
 
 use super::composed::{Composed, Direction};
 use super::coupling::Coupling;
-use super::Flow;
+use super::{Density, Flow};
 use crate::error::{Error, Result};
 use crate::kernels::dense::{self, Shape};
 use crate::kernels::{elementwise, in_pool, CHUNK_ROWS};
@@ -214,6 +214,51 @@ impl ContextCache {
 }
 
 impl Composed<Coupling> {
+    /// The unconditioned flow this conditioned one is at the context `ctx` (its `context_dim`
+    /// features): every conditioner's first layer keeps its rows for the encoded x_A and takes
+    /// the context's share W_c·c into its bias, so both give the same map and density up to f32
+    /// rounding. For a context sampled many times, with every tool of an unconditioned flow (a
+    /// channel of a shared multi-channel flow).
+    pub fn at_context(&self, ctx: &[f32]) -> Result<Flow> {
+        let cdim = self.context_dim;
+        if cdim == 0 || ctx.len() != cdim {
+            return Err(Error::Dimension {
+                what: "context features of a conditioned flow",
+                expected: cdim,
+                got: ctx.len(),
+            });
+        }
+        let mut config = self.config().clone();
+        config.context_dim = 0;
+        let mut out = Flow::new(config)?;
+        let mut params = Vec::with_capacity(out.params.len());
+        for c in &self.layers {
+            let mlp = c.mlp();
+            let src = c.params(&self.params);
+            for j in 0..mlp.layers() {
+                let (w, b) = mlp.layer_params(src, j);
+                if j > 0 {
+                    params.extend_from_slice(w);
+                    params.extend_from_slice(b);
+                    continue;
+                }
+                let o = b.len();
+                let keep = (mlp.dims[0] - cdim) * o;
+                params.extend_from_slice(&w[..keep]);
+                let mut bias = b.to_vec();
+                for (row, &v) in w[keep..].chunks_exact(o).zip(ctx) {
+                    if v != 0.0 {
+                        bias.iter_mut().zip(row).for_each(|(b, w)| *b += v * w);
+                    }
+                }
+                params.extend_from_slice(&bias);
+            }
+        }
+        debug_assert_eq!(params.len(), out.params.len());
+        out.params_mut().copy_from_slice(&params);
+        Ok(out)
+    }
+
     /// ln q of the points `x` (`dim` values each), point `i` at the cached context
     /// `contexts[i]`: [`super::Density::log_density`] from a [`ContextCache`].
     pub fn log_density_cached(

@@ -672,3 +672,36 @@ fn densities_stay_finite_at_the_ends_and_for_extreme_weights() {
         assert!(s.x.iter().all(|v| (0.0..=1.0).contains(v)));
     }
 }
+
+#[test]
+fn a_conditioned_flow_at_a_context_is_the_unconditioned_flow_it_gives() {
+    for transform in TRANSFORMS {
+        let flow = random_flow(3, transform, 4, 0.3);
+        let x = uniform_points(200, 3, 5);
+        for ctx in [[0.0f32, 1.0, 0.0, 0.0], [0.3, -0.2, 0.9, 1.5]] {
+            let fixed = flow.at_context(&ctx).unwrap();
+            assert_eq!(fixed.context_dim(), 0);
+            let rows: Vec<f32> = ctx.iter().copied().cycle().take(200 * 4).collect();
+            let want = flow.log_density(&x, Some(&rows)).unwrap();
+            let got = fixed.log_density(&x, None).unwrap();
+            for (a, b) in want.iter().zip(&got) {
+                assert!(
+                    (a - b).abs() < 1e-4 * (1.0 + a.abs()),
+                    "{transform:?}: {a} vs {b}"
+                );
+            }
+            // The same latents map to the same points.
+            let s = flow
+                .sample(50, Some(&rows[..200]), &mut Pcg64Mcg::seed_from_u64(9))
+                .unwrap();
+            let t = fixed
+                .sample(50, None, &mut Pcg64Mcg::seed_from_u64(9))
+                .unwrap();
+            assert!(s.x.iter().zip(&t.x).all(|(a, b)| (a - b).abs() < 1e-5));
+        }
+    }
+    let plain = random_flow(2, TransformKind::Affine, 0, 0.3);
+    assert!(plain.at_context(&[]).is_err());
+    let flow = random_flow(2, TransformKind::Affine, 3, 0.3);
+    assert!(flow.at_context(&[1.0]).is_err());
+}

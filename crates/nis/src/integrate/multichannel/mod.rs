@@ -20,6 +20,7 @@ mod events;
 mod part;
 mod report;
 mod saved;
+mod shared;
 mod to_target;
 
 use std::time::Instant;
@@ -33,6 +34,7 @@ pub use part::Sign;
 pub use report::{ChannelReport, SignReport};
 
 use self::part::PartIntegrand;
+use self::shared::SharedFlow;
 use super::{integrator, Integrand, IntegrationResult, Integrator, Method, Settings};
 use crate::channels::{ChannelFn, ChannelSet};
 use crate::comm::Comm;
@@ -69,6 +71,12 @@ pub struct MultiChannelConfig {
     /// Evaluations every part adapts on in a run to a precision target (at most
     /// `adapt_fraction` of its `max_evals`, shared).
     pub target_adapt: u64,
+    /// NIS: one flow for all parts, conditioned on the part (`shared.rs`), instead of a flow per
+    /// part; ignored by the other methods. The default: at equal evaluations its variance is
+    /// equal or lower on the multi-resonance examples in d ≥ 4 and it takes half the memory at
+    /// 100 channels (docs/results/integration.md, "One flow shared by the channels"). A saved
+    /// one loads as a flow per part.
+    pub shared_flow: bool,
 }
 
 impl Default for MultiChannelConfig {
@@ -80,6 +88,7 @@ impl Default for MultiChannelConfig {
             weight_floor: 0.01,
             pilot: 1000,
             target_adapt: 100_000,
+            shared_flow: true,
         }
     }
 }
@@ -102,11 +111,12 @@ impl MultiChannelConfig {
     }
 }
 
-/// One part: channel, sign and its integrator.
+/// One part: channel, sign and its integrator (with a shared flow: the flow at the part's
+/// context, from the first adaptation on).
 struct Part {
     channel: usize,
     sign: Sign,
-    integrator: Box<dyn Integrator>,
+    integrator: Option<Box<dyn Integrator>>,
 }
 
 /// A multi-channel integrator: the channels, their a-priori weights, and an integrator of
@@ -119,6 +129,8 @@ pub struct MultiChannel {
     /// The a-priori weights a_k, summing to one.
     weights: Vec<f64>,
     parts: Vec<Part>,
+    /// The flow of every part when `config.shared_flow`.
+    shared: Option<SharedFlow>,
     comm: Comm,
     /// Calls of [`MultiChannel::unweighted`] so far: each draws from a stream of its own.
     event_draws: u64,
@@ -143,6 +155,7 @@ impl MultiChannel {
             settings,
             config,
             parts: Vec::new(),
+            shared: None,
             comm: Comm::default(),
             event_draws: 0,
         })
@@ -185,7 +198,12 @@ impl MultiChannel {
     /// Runs data-parallel over the ranks of `comm` (see [`Integrator::set_comm`]).
     pub fn set_comm(&mut self, comm: Comm) {
         for p in &mut self.parts {
-            p.integrator.set_comm(comm.clone());
+            if let Some(i) = &mut p.integrator {
+                i.set_comm(comm.clone());
+            }
+        }
+        if let Some(s) = &mut self.shared {
+            s.set_comm(comm.clone());
         }
         self.comm = comm;
     }
@@ -224,7 +242,7 @@ impl MultiChannel {
         for (p, share) in self.parts.iter_mut().zip(neyman(&sd)) {
             let n = floor + (spare * share) as u64;
             let h = PartIntegrand::new(f, &self.set, &self.weights, p.channel, p.sign);
-            let r = estimate_part(p.integrator.as_mut(), &h, n)?;
+            let r = estimate_part(p, &h, n)?;
             spent += r.n_eval;
             results.push(r);
         }
@@ -272,11 +290,36 @@ impl MultiChannel {
     ) -> Result<(Vec<IntegrationResult>, u64)> {
         let mut measured = Vec::with_capacity(self.parts.len());
         let mut spent = 0;
-        for p in self.parts.iter_mut() {
-            let h = PartIntegrand::new(f, &self.set, &self.weights, p.channel, p.sign);
-            let r = adapt_part(p.integrator.as_mut(), &h, adapt)?;
-            spent += r.n_eval;
-            measured.push(r);
+        if let Some(shared) = &mut self.shared {
+            // The flow trains on every part's share at once; then each part gets the flow at
+            // its context as an integrator of its own, and is measured with it.
+            let train = adapt * 4 / 5;
+            {
+                let h: Vec<PartIntegrand> = self
+                    .parts
+                    .iter()
+                    .map(|p| PartIntegrand::new(f, &self.set, &self.weights, p.channel, p.sign))
+                    .collect();
+                let all: Vec<&dyn Integrand> = h.iter().map(|h| h as &dyn Integrand).collect();
+                spent += shared.train(&all, train * h.len() as u64)?;
+            }
+            let base = self.settings.seed_of(self.method);
+            for (i, p) in self.parts.iter_mut().enumerate() {
+                let mut nis = shared.part(i, part_seed(base, i as u64))?;
+                let h = PartIntegrand::new(f, &self.set, &self.weights, p.channel, p.sign);
+                let r = nis.estimate(&h, adapt - train)?;
+                spent += r.n_eval;
+                measured.push(r);
+                p.integrator = Some(Box::new(nis));
+            }
+        } else {
+            for p in self.parts.iter_mut() {
+                let h = PartIntegrand::new(f, &self.set, &self.weights, p.channel, p.sign);
+                let integ = p.integrator.as_deref_mut().ok_or_else(no_sampler)?;
+                let r = adapt_part(integ, &h, adapt)?;
+                spent += r.n_eval;
+                measured.push(r);
+            }
         }
         if self.config.adapt_weights && self.set.len() > 1 {
             self.weights = self.adapted_weights(&measured);
@@ -325,19 +368,31 @@ impl MultiChannel {
         } else {
             &[Sign::Both]
         };
+        let shared = self.config.shared_flow && self.method == Method::Nis;
         for channel in 0..channels {
             for &sign in signs {
                 let index = self.parts.len() as u64;
                 let seed = part_seed(self.settings.seed_of(self.method), index);
-                let mut integrator =
-                    integrator(self.method, dim, &self.settings.clone().seed(seed))?;
-                integrator.set_comm(self.comm.clone());
+                let integrator = if shared {
+                    None
+                } else {
+                    let mut i = integrator(self.method, dim, &self.settings.clone().seed(seed))?;
+                    i.set_comm(self.comm.clone());
+                    Some(i)
+                };
                 self.parts.push(Part {
                     channel,
                     sign,
                     integrator,
                 });
             }
+        }
+        if shared {
+            let seed = part_seed(self.settings.seed_of(self.method), u64::MAX);
+            let config = self.settings.clone().seed(seed).nis;
+            let mut flow = SharedFlow::new(dim, self.parts.len(), &config)?;
+            flow.set_comm(self.comm.clone());
+            self.shared = Some(flow);
         }
         Ok(spent)
     }
@@ -433,16 +488,19 @@ fn adapt_part(integ: &mut dyn Integrator, h: &dyn Integrand, n: u64) -> Result<I
     integ.integrate(h, n)
 }
 
-/// The estimate of a part from `n` evaluations: NIS's frozen flow alone, the others' `integrate`.
-fn estimate_part(
-    integ: &mut dyn Integrator,
-    h: &dyn Integrand,
-    n: u64,
-) -> Result<IntegrationResult> {
+/// The estimate of part `p` from `n` evaluations: NIS's frozen flow alone, the others'
+/// `integrate`.
+fn estimate_part(p: &mut Part, h: &dyn Integrand, n: u64) -> Result<IntegrationResult> {
+    let integ = p.integrator.as_deref_mut().ok_or_else(no_sampler)?;
     if let Some(nis) = integ.as_nis() {
         return nis.estimate(h, n);
     }
     integ.integrate(h, n)
+}
+
+/// A part without its sampler (a shared flow's parts get theirs when it has trained).
+fn no_sampler() -> Error {
+    Error::Config("a multi-channel part has no sampler".into())
 }
 
 #[cfg(test)]

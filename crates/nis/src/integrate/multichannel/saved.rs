@@ -58,7 +58,10 @@ impl MultiChannel {
             source,
         })?;
         for (i, p) in self.parts.iter().enumerate() {
-            p.integrator.save(&part_path(dir, i))?;
+            p.integrator
+                .as_ref()
+                .ok_or_else(super::no_sampler)?
+                .save(&part_path(dir, i))?;
         }
         let manifest = Manifest {
             format: FORMAT.into(),
@@ -117,7 +120,7 @@ impl MultiChannel {
             parts.push(Part {
                 channel,
                 sign,
-                integrator: Box::new(nis) as Box<dyn Integrator>,
+                integrator: Some(Box::new(nis) as Box<dyn Integrator>),
             });
         }
         Ok(MultiChannel {
@@ -126,6 +129,7 @@ impl MultiChannel {
             settings: m.settings,
             config: m.config,
             weights,
+            shared: None,
             parts,
             comm: Comm::default(),
             event_draws: 0,

@@ -105,7 +105,7 @@ impl MultiChannel {
             for (i, p) in self.parts.iter_mut().enumerate() {
                 let n = MIN_PART_EVALS + (spare * shares[i]) as u64;
                 let h = PartIntegrand::new(f, &self.set, &self.weights, p.channel, p.sign);
-                let r = estimate_part(p.integrator.as_mut(), &h, n)?;
+                let r = estimate_part(p, &h, n)?;
                 spent += r.n_eval;
                 evals += r.iterations.iter().map(|i| i.evals).sum::<u64>();
                 estimate += signs[i] * r.value;

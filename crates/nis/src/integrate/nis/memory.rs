@@ -20,7 +20,7 @@ const CAPACITY: usize = 1 << 16;
 
 /// The reservoir of training points (module docs).
 #[derive(Clone, Debug)]
-pub(super) struct TrainingMemory {
+pub(crate) struct TrainingMemory {
     dim: usize,
     x: Vec<f32>,
     /// |f| of every kept point.
@@ -33,7 +33,7 @@ pub(super) struct TrainingMemory {
 
 impl TrainingMemory {
     /// An empty reservoir for `dim`-dimensional points.
-    pub(super) fn new(dim: usize) -> TrainingMemory {
+    pub(crate) fn new(dim: usize) -> TrainingMemory {
         TrainingMemory {
             dim,
             x: Vec::new(),
@@ -44,7 +44,7 @@ impl TrainingMemory {
     }
 
     /// Forgets the points (a new training starts).
-    pub(super) fn clear(&mut self) {
+    pub(crate) fn clear(&mut self) {
         self.x.clear();
         self.f.clear();
         self.seen = 0;
@@ -53,7 +53,7 @@ impl TrainingMemory {
 
     /// Offers the points `x` (n × dim) with integrand values `fx` (n × k, component 0 kept),
     /// choosing which to keep from `rng`. Zeros are not kept: their weight is zero.
-    pub(super) fn observe(&mut self, x: &[f32], fx: &[f64], k: usize, rng: &mut Pcg64Mcg) {
+    pub(crate) fn observe(&mut self, x: &[f32], fx: &[f64], k: usize, rng: &mut Pcg64Mcg) {
         self.largest = None;
         for (p, v) in x.chunks_exact(self.dim).zip(fx.chunks_exact(k)) {
             let v = v[0].abs();

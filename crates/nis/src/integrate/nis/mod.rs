@@ -33,7 +33,7 @@ use crate::flow::{Density, Flow, FlowConfig};
 use crate::kernels::in_pool;
 use crate::nn::ParamAverage;
 use crate::train::Learner;
-use memory::TrainingMemory;
+pub(crate) use memory::TrainingMemory;
 use reuse::TrainingPieces;
 
 mod config;
@@ -152,6 +152,12 @@ impl NisIntegrator {
         self.memory.clear();
         self.comm = comm;
         self.set_seed(self.config.seed);
+    }
+
+    /// The points of the flow's latest training (trained elsewhere: a shared multi-channel flow),
+    /// which the estimate's recalled-weight check reads (`memory.rs`).
+    pub(crate) fn set_training_memory(&mut self, memory: TrainingMemory) {
+        self.memory = memory;
     }
 
     /// The final phase alone: the flow frozen, `evals` evaluations in `final_iterations`
@@ -310,6 +316,17 @@ impl NisIntegrator {
             .get("trained_evals")
             .and_then(|s| s.parse().ok())
             .unwrap_or(0);
+        NisIntegrator::from_trained(flow, config, trained_evals)
+    }
+
+    /// An integrator around a flow trained elsewhere (`trained_evals` evaluations) with the
+    /// settings `config` (its flow settings are `flow`'s): loaded, or a channel of a shared
+    /// multi-channel flow. Its first training starts Adam and the schedule afresh.
+    pub(crate) fn from_trained(
+        flow: Flow,
+        config: NisConfig,
+        trained_evals: u64,
+    ) -> Result<NisIntegrator> {
         let learner = Learner::new(flow.param_count(), config.loss, config.adam)?;
         let sampler = DefensiveMixture::new(flow, config.uniform_fraction)?;
         Ok(NisIntegrator {

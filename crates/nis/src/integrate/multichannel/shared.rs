@@ -1,0 +1,297 @@
+//! One flow for every part, conditioned on the part (`MultiChannelConfig::shared_flow`): the
+//! alternative to a flow per channel and sign that issue 39 asks to measure. The flow takes a
+//! one-hot context, so q(u | p) is the density of part p over its channel's cube, and every
+//! training batch holds points of every part: the parts share the conditioners' weights and
+//! what each batch teaches them, and many channels cost one flow's memory. Its first layer's
+//! context columns are a learned embedding of the part (as MadNIS conditions one flow on the
+//! channel, Heimel et al. 2024, arXiv:2311.01548, Sec. 3.3).
+//!
+//! Training is NIS's (Müller et al. 2019, Sec. 3.2): on-policy steps of the KL or χ² loss, the
+//! tempered target |h_p|^β over the first half of the first training, the learning rate decayed
+//! over its steps and the estimate drawn from an average of the weights. A batch's points go to
+//! the parts in proportion to their running ∫|h_p| (each at least one), and each part's targets
+//! are divided by that integral, so each conditional density learns its own normalised target.
+//! After training, each part gets an NIS integrator of its own around the flow at its context
+//! ([`Flow::at_context`]: the context's share of every first layer folded into its biases), so
+//! the estimate, the events and saving are a flow per part's, unbiased as NIS's are.
+
+use rand::SeedableRng;
+use rand_pcg::Pcg64Mcg;
+
+use crate::comm::Comm;
+use crate::error::{Error, Result};
+use crate::flow::{Density, Flow, FlowConfig};
+use crate::integrate::nis::{NisConfig, NisIntegrator, TrainingMemory};
+use crate::integrate::{evaluate, Integrand};
+use crate::kernels::in_pool;
+use crate::nn::ParamAverage;
+use crate::train::Learner;
+
+/// Salts of the training stream and of the training memories' choices ("shtr", "shme").
+const TRAIN_SALT: u64 = 0x7368_7472;
+const MEMORY_SALT: u64 = 0x7368_6d65;
+/// Weight of the newest batch in each part's running ∫|h_p|.
+const SCALE_RATE: f64 = 0.1;
+
+/// A flow conditioned on the part, with its optimiser and streams.
+pub(super) struct SharedFlow {
+    config: NisConfig,
+    flow: Flow,
+    learner: Learner,
+    parts: usize,
+    average: Option<ParamAverage>,
+    /// Whether the first training has set the learning-rate schedule.
+    scheduled: bool,
+    trained: u64,
+    /// Each part's running ∫|h_p| (0 until a batch saw it).
+    scale: Vec<f64>,
+    train_rng: Pcg64Mcg,
+    /// Each part's reservoir of its latest training's points, handed to its integrator for the
+    /// recalled-weight check, and the stream that chooses them.
+    memories: Vec<TrainingMemory>,
+    memory_rng: Pcg64Mcg,
+    comm: Comm,
+}
+
+impl SharedFlow {
+    /// An untrained flow over `dim` dimensions for `parts` parts, with NIS's `config`.
+    pub(super) fn new(dim: usize, parts: usize, config: &NisConfig) -> Result<SharedFlow> {
+        config.validate()?;
+        let flow = Flow::new(FlowConfig {
+            dim,
+            context_dim: parts,
+            ..config.flow.clone()
+        })?;
+        let learner = Learner::new(flow.param_count(), config.loss, config.adam)?;
+        Ok(SharedFlow {
+            config: config.clone(),
+            flow,
+            learner,
+            parts,
+            average: None,
+            scheduled: false,
+            trained: 0,
+            scale: vec![0.0; parts],
+            train_rng: Pcg64Mcg::seed_from_u64(config.seed ^ TRAIN_SALT),
+            memories: vec![TrainingMemory::new(dim); parts],
+            memory_rng: Pcg64Mcg::seed_from_u64(config.seed ^ MEMORY_SALT),
+            comm: Comm::default(),
+        })
+    }
+
+    /// Runs data-parallel over the ranks of `comm`: each rank draws its share of every part's
+    /// points from streams of its own, and the steps average the ranks' gradients.
+    pub(super) fn set_comm(&mut self, comm: Comm) {
+        self.learner.set_comm(comm.clone());
+        self.train_rng = Pcg64Mcg::seed_from_u64(comm.stream_seed(self.config.seed ^ TRAIN_SALT));
+        self.memory_rng = Pcg64Mcg::seed_from_u64(comm.stream_seed(self.config.seed ^ MEMORY_SALT));
+        self.memories.iter_mut().for_each(TrainingMemory::clear);
+        self.comm = comm;
+    }
+
+    /// Points per part of a batch of `batch` (over all ranks): in proportion to the running
+    /// ∫|h_p| (equal while none is known), each at least one, by largest remainders.
+    fn batch_counts(&self, batch: usize) -> Vec<usize> {
+        let p = self.parts;
+        let total: f64 = self.scale.iter().sum();
+        let share: Vec<f64> = if total > 0.0 {
+            self.scale.iter().map(|s| s / total).collect()
+        } else {
+            vec![1.0 / p as f64; p]
+        };
+        let spare = batch.saturating_sub(p) as f64;
+        let mut counts: Vec<usize> = share.iter().map(|s| 1 + (s * spare) as usize).collect();
+        let mut left = batch.saturating_sub(counts.iter().sum());
+        let mut order: Vec<usize> = (0..p).collect();
+        order.sort_by(|&a, &b| {
+            let frac = |i: usize| share[i] * spare - (share[i] * spare).floor();
+            frac(b).total_cmp(&frac(a))
+        });
+        for &i in order.iter().cycle().take(p.max(left)) {
+            if left == 0 {
+                break;
+            }
+            counts[i] += 1;
+            left -= 1;
+        }
+        counts
+    }
+
+    /// Trains on `evals` evaluations of the parts `h` (one integrand per part, over the cube),
+    /// in whole batches of NIS's batch size (or two points per part, if more); returns the
+    /// evaluations spent.
+    pub(super) fn train(&mut self, h: &[&dyn Integrand], evals: u64) -> Result<u64> {
+        if h.len() != self.parts {
+            return Err(Error::Config(format!(
+                "a shared flow of {} parts was given {} part integrands",
+                self.parts,
+                h.len()
+            )));
+        }
+        let batch = self.config.batch.max(2 * self.parts);
+        let steps = (evals / batch as u64) as usize;
+        if steps == 0 {
+            return Ok(0);
+        }
+        if !self.scheduled {
+            let decay = self.config.learning_rate_end.powf(1.0 / steps as f32);
+            self.learner
+                .set_learning_rate_decay(decay * self.config.adam.decay)?;
+            if self.config.average_span > 0.0 {
+                let decay = ParamAverage::span_decay(self.config.average_span, steps);
+                self.average = Some(ParamAverage::new(decay, &[self.flow.params()]));
+            }
+            self.scheduled = true;
+        }
+        if let Some(a) = &self.average {
+            a.resume(&mut [self.flow.params_mut()]);
+        }
+        let anneal = (self.trained == 0 && steps > 1).then_some(steps as f64 / 2.0);
+        self.memories.iter_mut().for_each(TrainingMemory::clear);
+        let trained = in_pool(|| self.steps(h, steps, batch, anneal));
+        if let Some(a) = &mut self.average {
+            a.use_average(&mut [self.flow.params_mut()]);
+        }
+        trained.map(|()| (steps * batch) as u64)
+    }
+
+    /// `steps` training batches of `batch` points (see [`SharedFlow::train`]).
+    fn steps(
+        &mut self,
+        h: &[&dyn Integrand],
+        steps: usize,
+        batch: usize,
+        anneal: Option<f64>,
+    ) -> Result<()> {
+        let dim = self.flow.dim();
+        for step in 0..steps {
+            let beta = anneal.map_or(1.0, |span| {
+                let t = (step as f64 / span).min(1.0);
+                self.config.anneal_from + t * (1.0 - self.config.anneal_from)
+            });
+            self.learner.set_temperature(beta);
+            // This rank's share of every part's points, the parts' rows one after the other.
+            let counts: Vec<usize> = self
+                .batch_counts(batch)
+                .iter()
+                .map(|&n| self.comm.share(n as u64) as usize)
+                .collect();
+            let ctx: Vec<f32> = (0..self.parts)
+                .flat_map(|p| contexts(self.parts, p, counts[p]))
+                .collect();
+            let n: usize = counts.iter().sum();
+            let drawn = self
+                .flow
+                .sample_for_training(n, Some(&ctx), &mut self.train_rng);
+            let evaluated = drawn.and_then(|s| {
+                let x64: Vec<f64> = s.x.iter().map(|&v| v as f64).collect();
+                let mut hx = Vec::with_capacity(n);
+                let mut start = 0;
+                for (p, &m) in counts.iter().enumerate() {
+                    let rows = start * dim..(start + m) * dim;
+                    hx.extend(evaluate(h[p], &x64[rows], dim)?);
+                    start += m;
+                }
+                Ok((s, hx))
+            });
+            let (samples, hx) = self.comm.check(evaluated)?;
+            let mut start = 0;
+            for (p, &m) in counts.iter().enumerate() {
+                let (x, f) = (
+                    &samples.x[start * dim..(start + m) * dim],
+                    &hx[start..start + m],
+                );
+                self.memories[p].observe(x, f, 1, &mut self.memory_rng);
+                start += m;
+            }
+            // Each part's mean |h|/q over the ranks updates its running integral.
+            let mut sums = vec![0.0; 2 * self.parts];
+            let mut start = 0;
+            for (p, &m) in counts.iter().enumerate() {
+                for i in start..start + m {
+                    sums[2 * p] += hx[i].abs() * (-samples.log_q[i]).exp();
+                }
+                sums[2 * p + 1] = m as f64;
+                start += m;
+            }
+            self.comm.sum_f64(&mut sums);
+            for p in 0..self.parts {
+                if sums[2 * p + 1] > 0.0 {
+                    let mean = sums[2 * p] / sums[2 * p + 1];
+                    self.scale[p] = if self.scale[p] > 0.0 {
+                        (1.0 - SCALE_RATE) * self.scale[p] + SCALE_RATE * mean
+                    } else {
+                        mean
+                    };
+                }
+            }
+            let mut target = Vec::with_capacity(n);
+            for (p, &m) in counts.iter().enumerate() {
+                let s = self.scale[p];
+                let first = target.len();
+                target.extend(hx[first..first + m].iter().map(|v| {
+                    if s > 0.0 {
+                        v.abs() / s
+                    } else {
+                        0.0
+                    }
+                }));
+            }
+            self.trained += batch as u64;
+            if self.comm.any(target.iter().any(|t| *t != 0.0)) {
+                self.learner
+                    .step_on_policy(&mut self.flow, &samples, &target)?;
+            }
+            if let Some(a) = &mut self.average {
+                a.add(&[self.flow.params()]);
+            }
+        }
+        Ok(())
+    }
+
+    /// Part `p`'s own NIS integrator: the flow at its context ([`Flow::at_context`]), which
+    /// samples, estimates (with NIS's final phase), draws events and saves as a flow per part
+    /// does, with the part's training points for its recalled-weight check; `seed` seeds its
+    /// streams.
+    pub(super) fn part(&mut self, p: usize, seed: u64) -> Result<NisIntegrator> {
+        let flow = self.flow.at_context(&contexts(self.parts, p, 1))?;
+        let mut config = self.config.clone();
+        config.seed = seed;
+        config.flow = flow.config().clone();
+        let memory = std::mem::replace(&mut self.memories[p], TrainingMemory::new(flow.dim()));
+        let mut nis = NisIntegrator::from_trained(flow, config, self.trained)?;
+        nis.set_comm(self.comm.clone());
+        nis.set_training_memory(memory);
+        Ok(nis)
+    }
+}
+
+/// The one-hot contexts of `n` points of part `p` of `parts`.
+fn contexts(parts: usize, p: usize, n: usize) -> Vec<f32> {
+    let mut c = vec![0.0; n * parts];
+    for row in c.chunks_exact_mut(parts) {
+        row[p] = 1.0;
+    }
+    c
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn batch_counts_follow_the_parts_integrals_and_starve_none() {
+        let mut s = SharedFlow::new(2, 4, &NisConfig::default()).unwrap();
+        // Equal while nothing is known.
+        assert_eq!(s.batch_counts(256), vec![64; 4]);
+        s.scale = vec![6.0, 2.0, 0.0, 0.0];
+        let c = s.batch_counts(256);
+        assert_eq!(c.iter().sum::<usize>(), 256);
+        assert!(c[2] >= 1 && c[3] >= 1, "{c:?}");
+        // 252 spare points split 3 : 1, plus one each.
+        assert_eq!(c, vec![190, 64, 1, 1]);
+        // More parts than points: one each, the batch grows to two per part in `train`.
+        let s = SharedFlow::new(2, 300, &NisConfig::default()).unwrap();
+        assert!(s.batch_counts(600).iter().all(|n| *n == 2));
+    }
+}
