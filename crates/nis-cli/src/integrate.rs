@@ -87,11 +87,11 @@ pub struct IntegrateArgs {
     /// sampler per channel and sign; without --channels, through one identity channel.
     #[arg(long, value_enum, conflicts_with_all = ["load", "save"])]
     pub signs: Option<SignsArg>,
-    /// With --channels or --signs, NIS: a flow per channel and sign instead of one flow shared
-    /// by all, conditioned on the channel (the default; docs/results/integration.md, "One flow
-    /// shared by the channels").
+    /// With --channels or --signs, NIS: one flow shared by every channel and sign, conditioned
+    /// on it, instead of a flow each (docs/results/integration.md, "One flow shared by the
+    /// channels").
     #[arg(long)]
-    pub flow_per_channel: bool,
+    pub shared_flow: bool,
     /// With a target: the most evaluations per method, training included [default: 10^8].
     #[arg(long, conflicts_with = "load")]
     pub max_evals: Option<u64>,
@@ -228,8 +228,8 @@ pub fn run_method(
     };
     let progress = shows_on(&pb);
     let mut sums = None;
-    if args.flow_per_channel && !args.multichannel() {
-        return Err("--flow-per-channel needs --channels or --signs".into());
+    if args.shared_flow && !args.multichannel() {
+        return Err("--shared-flow needs --channels or --signs".into());
     }
     if args.multichannel() {
         let r = run_multichannel(f, method, args, comm)?;

@@ -51,8 +51,7 @@ impl Default for Options {
 enum Row {
     /// A method through the channels, weights adapted unless `fixed`.
     Channels { method: Method, fixed: bool },
-    /// NIS through the channels with one flow conditioned on the channel (the default; the
-    /// `Channels` row of NIS has a flow per channel).
+    /// NIS through the channels with one flow conditioned on the channel.
     Shared,
     /// A method on the integrand alone.
     Plain(Method),

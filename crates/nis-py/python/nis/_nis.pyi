@@ -136,8 +136,8 @@ class Integrator:
     weight a channel keeps, as a fraction of 1/K, default 0.01), ``pilot`` (uniform points per
     channel of the pilot that decides the sign split, default 1000), ``target_adapt``
     (evaluations each sampler adapts on in a run to a target, default 100000), ``shared_flow``
-    (NIS: one flow for every channel and sign, conditioned on it, default True; False: a flow
-    each).
+    (NIS: one flow for every channel and sign, conditioned on it, instead of a flow each;
+    default False).
     """
 
     def __init__(

@@ -72,10 +72,10 @@ pub struct MultiChannelConfig {
     /// `adapt_fraction` of its `max_evals`, shared).
     pub target_adapt: u64,
     /// NIS: one flow for all parts, conditioned on the part (`shared.rs`), instead of a flow per
-    /// part; ignored by the other methods. The default: at equal evaluations its variance is
-    /// equal or lower on the multi-resonance examples in d ≥ 4 and it takes half the memory at
-    /// 100 channels (docs/results/integration.md, "One flow shared by the channels"). A saved
-    /// one loads as a flow per part.
+    /// part; ignored by the other methods. Off by default: at equal evaluations it wins on some
+    /// examples and loses on others by about as much, and costs more time per evaluation at 100
+    /// channels (docs/results/integration.md, "One flow shared by the channels"). A saved one
+    /// loads as a flow per part.
     pub shared_flow: bool,
 }
 
@@ -88,7 +88,7 @@ impl Default for MultiChannelConfig {
             weight_floor: 0.01,
             pilot: 1000,
             target_adapt: 100_000,
-            shared_flow: true,
+            shared_flow: false,
         }
     }
 }
@@ -294,15 +294,12 @@ impl MultiChannel {
             // The flow trains on every part's share at once; then each part gets the flow at
             // its context as an integrator of its own, and is measured with it.
             let train = adapt * 4 / 5;
-            {
-                let h: Vec<PartIntegrand> = self
-                    .parts
-                    .iter()
-                    .map(|p| PartIntegrand::new(f, &self.set, &self.weights, p.channel, p.sign))
-                    .collect();
-                let all: Vec<&dyn Integrand> = h.iter().map(|h| h as &dyn Integrand).collect();
-                spent += shared.train(&all, train * h.len() as u64)?;
-            }
+            let (set, a, dim) = (&self.set, &self.weights, self.set.dim());
+            let index: Vec<(usize, Sign)> =
+                self.parts.iter().map(|p| (p.channel, p.sign)).collect();
+            let h =
+                |counts: &[usize], u: &[f64]| part::eval_blocks(f, set, a, &index, counts, u, dim);
+            spent += shared.train(&h, train * index.len() as u64)?;
             let base = self.settings.seed_of(self.method);
             for (i, p) in self.parts.iter_mut().enumerate() {
                 let mut nis = shared.part(i, part_seed(base, i as u64))?;

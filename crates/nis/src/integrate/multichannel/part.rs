@@ -68,43 +68,93 @@ impl<'a> PartIntegrand<'a> {
 
 impl Integrand for PartIntegrand<'_> {
     fn eval_batch(&self, u: &[f64], dim: usize, out: &mut [f64]) -> Result<()> {
-        let n = out.len();
         let mut x = vec![0.0; u.len()];
         // Maps and checks: x in the cube, g_k(x) finite and > 0 where channel k put a point.
         self.set.sample(self.k, u, &mut x)?;
         let fx = evaluate(self.f, &x, dim)?;
-        let channels = self.set.len();
-        let mut g = vec![0.0; n * channels];
-        self.set.densities(&x, &mut g)?;
-        for (i, (o, row)) in out.iter_mut().zip(g.chunks_exact(channels)).enumerate() {
-            let mixture: f64 = row.iter().zip(self.a).map(|(g, a)| g * a).sum();
-            let v = fx[i];
-            if v > 0.0 {
+        for v in &fx {
+            if *v > 0.0 {
                 self.saw_positive.store(true, Ordering::Relaxed);
-            } else if v < 0.0 {
+            } else if *v < 0.0 {
                 self.saw_negative.store(true, Ordering::Relaxed);
             }
+        }
+        let parts = [(self.k, self.sign)];
+        let counts = [out.len()];
+        values(self.set, self.a, &parts, &counts, &x, &fx, dim, out)
+    }
+
+    fn dim(&self) -> Option<usize> {
+        Some(self.set.dim())
+    }
+}
+
+/// The values h of many parts at once, with one call of f and of the channels' densities for
+/// all points (a shared flow's training batch): the rows of `u` (`dim` each) come in blocks, the
+/// `j`th of `counts[j]` rows for the part `parts[j]` (channel, sign), under the weights `a`.
+pub(super) fn eval_blocks(
+    f: &dyn Integrand,
+    set: &ChannelSet,
+    a: &[f64],
+    parts: &[(usize, Sign)],
+    counts: &[usize],
+    u: &[f64],
+    dim: usize,
+) -> Result<Vec<f64>> {
+    let mut x = vec![0.0; u.len()];
+    let mut start = 0;
+    for (&(k, _), &m) in parts.iter().zip(counts) {
+        let rows = start * dim..(start + m) * dim;
+        if m > 0 {
+            set.sample(k, &u[rows.clone()], &mut x[rows])?;
+        }
+        start += m;
+    }
+    let fx = evaluate(f, &x, dim)?;
+    let mut out = vec![0.0; fx.len()];
+    values(set, a, parts, counts, &x, &fx, dim, &mut out)?;
+    Ok(out)
+}
+
+/// h = a_k·f/Σ_j a_j g_j (or its part of one sign) at the mapped points `x` with values `fx`,
+/// in the blocks of [`eval_blocks`], into `out`.
+#[allow(clippy::too_many_arguments)]
+fn values(
+    set: &ChannelSet,
+    a: &[f64],
+    parts: &[(usize, Sign)],
+    counts: &[usize],
+    x: &[f64],
+    fx: &[f64],
+    dim: usize,
+    out: &mut [f64],
+) -> Result<()> {
+    let channels = set.len();
+    let mut g = vec![0.0; fx.len() * channels];
+    set.densities(x, &mut g)?;
+    let mut i = 0;
+    for (&(k, sign), &m) in parts.iter().zip(counts) {
+        for _ in 0..m {
+            let row = &g[i * channels..(i + 1) * channels];
+            let mixture: f64 = row.iter().zip(a).map(|(g, a)| g * a).sum();
             // g_k(x) > 0 was checked, so the mixture is > 0 unless a weight underflowed.
             if !(mixture > 0.0 && mixture.is_finite()) {
                 return Err(Error::Channel {
-                    channel: self.k,
+                    channel: k,
                     point: x[i * dim..(i + 1) * dim].to_vec(),
                     reason: format!(
                         "the mixture Σ a_j g_j of the channels' densities is {mixture} there"
                     ),
                 });
             }
-            let h = self.a[self.k] * v / mixture;
-            *o = match self.sign {
+            let h = a[k] * fx[i] / mixture;
+            out[i] = match sign {
                 Sign::Both => h,
                 Sign::Plus => h.max(0.0),
                 Sign::Minus => (-h).max(0.0),
             };
+            i += 1;
         }
-        Ok(())
     }
-
-    fn dim(&self) -> Option<usize> {
-        Some(self.set.dim())
-    }
+    Ok(())
 }

@@ -8,8 +8,8 @@
 //!
 //! Training is NIS's (Müller et al. 2019, Sec. 3.2): on-policy steps of the KL or χ² loss, the
 //! tempered target |h_p|^β over the first half of the first training, the learning rate decayed
-//! over its steps and the estimate drawn from an average of the weights. A batch's points go to
-//! the parts in proportion to their running ∫|h_p| (each at least one), and each part's targets
+//! over its steps and the estimate drawn from an average of the weights. Half of a batch's points
+//! go to the parts equally, half in proportion to their running ∫|h_p|, and each part's targets
 //! are divided by that integral, so each conditional density learns its own normalised target.
 //! After training, each part gets an NIS integrator of its own around the flow at its context
 //! ([`Flow::at_context`]: the context's share of every first layer folded into its biases), so
@@ -19,10 +19,9 @@ use rand::SeedableRng;
 use rand_pcg::Pcg64Mcg;
 
 use crate::comm::Comm;
-use crate::error::{Error, Result};
+use crate::error::Result;
 use crate::flow::{Density, Flow, FlowConfig};
 use crate::integrate::nis::{NisConfig, NisIntegrator, TrainingMemory};
-use crate::integrate::{evaluate, Integrand};
 use crate::kernels::in_pool;
 use crate::nn::ParamAverage;
 use crate::train::Learner;
@@ -30,8 +29,9 @@ use crate::train::Learner;
 /// Salts of the training stream and of the training memories' choices ("shtr", "shme").
 const TRAIN_SALT: u64 = 0x7368_7472;
 const MEMORY_SALT: u64 = 0x7368_6d65;
-/// Weight of the newest batch in each part's running ∫|h_p|.
-const SCALE_RATE: f64 = 0.1;
+
+/// The parts' values at rows of points in blocks, one block of `counts[p]` rows per part p.
+pub(super) type BlockFn<'a> = dyn Fn(&[usize], &[f64]) -> Result<Vec<f64>> + Sync + 'a;
 
 /// A flow conditioned on the part, with its optimiser and streams.
 pub(super) struct SharedFlow {
@@ -43,8 +43,9 @@ pub(super) struct SharedFlow {
     /// Whether the first training has set the learning-rate schedule.
     scheduled: bool,
     trained: u64,
-    /// Each part's running ∫|h_p| (0 until a batch saw it).
-    scale: Vec<f64>,
+    /// Each part's Σ|h_p|/q over its training points and their count: every batch's mean is
+    /// unbiased for ∫|h_p| whatever q was, so their pooled mean is the running integral.
+    mass: Vec<(f64, f64)>,
     train_rng: Pcg64Mcg,
     /// Each part's reservoir of its latest training's points, handed to its integrator for the
     /// recalled-weight check, and the stream that chooses them.
@@ -71,7 +72,7 @@ impl SharedFlow {
             average: None,
             scheduled: false,
             trained: 0,
-            scale: vec![0.0; parts],
+            mass: vec![(0.0, 0.0); parts],
             train_rng: Pcg64Mcg::seed_from_u64(config.seed ^ TRAIN_SALT),
             memories: vec![TrainingMemory::new(dim); parts],
             memory_rng: Pcg64Mcg::seed_from_u64(config.seed ^ MEMORY_SALT),
@@ -89,16 +90,34 @@ impl SharedFlow {
         self.comm = comm;
     }
 
-    /// Points per part of a batch of `batch` (over all ranks): in proportion to the running
-    /// ∫|h_p| (equal while none is known), each at least one, by largest remainders.
+    /// Part `p`'s running ∫|h_p| (0 until a point saw it).
+    fn scale(&self, p: usize) -> f64 {
+        let (sum, n) = self.mass[p];
+        if n > 0.0 {
+            sum / n
+        } else {
+            0.0
+        }
+    }
+
+    /// Points per part of a batch of `batch` (over all ranks): half of them equally, half in
+    /// proportion to the running ∫|h_p| (all equally while none is known), each at least one,
+    /// by largest remainders. The equal half keeps a part that no point has found yet sampled,
+    /// so that it can be found.
     fn batch_counts(&self, batch: usize) -> Vec<usize> {
         let p = self.parts;
-        let total: f64 = self.scale.iter().sum();
-        let share: Vec<f64> = if total > 0.0 {
-            self.scale.iter().map(|s| s / total).collect()
-        } else {
-            vec![1.0 / p as f64; p]
-        };
+        let scales: Vec<f64> = (0..p).map(|i| self.scale(i)).collect();
+        let total: f64 = scales.iter().sum();
+        let share: Vec<f64> = scales
+            .iter()
+            .map(|s| {
+                if total > 0.0 {
+                    0.5 / p as f64 + 0.5 * s / total
+                } else {
+                    1.0 / p as f64
+                }
+            })
+            .collect();
         let spare = batch.saturating_sub(p) as f64;
         let mut counts: Vec<usize> = share.iter().map(|s| 1 + (s * spare) as usize).collect();
         let mut left = batch.saturating_sub(counts.iter().sum());
@@ -117,17 +136,10 @@ impl SharedFlow {
         counts
     }
 
-    /// Trains on `evals` evaluations of the parts `h` (one integrand per part, over the cube),
-    /// in whole batches of NIS's batch size (or two points per part, if more); returns the
-    /// evaluations spent.
-    pub(super) fn train(&mut self, h: &[&dyn Integrand], evals: u64) -> Result<u64> {
-        if h.len() != self.parts {
-            return Err(Error::Config(format!(
-                "a shared flow of {} parts was given {} part integrands",
-                self.parts,
-                h.len()
-            )));
-        }
+    /// Trains on `evals` evaluations of the parts, in whole batches of NIS's batch size (or two
+    /// points per part, if more); returns the evaluations spent. `h(counts, u)` gives the parts'
+    /// values at the rows of `u`, in blocks of `counts[p]` rows of part p.
+    pub(super) fn train(&mut self, h: &BlockFn, evals: u64) -> Result<u64> {
         let batch = self.config.batch.max(2 * self.parts);
         let steps = (evals / batch as u64) as usize;
         if steps == 0 {
@@ -158,7 +170,7 @@ impl SharedFlow {
     /// `steps` training batches of `batch` points (see [`SharedFlow::train`]).
     fn steps(
         &mut self,
-        h: &[&dyn Integrand],
+        h: &BlockFn,
         steps: usize,
         batch: usize,
         anneal: Option<f64>,
@@ -185,14 +197,7 @@ impl SharedFlow {
                 .sample_for_training(n, Some(&ctx), &mut self.train_rng);
             let evaluated = drawn.and_then(|s| {
                 let x64: Vec<f64> = s.x.iter().map(|&v| v as f64).collect();
-                let mut hx = Vec::with_capacity(n);
-                let mut start = 0;
-                for (p, &m) in counts.iter().enumerate() {
-                    let rows = start * dim..(start + m) * dim;
-                    hx.extend(evaluate(h[p], &x64[rows], dim)?);
-                    start += m;
-                }
-                Ok((s, hx))
+                Ok((s, h(&counts, &x64)?))
             });
             let (samples, hx) = self.comm.check(evaluated)?;
             let mut start = 0;
@@ -204,7 +209,7 @@ impl SharedFlow {
                 self.memories[p].observe(x, f, 1, &mut self.memory_rng);
                 start += m;
             }
-            // Each part's mean |h|/q over the ranks updates its running integral.
+            // Each part's Σ|h|/q and count over the ranks join its running integral.
             let mut sums = vec![0.0; 2 * self.parts];
             let mut start = 0;
             for (p, &m) in counts.iter().enumerate() {
@@ -215,19 +220,13 @@ impl SharedFlow {
                 start += m;
             }
             self.comm.sum_f64(&mut sums);
-            for p in 0..self.parts {
-                if sums[2 * p + 1] > 0.0 {
-                    let mean = sums[2 * p] / sums[2 * p + 1];
-                    self.scale[p] = if self.scale[p] > 0.0 {
-                        (1.0 - SCALE_RATE) * self.scale[p] + SCALE_RATE * mean
-                    } else {
-                        mean
-                    };
-                }
+            for (p, m) in self.mass.iter_mut().enumerate() {
+                m.0 += sums[2 * p];
+                m.1 += sums[2 * p + 1];
             }
             let mut target = Vec::with_capacity(n);
             for (p, &m) in counts.iter().enumerate() {
-                let s = self.scale[p];
+                let s = self.scale(p);
                 let first = target.len();
                 target.extend(hx[first..first + m].iter().map(|v| {
                     if s > 0.0 {
@@ -284,12 +283,12 @@ mod tests {
         let mut s = SharedFlow::new(2, 4, &NisConfig::default()).unwrap();
         // Equal while nothing is known.
         assert_eq!(s.batch_counts(256), vec![64; 4]);
-        s.scale = vec![6.0, 2.0, 0.0, 0.0];
+        s.mass = vec![(6.0, 1.0), (2.0, 1.0), (0.0, 1.0), (0.0, 0.0)];
         let c = s.batch_counts(256);
         assert_eq!(c.iter().sum::<usize>(), 256);
-        assert!(c[2] >= 1 && c[3] >= 1, "{c:?}");
-        // 252 spare points split 3 : 1, plus one each.
-        assert_eq!(c, vec![190, 64, 1, 1]);
+        // 252 spare points: 1/8 each, and 3/8 and 1/8 more by mass; plus one each, and the
+        // last point to the first of the equal remainders.
+        assert_eq!(c, vec![127, 64, 33, 32]);
         // More parts than points: one each, the batch grows to two per part in `train`.
         let s = SharedFlow::new(2, 300, &NisConfig::default()).unwrap();
         assert!(s.batch_counts(600).iter().all(|n| *n == 2));

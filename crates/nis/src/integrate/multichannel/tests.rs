@@ -395,8 +395,10 @@ fn a_shared_flow_covers_and_learns_every_channel() {
     // One flow conditioned on the channel, over 10 seeds: at least 8 within 2σ (as above), none
     // beyond 5σ, and well below the classic estimator's variance (0.61 per evaluation at 10⁶,
     // docs/results/integration.md), so every channel's density was learnt.
-    let shared = MultiChannelConfig::default();
-    assert!(shared.shared_flow);
+    let shared = MultiChannelConfig {
+        shared_flow: true,
+        ..MultiChannelConfig::default()
+    };
     let (mut covered, mut rel_var) = (0, 0.0);
     for seed in 0..10 {
         let (r, exact) = integrate("resonances-4d", Method::Nis, 200_000, seed, shared.clone());
@@ -439,7 +441,10 @@ fn a_shared_flow_covers_and_learns_every_channel() {
 
 #[test]
 fn a_shared_flow_meets_a_target_draws_events_and_saves() {
-    let shared = MultiChannelConfig::default();
+    let shared = MultiChannelConfig {
+        shared_flow: true,
+        ..MultiChannelConfig::default()
+    };
     let ex = examples::by_name("dalitz").unwrap();
     let set = || ChannelSet::new(examples::by_name("dalitz").unwrap().channels).unwrap();
     let mut mc = MultiChannel::new(set(), Method::Nis, Settings::default(), shared).unwrap();
