@@ -366,9 +366,16 @@ fn targets_and_channels_run_alike_on_every_rank() {
                 );
             }
         }
-        // Through channels, split by sign where the pilot sees both: one result per seed.
-        for (name, method) in [("dalitz", "vegas"), ("gauss-pm", "uniform")] {
-            let args = [
+        // Through channels, split by sign where the pilot sees both, and NIS with one flow
+        // shared by the channels (its training reduces counts and gradients over the ranks):
+        // one result per seed.
+        let cases = [
+            ("dalitz", "vegas", None),
+            ("gauss-pm", "uniform", None),
+            ("dalitz", "nis", Some("--shared-flow")),
+        ];
+        for (name, method, extra) in cases {
+            let mut args = vec![
                 "integrate",
                 name,
                 "--channels",
@@ -380,6 +387,7 @@ fn targets_and_channels_run_alike_on_every_rank() {
                 "--evals",
                 "100000",
             ];
+            args.extend(extra);
             let a = run_json(ranks, &args);
             assert!(pull(&a).abs() < 5.0, "{name}, {ranks} ranks: {a}");
             assert_eq!(a, run_json(ranks, &args), "{name}, {ranks} ranks, two runs");
