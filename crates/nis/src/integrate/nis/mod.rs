@@ -38,6 +38,7 @@ use reuse::TrainingPieces;
 
 mod config;
 mod memory;
+mod post_stratified;
 mod reuse;
 mod stratified_latent;
 mod to_target;

@@ -71,7 +71,8 @@
 
 use std::collections::VecDeque;
 
-use super::stratified_latent::{self, FinalPlan, PostStratified};
+use super::post_stratified::{post_stratified, PostStratified};
+use super::stratified_latent::FinalPlan;
 use super::NisConfig;
 use crate::comm::Comm;
 use crate::error::Result;
@@ -295,7 +296,7 @@ impl TrainingPieces {
         if let Some(s) = self.stratified.as_mut() {
             let n_q = z.len() / s.grid.len();
             let flow_share: Vec<f64> = w.iter().step_by(self.k).take(n_q).copied().collect();
-            let mut sums = stratified_latent::post_stratified(z, &flow_share, &s.grid).to_array();
+            let mut sums = post_stratified(z, &flow_share, &s.grid).to_array();
             // Plain sums, reduced in the fixed order of the rank count: every rank predicts the
             // same, with one reduction instead of a gather of every rank's sums.
             comm.sum_f64(&mut sums);
