@@ -3,8 +3,7 @@
 //! one-hot context, so q(u | p) is the density of part p over its channel's cube, and every
 //! training batch holds points of every part: the parts share the conditioners' weights and
 //! what each batch teaches them, and many channels cost one flow's memory. Its first layer's
-//! context columns are a learned embedding of the part (as MadNIS conditions one flow on the
-//! channel, Heimel et al. 2024, arXiv:2311.01548, Sec. 3.3).
+//! context columns are a learned embedding of the part.
 //!
 //! Training is NIS's (Müller et al. 2019, Sec. 3.2): on-policy steps of the KL or χ² loss, the
 //! tempered target |h_p|^β over the first half of the first training, the learning rate decayed
