@@ -290,13 +290,12 @@ impl MultiChannel {
     ) -> Result<(Vec<IntegrationResult>, u64)> {
         let mut measured = Vec::with_capacity(self.parts.len());
         let mut spent = 0;
+        let index = self.parts_index();
         if let Some(shared) = &mut self.shared {
             // The flow trains on every part's share at once; then each part gets the flow at
             // its context as an integrator of its own, and is measured with it.
             let train = adapt * 4 / 5;
             let (set, a, dim) = (&self.set, &self.weights, self.set.dim());
-            let index: Vec<(usize, Sign)> =
-                self.parts.iter().map(|p| (p.channel, p.sign)).collect();
             let h =
                 |counts: &[usize], u: &[f64]| part::eval_blocks(f, set, a, &index, counts, u, dim);
             spent += shared.train(&h, train * index.len() as u64)?;

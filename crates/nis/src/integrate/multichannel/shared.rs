@@ -20,7 +20,7 @@ use rand_pcg::Pcg64Mcg;
 use crate::comm::Comm;
 use crate::error::Result;
 use crate::flow::{Density, Flow, FlowConfig};
-use crate::integrate::nis::{NisConfig, NisIntegrator, TrainingMemory};
+use crate::integrate::nis::{anneal_beta, schedule, NisConfig, NisIntegrator, TrainingMemory};
 use crate::kernels::in_pool;
 use crate::nn::ParamAverage;
 use crate::train::Learner;
@@ -145,13 +145,9 @@ impl SharedFlow {
             return Ok(0);
         }
         if !self.scheduled {
-            let decay = self.config.learning_rate_end.powf(1.0 / steps as f32);
-            self.learner
-                .set_learning_rate_decay(decay * self.config.adam.decay)?;
-            if self.config.average_span > 0.0 {
-                let decay = ParamAverage::span_decay(self.config.average_span, steps);
-                self.average = Some(ParamAverage::new(decay, &[self.flow.params()]));
-            }
+            // One Adam step per batch (no replay).
+            let params = self.flow.params();
+            self.average = schedule(&self.config, &mut self.learner, steps, steps, params)?;
             self.scheduled = true;
         }
         if let Some(a) = &self.average {
@@ -176,10 +172,7 @@ impl SharedFlow {
     ) -> Result<()> {
         let dim = self.flow.dim();
         for step in 0..steps {
-            let beta = anneal.map_or(1.0, |span| {
-                let t = (step as f64 / span).min(1.0);
-                self.config.anneal_from + t * (1.0 - self.config.anneal_from)
-            });
+            let beta = anneal.map_or(1.0, |span| anneal_beta(&self.config, step, span));
             self.learner.set_temperature(beta);
             // This rank's share of every part's points, the parts' rows one after the other.
             let counts: Vec<usize> = self
@@ -199,22 +192,15 @@ impl SharedFlow {
                 Ok((s, h(&counts, &x64)?))
             });
             let (samples, hx) = self.comm.check(evaluated)?;
-            let mut start = 0;
-            for (p, &m) in counts.iter().enumerate() {
-                let (x, f) = (
-                    &samples.x[start * dim..(start + m) * dim],
-                    &hx[start..start + m],
-                );
-                self.memories[p].observe(x, f, 1, &mut self.memory_rng);
-                start += m;
-            }
-            // Each part's Σ|h|/q and count over the ranks join its running integral.
+            // Each part's points join its memory, and its Σ|h|/q and count over the ranks its
+            // running integral.
             let mut sums = vec![0.0; 2 * self.parts];
             let mut start = 0;
             for (p, &m) in counts.iter().enumerate() {
-                for i in start..start + m {
-                    sums[2 * p] += hx[i].abs() * (-samples.log_q[i]).exp();
-                }
+                let rows = start..start + m;
+                let x = &samples.x[start * dim..(start + m) * dim];
+                self.memories[p].observe(x, &hx[rows.clone()], 1, &mut self.memory_rng);
+                sums[2 * p] = rows.map(|i| hx[i].abs() * (-samples.log_q[i]).exp()).sum();
                 sums[2 * p + 1] = m as f64;
                 start += m;
             }

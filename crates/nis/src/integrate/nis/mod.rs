@@ -35,6 +35,7 @@ use crate::nn::ParamAverage;
 use crate::train::Learner;
 pub(crate) use memory::TrainingMemory;
 use reuse::TrainingPieces;
+pub(crate) use training::{anneal_beta, schedule};
 
 mod config;
 mod memory;

@@ -7,6 +7,7 @@
 
 use std::time::Instant;
 
+use super::config::NisConfig;
 use super::reuse::{ReplayBuffer, TrainingPieces};
 use super::training_length::{BatchReport, TrainingLength};
 use super::{draw, NisIntegrator};
@@ -17,6 +18,7 @@ use crate::integrate::moments::Moments;
 use crate::integrate::{check_dim, evaluate, report, Integrand};
 use crate::kernels::in_pool;
 use crate::nn::ParamAverage;
+use crate::train::Learner;
 
 impl NisIntegrator {
     /// The adaptive phase: `evals` more evaluations in batches, one training step (or
@@ -94,10 +96,7 @@ impl NisIntegrator {
         for step in 0..steps {
             let beta = match (&length, anneal) {
                 (Some(rule), _) => rule.beta(),
-                (None, Some(span)) => {
-                    let t = (step as f64 / span).min(1.0);
-                    self.config.anneal_from + t * (1.0 - self.config.anneal_from)
-                }
+                (None, Some(span)) => anneal_beta(&self.config, step, span),
                 (None, None) => 1.0,
             };
             if length.as_deref().is_some_and(|rule| rule.just_annealed()) {
@@ -201,23 +200,41 @@ impl NisIntegrator {
     /// Sets the learning-rate schedule and the weights' average over the `steps` training batches
     /// of this integrator's first training.
     fn schedule(&mut self, steps: usize) -> Result<()> {
-        // The rate decays over the Adam steps of the on-policy and the replayed batches.
+        // The rate decays over the Adam steps of the on-policy and the replayed batches (a
+        // loaded integrator's first training starts an average of its own).
         let adam_steps = steps * (1 + self.config.replay_steps);
-        let decay = self
-            .config
-            .learning_rate_end
-            .powf(1.0 / adam_steps.max(1) as f32);
-        self.learner
-            .set_learning_rate_decay(decay * self.config.adam.decay)?;
-        // The average spans a share of the same steps (a loaded integrator's first training
-        // starts an average of its own).
-        if self.config.average_span > 0.0 {
-            let decay = ParamAverage::span_decay(self.config.average_span, steps);
-            self.average = Some(ParamAverage::new(decay, &[self.flow().params()]));
-        }
+        let params = self.sampler.density.params();
+        self.average = schedule(&self.config, &mut self.learner, adam_steps, steps, params)?;
         self.scheduled = true;
         Ok(())
     }
+}
+
+/// The schedule of a first training of `batches` batches and `adam_steps` Adam steps under
+/// `config`: the learning rate decays over the steps to `learning_rate_end` of its start, and
+/// the weights' average (from `params`, when `average_span` > 0) spans its share of the batches.
+pub(crate) fn schedule(
+    config: &NisConfig,
+    learner: &mut Learner,
+    adam_steps: usize,
+    batches: usize,
+    params: &[f32],
+) -> Result<Option<ParamAverage>> {
+    let decay = config
+        .learning_rate_end
+        .powf(1.0 / adam_steps.max(1) as f32);
+    learner.set_learning_rate_decay(decay * config.adam.decay)?;
+    Ok((config.average_span > 0.0).then(|| {
+        let decay = ParamAverage::span_decay(config.average_span, batches);
+        ParamAverage::new(decay, &[params])
+    }))
+}
+
+/// The tempered target's exponent β at batch `step` of an annealing over `span` batches that
+/// rises linearly from `config.anneal_from` to 1.
+pub(crate) fn anneal_beta(config: &NisConfig, step: usize, span: f64) -> f64 {
+    let t = (step as f64 / span).min(1.0);
+    config.anneal_from + t * (1.0 - config.anneal_from)
 }
 
 /// The ESS fraction (Σw)²/(n·Σw²) of the tempered weights w = |t|^β/q_mix of a batch over all
