@@ -356,8 +356,8 @@ int nis_save(struct nis_integrator *integ, const char *path);
  * `"split"`, `"whole"`, or NULL for auto. `count` 0 with `channels` NULL integrates without
  * channels (one identity channel), split by sign; `count` 0 with channels given is an error.
  * A key `"multichannel"` of the config patches the multi-channel settings, e.g.
- * `{"multichannel": {"shared_flow": true, "adapt_fraction": 0.3}}` (NIS with one flow shared
- * by the channels instead of a flow each).
+ * `{"multichannel": {"shared_flow": false, "adapt_fraction": 0.3}}` (NIS with a flow per
+ * channel instead of the default one flow shared by the channels).
  *
  * # Safety
  * `json` and a non-NULL `signs` must be NUL-terminated; `channels` must hold `count` channels

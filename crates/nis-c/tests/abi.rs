@@ -588,9 +588,14 @@ fn channels_through_c_integrate_and_report_each_channel() {
             prior: 0.0,
         })
         .collect();
-    // The three methods, and NIS with one flow shared by the channels.
-    let shared = r#""multichannel": {"shared_flow": true}"#;
-    for (method, extra) in [("uniform", ""), ("vegas", ""), ("nis", ""), ("nis", shared)] {
+    // The three methods, and NIS with a flow per channel besides the default shared one.
+    let per_channel = r#""multichannel": {"shared_flow": false}"#;
+    for (method, extra) in [
+        ("uniform", ""),
+        ("vegas", ""),
+        ("nis", ""),
+        ("nis", per_channel),
+    ] {
         let comma = if extra.is_empty() { "" } else { ", " };
         let json = CString::new(format!(
             r#"{{"method": "{method}", "dim": 2, "seed": 4{comma}{extra}}}"#

@@ -49,7 +49,7 @@ pub(crate) fn run_multichannel(
 ) -> Result<IntegrationResult, Error> {
     let config = MultiChannelConfig {
         signs: args.signs.map_or(Signs::Auto, SignsArg::signs),
-        shared_flow: args.shared_flow,
+        shared_flow: !args.flow_per_channel,
         ..MultiChannelConfig::default()
     };
     let settings = args.settings()?;

@@ -59,7 +59,8 @@ pub struct IntegrateArgs {
     /// Bins of the coupling transform (default: NisConfig's, 16).
     #[arg(long, conflicts_with = "load")]
     pub bins: Option<usize>,
-    /// Training loss: kl or chi2 (default: NisConfig's, kl).
+    /// Training loss: kl, chi2 or auto (the default: kl for one integrand, chi2 for the parts of a
+    /// multi-channel integral).
     #[arg(long, conflicts_with = "load")]
     pub loss: Option<Loss>,
     /// How the flow's coupling layers split the dimensions: binary (the paper's masks, the
@@ -87,11 +88,11 @@ pub struct IntegrateArgs {
     /// sampler per channel and sign; without --channels, through one identity channel.
     #[arg(long, value_enum, conflicts_with_all = ["load", "save"])]
     pub signs: Option<SignsArg>,
-    /// With --channels or --signs, NIS: one flow shared by every channel and sign, conditioned
-    /// on it, instead of a flow each (docs/results/integration.md, "One flow shared by the
-    /// channels").
+    /// With --channels or --signs, NIS: a flow for every channel and sign instead of the default
+    /// one flow shared by all, conditioned on the part (docs/results/integration.md, "One flow
+    /// shared by the channels").
     #[arg(long)]
-    pub shared_flow: bool,
+    pub flow_per_channel: bool,
     /// With a target: the most evaluations per method, training included [default: 10^8].
     #[arg(long, conflicts_with = "load")]
     pub max_evals: Option<u64>,
@@ -228,8 +229,8 @@ pub fn run_method(
     };
     let progress = shows_on(&pb);
     let mut sums = None;
-    if args.shared_flow && !args.multichannel() {
-        return Err("--shared-flow needs --channels or --signs".into());
+    if args.flow_per_channel && !args.multichannel() {
+        return Err("--flow-per-channel needs --channels or --signs".into());
     }
     if args.multichannel() {
         let r = run_multichannel(f, method, args, comm)?;

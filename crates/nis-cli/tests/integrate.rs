@@ -334,7 +334,7 @@ fn channels_run_on_the_multi_channel_examples_only() {
     ]);
     assert!(!out.status.success());
     assert!(String::from_utf8_lossy(&out.stderr).contains("resonances-4d"));
-    // NIS with one flow shared by the channels; the flag needs channels or signs.
+    // NIS with a flow per channel; the flag needs channels or signs.
     let args = [
         "integrate",
         "dalitz",
@@ -344,7 +344,7 @@ fn channels_run_on_the_multi_channel_examples_only() {
         "100000",
         "--json",
     ];
-    let out = nis(&[&args[..], &["--channels", "--shared-flow"]].concat());
+    let out = nis(&[&args[..], &["--channels", "--flow-per-channel"]].concat());
     assert!(
         out.status.success(),
         "{}",
@@ -352,7 +352,7 @@ fn channels_run_on_the_multi_channel_examples_only() {
     );
     let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
     assert_eq!(v["channels"]["means"].as_array().unwrap().len(), 2);
-    let out = nis(&[&args[..], &["--shared-flow"]].concat());
+    let out = nis(&[&args[..], &["--flow-per-channel"]].concat());
     assert!(!out.status.success());
     assert!(String::from_utf8_lossy(&out.stderr).contains("--channels or --signs"));
 }

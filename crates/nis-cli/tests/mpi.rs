@@ -367,12 +367,13 @@ fn targets_and_channels_run_alike_on_every_rank() {
             }
         }
         // Through channels, split by sign where the pilot sees both, and NIS with one flow
-        // shared by the channels (its training reduces counts and gradients over the ranks):
-        // one result per seed.
+        // shared by the channels (its training reduces counts and gradients over the ranks) and
+        // with a flow per channel: one result per seed.
         let cases = [
             ("dalitz", "vegas", None),
             ("gauss-pm", "uniform", None),
-            ("dalitz", "nis", Some("--shared-flow")),
+            ("dalitz", "nis", None),
+            ("dalitz", "nis", Some("--flow-per-channel")),
         ];
         for (name, method, extra) in cases {
             let mut args = vec![

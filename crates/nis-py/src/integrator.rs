@@ -524,6 +524,7 @@ impl PyIntegrator {
                     Loss::Kl => "kl",
                     Loss::ChiSquare => "chi2",
                     Loss::Nll => "nll",
+                    Loss::Auto => "auto",
                 },
                 n.config().seed
             ),

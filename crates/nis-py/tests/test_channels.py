@@ -102,12 +102,14 @@ def test_channel_settings_tune_the_multi_channel_integrator():
     assert list(r.channel_weights) == [0.25, 0.75] and within(r, EXACT)
     moved = nis.Integrator(2, "uniform", channels=channels())(two_peaks, evals=100_000)
     assert moved.channel_weights[0] != 0.5
-    # One flow shared by the channels.
-    shared = nis.Integrator(2, "nis", channels=channels(), channel_settings={"shared_flow": True})
-    r = shared(two_peaks, evals=100_000)
-    assert within(r, EXACT) and len(r.channel_means) == 2 and all(r.channel_evals > 0)
-    x, w, channel = shared.events(two_peaks, 200)
-    assert x.shape == (200, 2) and set(channel) == {0, 1}
+    # One flow shared by the channels (the default) and a flow per channel.
+    for shared_flow in (True, False):
+        integ = nis.Integrator(2, "nis", channels=channels(),
+                               channel_settings={"shared_flow": shared_flow})
+        r = integ(two_peaks, evals=100_000)
+        assert within(r, EXACT) and len(r.channel_means) == 2 and all(r.channel_evals > 0)
+        x, w, channel = integ.events(two_peaks, 200)
+        assert x.shape == (200, 2) and set(channel) == {0, 1}
     with pytest.raises(ValueError, match="channel_settings needs channels or signs"):
         nis.Integrator(2, channel_settings={"pilot": 10})
     with pytest.raises(ValueError, match="colour"):

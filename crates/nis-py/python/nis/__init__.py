@@ -56,8 +56,8 @@ def _call(self, f, evals=None, *, rel_err=None, abs_err=None, max_evals=None, ma
     KeyboardInterrupt at the next batch. Each of the result's ``warnings`` (an error bar that
     cannot be trusted, a sampler that had not converged) is also raised as a ``UserWarning``.
 
-    A multi-channel integrator (made with ``channels`` or ``signs``) takes scalar integrands
-    and a budget: precision targets raise ``ValueError`` before ``f`` is called.
+    A multi-channel integrator (made with ``channels`` or ``signs``) takes scalar integrands,
+    on a budget or to a precision target.
     """
     r = _integrate(
         self,

@@ -105,8 +105,9 @@ class Integrator:
     fewer layers for a cheaper flow with a higher variance per evaluation, for cheap
     integrands; it misses modes more often, so check it against a second seed or method),
     ``hidden_layers``, ``hidden_width``, ``blob_bins``, ``flow`` (the flow's settings as a
-    dict, e.g. ``{"hidden_width": 64}``), ``loss`` ("kl", "chi2"), ``batch``,
-    ``steps_per_batch``, ``train_fraction``, ``learning_rate``, ``adam`` (the optimiser's
+    dict, e.g. ``{"hidden_width": 64}``), ``loss`` ("auto", the default: "kl" for one
+    integrand, "chi2" for the parts of a multi-channel integral; "kl" or "chi2" forces one),
+    ``batch``, ``steps_per_batch``, ``train_fraction``, ``learning_rate``, ``adam`` (the optimiser's
     settings as a dict, e.g. ``{"beta1": 0.95}``), ``learning_rate_end``, ``average_span``
     (the moving average of the flow's weights that the final phase samples spans this share of
     the first training's batches; default 0.1, 0 the last training step's weights),
@@ -136,8 +137,8 @@ class Integrator:
     weight a channel keeps, as a fraction of 1/K, default 0.01), ``pilot`` (uniform points per
     channel of the pilot that decides the sign split, default 1000), ``target_adapt``
     (evaluations each sampler adapts on in a run to a target, default 100000), ``shared_flow``
-    (NIS: one flow for every channel and sign, conditioned on it, instead of a flow each;
-    default False).
+    (NIS: one flow for every channel and sign, conditioned on it, the default; False: a flow
+    each).
     """
 
     def __init__(
@@ -211,8 +212,8 @@ class Integrator:
         KeyboardInterrupt at the next batch. Each of the result's ``warnings`` (an error bar that
         cannot be trusted, a sampler that had not converged) is also raised as a ``UserWarning``.
 
-        A multi-channel integrator (made with ``channels`` or ``signs``) takes scalar integrands
-        and a budget: precision targets raise ``ValueError`` before ``f`` is called.
+        A multi-channel integrator (made with ``channels`` or ``signs``) takes scalar integrands,
+        on a budget or to a precision target.
         """
     def train(self, f: IntegrandFn, evals: int) -> None:
         """NIS only: trains on ``evals`` more evaluations without estimating."""

@@ -462,3 +462,37 @@ fn a_shared_flow_meets_a_target_draws_events_and_saves() {
     let r = loaded.integrate(&ex.integrand, 100_000).unwrap();
     assert!((r.value - ex.exact).abs() <= 5.0 * r.std_err, "{r:?}");
 }
+
+#[test]
+fn nis_parts_train_with_chi_square_unless_the_settings_name_a_loss() {
+    use crate::loss::Loss;
+    let ex = examples::by_name("dalitz").unwrap();
+    let loss_of_parts = |settings: Settings| {
+        let set = ChannelSet::new(examples::by_name("dalitz").unwrap().channels).unwrap();
+        let config = MultiChannelConfig {
+            shared_flow: false,
+            ..MultiChannelConfig::default()
+        };
+        let mut mc = MultiChannel::new(set, Method::Nis, settings, config).unwrap();
+        mc.integrate(&ex.integrand, 20_000).unwrap();
+        mc.parts
+            .iter_mut()
+            .map(|p| {
+                p.integrator
+                    .as_deref_mut()
+                    .unwrap()
+                    .as_nis()
+                    .unwrap()
+                    .config()
+                    .loss
+            })
+            .collect::<Vec<_>>()
+    };
+    assert_eq!(loss_of_parts(Settings::default()), vec![Loss::ChiSquare; 2]);
+    let mut kl = Settings::default();
+    kl.nis.loss = Loss::Kl;
+    assert_eq!(loss_of_parts(kl), vec![Loss::Kl; 2]);
+    // A single integrand's NIS resolves the default to KL.
+    let nis = crate::integrate::nis::NisIntegrator::new(2, Default::default()).unwrap();
+    assert_eq!(nis.config().loss, Loss::Kl);
+}

@@ -21,7 +21,8 @@ pub struct NisConfig {
     /// it names and keeps these defaults for the rest.
     #[serde(deserialize_with = "flow_patch")]
     pub flow: FlowConfig,
-    /// The training loss.
+    /// The training loss; `auto` (the default) is KL for a whole integrand and χ² for the parts
+    /// of a multi-channel integral ([`Loss::resolve`]).
     pub loss: Loss,
     /// Samples per adaptive iteration (one Adam step each). 256 by default: for the same training
     /// evaluations, four times the steps of 1024-point batches gave 1.2–3.5× lower variance per
@@ -143,7 +144,7 @@ impl Default for NisConfig {
                 blob_bins: 8,
                 ..FlowConfig::default()
             },
-            loss: Loss::Kl,
+            loss: Loss::Auto,
             batch: 256,
             steps_per_batch: 1,
             replay_batches: 0,

@@ -103,8 +103,9 @@ impl Streams {
 
 impl NisIntegrator {
     /// A new (untrained: uniform) integrator in `dim` dimensions.
-    pub fn new(dim: usize, config: NisConfig) -> Result<NisIntegrator> {
+    pub fn new(dim: usize, mut config: NisConfig) -> Result<NisIntegrator> {
         config.validate()?;
+        config.loss = config.loss.resolve(false);
         let flow = Flow::new(FlowConfig {
             dim,
             ..config.flow.clone()
@@ -326,9 +327,10 @@ impl NisIntegrator {
     /// multi-channel flow. Its first training starts Adam and the schedule afresh.
     pub(crate) fn from_trained(
         flow: Flow,
-        config: NisConfig,
+        mut config: NisConfig,
         trained_evals: u64,
     ) -> Result<NisIntegrator> {
+        config.loss = config.loss.resolve(false);
         let learner = Learner::new(flow.param_count(), config.loss, config.adam)?;
         let sampler = DefensiveMixture::new(flow, config.uniform_fraction)?;
         Ok(NisIntegrator {
