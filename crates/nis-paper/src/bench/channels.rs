@@ -2,18 +2,23 @@
 //!
 //! - **Channels**: on the built-in multi-channel examples, the relative variance per evaluation
 //!   (every evaluation counted, adapting and pilot included: σ²·n_eval/F²) of NIS with a flow per
-//!   channel, NIS without channels, the classic multi-channel estimator (uniform points per
+//!   channel and with one shared flow, NIS without channels, the classic multi-channel estimator (uniform points per
 //!   channel, fixed equal weights) and multi-channel VEGAS+, with the worst |pull| and the wall
-//!   time; medians over seeds.
+//!   time over seeds. The variance per evaluation is given as the mean of the seeds' σ̂² (an
+//!   unbiased estimate of the estimator's variance) and as their median: a heavy-tailed sampler
+//!   has a skewed σ̂², whose median reads low.
 //! - **Signs**: a positive and a negative Gaussian peak in 4-d (weights 1 and −0.6) and MadNIS's
 //!   ±Gaussian toy (∫ = 0): NIS with a sampler per sign against NIS trained on |f|.
+//! - **Machinery**: the wall time per evaluation of NIS through identity channels against NIS on
+//!   the integrand alone, same batches and budget: what the channels cost besides the K channel
+//!   densities every point needs.
 //!
 //! Writes the section "channels" of `docs/results/integration.md`.
 
 use std::path::Path;
 use std::time::Instant;
 
-use nis::channels::{examples, ChannelSet};
+use nis::channels::{examples, Channel, ChannelFn, ChannelSet};
 use nis::integrate::multichannel::{MultiChannel, MultiChannelConfig, Signs};
 use nis::integrate::{integrator, Integrand, IntegrationResult, Method, Settings};
 
@@ -70,7 +75,7 @@ impl Row {
                 },
                 if fixed { ", equal fixed weights" } else { "" }
             ),
-            Row::Shared => format!("{} ×{k}, one shared flow", Method::Nis.label()),
+            Row::Shared => format!("{} ×{k}, one shared flow (default)", Method::Nis.label()),
             Row::Plain(m) => format!("{}, no channels", m.label()),
         }
     }
@@ -111,23 +116,53 @@ fn median(mut v: Vec<f64>) -> f64 {
     v[v.len() / 2]
 }
 
+/// One row's runs over the seeds.
+#[derive(Default)]
+struct Runs {
+    vars: Vec<f64>,
+    pulls: Vec<f64>,
+    secs: Vec<f64>,
+}
+
+impl Runs {
+    fn push(&mut self, var: f64, pull: f64, secs: f64) {
+        self.vars.push(var);
+        self.pulls.push(pull.abs());
+        self.secs.push(secs);
+    }
+
+    /// The table's cells: mean and median rel. var./eval, worst |pull|, median seconds.
+    fn cells(self) -> String {
+        let mean = self.vars.iter().sum::<f64>() / self.vars.len() as f64;
+        format!(
+            "{mean:.3e} | {:.3e} | {:.2} | {:.1}",
+            median(self.vars),
+            self.pulls.iter().fold(0.0f64, |a, b| a.max(*b)),
+            median(self.secs)
+        )
+    }
+}
+
+/// The tables' header.
+const HEADER: &str = "| rel. var./eval (mean) | (median) | worst \\|pull\\| | seconds |\n";
+
 /// Runs both comparisons; `log(line)` after every run. Writes the section "channels" of `docs`
 /// (when given) and returns its Markdown.
 pub fn run(o: &Options, docs: Option<&Path>, log: &mut dyn FnMut(&str)) -> Result<String> {
     let mut md = format!(
         "Command: `nis bench channels` (defaults). Relative variance per evaluation σ²·n_eval/F² with every evaluation counted (the sign \
-         pilot and adapting included), median over seeds 1–{}; worst |pull| over the seeds; \
-         median wall time (2 cores, shared machine). {} evaluations per run. Channels are each \
-         example's own (docs/INTEGRANDS.md, \"Multi-channel examples\").\n\n\
-         | example | d | method | rel. var./eval | worst \\|pull\\| | seconds |\n\
-         |---|---:|---|---:|---:|---:|\n",
+         pilot and adapting included), over seeds 1–{}: the mean of the seeds' σ̂² (unbiased) \
+         and their median (a heavy-tailed sampler's σ̂² is skewed: its median reads low); worst \
+         |pull| over the seeds; median wall time (2 cores, shared machine). {} evaluations per \
+         run. Channels are each example's own (docs/INTEGRANDS.md, \"Multi-channel examples\").\n\n\
+         | example | d | method {HEADER}|---|---:|---|---:|---:|---:|---:|\n",
         o.seeds, o.evals
     );
     for name in &o.examples {
         let ex = examples::by_name(name)?;
         let (dim, k, exact) = (ex.integrand.dim, ex.channels.len(), ex.exact);
         for row in ROWS {
-            let (mut vars, mut pulls, mut secs) = (Vec::new(), Vec::new(), Vec::new());
+            let mut runs = Runs::default();
             for seed in 1..=o.seeds {
                 let settings = Settings::default().seed(seed);
                 let (r, s) = match row {
@@ -156,20 +191,17 @@ pub fn run(o: &Options, docs: Option<&Path>, log: &mut dyn FnMut(&str)) -> Resul
                     "{name} {} seed {seed}: rel.var {v:.3e}, pull {pull:.2}, {s:.1} s",
                     row.label(k)
                 ));
-                vars.push(v);
-                pulls.push(pull.abs());
-                secs.push(s);
+                runs.push(v, pull, s);
             }
             md.push_str(&format!(
-                "| {name} | {dim} | {} | {:.3e} | {:.2} | {:.1} |\n",
+                "| {name} | {dim} | {} | {} |\n",
                 row.label(k),
-                median(vars),
-                pulls.iter().fold(0.0f64, |a, b| a.max(*b)),
-                median(secs)
+                runs.cells()
             ));
         }
     }
     md.push_str(&signed(o, log)?);
+    md.push_str(&machinery(o, log)?);
     if let Some(docs) = docs {
         report::write_section(
             docs,
@@ -204,11 +236,11 @@ fn signed_pair_exact() -> f64 {
 /// The signed comparison: a sampler per sign against one trained on |f|.
 fn signed(o: &Options, log: &mut dyn FnMut(&str)) -> Result<String> {
     let mut md = format!(
-        "\nSigned integrands, {} evaluations per run, seeds 1–{}: NIS with a flow per sign \
-         (`MultiChannel::single`, `signs: split`) against NIS whose flow learns |f|. For \
+        "\nSigned integrands, {} evaluations per run, seeds 1–{}: NIS split by sign \
+         (`MultiChannel::single`, `signs: split`; one flow for both signs, the default, or a flow \
+         per sign) against NIS whose flow learns |f|. For \
          MadNIS's ±Gaussian toy (∫ = 0) the figure is the absolute σ²·n_eval.\n\n\
-         | integrand | d | method | rel. var./eval | worst \\|pull\\| | seconds |\n\
-         |---|---:|---|---:|---:|---:|\n",
+         | integrand | d | method {HEADER}|---|---:|---|---:|---:|---:|---:|\n",
         o.signed_evals, o.seeds
     );
     let toy = examples::by_name("gauss-pm")?;
@@ -224,13 +256,15 @@ fn signed(o: &Options, log: &mut dyn FnMut(&str)) -> Result<String> {
         ("gauss-pm", 2, &toy.integrand, 0.0, 1.0),
     ];
     for (label, dim, f, exact, scale) in cases {
-        for split in [true, false] {
-            let (mut vars, mut pulls, mut secs) = (Vec::new(), Vec::new(), Vec::new());
+        // Split with one shared flow, split with a flow per sign, whole.
+        for (split, shared) in [(true, true), (true, false), (false, false)] {
+            let mut runs = Runs::default();
             for seed in 1..=o.seeds {
                 let settings = Settings::default().seed(seed);
                 let (r, s) = if split {
                     let config = MultiChannelConfig {
                         signs: Signs::Split,
+                        shared_flow: shared,
                         ..MultiChannelConfig::default()
                     };
                     let mut mc = MultiChannel::single(dim, Method::Nis, settings, config)?;
@@ -242,24 +276,81 @@ fn signed(o: &Options, log: &mut dyn FnMut(&str)) -> Result<String> {
                 let v = rel_var(&r, scale);
                 let pull = (r.value - exact) / r.std_err;
                 log(&format!(
-                    "{label} split {split} seed {seed}: rel.var {v:.3e}, pull {pull:.2}, {s:.1} s"
+                    "{label} split {split} shared {shared} seed {seed}: rel.var {v:.3e}, pull \
+                     {pull:.2}, {s:.1} s"
                 ));
-                vars.push(v);
-                pulls.push(pull.abs());
-                secs.push(s);
+                runs.push(v, pull, s);
             }
             md.push_str(&format!(
-                "| {label} | {dim} | {} | {:.3e} | {:.2} | {:.1} |\n",
-                if split {
+                "| {label} | {dim} | {} | {} |\n",
+                if split && shared {
+                    "nis, one flow for both signs"
+                } else if split {
                     "nis, a flow per sign"
                 } else {
                     "nis on \\|f\\|"
                 },
-                median(vars),
-                pulls.iter().fold(0.0f64, |a, b| a.max(*b)),
-                median(secs)
+                runs.cells()
             ));
         }
+    }
+    Ok(md)
+}
+
+/// The channel machinery's cost: NIS on camel d = 4 alone, through one identity channel, and
+/// through four identity channels (one shared flow, and a flow each), at `o.evals`; median wall
+/// time per evaluation over the seeds and its ratio to NIS alone.
+fn machinery(o: &Options, log: &mut dyn FnMut(&str)) -> Result<String> {
+    const DIM: usize = 4;
+    let f = nis::integrands::by_name("camel", Some(DIM))?;
+    let identity = || -> Box<dyn Channel> {
+        Box::new(ChannelFn::new(
+            DIM,
+            |u: &[f64], x: &mut [f64]| x.copy_from_slice(u),
+            |_| 1.0,
+        ))
+    };
+    let mut md = format!(
+        "\nThe channels' own cost: NIS on camel d = {DIM} alone and through identity channels \
+         (x = u, g = 1: the parts are f/K), {} evaluations per run, seeds 1–{}, the default \
+         batches; median wall time per evaluation (training included) and its ratio to NIS \
+         alone, in the same run.\n\n\
+         | NIS | µs per evaluation | ratio |\n|---|---:|---:|\n",
+        o.evals, o.seeds
+    );
+    let rows: [(&str, usize, bool); 4] = [
+        ("alone", 0, false),
+        ("through 1 channel", 1, true),
+        ("through 4 channels, one shared flow", 4, true),
+        ("through 4 channels, a flow each", 4, false),
+    ];
+    let mut base = f64::NAN;
+    for (label, k, shared) in rows {
+        let mut secs = Vec::new();
+        for seed in 1..=o.seeds {
+            let settings = Settings::default().seed(seed);
+            let (r, s) = if k == 0 {
+                let mut integ = integrator(Method::Nis, DIM, &settings)?;
+                timed(|| integ.integrate(&f, o.evals))?
+            } else {
+                let set = ChannelSet::new((0..k).map(|_| identity()).collect())?;
+                let config = MultiChannelConfig {
+                    signs: Signs::Whole,
+                    shared_flow: shared,
+                    ..MultiChannelConfig::default()
+                };
+                let mut mc = MultiChannel::new(set, Method::Nis, settings, config)?;
+                timed(|| mc.integrate(&f, o.evals))?
+            };
+            let us = s * 1e6 / r.n_eval as f64;
+            log(&format!("machinery {label} seed {seed}: {us:.2} µs/eval"));
+            secs.push(us);
+        }
+        let us = median(secs);
+        if k == 0 {
+            base = us;
+        }
+        md.push_str(&format!("| {label} | {us:.2} | {:.2} |\n", us / base));
     }
     Ok(md)
 }
