@@ -50,7 +50,10 @@ use crate::error::Result;
 pub trait Channel: Send + Sync {
     /// The dimension d of its cube and of the domain.
     fn dim(&self) -> usize;
-    /// Maps a batch of uniform points `u` (n × d, row-major) to `x` = φ(u) (n × d).
+    /// Maps a batch of uniform points `u` (n × d, row-major) to `x` = φ(u) (n × d). The
+    /// integrators pass every coordinate of u in [2⁻⁵³, 1 − 2⁻⁵³] ([`ChannelSet::sample`]), so
+    /// a map whose Jacobian vanishes on the cube's faces still gets a finite density; one that
+    /// rounds onto an edge of its domain must keep its density finite and > 0 there.
     fn sample(&self, u: &[f64], x: &mut [f64]) -> Result<()>;
     /// Writes g(x) for each point of `x` (n × d, row-major) into `g` (n values).
     fn density(&self, x: &[f64], g: &mut [f64]) -> Result<()>;

@@ -2,6 +2,8 @@
 //! estimator needs from it: every channel's density at a batch of points, the mixture density
 //! g = Σ_k a_k g_k and the channel weights α_k = a_k g_k/g (Kleiss & Pittau 1994, Eq. 2–5).
 
+use std::borrow::Cow;
+
 use super::check::{check_sampled, points, same_len};
 use super::Channel;
 use crate::error::{Error, Result};
@@ -106,15 +108,17 @@ impl ChannelSet {
     }
 
     /// Channel `k` maps the uniform points `u` (n × d) to `x`, and the batch is checked
-    /// ([`check_sampled`] with the channel's own density, which is returned).
+    /// ([`check_sampled`] with the channel's own density, which is returned). The channel sees
+    /// u moved 2⁻⁵³ inside the cube where it reaches a face (`inside`).
     pub fn sample(&self, k: usize, u: &[f64], x: &mut [f64]) -> Result<Vec<f64>> {
         let c = self.channel(k)?;
         let n = points("channel sample u", self.dim, u.len())?;
         same_len("channel sample x", u.len(), x.len())?;
-        c.sample(u, x)?;
+        let u = inside(u);
+        c.sample(&u, x)?;
         let mut g = vec![0.0; n];
         c.density(x, &mut g)?;
-        check_sampled(k, self.dim, u, x, &g)?;
+        check_sampled(k, self.dim, &u, x, &g)?;
         Ok(g)
     }
 
@@ -177,5 +181,21 @@ impl ChannelSet {
                 self.len()
             ))
         })
+    }
+}
+
+/// How far inside the cube a coordinate of 0 or 1 moves before a channel maps it: 2⁻⁵³, the
+/// spacing of doubles just below 1.
+pub const FACE: f64 = 1.0 / (1u64 << 53) as f64;
+
+/// `u` with every coordinate in [[`FACE`], 1 − [`FACE`]]: a flow's f32 output reaches 0 and 1
+/// exactly, where the Jacobian of many maps vanishes (x = u², the edges of phase space) and
+/// their density is infinite or undefined; one ulp inside it is finite. The points moved have
+/// no measure, so no integral changes. Borrowed when no coordinate moves.
+pub fn inside(u: &[f64]) -> Cow<'_, [f64]> {
+    if u.iter().all(|v| (FACE..=1.0 - FACE).contains(v)) {
+        Cow::Borrowed(u)
+    } else {
+        Cow::Owned(u.iter().map(|&v| v.clamp(FACE, 1.0 - FACE)).collect())
     }
 }

@@ -144,14 +144,17 @@ fn kstar_channel() -> Box<dyn Channel> {
 }
 
 /// The ρ channel: s₂₃ Breit–Wigner over its range, s₁₂ flat between its limits at that s₂₃.
-/// Its density in x is the Dalitz-plot density pdf(s₂₃)/Δ₁₂(s₂₃) times the map's Jacobian.
+/// Its density in x is the Dalitz-plot density pdf(s₂₃)/Δ₁₂(s₂₃) times the map's Jacobian. s₂₃
+/// stays [`super::EDGE`] of its range inside its ends, where Δ₁₂ vanishes and the density is
+/// infinite (u on the cube's faces rounds there).
 fn rho_channel() -> Box<dyn Channel> {
     let ((lo12, hi12), (lo, hi)) = ranges();
     let bw = BreitWigner::unchecked(RHO.0 * RHO.0, RHO.0 * RHO.1, lo, hi);
     Box::new(ChannelFn::new(
         2,
         move |u: &[f64], x: &mut [f64]| {
-            let s23 = bw.sample(u[1]);
+            let edge = super::EDGE * (hi - lo);
+            let s23 = bw.sample(u[1]).clamp(lo + edge, hi - edge);
             let (a, b) = s12_limits(s23);
             let s12 = a + u[0] * (b - a);
             let (c, d) = s23_limits(s12);
