@@ -143,9 +143,13 @@ fn kstar_channel() -> Box<dyn Channel> {
     ))
 }
 
+/// How close, as a fraction of its range, the ρ channel's s₂₃ comes to the ends of its range,
+/// where the Dalitz region's width Δ₁₂ vanishes: the u it moves have measure ~10⁻¹².
+const EDGE: f64 = 1e-12;
+
 /// The ρ channel: s₂₃ Breit–Wigner over its range, s₁₂ flat between its limits at that s₂₃.
 /// Its density in x is the Dalitz-plot density pdf(s₂₃)/Δ₁₂(s₂₃) times the map's Jacobian. s₂₃
-/// stays [`super::EDGE`] of its range inside its ends, where Δ₁₂ vanishes and the density is
+/// stays [`EDGE`] of its range inside its ends, where Δ₁₂ vanishes and the density is
 /// infinite (u on the cube's faces rounds there).
 fn rho_channel() -> Box<dyn Channel> {
     let ((lo12, hi12), (lo, hi)) = ranges();
@@ -153,7 +157,7 @@ fn rho_channel() -> Box<dyn Channel> {
     Box::new(ChannelFn::new(
         2,
         move |u: &[f64], x: &mut [f64]| {
-            let edge = super::EDGE * (hi - lo);
+            let edge = EDGE * (hi - lo);
             let s23 = bw.sample(u[1]).clamp(lo + edge, hi - edge);
             let (a, b) = s12_limits(s23);
             let s12 = a + u[0] * (b - a);

@@ -210,8 +210,8 @@ fn bw_b(sa: f64) -> BreitWigner {
 
 /// How far below 1 a channel keeps s_a and s_b/(1 − √s_a)²: at 1 a pair is left without energy
 /// or both pairs at rest, the phase-space Jacobian vanishes and the density is undefined (u on
-/// the cube's faces rounds there); nearer than this, λ(1, s_a, s_b) loses its digits. The
-/// points moved carry a share of the integral below 10⁻⁸.
+/// the cube's faces rounds there); nearer than this, λ(1, s_a, s_b) loses its digits. The u it
+/// moves have measure ~2·10⁻⁸ (pdf(s_a = 1)·10⁻⁶), where f has almost no phase space.
 const EDGE: f64 = 1e-6;
 
 /// The channel of one tree: s_a and s_b/(1 − √s_a)² at most 1 − [`EDGE`].

@@ -22,11 +22,6 @@ use super::Channel;
 use crate::error::{Error, Result};
 use crate::integrands::{self, Builtin, MULTI_CHANNEL};
 
-/// How close, as a fraction of a range, an example's map comes to an edge of phase space where
-/// its Jacobian vanishes: the u it moves there carry a share of the integral below 10⁻¹¹, far
-/// under the exact values' quadrature tolerance.
-pub(crate) const EDGE: f64 = 1e-12;
-
 /// A multi-channel example: the integrand with its exact value, and its channels (equal priors
 /// unless a channel set says otherwise).
 pub struct Example {
