@@ -574,6 +574,28 @@ unsafe extern "C" fn outside(
     0
 }
 
+/// `nis_multichannel_create` from the JSON `json` with `channels` (NULL and 0 when there are
+/// none) and no sign setting: its status and the integrator it made.
+fn create_mc(json: &str, channels: &[nis_channel]) -> (c_int, *mut nis_multichannel) {
+    let json = CString::new(json).unwrap();
+    let ptr = if channels.is_empty() {
+        std::ptr::null()
+    } else {
+        channels.as_ptr()
+    };
+    let mut mc = std::ptr::null_mut();
+    let status = unsafe {
+        nis_multichannel_create(
+            json.as_ptr(),
+            ptr,
+            channels.len(),
+            std::ptr::null(),
+            &mut mc,
+        )
+    };
+    (status, mc)
+}
+
 #[test]
 fn channels_through_c_integrate_and_report_each_channel() {
     let mass = |c: f64| angles(c).1 - angles(c).0;
@@ -597,20 +619,8 @@ fn channels_through_c_integrate_and_report_each_channel() {
         ("nis", per_channel),
     ] {
         let comma = if extra.is_empty() { "" } else { ", " };
-        let json = CString::new(format!(
-            r#"{{"method": "{method}", "dim": 2, "seed": 4{comma}{extra}}}"#
-        ))
-        .unwrap();
-        let mut mc = std::ptr::null_mut();
-        let status = unsafe {
-            nis_multichannel_create(
-                json.as_ptr(),
-                channels.as_ptr(),
-                2,
-                std::ptr::null(),
-                &mut mc,
-            )
-        };
+        let json = format!(r#"{{"method": "{method}", "dim": 2, "seed": 4{comma}{extra}}}"#);
+        let (status, mc) = create_mc(&json, &channels);
         assert_eq!(status, NIS_OK, "{}", last_error());
         let mut r = nis_result::default();
         let status = unsafe {
@@ -650,18 +660,8 @@ fn channels_through_c_integrate_and_report_each_channel() {
         unsafe { nis_multichannel_free(mc) };
     }
     // Multi-channel settings that do not exist: a config error.
-    let json =
-        CString::new(r#"{"method": "nis", "dim": 2, "multichannel": {"shared": 1}}"#).unwrap();
-    let mut mc = std::ptr::null_mut();
-    let status = unsafe {
-        nis_multichannel_create(
-            json.as_ptr(),
-            channels.as_ptr(),
-            2,
-            std::ptr::null(),
-            &mut mc,
-        )
-    };
+    let json = r#"{"method": "nis", "dim": 2, "multichannel": {"shared": 1}}"#;
+    let (status, mc) = create_mc(json, &channels);
     assert_eq!(status, NIS_ERR_CONFIG);
     assert!(
         mc.is_null() && last_error().contains("multichannel"),
@@ -675,14 +675,8 @@ fn channels_through_c_integrate_and_report_each_channel() {
         user: &centres[0] as *const f64 as *mut c_void,
         prior: 1.0,
     }];
-    let json = CString::new(r#"{"method": "uniform", "dim": 2}"#).unwrap();
-    let mut mc = std::ptr::null_mut();
-    assert_eq!(
-        unsafe {
-            nis_multichannel_create(json.as_ptr(), bad.as_ptr(), 1, std::ptr::null(), &mut mc)
-        },
-        NIS_OK
-    );
+    let (status, mc) = create_mc(r#"{"method": "uniform", "dim": 2}"#, &bad);
+    assert_eq!(status, NIS_OK);
     let status = unsafe {
         nis_multichannel_integrate(
             mc,
@@ -746,17 +740,7 @@ unsafe extern "C" fn signed_c(
 
 #[test]
 fn a_signed_integrand_splits_without_channels() {
-    let json = CString::new(r#"{"method": "vegas", "dim": 2, "seed": 1}"#).unwrap();
-    let mut mc = std::ptr::null_mut();
-    let status = unsafe {
-        nis_multichannel_create(
-            json.as_ptr(),
-            std::ptr::null(),
-            0,
-            std::ptr::null(),
-            &mut mc,
-        )
-    };
+    let (status, mc) = create_mc(r#"{"method": "vegas", "dim": 2, "seed": 1}"#, &[]);
     assert_eq!(status, NIS_OK, "{}", last_error());
     let mut r = nis_result::default();
     let status = unsafe {

@@ -64,11 +64,7 @@ impl MultiChannel {
         let mut mass = Vec::with_capacity(self.parts.len());
         for p in self.parts.iter_mut() {
             let h = PartIntegrand::new(f, &self.set, &self.weights, p.channel, p.sign);
-            let nis = p
-                .integrator
-                .as_deref_mut()
-                .and_then(|i| i.as_nis())
-                .ok_or_else(super::no_sampler)?;
+            let nis = p.nis()?;
             let (_, w) = nis.weighted(&h, CALIBRATION)?;
             mass.push(w.iter().map(|v| v.abs()).sum::<f64>() / w.len() as f64);
         }
@@ -100,11 +96,7 @@ impl MultiChannel {
                 continue;
             }
             let h = PartIntegrand::new(f, &self.set, &self.weights, p.channel, p.sign);
-            let nis = p
-                .integrator
-                .as_deref_mut()
-                .and_then(|i| i.as_nis())
-                .ok_or_else(super::no_sampler)?;
+            let nis = p.nis()?;
             let u = nis.unweighted(&h, m, overweight)?;
             let mut x = vec![0.0; u.points.len()];
             self.set.sample(p.channel, &u.points, &mut x)?;

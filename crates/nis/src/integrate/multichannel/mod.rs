@@ -4,8 +4,9 @@
 //! g = Σ_j a_j g_j ([`part`]), and integrated by a sampler of its own: for NIS a flow conditioned
 //! on the part (one flow for all, `shared.rs`; or a flow per part), trained on the variance
 //! ([`Loss::resolve`](crate::loss::Loss::resolve)); a VEGAS+ map for VEGAS+ (multi-channel VEGAS);
-//! uniform points for plain MC (the classic multi-channel estimator). When f changes sign every channel's part is split into h⁺ and h⁻, each with its
-//! own sampler, so that each can reach zero variance; F = Σ (F⁺_k − F⁻_k).
+//! uniform points for plain MC (the classic multi-channel estimator). When f changes sign every
+//! channel's part is split into h⁺ and h⁻, each with its own sampler, so that each can reach zero
+//! variance; F = Σ (F⁺_k − F⁻_k).
 //!
 //! One call: a pilot of uniform points per channel decides (once) whether f changes sign; every
 //! part adapts on an equal share of `adapt_fraction` of the budget, which also measures its
@@ -36,6 +37,7 @@ pub use report::{ChannelReport, SignReport};
 
 use self::part::PartIntegrand;
 use self::shared::SharedFlow;
+use super::nis::NisIntegrator;
 use super::{integrator, Integrand, IntegrationResult, Integrator, Method, Settings};
 use crate::channels::{ChannelFn, ChannelSet};
 use crate::comm::Comm;
@@ -73,9 +75,9 @@ pub struct MultiChannelConfig {
     /// `adapt_fraction` of its `max_evals`, shared).
     pub target_adapt: u64,
     /// NIS: one flow for all parts, conditioned on the part (`shared.rs`), instead of a flow per
-    /// part; ignored by the other methods. On by default: with the parts' χ² loss it has 1.3–1.7×
-    /// lower variance per evaluation on phase-space-8d and resonances-100 about even, loses
-    /// ≤ 7 % on resonances-4d and the Dalitz plot, and takes less memory
+    /// part; ignored by the other methods. On by default: with the parts' χ² loss it has 1.8×
+    /// lower variance per evaluation on phase-space-8d, 1.04× on resonances-100, loses ≤ 7 % on
+    /// resonances-4d and the Dalitz plot, and takes less memory
     /// (docs/results/integration.md, "One flow shared by the channels"). A saved one loads as a
     /// flow per part.
     pub shared_flow: bool,
@@ -119,6 +121,20 @@ struct Part {
     channel: usize,
     sign: Sign,
     integrator: Option<Box<dyn Integrator>>,
+}
+
+impl Part {
+    /// Its integrator (an error before a shared flow has given it one).
+    fn sampler(&mut self) -> Result<&mut (dyn Integrator + 'static)> {
+        self.integrator.as_deref_mut().ok_or_else(no_sampler)
+    }
+
+    /// Its integrator as NIS's (an error for another method or before it has one).
+    fn nis(&mut self) -> Result<&mut NisIntegrator> {
+        self.sampler()?
+            .as_nis()
+            .ok_or_else(|| Error::Config("a multi-channel part's sampler is not NIS".into()))
+    }
 }
 
 /// A multi-channel integrator: the channels, their a-priori weights, and an integrator of
@@ -314,8 +330,7 @@ impl MultiChannel {
         } else {
             for p in self.parts.iter_mut() {
                 let h = PartIntegrand::new(f, &self.set, &self.weights, p.channel, p.sign);
-                let integ = p.integrator.as_deref_mut().ok_or_else(no_sampler)?;
-                let r = adapt_part(integ, &h, adapt)?;
+                let r = adapt_part(p.sampler()?, &h, adapt)?;
                 spent += r.n_eval;
                 measured.push(r);
             }
@@ -370,11 +385,11 @@ impl MultiChannel {
         let shared = self.config.shared_flow && self.method == Method::Nis;
         for channel in 0..channels {
             for &sign in signs {
-                let index = self.parts.len() as u64;
-                let seed = part_seed(self.settings.seed_of(self.method), index);
                 let integrator = if shared {
                     None
                 } else {
+                    let index = self.parts.len() as u64;
+                    let seed = part_seed(self.settings.seed_of(self.method), index);
                     let mut i = integrator(self.method, dim, &self.settings.clone().seed(seed))?;
                     i.set_comm(self.comm.clone());
                     Some(i)
@@ -490,7 +505,7 @@ fn adapt_part(integ: &mut dyn Integrator, h: &dyn Integrand, n: u64) -> Result<I
 /// The estimate of part `p` from `n` evaluations: NIS's frozen flow alone, the others'
 /// `integrate`.
 fn estimate_part(p: &mut Part, h: &dyn Integrand, n: u64) -> Result<IntegrationResult> {
-    let integ = p.integrator.as_deref_mut().ok_or_else(no_sampler)?;
+    let integ = p.sampler()?;
     if let Some(nis) = integ.as_nis() {
         return nis.estimate(h, n);
     }

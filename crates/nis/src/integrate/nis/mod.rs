@@ -103,27 +103,13 @@ impl Streams {
 
 impl NisIntegrator {
     /// A new (untrained: uniform) integrator in `dim` dimensions.
-    pub fn new(dim: usize, mut config: NisConfig) -> Result<NisIntegrator> {
+    pub fn new(dim: usize, config: NisConfig) -> Result<NisIntegrator> {
         config.validate()?;
-        config.loss = config.loss.resolve(false);
         let flow = Flow::new(FlowConfig {
             dim,
             ..config.flow.clone()
         })?;
-        let learner = Learner::new(flow.param_count(), config.loss, config.adam)?;
-        let sampler = DefensiveMixture::new(flow, config.uniform_fraction)?;
-        Ok(NisIntegrator {
-            streams: Streams::new(config.seed),
-            memory: TrainingMemory::new(dim),
-            average: None,
-            config,
-            sampler,
-            learner,
-            trained_evals: 0,
-            scheduled: false,
-            comm: Comm::default(),
-            progress: None,
-        })
+        NisIntegrator::from_trained(flow, config, 0)
     }
 
     /// The flow.
@@ -323,8 +309,9 @@ impl NisIntegrator {
     }
 
     /// An integrator around a flow trained elsewhere (`trained_evals` evaluations) with the
-    /// settings `config` (its flow settings are `flow`'s): loaded, or a channel of a shared
-    /// multi-channel flow. Its first training starts Adam and the schedule afresh.
+    /// settings `config` (its flow settings are `flow`'s): new, loaded, or a channel of a shared
+    /// multi-channel flow. Its first training starts Adam and the schedule afresh; `loss: auto`
+    /// becomes KL here ([`Loss::resolve`](crate::loss::Loss::resolve)).
     pub(crate) fn from_trained(
         flow: Flow,
         mut config: NisConfig,
