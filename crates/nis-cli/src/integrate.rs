@@ -93,6 +93,10 @@ pub struct IntegrateArgs {
     /// shared by the channels").
     #[arg(long)]
     pub flow_per_channel: bool,
+    /// With --channels, NIS: fit a network that refines the channel weights after the parts adapt
+    /// (MadNIS's), kept only when it lowers the variance on held-out points.
+    #[arg(long)]
+    pub weight_network: bool,
     /// With a target: the most evaluations per method, training included [default: 10^8].
     #[arg(long, conflicts_with = "load")]
     pub max_evals: Option<u64>,
@@ -231,6 +235,9 @@ pub fn run_method(
     let mut sums = None;
     if args.flow_per_channel && !args.multichannel() {
         return Err("--flow-per-channel needs --channels or --signs".into());
+    }
+    if args.weight_network && !args.channels {
+        return Err("--weight-network needs --channels".into());
     }
     if args.multichannel() {
         let r = run_multichannel(f, method, args, comm)?;

@@ -355,6 +355,20 @@ fn channels_run_on_the_multi_channel_examples_only() {
     let out = nis(&[&args[..], &["--flow-per-channel"]].concat());
     assert!(!out.status.success());
     assert!(String::from_utf8_lossy(&out.stderr).contains("--channels or --signs"));
+    // Learned channel weights; the flag needs channels.
+    let out = nis(&[&args[..], &["--channels", "--weight-network"]].concat());
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    let pull = (v["value"].as_f64().unwrap() - v["exact"].as_f64().unwrap())
+        / v["std_err"].as_f64().unwrap();
+    assert!(pull.abs() < 5.0, "{v}");
+    let out = nis(&[&args[..], &["--signs", "split", "--weight-network"]].concat());
+    assert!(!out.status.success());
+    assert!(String::from_utf8_lossy(&out.stderr).contains("--weight-network needs --channels"));
 }
 
 #[test]

@@ -367,13 +367,15 @@ fn targets_and_channels_run_alike_on_every_rank() {
             }
         }
         // Through channels, split by sign where the pilot sees both, and NIS with one flow
-        // shared by the channels (its training reduces counts and gradients over the ranks) and
-        // with a flow per channel: one result per seed.
+        // shared by the channels (its training reduces counts and gradients over the ranks),
+        // with a flow per channel, and with learned channel weights (every rank fits the same
+        // network on the same points): one result per seed.
         let cases = [
             ("dalitz", "vegas", None),
             ("gauss-pm", "uniform", None),
             ("dalitz", "nis", None),
             ("dalitz", "nis", Some("--flow-per-channel")),
+            ("dalitz", "nis", Some("--weight-network")),
         ];
         for (name, method, extra) in cases {
             let mut args = vec![

@@ -45,7 +45,8 @@ use crate::{check_parent, count, path_of, to_py_err, PointsAndValues};
 /// `channel_weights`, `channel_means`, `channel_sdevs`, `channel_evals` and `signs`; precision
 /// targets work as for one channel; `events(f, n)` draws unweighted events that carry their
 /// channel (NIS), and the other NIS-only methods raise ValueError. `channel_settings` (a dict:
-/// `adapt_fraction`, `adapt_weights`, `weight_floor`, `pilot`, `target_adapt`, `shared_flow`)
+/// `adapt_fraction`, `adapt_weights`, `weight_floor`, `pilot`, `target_adapt`, `shared_flow`,
+/// `weight_network`)
 /// tunes the multi-channel integrator.
 ///
 ///     integ = nis.Integrator(4, "vegas", channels=nis.integrands.channels("resonances-4d"))

@@ -110,6 +110,10 @@ def test_channel_settings_tune_the_multi_channel_integrator():
         assert within(r, EXACT) and len(r.channel_means) == 2 and all(r.channel_evals > 0)
         x, w, channel = integ.events(two_peaks, 200)
         assert x.shape == (200, 2) and set(channel) == {0, 1}
+    # Channel weights refined by a network (kept only where it lowers the variance).
+    integ = nis.Integrator(2, "nis", channels=channels(), channel_settings={"weight_network": True})
+    r = integ(two_peaks, evals=100_000)
+    assert within(r, EXACT) and len(r.channel_means) == 2
     with pytest.raises(ValueError, match="channel_settings needs channels or signs"):
         nis.Integrator(2, channel_settings={"pilot": 10})
     with pytest.raises(ValueError, match="colour"):

@@ -63,7 +63,14 @@ impl MultiChannel {
         // A_p = mean |w| of a calibration batch of each part's frozen sampler.
         let mut mass = Vec::with_capacity(self.parts.len());
         for p in self.parts.iter_mut() {
-            let h = PartIntegrand::new(f, &self.set, &self.weights, p.channel, p.sign);
+            let h = PartIntegrand::new(
+                f,
+                &self.set,
+                &self.weights,
+                self.net.as_ref(),
+                p.channel,
+                p.sign,
+            );
             let nis = p.nis()?;
             let (_, w) = nis.weighted(&h, CALIBRATION)?;
             mass.push(w.iter().map(|v| v.abs()).sum::<f64>() / w.len() as f64);
@@ -95,7 +102,14 @@ impl MultiChannel {
             if m == 0 {
                 continue;
             }
-            let h = PartIntegrand::new(f, &self.set, &self.weights, p.channel, p.sign);
+            let h = PartIntegrand::new(
+                f,
+                &self.set,
+                &self.weights,
+                self.net.as_ref(),
+                p.channel,
+                p.sign,
+            );
             let nis = p.nis()?;
             let u = nis.unweighted(&h, m, overweight)?;
             let mut x = vec![0.0; u.points.len()];

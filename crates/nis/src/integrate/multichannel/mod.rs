@@ -24,6 +24,7 @@ mod report;
 mod saved;
 mod shared;
 mod to_target;
+mod weight_net;
 
 use std::time::Instant;
 
@@ -37,6 +38,7 @@ pub use report::{ChannelReport, SignReport};
 
 use self::part::PartIntegrand;
 use self::shared::SharedFlow;
+use self::weight_net::{PartPoints, WeightNet};
 use super::nis::NisIntegrator;
 use super::{integrator, Integrand, IntegrationResult, Integrator, Method, Settings};
 use crate::channels::{ChannelFn, ChannelSet};
@@ -81,6 +83,11 @@ pub struct MultiChannelConfig {
     /// (docs/results/integration.md, "One flow shared by the channels"). A saved one loads as a
     /// flow per part.
     pub shared_flow: bool,
+    /// NIS: after the parts adapt, fit a network N that refines the channel weights to
+    /// α_k ∝ a_k g_k e^{N_k(x)} (MadNIS's), on fresh points of every part's sampler (counted),
+    /// and keep it only when it lowers the estimate's variance on held-out points
+    /// (`weight_net.rs`); ignored by the other methods.
+    pub weight_network: bool,
 }
 
 impl Default for MultiChannelConfig {
@@ -93,6 +100,7 @@ impl Default for MultiChannelConfig {
             pilot: 1000,
             target_adapt: 100_000,
             shared_flow: true,
+            weight_network: false,
         }
     }
 }
@@ -149,6 +157,8 @@ pub struct MultiChannel {
     parts: Vec<Part>,
     /// The flow of every part when `config.shared_flow`.
     shared: Option<SharedFlow>,
+    /// The weight network when `config.weight_network` fitted one that it kept.
+    net: Option<WeightNet>,
     comm: Comm,
     /// Calls of [`MultiChannel::unweighted`] so far: each draws from a stream of its own.
     event_draws: u64,
@@ -175,6 +185,7 @@ impl MultiChannel {
             config,
             parts: Vec::new(),
             shared: None,
+            net: None,
             comm: Comm::default(),
             event_draws: 0,
         })
@@ -250,17 +261,23 @@ impl MultiChannel {
         // Adapt: an equal share per part.
         let adapt =
             ((evals as f64 * self.config.adapt_fraction) as u64 / parts).max(MIN_PART_EVALS);
-        let (measured, adapted) = self.adapt_parts(f, adapt)?;
+        let (_, adapted, sd) = self.adapt_parts(f, adapt)?;
         spent += adapted;
         // Estimate: the rest in proportion to each part's σ per evaluation, with a floor.
         let rest = evals.saturating_sub(spent);
         let floor = (rest / (50 * parts)).max(MIN_PART_EVALS);
-        let sd = sd_per_eval(&measured);
         let spare = rest.saturating_sub(floor * parts) as f64;
         let mut results = Vec::with_capacity(self.parts.len());
         for (p, share) in self.parts.iter_mut().zip(neyman(&sd)) {
             let n = floor + (spare * share) as u64;
-            let h = PartIntegrand::new(f, &self.set, &self.weights, p.channel, p.sign);
+            let h = PartIntegrand::new(
+                f,
+                &self.set,
+                &self.weights,
+                self.net.as_ref(),
+                p.channel,
+                p.sign,
+            );
             let r = estimate_part(p, &h, n)?;
             spent += r.n_eval;
             results.push(r);
@@ -300,15 +317,18 @@ impl MultiChannel {
         Ok(0)
     }
 
-    /// Adapts every part on `adapt` evaluations and then the weights (Kleiss–Pittau): each
-    /// part's result (its σ and integral) and the evaluations spent.
+    /// Adapts every part on `adapt` evaluations, then the weights (Kleiss–Pittau), then fits the
+    /// weight network when asked: each part's result (its σ and integral), the evaluations
+    /// spent, and each part's σ per evaluation under the weights the estimate will use.
     fn adapt_parts(
         &mut self,
         f: &dyn Integrand,
         adapt: u64,
-    ) -> Result<(Vec<IntegrationResult>, u64)> {
+    ) -> Result<(Vec<IntegrationResult>, u64, Vec<f64>)> {
         let mut measured = Vec::with_capacity(self.parts.len());
         let mut spent = 0;
+        // The parts adapt to Kleiss–Pittau's α; a network is refitted after them.
+        self.net = None;
         let index = self.parts_index();
         if let Some(shared) = &mut self.shared {
             // The flow trains on every part's share at once; then each part gets the flow at
@@ -321,7 +341,14 @@ impl MultiChannel {
             let base = self.settings.seed_of(self.method);
             for (i, p) in self.parts.iter_mut().enumerate() {
                 let mut nis = shared.part(i, part_seed(base, i as u64))?;
-                let h = PartIntegrand::new(f, &self.set, &self.weights, p.channel, p.sign);
+                let h = PartIntegrand::new(
+                    f,
+                    &self.set,
+                    &self.weights,
+                    self.net.as_ref(),
+                    p.channel,
+                    p.sign,
+                );
                 let r = nis.estimate(&h, adapt - train)?;
                 spent += r.n_eval;
                 measured.push(r);
@@ -329,7 +356,14 @@ impl MultiChannel {
             }
         } else {
             for p in self.parts.iter_mut() {
-                let h = PartIntegrand::new(f, &self.set, &self.weights, p.channel, p.sign);
+                let h = PartIntegrand::new(
+                    f,
+                    &self.set,
+                    &self.weights,
+                    self.net.as_ref(),
+                    p.channel,
+                    p.sign,
+                );
                 let r = adapt_part(p.sampler()?, &h, adapt)?;
                 spent += r.n_eval;
                 measured.push(r);
@@ -338,7 +372,49 @@ impl MultiChannel {
         if self.config.adapt_weights && self.set.len() > 1 {
             self.weights = self.adapted_weights(&measured);
         }
-        Ok((measured, spent))
+        let mut sd = sd_per_eval(&measured);
+        if self.config.weight_network && self.method == Method::Nis && self.set.len() > 1 {
+            let (fitted, sigmas) = self.fit_weight_net(f, adapt)?;
+            spent += fitted;
+            sd = sigmas;
+        }
+        Ok((measured, spent, sd))
+    }
+
+    /// Fits the weight network on fresh points of every part's frozen sampler, drawn alike on
+    /// every rank (so every rank fits the same network); returns the points' evaluations and
+    /// every part's σ per evaluation on the held-out half under the weights kept.
+    fn fit_weight_net(&mut self, f: &dyn Integrand, adapt: u64) -> Result<(u64, Vec<f64>)> {
+        let (dim, k) = (self.dim(), self.set.len());
+        let parts = self.parts.len();
+        let n = (adapt as usize / 4)
+            .clamp(NET_POINTS.0, NET_POINTS.1)
+            .min((NET_POINTS.2 / parts).max(NET_POINTS.0 / 2));
+        let base = self.settings.seed_of(self.method) ^ NET_SALT;
+        let one = |_: &[f64]| 1.0;
+        let mut points = Vec::with_capacity(parts);
+        for (i, p) in self.parts.iter_mut().enumerate() {
+            let mut rng = Pcg64Mcg::seed_from_u64(part_seed(base, i as u64));
+            let (u, inv_q) = p.nis()?.target_weights(&one, n, &mut rng)?;
+            let mut x = vec![0.0; u.len()];
+            let gk = self.set.sample(p.channel, &u, &mut x)?;
+            let fx = self.comm.check(super::evaluate(f, &x, dim))?;
+            let mut g = vec![0.0; n * k];
+            self.set.densities(&x, &mut g)?;
+            let inv_q: Vec<f64> = inv_q.iter().zip(&gk).map(|(q, g)| q / g).collect();
+            points.push(PartPoints::new(
+                p.channel,
+                p.sign,
+                x,
+                &fx,
+                &inv_q,
+                &g,
+                &self.weights,
+            ));
+        }
+        let fit = weight_net::fit(points, dim, k, part_seed(base, u64::MAX))?;
+        self.net = fit.net;
+        Ok(((n * parts) as u64, fit.sigmas))
     }
 
     /// (channel, sign) of every part, in order.
@@ -365,7 +441,7 @@ impl MultiChannel {
                 let n = self.config.pilot;
                 let mine = self.comm.share(n as u64) as usize;
                 for k in 0..channels {
-                    let h = PartIntegrand::new(f, &self.set, &self.weights, k, Sign::Both);
+                    let h = PartIntegrand::new(f, &self.set, &self.weights, None, k, Sign::Both);
                     let u: Vec<f64> = (0..mine * dim).map(|_| rng.random::<f64>()).collect();
                     self.comm.check(super::evaluate(&h, &u, dim))?;
                     positive |= h.saw_positive.into_inner();
@@ -457,6 +533,12 @@ fn neyman(sd: &[f64]) -> Vec<f64> {
         })
         .collect()
 }
+
+/// Points per part for the weight network: at least, at most, and at most all parts together
+/// (a quarter of a part's adaptation within these bounds).
+const NET_POINTS: (usize, usize, usize) = (1024, 8192, 1 << 16);
+/// Salt of the weight network's points ("wnet").
+const NET_SALT: u64 = 0x776e_6574;
 
 /// Fewest evaluations a part adapts or estimates with.
 const MIN_PART_EVALS: u64 = 2000;

@@ -1,12 +1,14 @@
 //! One part of a multi-channel integral as an integrand of its own over the channel's cube:
 //! h_k(u) = a_k·f(x)/g(x) at x = φ_k(u), g = Σ_j a_j g_j the mixture of the channels' densities
 //! (Kleiss & Pittau 1994: ∫ α_k f dx with α_k = a_k g_k/g, written over u), or its positive or
-//! negative part, max(±h_k, 0), when the integrand changes sign.
+//! negative part, max(±h_k, 0), when the integrand changes sign. With a weight network N
+//! (`weight_net.rs`) every a_j is a_j e^{N_j(x)}.
 
 use std::sync::atomic::{AtomicBool, Ordering};
 
 use serde::{Deserialize, Serialize};
 
+use super::weight_net::WeightNet;
 use crate::channels::ChannelSet;
 use crate::error::{Error, Result};
 use crate::integrate::{evaluate, Integrand};
@@ -40,6 +42,7 @@ pub(super) struct PartIntegrand<'a> {
     pub(super) f: &'a dyn Integrand,
     pub(super) set: &'a ChannelSet,
     pub(super) a: &'a [f64],
+    pub(super) net: Option<&'a WeightNet>,
     pub(super) k: usize,
     pub(super) sign: Sign,
     pub(super) saw_positive: AtomicBool,
@@ -51,6 +54,7 @@ impl<'a> PartIntegrand<'a> {
         f: &'a dyn Integrand,
         set: &'a ChannelSet,
         a: &'a [f64],
+        net: Option<&'a WeightNet>,
         k: usize,
         sign: Sign,
     ) -> PartIntegrand<'a> {
@@ -58,6 +62,7 @@ impl<'a> PartIntegrand<'a> {
             f,
             set,
             a,
+            net,
             k,
             sign,
             saw_positive: AtomicBool::new(false),
@@ -81,7 +86,9 @@ impl Integrand for PartIntegrand<'_> {
         }
         let parts = [(self.k, self.sign)];
         let counts = [out.len()];
-        values(self.set, self.a, &parts, &counts, &x, &fx, dim, out)
+        values(
+            self.set, self.a, self.net, &parts, &counts, &x, &fx, dim, out,
+        )
     }
 
     fn dim(&self) -> Option<usize> {
@@ -91,7 +98,8 @@ impl Integrand for PartIntegrand<'_> {
 
 /// The values h of many parts at once, with one call of f and of the channels' densities for
 /// all points (a shared flow's training batch): the rows of `u` (`dim` each) come in blocks, the
-/// `j`th of `counts[j]` rows for the part `parts[j]` (channel, sign), under the weights `a`.
+/// `j`th of `counts[j]` rows for the part `parts[j]` (channel, sign), under the weights `a`
+/// (before any weight network: the flow trains before one is fitted).
 pub(super) fn eval_blocks(
     f: &dyn Integrand,
     set: &ChannelSet,
@@ -112,16 +120,17 @@ pub(super) fn eval_blocks(
     }
     let fx = evaluate(f, &x, dim)?;
     let mut out = vec![0.0; fx.len()];
-    values(set, a, parts, counts, &x, &fx, dim, &mut out)?;
+    values(set, a, None, parts, counts, &x, &fx, dim, &mut out)?;
     Ok(out)
 }
 
 /// h = a_k·f/Σ_j a_j g_j (or its part of one sign) at the mapped points `x` with values `fx`,
-/// in the blocks of [`eval_blocks`], into `out`.
+/// in the blocks of [`eval_blocks`], into `out`; with `net`, a_j e^{N_j(x)} for a_j.
 #[allow(clippy::too_many_arguments)]
 fn values(
     set: &ChannelSet,
     a: &[f64],
+    net: Option<&WeightNet>,
     parts: &[(usize, Sign)],
     counts: &[usize],
     x: &[f64],
@@ -132,11 +141,21 @@ fn values(
     let channels = set.len();
     let mut g = vec![0.0; fx.len() * channels];
     set.densities(x, &mut g)?;
+    let corrections = net.map(|n| n.corrections(x));
+    let mut e = vec![1.0; channels];
     let mut i = 0;
     for (&(k, sign), &m) in parts.iter().zip(counts) {
         for _ in 0..m {
             let row = &g[i * channels..(i + 1) * channels];
-            let mixture: f64 = row.iter().zip(a).map(|(g, a)| g * a).sum();
+            if let Some(c) = &corrections {
+                // e^{N_j − max N}: the common factor cancels in a_k e^{N_k}/Σ_j a_j g_j e^{N_j}.
+                let c = &c[i * channels..(i + 1) * channels];
+                let top = c.iter().fold(f32::MIN, |m, v| m.max(*v));
+                e.iter_mut()
+                    .zip(c)
+                    .for_each(|(e, c)| *e = ((c - top) as f64).exp());
+            }
+            let mixture: f64 = row.iter().zip(a).zip(&e).map(|((g, a), e)| g * a * e).sum();
             // g_k(x) > 0 was checked, so the mixture is > 0 unless a weight underflowed.
             if !(mixture > 0.0 && mixture.is_finite()) {
                 return Err(Error::Channel {
@@ -147,7 +166,7 @@ fn values(
                     ),
                 });
             }
-            let h = a[k] * fx[i] / mixture;
+            let h = a[k] * e[k] * fx[i] / mixture;
             out[i] = match sign {
                 Sign::Both => h,
                 Sign::Plus => h.max(0.0),

@@ -1,6 +1,7 @@
 //! Saving a multi-channel NIS integrator: a directory with every part's flow (`part-<i>.nis`, as
 //! [`NisIntegrator::save`] writes one) and, written last, `channels.json`: the format, the
-//! dimension, the channels' count and weights, each part's channel and sign, and the settings.
+//! dimension, the channels' count and weights, each part's channel and sign, the settings and the
+//! weight network when one was kept.
 //! The maps themselves are the user's code: loading takes them again and checks that their count
 //! and dimension match.
 
@@ -8,7 +9,7 @@ use std::path::{Path, PathBuf};
 
 use serde::{Deserialize, Serialize};
 
-use super::{MultiChannel, MultiChannelConfig, Part, Sign};
+use super::{MultiChannel, MultiChannelConfig, Part, Sign, WeightNet};
 use crate::channels::ChannelSet;
 use crate::comm::Comm;
 use crate::error::{Error, Result};
@@ -31,6 +32,9 @@ struct Manifest {
     parts: Vec<(usize, Sign)>,
     config: MultiChannelConfig,
     settings: Settings,
+    /// The weight network, when one was kept.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    weight_net: Option<WeightNet>,
 }
 
 fn part_path(dir: &Path, i: usize) -> PathBuf {
@@ -71,6 +75,7 @@ impl MultiChannel {
             parts: self.parts_index(),
             config: self.config.clone(),
             settings: self.settings.clone(),
+            weight_net: self.net.clone(),
         };
         let json = serde_json::to_vec_pretty(&manifest).expect("serialisable");
         crate::io::write_atomic(&dir.join(MANIFEST), &json)
@@ -111,6 +116,11 @@ impl MultiChannel {
             return Err(bad("weights or parts do not fit the channels".into()));
         }
         m.config.validate()?;
+        if let Some(net) = &m.weight_net {
+            if !net.fits(m.dim, m.channels) {
+                return Err(bad("the weight network does not fit the channels".into()));
+            }
+        }
         let mut parts = Vec::with_capacity(m.parts.len());
         for (i, &(channel, sign)) in m.parts.iter().enumerate() {
             let nis = NisIntegrator::load(&part_path(dir, i))?;
@@ -130,6 +140,7 @@ impl MultiChannel {
             config: m.config,
             weights,
             shared: None,
+            net: m.weight_net,
             parts,
             comm: Comm::default(),
             event_draws: 0,

@@ -71,9 +71,8 @@ impl MultiChannel {
         // Adapt: at most adapt_fraction of max_evals, shared equally.
         let cap = (target.max_evals as f64 * self.config.adapt_fraction) as u64 / parts;
         let adapt = self.config.target_adapt.min(cap).max(MIN_PART_EVALS);
-        let (measured, adapted) = self.adapt_parts(f, adapt)?;
+        let (measured, adapted, sd) = self.adapt_parts(f, adapt)?;
         spent += adapted;
-        let sd = super::sd_per_eval(&measured);
         let total_sd: f64 = sd.iter().sum();
         let shares = super::neyman(&sd);
         let signs: Vec<f64> = self.parts.iter().map(|p| p.sign.factor()).collect();
@@ -104,7 +103,14 @@ impl MultiChannel {
             let (mut max_abs_w, mut sum_abs_w) = (0.0f64, 0.0);
             for (i, p) in self.parts.iter_mut().enumerate() {
                 let n = MIN_PART_EVALS + (spare * shares[i]) as u64;
-                let h = PartIntegrand::new(f, &self.set, &self.weights, p.channel, p.sign);
+                let h = PartIntegrand::new(
+                    f,
+                    &self.set,
+                    &self.weights,
+                    self.net.as_ref(),
+                    p.channel,
+                    p.sign,
+                );
                 let r = estimate_part(p, &h, n)?;
                 spent += r.n_eval;
                 evals += r.iterations.iter().map(|i| i.evals).sum::<u64>();

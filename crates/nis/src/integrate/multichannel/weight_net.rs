@@ -1,0 +1,353 @@
+//! A network that refines the channel weights, as MadNIS does (Heimel, Winterhalder, Butter,
+//! Isaacson, Krause, Maltoni, Mattelaer, Plehn, "MadNIS — Neural multi-channel importance
+//! sampling", SciPost Phys. 15, 141 (2023), §2.3): α_k(x) = a_k g_k(x) e^{N_k(x)} / Σ_j a_j g_j(x)
+//! e^{N_j(x)}, N a small MLP of x with one output per channel. Σ_k α_k = 1 at every x whatever N
+//! is, so every estimate made with a fixed N is unbiased; N = 0 is Kleiss–Pittau's α.
+//!
+//! Given the parts' samplers Q_p and the points shared among them by Neyman's allocation, the
+//! estimate's σ per evaluation is Σ_p σ_p, σ_p² = Var_{Q_p}(α_k f/Q_p). N is fitted to minimise
+//! it after the parts adapt, on fresh points of every part's frozen sampler (half to fit, half
+//! held out), and kept only when it lowers (Σσ_p)² on the held-out half by [`MIN_GAIN`]. It moves
+//! each x's share towards the channels whose trained samplers cover x best (the pointwise
+//! optimum at fixed samplers is α_k ∝ n_k Q_k(x), which would need every channel's inverse map).
+
+use rand::seq::index::sample;
+use rand::SeedableRng;
+use rand_pcg::Pcg64Mcg;
+use serde::{Deserialize, Serialize};
+
+use super::part::Sign;
+use crate::error::Result;
+use crate::nn::mlp::Layout;
+use crate::nn::{Adam, AdamConfig, Mlp};
+
+/// Hidden layers' width.
+const WIDTH: usize = 32;
+/// Adam steps at most, each on a minibatch of [`MINIBATCH`] rows of every part's fitting half.
+const STEPS: usize = 300;
+const MINIBATCH: usize = 1024;
+/// Steps between the checks on the held-out half; the fit stops after [`PATIENCE`] checks without
+/// a better one and keeps the best.
+const CHECK_EVERY: usize = 25;
+const PATIENCE: usize = 4;
+/// The held-out (Σσ)² must fall by this factor for the network to be kept.
+const MIN_GAIN: f64 = 1.05;
+
+/// The fitted correction N (saved with a multi-channel integrator).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct WeightNet {
+    /// Inputs, hidden widths, outputs (the channels).
+    dims: Vec<usize>,
+    params: Vec<f32>,
+}
+
+impl WeightNet {
+    fn mlp(&self) -> Mlp {
+        mlp(&self.dims)
+    }
+
+    /// Whether it takes points of `dim` coordinates, corrects `channels` channels and has the
+    /// parameters its shape needs (a loaded one).
+    pub(super) fn fits(&self, dim: usize, channels: usize) -> bool {
+        self.dims.len() >= 2
+            && self.dims[0] == dim
+            && self.dims[self.dims.len() - 1] == channels
+            && self.dims.iter().all(|d| *d > 0)
+            && self.params.len() == self.mlp().param_count()
+            && self.params.iter().all(|p| p.is_finite())
+    }
+
+    /// N(x) at the points `x` (n × d): n × K, row-major.
+    pub(super) fn corrections(&self, x: &[f64]) -> Vec<f32> {
+        let input: Vec<f32> = x.iter().map(|v| *v as f32).collect();
+        self.mlp()
+            .forward_batch(&self.params, &input)
+            .outputs()
+            .copied()
+            .collect()
+    }
+}
+
+fn mlp(dims: &[usize]) -> Mlp {
+    Mlp {
+        dims: dims.to_vec(),
+        output: Layout::Rows,
+    }
+}
+
+/// α_k(x)·(a_j g_j(x) e^{N_j}) for one point: the weights α (into `alpha`) from a_j g_j (`ag`)
+/// and N (`n`, `None`: 0).
+pub(super) fn alphas(ag: &[f64], n: Option<&[f32]>, alpha: &mut [f64]) {
+    let top = n.map_or(0.0, |n| n.iter().fold(f32::MIN, |m, v| m.max(*v)) as f64);
+    let mut total = 0.0;
+    for (j, a) in alpha.iter_mut().enumerate() {
+        let e = n.map_or(1.0, |n| (n[j] as f64 - top).exp());
+        *a = ag[j] * e;
+        total += *a;
+    }
+    alpha.iter_mut().for_each(|a| *a /= total);
+}
+
+/// A part's points for the fit: its channel, and per point x, a_j g_j(x) (all j) and f_s/Q_p,
+/// f_s the part's sign of f and Q_p its sampler's density at x.
+pub(super) struct PartPoints {
+    pub(super) channel: usize,
+    pub(super) x: Vec<f64>,
+    pub(super) ag: Vec<f64>,
+    pub(super) f_over_q: Vec<f64>,
+}
+
+impl PartPoints {
+    /// From the part's points `x`, their values `fx`, 1/Q_p, the channels' densities `g`
+    /// (n × K) and the weights `a`.
+    pub(super) fn new(
+        channel: usize,
+        sign: Sign,
+        x: Vec<f64>,
+        fx: &[f64],
+        inv_q: &[f64],
+        g: &[f64],
+        a: &[f64],
+    ) -> PartPoints {
+        let k = a.len();
+        let ag = g
+            .chunks_exact(k)
+            .flat_map(|row| row.iter().zip(a).map(|(g, a)| g * a))
+            .collect();
+        let f_over_q = fx
+            .iter()
+            .zip(inv_q)
+            .map(|(f, iq)| {
+                let f = match sign {
+                    Sign::Both => *f,
+                    Sign::Plus => f.max(0.0),
+                    Sign::Minus => (-f).max(0.0),
+                };
+                f * iq
+            })
+            .collect();
+        PartPoints {
+            channel,
+            x,
+            ag,
+            f_over_q,
+        }
+    }
+
+    fn len(&self) -> usize {
+        self.f_over_q.len()
+    }
+
+    /// The rows `rows` of these points.
+    fn rows(&self, rows: &[usize], dim: usize, k: usize) -> PartPoints {
+        let pick = |v: &[f64], w: usize| {
+            rows.iter()
+                .flat_map(|&i| v[i * w..(i + 1) * w].to_vec())
+                .collect()
+        };
+        PartPoints {
+            channel: self.channel,
+            x: pick(&self.x, dim),
+            ag: pick(&self.ag, k),
+            f_over_q: rows.iter().map(|&i| self.f_over_q[i]).collect(),
+        }
+    }
+}
+
+/// σ_p of every part's weights w = α_k f_s/Q_p under the corrections `n` (per part, n × K; `None`:
+/// N = 0) and, when `grads` is given, ∂(Σ_p σ_p)/∂N into it (per part, n × K).
+fn sigmas(
+    parts: &[PartPoints],
+    n: Option<&[Vec<f32>]>,
+    k: usize,
+    mut grads: Option<&mut Vec<Vec<f32>>>,
+) -> Vec<f64> {
+    let mut out = Vec::with_capacity(parts.len());
+    let mut alpha = vec![0.0; k];
+    for (p, part) in parts.iter().enumerate() {
+        let m = part.len();
+        let mut w = vec![0.0; m];
+        let mut all_alpha = vec![0.0; if grads.is_some() { m * k } else { 0 }];
+        for i in 0..m {
+            let ni = n.map(|n| &n[p][i * k..(i + 1) * k]);
+            alphas(&part.ag[i * k..(i + 1) * k], ni, &mut alpha);
+            w[i] = alpha[part.channel] * part.f_over_q[i];
+            if grads.is_some() {
+                all_alpha[i * k..(i + 1) * k].copy_from_slice(&alpha);
+            }
+        }
+        let mean = w.iter().sum::<f64>() / m as f64;
+        let var = w.iter().map(|v| (v - mean) * (v - mean)).sum::<f64>() / m as f64;
+        let sd = var.sqrt();
+        out.push(sd);
+        if let Some(g) = grads.as_deref_mut() {
+            // ∂σ/∂w_i = (w_i − mean)/(m σ); ∂w_i/∂N_j = w_i (δ_jk − α_j).
+            let mut gp = vec![0.0f32; m * k];
+            if sd > 0.0 {
+                for i in 0..m {
+                    let d = (w[i] - mean) / (m as f64 * sd) * w[i];
+                    for j in 0..k {
+                        let delta = if j == part.channel { 1.0 } else { 0.0 };
+                        gp[i * k + j] = (d * (delta - all_alpha[i * k + j])) as f32;
+                    }
+                }
+            }
+            g.push(gp);
+        }
+    }
+    out
+}
+
+/// What a fit found: the network when it is kept, and every part's σ per evaluation on the
+/// held-out points under the α the integrator will use (for Neyman's allocation).
+pub(super) struct Fit {
+    pub(super) net: Option<WeightNet>,
+    pub(super) sigmas: Vec<f64>,
+}
+
+/// Fits N to `points` (module docs), seeded by `seed`.
+pub(super) fn fit(points: Vec<PartPoints>, dim: usize, k: usize, seed: u64) -> Result<Fit> {
+    let mut rng = Pcg64Mcg::seed_from_u64(seed);
+    let (mut train, mut held) = (Vec::new(), Vec::new());
+    for p in &points {
+        let m = p.len();
+        let order = sample(&mut rng, m, m).into_vec();
+        train.push(p.rows(&order[..m / 2], dim, k));
+        held.push(p.rows(&order[m / 2..], dim, k));
+    }
+    let base = sigmas(&held, None, k, None);
+    let base_total: f64 = base.iter().sum();
+    let dims = vec![dim, WIDTH, WIDTH, k];
+    let mlp = mlp(&dims);
+    let mut params = vec![0.0f32; mlp.param_count()];
+    mlp.init(&mut params, &mut rng);
+    let mut adam = Adam::new(
+        AdamConfig {
+            learning_rate: 3e-3,
+            ..AdamConfig::default()
+        },
+        params.len(),
+    )?;
+    let inputs = |parts: &[PartPoints]| -> Vec<Vec<f32>> {
+        parts
+            .iter()
+            .map(|p| p.x.iter().map(|v| *v as f32).collect())
+            .collect()
+    };
+    let held_x = inputs(&held);
+    let held_sigmas = |params: &[f32]| {
+        let n: Vec<Vec<f32>> = held_x
+            .iter()
+            .map(|x| mlp.forward_batch(params, x).outputs().copied().collect())
+            .collect();
+        sigmas(&held, Some(&n), k, None)
+    };
+    let (mut best, mut best_params, mut since) = (base_total, None, 0);
+    let mut grad = vec![0.0f32; params.len()];
+    let mut one = vec![0.0f32; params.len()];
+    for step in 1..=STEPS {
+        let batch: Vec<PartPoints> = train
+            .iter()
+            .map(|p| {
+                let rows: Vec<usize> = if p.len() <= MINIBATCH {
+                    (0..p.len()).collect()
+                } else {
+                    sample(&mut rng, p.len(), MINIBATCH).into_vec()
+                };
+                p.rows(&rows, dim, k)
+            })
+            .collect();
+        let forward: Vec<_> = inputs(&batch)
+            .iter()
+            .map(|x| mlp.forward_batch(&params, x))
+            .collect();
+        let n: Vec<Vec<f32>> = forward
+            .iter()
+            .map(|f| f.outputs().copied().collect())
+            .collect();
+        let mut g = Vec::new();
+        sigmas(&batch, Some(&n), k, Some(&mut g));
+        grad.iter_mut().for_each(|v| *v = 0.0);
+        for (f, gp) in forward.iter().zip(&g) {
+            mlp.backward_batch(&params, f, gp, &mut one);
+            grad.iter_mut().zip(&one).for_each(|(t, o)| *t += o);
+        }
+        adam.step(&mut params, &grad)?;
+        if step % CHECK_EVERY == 0 {
+            let total: f64 = held_sigmas(&params).iter().sum();
+            if total < best {
+                (best, best_params, since) = (total, Some(params.clone()), 0);
+            } else {
+                since += 1;
+                if since >= PATIENCE {
+                    break;
+                }
+            }
+        }
+    }
+    let kept = best_params.filter(|_| (base_total / best).powi(2) >= MIN_GAIN);
+    Ok(match kept {
+        Some(params) => Fit {
+            sigmas: held_sigmas(&params),
+            net: Some(WeightNet { dims, params }),
+        },
+        None => Fit {
+            net: None,
+            sigmas: base,
+        },
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_weights_sum_to_one_whatever_the_correction() {
+        let ag = [0.2, 3.0, 0.0, 1.5];
+        let mut alpha = [0.0; 4];
+        alphas(&ag, None, &mut alpha);
+        assert!((alpha.iter().sum::<f64>() - 1.0).abs() < 1e-15);
+        assert!((alpha[1] - 3.0 / 4.7).abs() < 1e-15);
+        alphas(&ag, Some(&[5.0, -3.0, 80.0, 0.5]), &mut alpha);
+        assert!((alpha.iter().sum::<f64>() - 1.0).abs() < 1e-15);
+        // A channel without density at x gets no share, whatever its correction.
+        assert_eq!(alpha[2], 0.0);
+    }
+
+    #[test]
+    fn the_gradient_of_the_summed_sigmas_matches_finite_differences() {
+        let (dim, k) = (2, 3);
+        let mut rng = Pcg64Mcg::seed_from_u64(3);
+        use rand::Rng;
+        let parts: Vec<PartPoints> = (0..k)
+            .map(|c| {
+                let m = 40;
+                PartPoints {
+                    channel: c,
+                    x: (0..m * dim).map(|_| rng.random()).collect(),
+                    ag: (0..m * k).map(|_| rng.random::<f64>() + 0.1).collect(),
+                    f_over_q: (0..m).map(|_| rng.random::<f64>() * 3.0).collect(),
+                }
+            })
+            .collect();
+        let n: Vec<Vec<f32>> = (0..k)
+            .map(|_| (0..40 * k).map(|_| rng.random::<f32>() - 0.5).collect())
+            .collect();
+        let mut g = Vec::new();
+        sigmas(&parts, Some(&n), k, Some(&mut g));
+        let total = |n: &[Vec<f32>]| sigmas(&parts, Some(n), k, None).iter().sum::<f64>();
+        for (p, i) in [(0, 5), (1, 17), (2, 119)] {
+            let h = 1e-2f32;
+            let (mut up, mut down) = (n.clone(), n.clone());
+            up[p][i] += h;
+            down[p][i] -= h;
+            let fd = (total(&up) - total(&down)) / (2.0 * h as f64);
+            assert!(
+                (fd - g[p][i] as f64).abs() < 1e-3 * (1.0 + fd.abs()),
+                "{fd} vs {}",
+                g[p][i]
+            );
+        }
+    }
+}
