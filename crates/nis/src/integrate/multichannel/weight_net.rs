@@ -1,7 +1,7 @@
 //! A network that refines the channel weights, as MadNIS does (Heimel, Winterhalder, Butter,
 //! Isaacson, Krause, Maltoni, Mattelaer, Plehn, "MadNIS — Neural multi-channel importance
 //! sampling", SciPost Phys. 15, 141 (2023), §2.3): α_k(x) = a_k g_k(x) e^{N_k(x)} / Σ_j a_j g_j(x)
-//! e^{N_j(x)}, N a small MLP of x with one output per channel. Σ_k α_k = 1 at every x whatever N
+//! e^{N_j(x)}, N = 2·tanh(r/2) of a small MLP r of x with one output per channel. Σ_k α_k = 1 at every x whatever N
 //! is, so every estimate made with a fixed N is unbiased; N = 0 is Kleiss–Pittau's α.
 //!
 //! Given the parts' samplers Q_p and the points shared among them by Neyman's allocation, the
@@ -30,6 +30,8 @@ const MINIBATCH: usize = 1024;
 /// a better one and keeps the best.
 const CHECK_EVERY: usize = 25;
 const PATIENCE: usize = 4;
+/// The largest correction |N_k(x)| (see [`squash`]).
+const BOUND: f32 = 2.0;
 /// The held-out (Σσ)² must fall by this factor for the network to be kept.
 const MIN_GAIN: f64 = 1.05;
 
@@ -63,9 +65,17 @@ impl WeightNet {
         self.mlp()
             .forward_batch(&self.params, &input)
             .outputs()
-            .copied()
+            .map(|r| squash(*r).0)
             .collect()
     }
+}
+
+/// The network's output r becomes N = B·tanh(r/B), B = [`BOUND`], with dN/dr: a correction
+/// moves a channel's weight by at most e^{±B}, so it cannot make a part's weights unbounded where
+/// its points were too few to show it.
+fn squash(r: f32) -> (f32, f32) {
+    let t = (r / BOUND).tanh();
+    (BOUND * t, 1.0 - t * t)
 }
 
 fn mlp(dims: &[usize]) -> Mlp {
@@ -238,7 +248,10 @@ pub(super) fn fit(points: Vec<PartPoints>, dim: usize, k: usize, seed: u64) -> R
     let held_sigmas = |params: &[f32]| {
         let n: Vec<Vec<f32>> = held_x
             .iter()
-            .map(|x| mlp.forward_batch(params, x).outputs().copied().collect())
+            .map(|x| {
+                let f = mlp.forward_batch(params, x);
+                f.outputs().map(|r| squash(*r).0).collect()
+            })
             .collect();
         sigmas(&held, Some(&n), k, None)
     };
@@ -263,12 +276,15 @@ pub(super) fn fit(points: Vec<PartPoints>, dim: usize, k: usize, seed: u64) -> R
             .collect();
         let n: Vec<Vec<f32>> = forward
             .iter()
-            .map(|f| f.outputs().copied().collect())
+            .map(|f| f.outputs().map(|r| squash(*r).0).collect())
             .collect();
         let mut g = Vec::new();
         sigmas(&batch, Some(&n), k, Some(&mut g));
         grad.iter_mut().for_each(|v| *v = 0.0);
-        for (f, gp) in forward.iter().zip(&g) {
+        for (f, gp) in forward.iter().zip(g.iter_mut()) {
+            gp.iter_mut()
+                .zip(f.outputs())
+                .for_each(|(g, r)| *g *= squash(*r).1);
             mlp.backward_batch(&params, f, gp, &mut one);
             grad.iter_mut().zip(&one).for_each(|(t, o)| *t += o);
         }
@@ -313,6 +329,18 @@ mod tests {
         assert!((alpha.iter().sum::<f64>() - 1.0).abs() < 1e-15);
         // A channel without density at x gets no share, whatever its correction.
         assert_eq!(alpha[2], 0.0);
+    }
+
+    #[test]
+    fn corrections_are_bounded_and_their_derivative_matches_finite_differences() {
+        for r in [-40.0f32, -2.5, -0.3, 0.0, 0.7, 3.0, 1e6] {
+            let (n, d) = squash(r);
+            assert!(n.abs() <= BOUND);
+            let h = 1e-2;
+            let fd = (squash(r + h).0 - squash(r - h).0) / (2.0 * h);
+            assert!((fd - d).abs() < 1e-3, "at {r}: {fd} vs {d}");
+        }
+        assert!((squash(0.1).0 - 0.1).abs() < 1e-3, "near zero N is r");
     }
 
     #[test]
