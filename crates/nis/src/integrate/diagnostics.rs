@@ -267,6 +267,46 @@ impl WeightTail {
         }
     }
 
+    /// The figures of a sum of independent estimates, each the mean of one tail's weights, for
+    /// the weights w·`scale` of every tail pooled: with scale 1/n of each tail's count, every
+    /// pooled weight is its point's share of the sum, so k̂ reads the tail of the points that
+    /// move the sum (a part whose weights are small beside the others' weighs little). Only
+    /// the pooled values above every full heap's smallest kept value are known to be the pooled
+    /// tail; k̂ is fitted to at most PSIS's M of those (`var_rel_err` is not pooled: `NaN`).
+    pub fn pooled(tails: &[(&WeightTail, f64)]) -> Reliability {
+        let n: u64 = tails.iter().map(|(t, _)| t.n).sum();
+        let known = tails
+            .iter()
+            .filter(|(t, _)| t.heap.len() >= t.capacity)
+            .filter_map(|(t, s)| t.heap.peek().map(|Reverse(b)| f64::from_bits(*b) * s))
+            .fold(0.0f64, f64::max);
+        let mut top: Vec<f64> = tails
+            .iter()
+            .flat_map(|(t, s)| t.heap.iter().map(move |Reverse(b)| f64::from_bits(*b) * s))
+            .filter(|v| *v >= known)
+            .collect();
+        top.sort_by(f64::total_cmp);
+        let m = tail_len(n).min(top.len().saturating_sub(1));
+        let pareto_k = if n >= 25 && m >= MIN_TAIL {
+            let tail = &top[top.len() - m - 1..];
+            let x: Vec<f64> = tail[1..].iter().map(|v| v - tail[0]).collect();
+            gpd_shape(&x).unwrap_or(f64::NAN)
+        } else {
+            f64::NAN
+        };
+        let sum_abs: f64 = tails.iter().map(|(t, s)| t.sum_abs * s).sum();
+        let sum_sq: f64 = tails.iter().map(|(t, s)| t.sum_sq * s * s).sum();
+        Reliability {
+            pareto_k,
+            ess: if sum_sq > 0.0 {
+                sum_abs * sum_abs / sum_sq
+            } else {
+                0.0
+            },
+            var_rel_err: f64::NAN,
+        }
+    }
+
     /// The figures for the weights so far.
     pub fn reliability(&self) -> Reliability {
         let n = self.n;
@@ -361,6 +401,45 @@ mod tests {
             a.var_rel_err,
             b.var_rel_err
         );
+    }
+
+    #[test]
+    fn pooled_tails_judge_the_points_that_move_the_sum() {
+        let tail_of = |seed: u64, n: u64, xi: f64| {
+            let mut r = rng(seed);
+            let mut t = WeightTail::new(n);
+            let w: Vec<f64> = (0..n)
+                .map(|_| (1.0 - r.random::<f64>()).powf(-xi))
+                .collect();
+            t.add(&w);
+            t
+        };
+        // One tail pooled alone is that tail (k̂ exactly at scale 1; neither k̂ nor the ESS
+        // depends on the scale but by rounding).
+        let heavy = tail_of(6, 100_000, 0.8);
+        let own = heavy.reliability();
+        let alone = WeightTail::pooled(&[(&heavy, 1.0)]);
+        assert_eq!(alone.pareto_k.to_bits(), own.pareto_k.to_bits());
+        let scaled = WeightTail::pooled(&[(&heavy, 1e-5)]);
+        assert!((scaled.pareto_k - own.pareto_k).abs() < 1e-9);
+        assert!((scaled.ess / own.ess - 1.0).abs() < 1e-12);
+        // Two samples of one distribution at one scale: the tail of the two merged.
+        let other = tail_of(7, 100_000, 0.8);
+        let mut merged = WeightTail::new(200_000);
+        merged.merge(&heavy);
+        merged.merge(&other);
+        let two = WeightTail::pooled(&[(&heavy, 1.0), (&other, 1.0)]);
+        assert!((two.pareto_k - merged.reliability().pareto_k).abs() < 0.05);
+        // A heavy-tailed part whose points move the sum little (its weights a thousandth of a
+        // light part's) leaves k̂ to the light part, and warns when it does move the sum.
+        let light = tail_of(8, 100_000, 0.2);
+        let quiet = WeightTail::pooled(&[(&heavy, 1e-3), (&light, 1.0)]);
+        assert!(
+            quiet.pareto_k < 0.4 && quiet.warning().is_none(),
+            "{quiet:?}"
+        );
+        let loud = WeightTail::pooled(&[(&heavy, 1.0), (&light, 1e-3)]);
+        assert!(loud.pareto_k > 0.6 && loud.warning().is_some(), "{loud:?}");
     }
 
     #[test]

@@ -177,6 +177,7 @@ impl Accumulator {
             components: self.components(shares),
             channels: None,
             stop: None,
+            tail: Some(self.tail.clone()),
         }
     }
 

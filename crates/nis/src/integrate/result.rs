@@ -53,6 +53,10 @@ pub struct IntegrationResult {
     /// Why a run to a precision target stopped (`None` for a run on a budget).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub stop: Option<Stop>,
+    /// The PSIS tail and moments of the weights that made the estimate, to judge a sum of
+    /// results by (a multi-channel integral's parts; not part of the JSON summary).
+    #[serde(skip)]
+    pub tail: Option<super::diagnostics::WeightTail>,
     /// Every component's estimate, for integrands with more than one component (`None` for
     /// scalar integrands, whose one component is `value` ± `std_err`; see
     /// [`IntegrationResult::estimates`] for a view that covers both).
@@ -100,6 +104,15 @@ pub fn disagreements(results: &[(&str, &IntegrationResult)], sigmas: f64) -> Vec
 }
 
 impl IntegrationResult {
+    /// Its reliability figures ([`super::Reliability::warning`] gives the k̂ warning they make).
+    pub fn reliability(&self) -> super::Reliability {
+        super::Reliability {
+            pareto_k: self.pareto_k,
+            ess: self.ess,
+            var_rel_err: self.var_rel_err,
+        }
+    }
+
     /// Every component's mean, standard error and covariance, also for a scalar integrand (then
     /// one component: `value`, `std_err`, `std_err²`): what `r.mean`, `r.sdev` and `r.cov` of the
     /// `vegas` package hold.

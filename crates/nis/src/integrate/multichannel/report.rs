@@ -6,6 +6,7 @@ use std::time::Instant;
 use serde::{Deserialize, Serialize};
 
 use super::part::Sign;
+use crate::integrate::diagnostics::WeightTail;
 use crate::integrate::IntegrationResult;
 
 /// Every channel's contribution to a multi-channel estimate.
@@ -59,6 +60,9 @@ pub(super) fn combine(
     let mut warnings = Vec::new();
     let (mut chi2_sum, mut chi2_evals) = (0.0, 0.0);
     let (mut pareto_k, mut ess, mut estimate_evals) = (f64::NAN, 0.0, 0u64);
+    // Every part's weights scaled by 1/n: each its point's share of the sum F.
+    let mut tails = Vec::with_capacity(results.len());
+    let pooled_k = results.iter().all(|r| r.tail.is_some());
     let mut trials = 0.0;
     for (&(k, sign), r) in index.iter().zip(results) {
         let v = r.std_err * r.std_err;
@@ -94,6 +98,9 @@ pub(super) fn combine(
             };
         }
         ess += r.ess;
+        if let Some(t) = &r.tail {
+            tails.push((t, 1.0 / t.count().max(1) as f64));
+        }
         if r.unweighting_efficiency > 0.0 {
             trials += r.value.abs() / r.unweighting_efficiency;
         }
@@ -106,7 +113,14 @@ pub(super) fn combine(
                 Sign::Plus => format!("channel {k} (f > 0)"),
                 Sign::Minus => format!("channel {k} (f < 0)"),
             };
-            warnings.extend(r.warnings.iter().map(|w| format!("{label}: {w}")));
+            // The parts' k̂ is judged on their weights together, below.
+            let own_k = pooled_k.then(|| r.reliability().warning()).flatten();
+            warnings.extend(
+                r.warnings
+                    .iter()
+                    .filter(|w| own_k.as_ref() != Some(*w))
+                    .map(|w| format!("{label}: {w}")),
+            );
         }
     }
     report.std_errs.iter_mut().for_each(|v| *v = v.sqrt());
@@ -120,6 +134,13 @@ pub(super) fn combine(
             0.0
         };
         report.signs = Some(signs);
+    }
+    if pooled_k {
+        let pooled = WeightTail::pooled(&tails);
+        (pareto_k, ess) = (pooled.pareto_k, pooled.ess);
+        if let Some(w) = pooled.warning() {
+            warnings.push(format!("the channels' weights together: {w}"));
+        }
     }
     let abs_total: f64 = results.iter().map(|r| r.value.abs()).sum();
     IntegrationResult {
