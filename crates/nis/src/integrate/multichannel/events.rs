@@ -8,7 +8,7 @@ use rand::seq::SliceRandom;
 use rand::{Rng, SeedableRng};
 use rand_pcg::Pcg64Mcg;
 
-use super::part::PartIntegrand;
+use super::part::{PartIntegrand, Weighting};
 use super::MultiChannel;
 use crate::error::{Error, Result};
 use crate::integrate::unweight::Unweighted;
@@ -62,15 +62,13 @@ impl MultiChannel {
         let mut rng = Pcg64Mcg::seed_from_u64(self.comm.stream_seed(stream));
         // A_p = mean |w| of a calibration batch of each part's frozen sampler.
         let mut mass = Vec::with_capacity(self.parts.len());
+        let w = Weighting {
+            set: &self.set,
+            a: &self.weights,
+            net: self.net.as_ref(),
+        };
         for p in self.parts.iter_mut() {
-            let h = PartIntegrand::new(
-                f,
-                &self.set,
-                &self.weights,
-                self.net.as_ref(),
-                p.channel,
-                p.sign,
-            );
+            let h = PartIntegrand::new(f, w, p.channel, p.sign);
             let nis = p.nis()?;
             let (_, w) = nis.weighted(&h, CALIBRATION)?;
             mass.push(w.iter().map(|v| v.abs()).sum::<f64>() / w.len() as f64);
@@ -98,18 +96,16 @@ impl MultiChannel {
         let mut weights = Vec::with_capacity(n);
         let mut channels = Vec::with_capacity(n);
         let (mut proposed, mut w_max, mut over) = (0.0, 0.0f64, 0.0f64);
+        let w = Weighting {
+            set: &self.set,
+            a: &self.weights,
+            net: self.net.as_ref(),
+        };
         for (p, &m) in self.parts.iter_mut().zip(&counts) {
             if m == 0 {
                 continue;
             }
-            let h = PartIntegrand::new(
-                f,
-                &self.set,
-                &self.weights,
-                self.net.as_ref(),
-                p.channel,
-                p.sign,
-            );
+            let h = PartIntegrand::new(f, w, p.channel, p.sign);
             let nis = p.nis()?;
             let u = nis.unweighted(&h, m, overweight)?;
             let mut x = vec![0.0; u.points.len()];

@@ -36,7 +36,7 @@ pub use events::ChannelEvents;
 pub use part::Sign;
 pub use report::{ChannelReport, SignReport};
 
-use self::part::PartIntegrand;
+use self::part::{PartIntegrand, Weighting};
 use self::shared::SharedFlow;
 use self::weight_net::{PartPoints, WeightNet};
 use super::nis::NisIntegrator;
@@ -268,16 +268,14 @@ impl MultiChannel {
         let floor = (rest / (50 * parts)).max(MIN_PART_EVALS);
         let spare = rest.saturating_sub(floor * parts) as f64;
         let mut results = Vec::with_capacity(self.parts.len());
+        let w = Weighting {
+            set: &self.set,
+            a: &self.weights,
+            net: self.net.as_ref(),
+        };
         for (p, share) in self.parts.iter_mut().zip(neyman(&sd)) {
             let n = floor + (spare * share) as u64;
-            let h = PartIntegrand::new(
-                f,
-                &self.set,
-                &self.weights,
-                self.net.as_ref(),
-                p.channel,
-                p.sign,
-            );
+            let h = PartIntegrand::new(f, w, p.channel, p.sign);
             let r = estimate_part(p, &h, n)?;
             spent += r.n_eval;
             results.push(r);
@@ -330,6 +328,11 @@ impl MultiChannel {
         // The parts adapt to Kleiss–Pittau's α; a network is refitted after them.
         self.net = None;
         let index = self.parts_index();
+        let w = Weighting {
+            set: &self.set,
+            a: &self.weights,
+            net: self.net.as_ref(),
+        };
         if let Some(shared) = &mut self.shared {
             // The flow trains on every part's share at once; then each part gets the flow at
             // its context as an integrator of its own, and is measured with it.
@@ -341,14 +344,7 @@ impl MultiChannel {
             let base = self.settings.seed_of(self.method);
             for (i, p) in self.parts.iter_mut().enumerate() {
                 let mut nis = shared.part(i, part_seed(base, i as u64))?;
-                let h = PartIntegrand::new(
-                    f,
-                    &self.set,
-                    &self.weights,
-                    self.net.as_ref(),
-                    p.channel,
-                    p.sign,
-                );
+                let h = PartIntegrand::new(f, w, p.channel, p.sign);
                 let r = nis.estimate(&h, adapt - train)?;
                 spent += r.n_eval;
                 measured.push(r);
@@ -356,14 +352,7 @@ impl MultiChannel {
             }
         } else {
             for p in self.parts.iter_mut() {
-                let h = PartIntegrand::new(
-                    f,
-                    &self.set,
-                    &self.weights,
-                    self.net.as_ref(),
-                    p.channel,
-                    p.sign,
-                );
+                let h = PartIntegrand::new(f, w, p.channel, p.sign);
                 let r = adapt_part(p.sampler()?, &h, adapt)?;
                 spent += r.n_eval;
                 measured.push(r);
@@ -440,8 +429,10 @@ impl MultiChannel {
                 let (mut positive, mut negative) = (false, false);
                 let n = self.config.pilot;
                 let mine = self.comm.share(n as u64) as usize;
+                let (set, a) = (&self.set, &self.weights);
+                let w = Weighting { set, a, net: None };
                 for k in 0..channels {
-                    let h = PartIntegrand::new(f, &self.set, &self.weights, None, k, Sign::Both);
+                    let h = PartIntegrand::new(f, w, k, Sign::Both);
                     let u: Vec<f64> = (0..mine * dim).map(|_| rng.random::<f64>()).collect();
                     self.comm.check(super::evaluate(&h, &u, dim))?;
                     positive |= h.saw_positive.into_inner();

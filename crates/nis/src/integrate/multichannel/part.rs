@@ -36,13 +36,19 @@ impl Sign {
     }
 }
 
-/// The integrand h_k of channel `k` (and `sign`) for the integrand `f` under the a-priori
-/// weights `a`; it records whether it saw values of either sign.
-pub(super) struct PartIntegrand<'a> {
-    pub(super) f: &'a dyn Integrand,
+/// What splits f into the parts: the channels, the a-priori weights a and the weight network.
+#[derive(Clone, Copy)]
+pub(super) struct Weighting<'a> {
     pub(super) set: &'a ChannelSet,
     pub(super) a: &'a [f64],
     pub(super) net: Option<&'a WeightNet>,
+}
+
+/// The integrand h_k of channel `k` (and `sign`) for the integrand `f` under the weighting `w`;
+/// it records whether it saw values of either sign.
+pub(super) struct PartIntegrand<'a> {
+    pub(super) f: &'a dyn Integrand,
+    pub(super) w: Weighting<'a>,
     pub(super) k: usize,
     pub(super) sign: Sign,
     pub(super) saw_positive: AtomicBool,
@@ -52,17 +58,13 @@ pub(super) struct PartIntegrand<'a> {
 impl<'a> PartIntegrand<'a> {
     pub(super) fn new(
         f: &'a dyn Integrand,
-        set: &'a ChannelSet,
-        a: &'a [f64],
-        net: Option<&'a WeightNet>,
+        w: Weighting<'a>,
         k: usize,
         sign: Sign,
     ) -> PartIntegrand<'a> {
         PartIntegrand {
             f,
-            set,
-            a,
-            net,
+            w,
             k,
             sign,
             saw_positive: AtomicBool::new(false),
@@ -75,7 +77,7 @@ impl Integrand for PartIntegrand<'_> {
     fn eval_batch(&self, u: &[f64], dim: usize, out: &mut [f64]) -> Result<()> {
         let mut x = vec![0.0; u.len()];
         // Maps and checks: x in the cube, g_k(x) finite and > 0 where channel k put a point.
-        self.set.sample(self.k, u, &mut x)?;
+        self.w.set.sample(self.k, u, &mut x)?;
         let fx = evaluate(self.f, &x, dim)?;
         for v in &fx {
             if *v > 0.0 {
@@ -86,13 +88,11 @@ impl Integrand for PartIntegrand<'_> {
         }
         let parts = [(self.k, self.sign)];
         let counts = [out.len()];
-        values(
-            self.set, self.a, self.net, &parts, &counts, &x, &fx, dim, out,
-        )
+        values(self.w, &parts, &counts, &x, &fx, dim, out)
     }
 
     fn dim(&self) -> Option<usize> {
-        Some(self.set.dim())
+        Some(self.w.set.dim())
     }
 }
 
@@ -120,17 +120,16 @@ pub(super) fn eval_blocks(
     }
     let fx = evaluate(f, &x, dim)?;
     let mut out = vec![0.0; fx.len()];
-    values(set, a, None, parts, counts, &x, &fx, dim, &mut out)?;
+    let w = Weighting { set, a, net: None };
+    values(w, parts, counts, &x, &fx, dim, &mut out)?;
     Ok(out)
 }
 
 /// h = a_k·f/Σ_j a_j g_j (or its part of one sign) at the mapped points `x` with values `fx`,
-/// in the blocks of [`eval_blocks`], into `out`; with `net`, a_j e^{N_j(x)} for a_j.
+/// in the blocks of [`eval_blocks`], into `out`; with a network N, a_j e^{N_j(x)} for a_j.
 #[allow(clippy::too_many_arguments)]
 fn values(
-    set: &ChannelSet,
-    a: &[f64],
-    net: Option<&WeightNet>,
+    Weighting { set, a, net }: Weighting,
     parts: &[(usize, Sign)],
     counts: &[usize],
     x: &[f64],

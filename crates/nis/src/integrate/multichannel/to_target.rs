@@ -8,7 +8,7 @@
 
 use std::time::Instant;
 
-use super::part::PartIntegrand;
+use super::part::{PartIntegrand, Weighting};
 use super::{estimate_part, MultiChannel, MIN_PART_EVALS};
 use crate::error::Result;
 use crate::integrate::estimate::chi2_per_dof;
@@ -101,16 +101,14 @@ impl MultiChannel {
             let spent_before = spent;
             let (mut estimate, mut variance, mut evals) = (0.0, 0.0, 0u64);
             let (mut max_abs_w, mut sum_abs_w) = (0.0f64, 0.0);
+            let w = Weighting {
+                set: &self.set,
+                a: &self.weights,
+                net: self.net.as_ref(),
+            };
             for (i, p) in self.parts.iter_mut().enumerate() {
                 let n = MIN_PART_EVALS + (spare * shares[i]) as u64;
-                let h = PartIntegrand::new(
-                    f,
-                    &self.set,
-                    &self.weights,
-                    self.net.as_ref(),
-                    p.channel,
-                    p.sign,
-                );
+                let h = PartIntegrand::new(f, w, p.channel, p.sign);
                 let r = estimate_part(p, &h, n)?;
                 spent += r.n_eval;
                 evals += r.iterations.iter().map(|i| i.evals).sum::<u64>();
