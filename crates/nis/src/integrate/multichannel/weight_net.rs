@@ -1,8 +1,9 @@
 //! A network that refines the channel weights, as MadNIS does (Heimel, Winterhalder, Butter,
 //! Isaacson, Krause, Maltoni, Mattelaer, Plehn, "MadNIS — Neural multi-channel importance
 //! sampling", SciPost Phys. 15, 141 (2023), §2.3): α_k(x) = a_k g_k(x) e^{N_k(x)} / Σ_j a_j g_j(x)
-//! e^{N_j(x)}, N = 2·tanh(r/2) of a small MLP r of x with one output per channel. Σ_k α_k = 1 at every x whatever N
-//! is, so every estimate made with a fixed N is unbiased; N = 0 is Kleiss–Pittau's α.
+//! e^{N_j(x)}, N = 2·tanh(r/2) of a small MLP r of x with one output per channel. Σ_k α_k = 1 at
+//! every x whatever N is, so every estimate made with a fixed N is unbiased; N = 0 is
+//! Kleiss–Pittau's α.
 //!
 //! Given the parts' samplers Q_p and the points shared among them by Neyman's allocation, the
 //! estimate's σ per evaluation is Σ_p σ_p, σ_p² = Var_{Q_p}(α_k f/Q_p). N is fitted to minimise
@@ -85,9 +86,9 @@ fn mlp(dims: &[usize]) -> Mlp {
     }
 }
 
-/// α_k(x)·(a_j g_j(x) e^{N_j}) for one point: the weights α (into `alpha`) from a_j g_j (`ag`)
-/// and N (`n`, `None`: 0).
-pub(super) fn alphas(ag: &[f64], n: Option<&[f32]>, alpha: &mut [f64]) {
+/// The weights α_j(x) of one point (into `alpha`) from its a_j g_j(x) (`ag`) and corrections N_j
+/// (`n`; `None`: 0).
+fn alphas(ag: &[f64], n: Option<&[f32]>, alpha: &mut [f64]) {
     let top = n.map_or(0.0, |n| n.iter().fold(f32::MIN, |m, v| m.max(*v)) as f64);
     let mut total = 0.0;
     for (j, a) in alpha.iter_mut().enumerate() {
