@@ -331,7 +331,7 @@ impl MultiChannel {
         let w = Weighting {
             set: &self.set,
             a: &self.weights,
-            net: self.net.as_ref(),
+            net: None,
         };
         if let Some(shared) = &mut self.shared {
             // The flow trains on every part's share at once; then each part gets the flow at

@@ -8,7 +8,7 @@ use std::sync::atomic::{AtomicBool, Ordering};
 
 use serde::{Deserialize, Serialize};
 
-use super::weight_net::WeightNet;
+use super::weight_net::{exp_shifted, WeightNet};
 use crate::channels::ChannelSet;
 use crate::error::{Error, Result};
 use crate::integrate::{evaluate, Integrand};
@@ -147,12 +147,7 @@ fn values(
         for _ in 0..m {
             let row = &g[i * channels..(i + 1) * channels];
             if let Some(c) = &corrections {
-                // e^{N_j − max N}: the common factor cancels in a_k e^{N_k}/Σ_j a_j g_j e^{N_j}.
-                let c = &c[i * channels..(i + 1) * channels];
-                let top = c.iter().fold(f32::MIN, |m, v| m.max(*v));
-                e.iter_mut()
-                    .zip(c)
-                    .for_each(|(e, c)| *e = ((c - top) as f64).exp());
+                exp_shifted(&c[i * channels..(i + 1) * channels], &mut e);
             }
             let mixture: f64 = row.iter().zip(a).zip(&e).map(|((g, a), e)| g * a * e).sum();
             // g_k(x) > 0 was checked, so the mixture is > 0 unless a weight underflowed.

@@ -59,10 +59,9 @@ pub(super) fn combine(
     let mut split = false;
     let mut warnings = Vec::new();
     let (mut chi2_sum, mut chi2_evals) = (0.0, 0.0);
-    let (mut pareto_k, mut ess, mut estimate_evals) = (f64::NAN, 0.0, 0u64);
+    let mut estimate_evals = 0u64;
     // Every part's weights scaled by 1/n: each its point's share of the sum F.
     let mut tails = Vec::with_capacity(results.len());
-    let pooled_k = results.iter().all(|r| r.tail.is_some());
     let mut trials = 0.0;
     for (&(k, sign), r) in index.iter().zip(results) {
         let v = r.std_err * r.std_err;
@@ -90,14 +89,6 @@ pub(super) fn combine(
             chi2_sum += r.chi2_per_dof * evals as f64;
             chi2_evals += evals as f64;
         }
-        if r.pareto_k.is_finite() {
-            pareto_k = if pareto_k.is_nan() {
-                r.pareto_k
-            } else {
-                pareto_k.max(r.pareto_k)
-            };
-        }
-        ess += r.ess;
         if let Some(t) = &r.tail {
             tails.push((t, 1.0 / t.count().max(1) as f64));
         }
@@ -114,7 +105,7 @@ pub(super) fn combine(
                 Sign::Minus => format!("channel {k} (f < 0)"),
             };
             // The parts' k̂ is judged on their weights together, below.
-            let own_k = pooled_k.then(|| r.reliability().warning()).flatten();
+            let own_k = r.reliability().warning();
             warnings.extend(
                 r.warnings
                     .iter()
@@ -135,12 +126,9 @@ pub(super) fn combine(
         };
         report.signs = Some(signs);
     }
-    if pooled_k {
-        let pooled = WeightTail::pooled(&tails);
-        (pareto_k, ess) = (pooled.pareto_k, pooled.ess);
-        if let Some(w) = pooled.warning() {
-            warnings.push(format!("the channels' weights together: {w}"));
-        }
+    let pooled = WeightTail::pooled(&tails);
+    if let Some(w) = pooled.warning() {
+        warnings.push(format!("the channels' weights together: {w}"));
     }
     let abs_total: f64 = results.iter().map(|r| r.value.abs()).sum();
     IntegrationResult {
@@ -158,8 +146,8 @@ pub(super) fn combine(
         } else {
             0.0
         },
-        pareto_k,
-        ess,
+        pareto_k: pooled.pareto_k,
+        ess: pooled.ess,
         var_rel_err: f64::NAN,
         seconds: started.elapsed().as_secs_f64(),
         warnings,

@@ -86,16 +86,24 @@ fn mlp(dims: &[usize]) -> Mlp {
     }
 }
 
+/// e^{N_j − max N} of one point's corrections `n`, into `e`: the common factor e^{max N}
+/// cancels in α_k, and none of these overflows.
+pub(super) fn exp_shifted(n: &[f32], e: &mut [f64]) {
+    let top = n.iter().fold(f32::MIN, |m, v| m.max(*v)) as f64;
+    e.iter_mut()
+        .zip(n)
+        .for_each(|(e, n)| *e = (*n as f64 - top).exp());
+}
+
 /// The weights α_j(x) of one point (into `alpha`) from its a_j g_j(x) (`ag`) and corrections N_j
 /// (`n`; `None`: 0).
 fn alphas(ag: &[f64], n: Option<&[f32]>, alpha: &mut [f64]) {
-    let top = n.map_or(0.0, |n| n.iter().fold(f32::MIN, |m, v| m.max(*v)) as f64);
-    let mut total = 0.0;
-    for (j, a) in alpha.iter_mut().enumerate() {
-        let e = n.map_or(1.0, |n| (n[j] as f64 - top).exp());
-        *a = ag[j] * e;
-        total += *a;
+    match n {
+        Some(n) => exp_shifted(n, alpha),
+        None => alpha.fill(1.0),
     }
+    alpha.iter_mut().zip(ag).for_each(|(a, ag)| *a *= ag);
+    let total: f64 = alpha.iter().sum();
     alpha.iter_mut().for_each(|a| *a /= total);
 }
 
@@ -256,7 +264,8 @@ pub(super) fn fit(points: Vec<PartPoints>, dim: usize, k: usize, seed: u64) -> R
             .collect();
         sigmas(&held, Some(&n), k, None)
     };
-    let (mut best, mut best_params, mut since) = (base_total, None, 0);
+    // The best held-out Σσ, its parameters and σ_p, and the checks since it.
+    let (mut best, mut best_fit, mut since) = (base_total, None, 0);
     let mut grad = vec![0.0f32; params.len()];
     let mut one = vec![0.0f32; params.len()];
     for step in 1..=STEPS {
@@ -291,9 +300,10 @@ pub(super) fn fit(points: Vec<PartPoints>, dim: usize, k: usize, seed: u64) -> R
         }
         adam.step(&mut params, &grad)?;
         if step % CHECK_EVERY == 0 {
-            let total: f64 = held_sigmas(&params).iter().sum();
+            let sigmas = held_sigmas(&params);
+            let total: f64 = sigmas.iter().sum();
             if total < best {
-                (best, best_params, since) = (total, Some(params.clone()), 0);
+                (best, best_fit, since) = (total, Some((params.clone(), sigmas)), 0);
             } else {
                 since += 1;
                 if since >= PATIENCE {
@@ -302,10 +312,10 @@ pub(super) fn fit(points: Vec<PartPoints>, dim: usize, k: usize, seed: u64) -> R
             }
         }
     }
-    let kept = best_params.filter(|_| (base_total / best).powi(2) >= MIN_GAIN);
+    let kept = best_fit.filter(|_| (base_total / best).powi(2) >= MIN_GAIN);
     Ok(match kept {
-        Some(params) => Fit {
-            sigmas: held_sigmas(&params),
+        Some((params, sigmas)) => Fit {
+            sigmas,
             net: Some(WeightNet { dims, params }),
         },
         None => Fit {
