@@ -66,7 +66,8 @@ pub struct IntegrateArgs {
     /// How the flow's coupling layers split the dimensions: binary (the paper's masks, the
     /// default) or codes (fewer layers: a faster flow with a higher variance per evaluation, for
     /// cheap integrands; it misses modes more often, so check it against the side-by-side run;
-    /// docs/results/integration.md, "Flow masks: binary against codes").
+    /// docs/results/integration.md, "Flow masks: binary against codes"). Without it, a run to a
+    /// target switches to codes when its first batches show a smooth integrand; with it, never.
     #[arg(long, conflicts_with = "load")]
     pub masks: Option<Masks>,
     /// Evaluations per method (NIS training included). A target (--rel-err, --abs-err)

@@ -127,6 +127,38 @@ fn nis_stopped_at_a_target_is_unbiased_and_covers() {
 }
 
 #[test]
+fn a_smooth_integrand_switches_to_the_codes_and_a_peaked_one_does_not() {
+    use nis::flow::mask::Masks;
+    let masks_after = |name: &str, config: NisConfig| {
+        let f = integrands::by_name(name, Some(6)).unwrap();
+        let mut nis = NisIntegrator::new(6, config).unwrap();
+        let r = nis.integrate_to(&f, &Target::rel(1e-2)).unwrap();
+        assert_eq!(r.stop, Some(Stop::Target), "{name}: {r:?}");
+        nis.flow().config().masks
+    };
+    assert_eq!(masks_after("gauss", small_nis(1)), Masks::Codes);
+    assert_eq!(masks_after("peaks", small_nis(1)), Masks::Binary);
+    // Turned off, or a layout chosen by the keyword: the binary masks stay.
+    let off = NisConfig {
+        auto_masks: false,
+        ..small_nis(1)
+    };
+    assert_eq!(masks_after("gauss", off), Masks::Binary);
+    let named = nis::integrate::Settings::default()
+        .with_keywords(nis::integrate::Method::Nis, [("masks", "binary".into())])
+        .unwrap();
+    assert!(!named.nis.auto_masks);
+    // The switched runs stop at their targets unbiased, covering at the nominal rate.
+    let f = integrands::by_name("gauss", Some(6)).unwrap();
+    check_stopped("nis gauss d6 (codes)", f.exact, 60, 0.0, |seed| {
+        let mut nis = NisIntegrator::new(6, small_nis(seed)).unwrap();
+        let r = nis.integrate_to(&f, &Target::rel(5e-3)).unwrap();
+        assert_eq!(nis.flow().config().masks, Masks::Codes);
+        r
+    });
+}
+
+#[test]
 fn a_limit_ends_the_run_with_a_warning_and_its_reason() {
     let f = integrands::by_name("camel", Some(2)).unwrap();
     let mut mc = PlainMc::new(2, PlainMcConfig::default()).unwrap();

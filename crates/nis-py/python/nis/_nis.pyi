@@ -116,7 +116,9 @@ class Integrator:
     i.i.d., a dict sets ``beta``, ``min_per_cube``, ``max_cubes``), ``reuse_training`` (share
     of the training batches, the last ones, in the estimate; default 0.5, 0 the final phase
     alone; docs/ESTIMATE.md), ``replay_batches``, ``replay_steps`` (earlier batches replayed
-    off-policy in training). VEGAS+: ``increments``, ``alpha``, ``beta``, ``iterations``,
+    off-policy in training), ``auto_masks`` (to a precision target, an untrained flow of
+    binary masks switches to the codes' fewer layers when its first batches show a smooth
+    integrand; default True, and naming ``masks`` turns it off). VEGAS+: ``increments``, ``alpha``, ``beta``, ``iterations``,
     ``warmup``, ``min_per_cube``. Plain MC: ``iterations``. NIS and VEGAS+: ``train_on``
     (component index or "sum_abs").
 
@@ -175,6 +177,7 @@ class Integrator:
         reuse_training: Optional[float] = None,
         replay_batches: Optional[int] = None,
         replay_steps: Optional[int] = None,
+        auto_masks: Optional[bool] = None,
         increments: Optional[int] = None,
         alpha: Optional[float] = None,
         beta: Optional[float] = None,

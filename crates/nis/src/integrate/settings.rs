@@ -171,6 +171,11 @@ impl Settings {
             let (path, value) = keyword_path(method, name, value)?;
             placed.push((name, path, value));
         }
+        // A layout named by the keyword is kept: no run to a target switches it.
+        if placed.iter().any(|(name, _, _)| *name == "masks") {
+            let path = vec!["nis".to_string(), "auto_masks".to_string()];
+            placed.push(("masks", path, Value::Bool(false)));
+        }
         let patch_of = |placed: &[(&str, Vec<String>, Value)]| {
             let mut patch = Value::Object(Map::new());
             for (_, path, value) in placed {
@@ -472,6 +477,8 @@ mod tests {
         n.flow.transform = TransformKind::Linear { bins: 16 };
         n.flow.couplings = 3;
         n.flow.masks = Masks::Codes;
+        // A layout named is kept: no run to a target switches it.
+        n.auto_masks = false;
         n.flow.hidden_width = 16;
         n.adam.learning_rate = 0.001;
         n.loss = Loss::ChiSquare;

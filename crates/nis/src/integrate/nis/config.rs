@@ -77,6 +77,13 @@ pub struct NisConfig {
     /// Stratified sampling of the flow's latent in the final phase, with VEGAS+'s adaptive
     /// allocation of points to hypercubes (`None` or JSON `null`: i.i.d. latents).
     pub stratify: Option<Stratify>,
+    /// Integrating an untrained flow of binary masks to a precision target, NIS switches to the
+    /// codes' fewer coupling layers (`flow.masks`) when the tempered weights of its first batches
+    /// show a smooth integrand, on which the codes learn as well in less time; their batches
+    /// are spent, and training starts afresh (`integrate/nis/to_target.rs`). Peaked and
+    /// multi-modal integrands keep the binary masks, which miss modes less often. No effect on
+    /// budgets; the keyword `masks` turns it off.
+    pub auto_masks: bool,
 }
 
 /// Overlays the fields of the JSON object `given` on those of `base`; anything but two objects:
@@ -164,6 +171,7 @@ impl Default for NisConfig {
             seed: 0,
             train_on: TrainOn::default(),
             stratify: Some(Stratify::default()),
+            auto_masks: true,
         }
     }
 }
@@ -321,6 +329,11 @@ impl NisConfigBuilder {
         self.config.train_on = train_on;
         self
     }
+    /// Sets [`NisConfig::auto_masks`].
+    pub fn auto_masks(mut self, on: bool) -> Self {
+        self.config.auto_masks = on;
+        self
+    }
     /// Sets [`NisConfig::stratify`].
     pub fn stratify(mut self, stratify: Option<Stratify>) -> Self {
         self.config.stratify = stratify;
@@ -439,6 +452,7 @@ mod tests {
                 min_per_cube: 3,
                 max_cubes: 10,
             }))
+            .auto_masks(false)
             .build()
             .unwrap();
         let expected = NisConfig {
@@ -471,6 +485,7 @@ mod tests {
                 min_per_cube: 3,
                 max_cubes: 10,
             }),
+            auto_masks: false,
         };
         assert_eq!(c, expected);
         // Without `seed`, the flow keeps its own.

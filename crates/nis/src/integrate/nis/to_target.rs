@@ -10,6 +10,7 @@ use super::stratified_latent::{FinalPlan, LatentStrata};
 use super::training_length::{anneal_batches, TrainingLength, SETTLE_BATCHES};
 use super::{draw, weights, NisIntegrator};
 use crate::error::{Error, Result};
+use crate::flow::mask::{default_layers, Masks};
 use crate::flow::mixture::Record;
 use crate::flow::Density;
 use crate::integrate::moments::iid_iteration;
@@ -21,6 +22,33 @@ use crate::integrate::{check_dim, report, Accumulator, Integrand, IntegrationRes
 const HORIZON_BATCHES: usize = 1000;
 
 impl NisIntegrator {
+    /// Whether a run to a target probes for a smooth integrand to switch to the codes
+    /// ([`super::NisConfig::auto_masks`]): an untrained flow of binary masks, where the codes
+    /// have fewer layers.
+    fn probes_masks(&self) -> bool {
+        let flow = &self.config.flow;
+        let dim = self.flow().dim();
+        self.config.auto_masks
+            && self.trained_evals == 0
+            && flow.masks == Masks::Binary
+            && flow.couplings == 0
+            && default_layers(dim, Masks::Codes) < default_layers(dim, Masks::Binary)
+    }
+
+    /// Replaces the flow, untrained, by one with the codes' masks (the same settings and seed
+    /// otherwise), keeping the ranks, the progress display and the random streams.
+    fn switch_to_codes(&mut self) -> Result<()> {
+        let mut config = self.config.clone();
+        config.flow.masks = Masks::Codes;
+        let mut fresh = NisIntegrator::new(self.flow().dim(), config)?;
+        fresh.comm = self.comm.clone();
+        fresh.learner.set_comm(self.comm.clone());
+        fresh.progress = self.progress.take();
+        std::mem::swap(&mut fresh.streams, &mut self.streams);
+        *self = fresh;
+        Ok(())
+    }
+
     /// [`crate::integrate::Integrator::check_target`]: the least training the rule may stop at,
     /// within `train_fraction` of `max_evals`, and one final iteration must fit.
     pub(super) fn check_target_plan(&self, target: &Target) -> Result<()> {
@@ -94,9 +122,28 @@ impl NisIntegrator {
             max_batches.min(horizon),
             max_seconds,
         );
+        let probes = self.probes_masks();
+        if probes {
+            length.probe_smoothness();
+        }
         let before = self.trained_evals;
         self.train_keeping_for(f, max_batches.min(horizon), None, Some(&mut length))?;
-        let trained = self.trained_evals - before;
+        let mut trained = self.trained_evals - before;
+        if probes && length.found_smooth() {
+            // A smooth integrand: the codes' fewer layers learn it as well, in less time. The
+            // probe's batches are spent, not used; training starts afresh with the codes.
+            self.switch_to_codes()?;
+            let left = max_batches.saturating_sub(length.variances().len());
+            length = TrainingLength::new(
+                *target,
+                anneal,
+                beta_from,
+                left.min(horizon),
+                max_seconds - length.seconds(),
+            );
+            self.train_keeping_for(f, left.min(horizon), None, Some(&mut length))?;
+            trained += self.trained_evals;
+        }
         let (var_per_eval, estimate, seconds_per_eval) =
             length.latest().expect("at least one batch trained");
         let mut prior = Prior {

@@ -46,6 +46,14 @@ const PACE_WINDOW: usize = 10;
 /// it; on gauss d = 16 nearly every window does.
 const TRACKING_ESS: f64 = 0.8;
 
+/// Batches after which the rule looks for a smooth integrand ([`TrainingLength::probe_smoothness`]).
+const PROBE_BATCHES: usize = PACE_WINDOW;
+/// The median ESS fraction of the tempered weights over the first [`PROBE_BATCHES`] above which
+/// the integrand counts as smooth. Seed 1 at 10⁻³ (docs/results/integration.md, "Precision
+/// targets"): gauss d = 8 and 16, camel d = 4 and 8 above 0.7; camel d = 16 and every sharp or
+/// multi-peaked cell below 0.5.
+const SMOOTH_ESS: f64 = 0.6;
+
 /// The measurements of one training batch (over all ranks).
 #[derive(Clone, Copy, Debug)]
 pub(super) struct BatchReport {
@@ -79,6 +87,8 @@ pub(super) struct TrainingLength {
     max_batches: usize,
     /// Seconds of training after which it stops (a share of `max_seconds`).
     max_seconds: f64,
+    /// Whether to stop after [`PROBE_BATCHES`] batches when they show a smooth integrand.
+    probe: bool,
     log_var: Vec<f64>,
     estimates: Vec<f64>,
     seconds_per_eval: Vec<f64>,
@@ -107,12 +117,25 @@ impl TrainingLength {
             pace: (1.0, 0),
             max_batches,
             max_seconds,
+            probe: false,
             log_var: Vec::new(),
             estimates: Vec::new(),
             seconds_per_eval: Vec::new(),
             seconds: Vec::new(),
             ess: Vec::new(),
         }
+    }
+
+    /// Stops training after [`PROBE_BATCHES`] batches if their tempered weights' median ESS
+    /// fraction reaches [`SMOOTH_ESS`] (a smooth integrand, for which a cheaper flow is as good:
+    /// `to_target.rs`); else training goes on as without the probe.
+    pub(super) fn probe_smoothness(&mut self) {
+        self.probe = true;
+    }
+
+    /// Whether the probe stopped training: the integrand looked smooth.
+    pub(super) fn found_smooth(&self) -> bool {
+        self.probe && self.ess.len() == PROBE_BATCHES && median(&self.ess) >= SMOOTH_ESS
     }
 
     /// The tempered target's exponent β for the next batch.
@@ -161,7 +184,10 @@ impl TrainingLength {
         self.ess.push(b.tempered_ess);
         self.advance_beta();
         let n = self.log_var.len();
-        if n >= self.max_batches || self.seconds.iter().sum::<f64>() >= self.max_seconds {
+        if n >= self.max_batches
+            || self.seconds.iter().sum::<f64>() >= self.max_seconds
+            || self.found_smooth()
+        {
             return false;
         }
         let settled = self.annealed_at.is_some_and(|a| n >= a + SETTLE_BATCHES);
@@ -186,6 +212,11 @@ impl TrainingLength {
         let estimate_seconds = now.exp() / (wanted * wanted) * per_eval;
         let saved = estimate_seconds * (1.0 - (-fall * w as f64).exp());
         saved > per_batch * w as f64
+    }
+
+    /// The seconds of every batch so far.
+    pub(super) fn seconds(&self) -> f64 {
+        self.seconds.iter().sum()
     }
 
     /// The variance per evaluation of every batch so far, in order.
@@ -281,6 +312,22 @@ mod tests {
         assert_eq!((1..).find(|_| !rule.go_on(report(0.5))), Some(30));
         let mut rule = TrainingLength::new(Target::rel(1e-4), 50, 0.1, 1000, 0.0105);
         assert_eq!((1..).find(|_| !rule.go_on(report(0.5))), Some(11));
+    }
+
+    #[test]
+    fn the_probe_stops_training_only_for_a_smooth_integrand() {
+        let batches = |ess: f64| {
+            let mut rule = TrainingLength::new(Target::rel(1e-4), 50, 0.1, 5_000, f64::INFINITY);
+            rule.probe_smoothness();
+            let n = (1..).find(|_| !rule.go_on(report(ess))).unwrap();
+            (n, rule.found_smooth())
+        };
+        assert_eq!(batches(SMOOTH_ESS), (PROBE_BATCHES, true));
+        // Below the limit the probe changes nothing: the flat variance's 100 batches.
+        assert_eq!(batches(0.9 * SMOOTH_ESS), (100, false));
+        // Without the probe a smooth integrand trains on.
+        let mut rule = TrainingLength::new(Target::rel(1e-4), 50, 0.1, 5_000, f64::INFINITY);
+        assert!((1..=PROBE_BATCHES).all(|_| rule.go_on(report(0.9))));
     }
 
     #[test]
