@@ -111,6 +111,17 @@
 #define NIS_STOP_MAX_SECONDS 3
 
 /**
+ * The last result's estimate is the integrator's own.
+ */
+#define NIS_ANSWERED_BY_OWN 0
+
+/**
+ * NIS, integrating to a target, left the estimate to VEGAS+, which met the target first with no
+ * warning (the NIS setting `race_vegas`).
+ */
+#define NIS_ANSWERED_BY_VEGAS 1
+
+/**
  * An integrator (opaque): the method's adapted state, the callback settings and the last result.
  */
 typedef struct nis_integrator nis_integrator;
@@ -505,6 +516,15 @@ int nis_integrate_to(struct nis_integrator *integ,
  * `integ` must be a live integrator or NULL (then `NIS_STOP_NONE`).
  */
 int nis_result_stop(const struct nis_integrator *integ);
+
+/**
+ * Whose sampler made the last result's estimate: `NIS_ANSWERED_BY_VEGAS` when NIS, integrating
+ * to a target, left it to VEGAS+; `NIS_ANSWERED_BY_OWN` otherwise (and for NULL or no result).
+ *
+ * # Safety
+ * `integ` must be a live integrator or NULL.
+ */
+int nis_result_answered_by(const struct nis_integrator *integ);
 
 /**
  * Copies the last result's warnings (sentences that say what to do; none: an empty string),

@@ -17,6 +17,12 @@ pub const NIS_STOP_MAX_EVALS: c_int = 2;
 /// `max_seconds` ended the run first (a result warning says how far from the target it was).
 pub const NIS_STOP_MAX_SECONDS: c_int = 3;
 
+/// The last result's estimate is the integrator's own.
+pub const NIS_ANSWERED_BY_OWN: c_int = 0;
+/// NIS, integrating to a target, left the estimate to VEGAS+, which met the target first with no
+/// warning (the NIS setting `race_vegas`).
+pub const NIS_ANSWERED_BY_VEGAS: c_int = 1;
+
 /// Integrates `f` until the standard error is at most max(`abs_err`, `rel_err`·|value|) or a
 /// limit is reached, as Cuba's `epsrel`/`epsabs`/`maxeval`: 0 leaves `rel_err` or `abs_err` out
 /// (one of them must be given), `max_evals` 0 means 10⁸, `max_seconds` 0 no time limit.
@@ -91,6 +97,21 @@ pub(crate) fn stop_code(r: Option<&nis::integrate::IntegrationResult>) -> c_int 
 pub unsafe extern "C" fn nis_result_stop(integ: *const nis_integrator) -> c_int {
     // SAFETY: NULL or live (caller's contract).
     stop_code(unsafe { integ.as_ref() }.and_then(|i| i.last.as_ref()))
+}
+
+/// Whose sampler made the last result's estimate: `NIS_ANSWERED_BY_VEGAS` when NIS, integrating
+/// to a target, left it to VEGAS+; `NIS_ANSWERED_BY_OWN` otherwise (and for NULL or no result).
+///
+/// # Safety
+/// `integ` must be a live integrator or NULL.
+#[no_mangle]
+pub unsafe extern "C" fn nis_result_answered_by(integ: *const nis_integrator) -> c_int {
+    // SAFETY: NULL or live (caller's contract).
+    let last = unsafe { integ.as_ref() }.and_then(|i| i.last.as_ref());
+    match last.and_then(|r| r.answered_by) {
+        Some(nis::integrate::Method::Vegas) => NIS_ANSWERED_BY_VEGAS,
+        _ => NIS_ANSWERED_BY_OWN,
+    }
 }
 
 /// Copies the last result's warnings (sentences that say what to do; none: an empty string),

@@ -425,6 +425,10 @@ fn runs_to_a_target_match_the_library_and_say_why_they_stopped() {
         };
         assert_eq!(status, NIS_OK, "{method}: {}", last_error());
         assert_eq!(unsafe { nis_result_stop(integ) }, NIS_STOP_MAX_EVALS);
+        assert_eq!(
+            unsafe { nis_result_answered_by(integ) },
+            NIS_ANSWERED_BY_OWN
+        );
         let len = unsafe { nis_result_warnings(integ, std::ptr::null_mut(), 0) };
         let mut text = vec![0 as std::ffi::c_char; len + 1];
         unsafe { nis_result_warnings(integ, text.as_mut_ptr(), text.len()) };
@@ -450,6 +454,14 @@ fn runs_to_a_target_match_the_library_and_say_why_they_stopped() {
     assert_eq!(status, NIS_OK, "{}", last_error());
     assert!(c.std_err <= 1e-4);
     assert_eq!(unsafe { nis_result_stop(integ) }, NIS_STOP_TARGET);
+    // A smooth bump: NIS leaves it to VEGAS+ when that meets the target first, unwarned.
+    let by = unsafe { nis_result_answered_by(integ) };
+    let warned = unsafe { nis_result_warnings(integ, std::ptr::null_mut(), 0) } > 0;
+    assert!(by == NIS_ANSWERED_BY_OWN || (by == NIS_ANSWERED_BY_VEGAS && !warned));
+    assert_eq!(
+        unsafe { nis_result_answered_by(std::ptr::null()) },
+        NIS_ANSWERED_BY_OWN
+    );
     // Bad targets: NIS_ERR_INVALID before the callback is called, the last result kept.
     let calls = AtomicUsize::new(0);
     unsafe extern "C" fn counting(

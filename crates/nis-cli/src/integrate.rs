@@ -366,6 +366,13 @@ pub fn run(args: &IntegrateArgs, comm: &Comm) -> Result<(), Error> {
             if let Some(stop) = r.stop {
                 println!("{:<8} stopped by {}", "", stop.name());
             }
+            if let Some(by) = r.answered_by {
+                println!(
+                    "{:<8} estimated by {}: it met the target first",
+                    "",
+                    by.label()
+                );
+            }
             for line in channel_lines(&r) {
                 println!("{line}");
             }

@@ -126,6 +126,14 @@ impl PyIntegrationResult {
         self.r.stop.map(|s| s.name())
     }
 
+    /// The method whose sampler made the estimate when it is not the integrator's own: "vegas"
+    /// when NIS, integrating to a target, left it to VEGAS+, which met it first with no warning
+    /// (None otherwise).
+    #[getter]
+    fn answered_by(&self) -> Option<&'static str> {
+        self.r.answered_by.map(|m| m.name())
+    }
+
     /// What the user should know (e.g. a large χ²/dof).
     #[getter]
     fn warnings(&self) -> Vec<String> {

@@ -53,7 +53,7 @@ def test_every_setting_keyword_is_taken_by_some_method():
         average_span=0.2, uniform_fraction=0.01, anneal_from=0.5, final_iterations=4,
         stratify={"beta": 0.5}, reuse_training=0.25, replay_batches=2, replay_steps=1,
         increments=100, alpha=1.0, beta=0.5, iterations=6, warmup=2, min_per_cube=3,
-        train_on="sum_abs", auto_masks=False,
+        train_on="sum_abs", auto_masks=False, race_vegas=False,
     )
     # Settings valid only with another one.
     with_ = dict(warmup=dict(iterations=8), replay_steps=dict(replay_batches=2))

@@ -19,6 +19,18 @@ def test_every_method_stops_at_its_target(method):
     assert abs(r.mean - g.exact) < 5 * r.sdev
 
 
+def test_nis_leaves_a_cheap_smooth_integrand_to_vegas_when_it_wins_the_race():
+    g = nis.integrands.gauss(dim=4)
+    answered = [nis.Integrator(4, method="nis", seed=s)(g, rel_err=2e-3) for s in (1, 2, 3)]
+    for r in answered:
+        assert r.stop == "target" and abs(r.mean - g.exact) < 5 * r.sdev
+        assert r.answered_by in ("vegas", None)
+        assert r.answered_by is None or not r.warnings
+    assert any(r.answered_by == "vegas" for r in answered)
+    own = nis.Integrator(4, method="nis", seed=1, race_vegas=False)(g, rel_err=2e-3)
+    assert own.answered_by is None and own.stop == "target"
+
+
 def test_an_absolute_error_and_either_one_met():
     g = nis.integrands.gauss(dim=2)
     r = nis.Integrator(2, method="vegas", seed=1)(g, abs_err=1e-3)

@@ -17,6 +17,8 @@ module nis
   !> Why a run to a precision target stopped (nis_result_stop).
   integer(c_int), parameter, public :: NIS_STOP_NONE = 0, NIS_STOP_TARGET = 1, &
        NIS_STOP_MAX_EVALS = 2, NIS_STOP_MAX_SECONDS = 3
+  !> Whose sampler made the last estimate (nis_result_answered_by).
+  integer(c_int), parameter, public :: NIS_ANSWERED_BY_OWN = 0, NIS_ANSWERED_BY_VEGAS = 1
 
   !> A channel (nis_channel in nis.h): its sample and density callbacks (bind(c) functions with
   !> the interface nis_channel_fn below, as c_funloc), a user pointer and an a-priori weight
@@ -38,7 +40,7 @@ module nis
 
   public :: nis_integrand, nis_version, nis_create, nis_load, nis_free, nis_dim, nis_set_seed, &
        nis_integrate, nis_integrate_vector, nis_integrate_to, nis_result_stop, &
-       nis_result_warnings, nis_result_estimates, nis_sample, &
+       nis_result_answered_by, nis_result_warnings, nis_result_estimates, nis_sample, &
        nis_sample_weighted, nis_unweighted, nis_save, nis_last_error_copy, &
        nis_last_callback_status, nis_last_error, nis_channel_fn, nis_multichannel_create, &
        nis_multichannel_integrate, nis_multichannel_integrate_to, nis_multichannel_stop, &
@@ -131,6 +133,11 @@ module nis
        import :: c_int, c_ptr
        type(c_ptr), value :: integ
      end function nis_result_stop
+
+     integer(c_int) function nis_result_answered_by(integ) bind(c)
+       import :: c_int, c_ptr
+       type(c_ptr), value :: integ
+     end function nis_result_answered_by
 
      !> The last result's warnings, one per line (as nis_last_error_copy copies a message).
      integer(c_size_t) function nis_result_warnings(integ, buffer, capacity) bind(c)

@@ -66,6 +66,11 @@ class IntegrationResult:
         """Why a run to a precision target stopped: "target", "max_evals" or "max_seconds"
         (None for a run on a budget)."""
     @property
+    def answered_by(self) -> Optional[str]:
+        """The method whose sampler made the estimate when it is not the integrator's own:
+        "vegas" when NIS, integrating to a target, left it to VEGAS+, which met it first with
+        no warning (None otherwise)."""
+    @property
     def warnings(self) -> List[str]:
         """What the user should know (e.g. a large χ²/dof)."""
     @property
@@ -118,8 +123,10 @@ class Integrator:
     alone; docs/ESTIMATE.md), ``replay_batches``, ``replay_steps`` (earlier batches replayed
     off-policy in training), ``auto_masks`` (to a precision target, an untrained flow of
     binary masks switches to the codes' fewer layers when its first batches show a smooth
-    integrand; default True, and naming ``masks`` turns it off). VEGAS+: ``increments``, ``alpha``, ``beta``, ``iterations``,
-    ``warmup``, ``min_per_cube``. Plain MC: ``iterations``. NIS and VEGAS+: ``train_on``
+    integrand; default True, and naming ``masks`` turns it off), ``race_vegas`` (to a precision
+    target, an untrained flow races VEGAS+ after ten batches and leaves the answer to it when it
+    meets the target first with no warning, ``r.answered_by``; default True). VEGAS+:
+    ``increments``, ``alpha``, ``beta``, ``iterations``, ``warmup``, ``min_per_cube``. Plain MC: ``iterations``. NIS and VEGAS+: ``train_on``
     (component index or "sum_abs").
 
     Multi-channel integration: ``channels``, a non-empty list of ``Channel`` (mappings of the
@@ -178,6 +185,7 @@ class Integrator:
         replay_batches: Optional[int] = None,
         replay_steps: Optional[int] = None,
         auto_masks: Optional[bool] = None,
+        race_vegas: Optional[bool] = None,
         increments: Optional[int] = None,
         alpha: Optional[float] = None,
         beta: Optional[float] = None,

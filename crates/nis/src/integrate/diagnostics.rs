@@ -216,6 +216,11 @@ impl WeightTail {
         self.n
     }
 
+    /// The count, Σ|w| and Σw² of the weights seen (sums that add over ranks).
+    pub fn sums(&self) -> [f64; 3] {
+        [self.n as f64, self.sum_abs, self.sum_sq]
+    }
+
     /// An empty tail of the same capacity.
     pub fn emptied(&self) -> WeightTail {
         WeightTail::with_capacity(self.capacity)

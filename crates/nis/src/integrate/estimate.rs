@@ -73,6 +73,16 @@ impl Accumulator {
         self.tail.add(w);
     }
 
+    /// The divergence n/ESS − 1 of every rank's weights so far (`None` before any, or for
+    /// weights all zero): what [`Accumulator::finish`] will report if the weights to come look
+    /// alike, for a run that must decide before it ends (the same on every rank).
+    pub fn divergence_so_far(&self, comm: &Comm) -> Option<f64> {
+        let mut s = self.tail.sums();
+        comm.sum_f64(&mut s);
+        let [n, sum_abs, sum_sq] = s;
+        (sum_abs > 0.0).then(|| n * sum_sq / (sum_abs * sum_abs) - 1.0)
+    }
+
     /// Adds the weights another tail saw (this rank's, e.g. of training batches) to the
     /// reliability figures.
     pub fn observe_tail(&mut self, tail: &WeightTail) {
@@ -178,6 +188,7 @@ impl Accumulator {
             channels: None,
             stop: None,
             tail: Some(self.tail.clone()),
+            answered_by: None,
         }
     }
 

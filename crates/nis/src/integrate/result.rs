@@ -57,6 +57,11 @@ pub struct IntegrationResult {
     /// results by (a multi-channel integral's parts; not part of the JSON summary).
     #[serde(skip)]
     pub tail: Option<super::diagnostics::WeightTail>,
+    /// The method whose sampler made the estimate when it is not the integrator's own: NIS
+    /// integrating to a target leaves it to VEGAS+ when that gets there sooner with no warning
+    /// (`NisConfig::race_vegas`); `None` otherwise.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub answered_by: Option<super::Method>,
     /// Every component's estimate, for integrands with more than one component (`None` for
     /// scalar integrands, whose one component is `value` ± `std_err`; see
     /// [`IntegrationResult::estimates`] for a view that covers both).
@@ -172,6 +177,13 @@ impl std::fmt::Display for IntegrationResult {
             self.unweighting_efficiency,
             self.seconds
         )?;
+        if let Some(m) = self.answered_by {
+            write!(
+                f,
+                "\nestimated by {}: predicted to meet the target sooner",
+                m.label()
+            )?;
+        }
         if let Some(c) = &self.components {
             for (j, (m, e)) in c.mean.iter().zip(&c.std_err).enumerate() {
                 write!(f, "\ncomponent {j}: {m:.8e} ± {e:.3e}")?;

@@ -172,7 +172,8 @@ impl Settings {
             placed.push((name, path, value));
         }
         // A layout named by the keyword is kept: no run to a target switches it.
-        if placed.iter().any(|(name, _, _)| *name == "masks") {
+        let named = |n: &str| placed.iter().any(|(name, _, _)| *name == n);
+        if named("masks") && !named("auto_masks") {
             let path = vec!["nis".to_string(), "auto_masks".to_string()];
             placed.push(("masks", path, Value::Bool(false)));
         }

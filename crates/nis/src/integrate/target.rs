@@ -190,6 +190,19 @@ pub(crate) struct Prior {
     pub(crate) seconds_per_eval: f64,
 }
 
+impl Prior {
+    /// The evaluations the estimate is predicted to need for `target` (aiming at [`AIM`] of
+    /// it), at most `cap`; `cap` when the target error is zero.
+    pub(crate) fn evals_to(&self, target: &Target, cap: f64) -> f64 {
+        let wanted = target.error_for(self.estimate);
+        if wanted > 0.0 {
+            (self.var_per_eval / (AIM * wanted).powi(2)).min(cap)
+        } else {
+            cap
+        }
+    }
+}
+
 /// The iterations of one run to a target: plans each from those before it, fixes its share
 /// before it is drawn, and says when to stop (module docs).
 pub(crate) struct Pursuit {
@@ -256,6 +269,12 @@ impl Pursuit {
     pub(crate) fn estimate(&self) -> Option<f64> {
         (self.sum_evals > 0.0)
             .then(|| self.weighted / (1.0 - self.remaining).max(f64::MIN_POSITIVE))
+    }
+
+    /// The variance of [`Pursuit::estimate`] (`None` before the first iteration).
+    pub(crate) fn variance(&self) -> Option<f64> {
+        (self.sum_evals > 0.0)
+            .then(|| self.var / (1.0 - self.remaining).max(f64::MIN_POSITIVE).powi(2))
     }
 
     /// Wall-clock seconds since the start, the same on every rank of `comm` (their largest).

@@ -81,9 +81,18 @@ pub struct NisConfig {
     /// codes' fewer coupling layers (`flow.masks`) when the tempered weights of its first batches
     /// show a smooth integrand, on which the codes learn as well in less time; their batches
     /// are spent, and training starts afresh (`integrate/nis/to_target.rs`). Peaked and
-    /// multi-modal integrands keep the binary masks, which miss modes less often. No effect on
-    /// budgets; the keyword `masks` turns it off.
+    /// multi-modal integrands keep the binary masks, which miss modes less often. The probe's
+    /// batches count against `max_evals` and `max_seconds`. No effect on budgets, on a trained
+    /// flow, with `couplings` set or without annealing; the keyword `masks` turns it off
+    /// unless `auto_masks` is given too.
     pub auto_masks: bool,
+    /// Integrating an untrained flow to a precision target, NIS races VEGAS+: after a few
+    /// training batches VEGAS+ runs to the target while it is predicted to get there before
+    /// NIS's training would end, and its result is the answer when it meets the target with no
+    /// warning (`IntegrationResult::answered_by`; the flow then stays barely trained). Cheap,
+    /// nearly separable integrands then take VEGAS+'s time instead of a flow's training
+    /// (`integrate/nis/race.rs`). No effect on budgets or on a trained flow.
+    pub race_vegas: bool,
 }
 
 /// Overlays the fields of the JSON object `given` on those of `base`; anything but two objects:
@@ -172,6 +181,7 @@ impl Default for NisConfig {
             train_on: TrainOn::default(),
             stratify: Some(Stratify::default()),
             auto_masks: true,
+            race_vegas: true,
         }
     }
 }
@@ -339,6 +349,11 @@ impl NisConfigBuilder {
         self.config.stratify = stratify;
         self
     }
+    /// Sets [`NisConfig::race_vegas`].
+    pub fn race_vegas(mut self, on: bool) -> Self {
+        self.config.race_vegas = on;
+        self
+    }
     /// Seeds the run: the random streams ([`NisConfig::seed`]) and the flow's initialisation
     /// (its `seed`), whatever order the setters came in.
     pub fn seed(mut self, seed: u64) -> Self {
@@ -453,6 +468,7 @@ mod tests {
                 max_cubes: 10,
             }))
             .auto_masks(false)
+            .race_vegas(false)
             .build()
             .unwrap();
         let expected = NisConfig {
@@ -486,6 +502,7 @@ mod tests {
                 max_cubes: 10,
             }),
             auto_masks: false,
+            race_vegas: false,
         };
         assert_eq!(c, expected);
         // Without `seed`, the flow keeps its own.

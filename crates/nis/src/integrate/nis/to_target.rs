@@ -6,6 +6,7 @@
 
 use std::time::Instant;
 
+use super::race::Raced;
 use super::stratified_latent::{FinalPlan, LatentStrata};
 use super::training_length::{anneal_batches, TrainingLength, SETTLE_BATCHES};
 use super::{draw, weights, NisIntegrator};
@@ -24,12 +25,13 @@ const HORIZON_BATCHES: usize = 1000;
 impl NisIntegrator {
     /// Whether a run to a target probes for a smooth integrand to switch to the codes
     /// ([`super::NisConfig::auto_masks`]): an untrained flow of binary masks, where the codes
-    /// have fewer layers.
+    /// have fewer layers, annealed (the probe reads the tempered weights' ESS, 1 at β = 1).
     fn probes_masks(&self) -> bool {
         let flow = &self.config.flow;
         let dim = self.flow().dim();
         self.config.auto_masks
             && self.trained_evals == 0
+            && self.config.anneal_from < 1.0
             && flow.masks == Masks::Binary
             && flow.couplings == 0
             && default_layers(dim, Masks::Codes) < default_layers(dim, Masks::Binary)
@@ -122,28 +124,41 @@ impl NisIntegrator {
             max_batches.min(horizon),
             max_seconds,
         );
+        let races = self.races();
         let probes = self.probes_masks();
-        if probes {
-            length.probe_smoothness();
+        if races || probes {
+            length.pause_after_probe();
         }
-        let before = self.trained_evals;
+        let mut before = self.trained_evals;
         self.train_keeping_for(f, max_batches.min(horizon), None, Some(&mut length))?;
-        let mut trained = self.trained_evals - before;
-        if probes && length.found_smooth() {
-            // A smooth integrand: the codes' fewer layers learn it as well, in less time. The
-            // probe's batches are spent, not used; training starts afresh with the codes.
-            self.switch_to_codes()?;
-            let left = max_batches.saturating_sub(length.variances().len());
-            length = TrainingLength::new(
-                *target,
-                anneal,
-                beta_from,
-                left.min(horizon),
-                max_seconds - length.seconds(),
-            );
-            self.train_keeping_for(f, left.min(horizon), None, Some(&mut length))?;
-            trained += self.trained_evals;
+        // Evaluations spent and not used: VEGAS+'s when it loses the race, the probe's when the
+        // flow starts afresh.
+        let mut spent = 0;
+        if length.paused() {
+            if races {
+                let nis_evals = self.trained_evals - before;
+                match self.race(f, target, started, nis_evals, &length)? {
+                    Raced::Won(result) => return Ok(*result),
+                    Raced::Lost { evals } => spent += evals,
+                }
+            }
+            let room = target.max_evals.saturating_sub(spent);
+            let left = ((room as f64 * share) as u64 / batch) as usize;
+            let left = left.min(horizon).saturating_sub(length.batches());
+            let seconds_left = max_seconds - length.seconds();
+            if probes && length.smooth() && length.room_to_restart(left, seconds_left) {
+                // A smooth integrand: the codes' fewer layers learn it as well, in less time.
+                // The probe's batches are spent, not used; training starts afresh.
+                spent += self.trained_evals - before;
+                self.switch_to_codes()?;
+                before = self.trained_evals;
+                length = TrainingLength::new(*target, anneal, beta_from, left, seconds_left);
+            }
+            if left > 0 {
+                self.train_keeping_for(f, left, None, Some(&mut length))?;
+            }
         }
+        let trained = self.trained_evals - before + spent;
         let (var_per_eval, estimate, seconds_per_eval) =
             length.latest().expect("at least one batch trained");
         let mut prior = Prior {

@@ -91,7 +91,10 @@ impl NisIntegrator {
         let anneal = (self.trained_evals == 0 && steps > 1).then_some(steps as f64 / 2.0);
         let evals = (steps * batch) as u64;
         let mut replay = ReplayBuffer::new(self.config.replay_batches);
-        self.memory.clear();
+        // A training its rule paused and resumes keeps the points of the batches before.
+        if length.as_deref().is_none_or(|rule| rule.batches() == 0) {
+            self.memory.clear();
+        }
         let mut done = 0;
         for step in 0..steps {
             let beta = match (&length, anneal) {

@@ -46,7 +46,8 @@ const PACE_WINDOW: usize = 10;
 /// it; on gauss d = 16 nearly every window does.
 const TRACKING_ESS: f64 = 0.8;
 
-/// Batches after which the rule looks for a smooth integrand ([`TrainingLength::probe_smoothness`]).
+/// Batches after which training pauses when asked ([`TrainingLength::pause_after_probe`]):
+/// enough for a median time per batch and a median of the tempered weights' ESS.
 const PROBE_BATCHES: usize = PACE_WINDOW;
 /// The median ESS fraction of the tempered weights over the first [`PROBE_BATCHES`] above which
 /// the integrand counts as smooth. Seed 1 at 10⁻³ (docs/results/integration.md, "Precision
@@ -87,8 +88,8 @@ pub(super) struct TrainingLength {
     max_batches: usize,
     /// Seconds of training after which it stops (a share of `max_seconds`).
     max_seconds: f64,
-    /// Whether to stop after [`PROBE_BATCHES`] batches when they show a smooth integrand.
-    probe: bool,
+    /// Whether to stop once after [`PROBE_BATCHES`] batches.
+    pause: bool,
     log_var: Vec<f64>,
     estimates: Vec<f64>,
     seconds_per_eval: Vec<f64>,
@@ -117,7 +118,7 @@ impl TrainingLength {
             pace: (1.0, 0),
             max_batches,
             max_seconds,
-            probe: false,
+            pause: false,
             log_var: Vec::new(),
             estimates: Vec::new(),
             seconds_per_eval: Vec::new(),
@@ -126,16 +127,57 @@ impl TrainingLength {
         }
     }
 
-    /// Stops training after [`PROBE_BATCHES`] batches if their tempered weights' median ESS
-    /// fraction reaches [`SMOOTH_ESS`] (a smooth integrand, for which a cheaper flow is as good:
-    /// `to_target.rs`); else training goes on as without the probe.
-    pub(super) fn probe_smoothness(&mut self) {
-        self.probe = true;
+    /// Stops training once, after [`PROBE_BATCHES`] batches, so that the caller can race VEGAS+
+    /// with [`TrainingLength::slow_seconds_left`] known and look for a smooth integrand
+    /// ([`TrainingLength::smooth`]); the next batch goes on as if it had not stopped.
+    pub(super) fn pause_after_probe(&mut self) {
+        self.pause = true;
     }
 
-    /// Whether the probe stopped training: the integrand looked smooth.
-    pub(super) fn found_smooth(&self) -> bool {
-        self.probe && self.ess.len() == PROBE_BATCHES && median(&self.ess) >= SMOOTH_ESS
+    /// Whether training stopped after the probe's batches.
+    pub(super) fn paused(&self) -> bool {
+        self.pause && self.log_var.len() == PROBE_BATCHES
+    }
+
+    /// Whether the probe's batches show a smooth integrand: their tempered weights' median ESS
+    /// fraction reaches [`SMOOTH_ESS`], where a cheaper flow is as good (`to_target.rs`).
+    /// A batch whose weights are all zero (no point hit f) counts as far from smooth.
+    pub(super) fn smooth(&self) -> bool {
+        if self.ess.len() < PROBE_BATCHES {
+            return false;
+        }
+        let seen = self.log_var[..PROBE_BATCHES].iter().zip(&self.estimates);
+        let ess: Vec<f64> = seen
+            .zip(&self.ess)
+            .map(|((v, m), e)| {
+                if *m == 0.0 && *v == f64::NEG_INFINITY {
+                    0.0
+                } else {
+                    *e
+                }
+            })
+            .collect();
+        median(&ess) >= SMOOTH_ESS
+    }
+
+    /// Whether `batches` batches and `seconds` seconds leave room to train afresh: the annealing
+    /// and the settling at the slow pace, at the median time of the batches so far.
+    pub(super) fn room_to_restart(&self, batches: usize, seconds: f64) -> bool {
+        let need = self.anneal + SETTLE_BATCHES;
+        batches >= need && seconds >= need as f64 * median(&self.seconds)
+    }
+
+    /// The batches trained so far.
+    pub(super) fn batches(&self) -> usize {
+        self.log_var.len()
+    }
+
+    /// The seconds the annealing and the settling would still take at the slow pace
+    /// ([`anneal_batches`] + [`SETTLE_BATCHES`] in all) at the median time of the batches so far:
+    /// NIS's training at its slowest, without the estimate, the time a rival must beat.
+    pub(super) fn slow_seconds_left(&self) -> f64 {
+        let n = self.log_var.len();
+        (self.anneal + SETTLE_BATCHES).saturating_sub(n) as f64 * median(&self.seconds)
     }
 
     /// The tempered target's exponent β for the next batch.
@@ -184,10 +226,10 @@ impl TrainingLength {
         self.ess.push(b.tempered_ess);
         self.advance_beta();
         let n = self.log_var.len();
-        if n >= self.max_batches
-            || self.seconds.iter().sum::<f64>() >= self.max_seconds
-            || self.found_smooth()
-        {
+        if self.paused() {
+            return false;
+        }
+        if n >= self.max_batches || self.seconds.iter().sum::<f64>() >= self.max_seconds {
             return false;
         }
         let settled = self.annealed_at.is_some_and(|a| n >= a + SETTLE_BATCHES);
@@ -315,19 +357,38 @@ mod tests {
     }
 
     #[test]
-    fn the_probe_stops_training_only_for_a_smooth_integrand() {
-        let batches = |ess: f64| {
+    fn training_pauses_once_after_the_probe_and_says_what_it_saw() {
+        let probe = |ess: f64| {
             let mut rule = TrainingLength::new(Target::rel(1e-4), 50, 0.1, 5_000, f64::INFINITY);
-            rule.probe_smoothness();
+            rule.pause_after_probe();
             let n = (1..).find(|_| !rule.go_on(report(ess))).unwrap();
-            (n, rule.found_smooth())
+            assert!(rule.paused());
+            (n, rule.smooth(), rule)
         };
-        assert_eq!(batches(SMOOTH_ESS), (PROBE_BATCHES, true));
-        // Below the limit the probe changes nothing: the flat variance's 100 batches.
-        assert_eq!(batches(0.9 * SMOOTH_ESS), (100, false));
-        // Without the probe a smooth integrand trains on.
+        let (n, smooth, rule) = probe(SMOOTH_ESS);
+        assert_eq!((n, smooth), (PROBE_BATCHES, true));
+        // 100 batches of 1 ms each to train afresh.
+        assert!(rule.room_to_restart(100, 0.1) && !rule.room_to_restart(99, 1.0));
+        assert!(!rule.room_to_restart(100, 0.099));
+        // Batches that saw only zeros are not smooth, whatever their (trivial) ESS.
         let mut rule = TrainingLength::new(Target::rel(1e-4), 50, 0.1, 5_000, f64::INFINITY);
-        assert!((1..=PROBE_BATCHES).all(|_| rule.go_on(report(0.9))));
+        rule.pause_after_probe();
+        let zero = BatchReport {
+            var_per_eval: 0.0,
+            estimate: 0.0,
+            tempered_ess: 1.0,
+            ..report(1.0)
+        };
+        while rule.go_on(zero) {}
+        assert!(rule.paused() && !rule.smooth());
+        let (n, smooth, mut rule) = probe(0.9 * SMOOTH_ESS);
+        assert_eq!((n, smooth), (PROBE_BATCHES, false));
+        // 50 batches of annealing and 50 of settling at 1 ms each: 90 left after the 10th.
+        assert!((rule.slow_seconds_left() - 0.09).abs() < 1e-12);
+        // Going on, it trains as it would have without the pause (flat variance: 100 batches).
+        let more = (1..).find(|_| !rule.go_on(report(0.5))).unwrap();
+        assert!(!rule.paused());
+        assert_eq!(PROBE_BATCHES + more, 100);
     }
 
     #[test]

@@ -21,6 +21,8 @@ mod map;
 mod shares;
 mod to_target;
 
+pub(crate) use to_target::{Pursued, Race};
+
 use std::time::Instant;
 
 use rand::SeedableRng;
@@ -209,6 +211,11 @@ impl Vegas {
     /// Its settings.
     pub fn config(&self) -> &VegasConfig {
         &self.config
+    }
+
+    /// Takes back the progress display given by `set_progress`.
+    pub(crate) fn take_progress(&mut self) -> Option<Box<dyn Progress>> {
+        self.progress.take()
     }
 
     fn plan(&self, evals: u64) -> Plan {

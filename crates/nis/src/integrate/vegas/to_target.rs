@@ -8,7 +8,9 @@ use std::time::Instant;
 use super::adaptive_strata::Strata;
 use super::iteration::Measure;
 use super::Vegas;
+use crate::comm::Comm;
 use crate::error::Result;
+use crate::integrate::convergence::DIVERGENCE_LIMIT;
 use crate::integrate::target::{Prior, Pursuit, AIM};
 use crate::integrate::{check_dim, report, Accumulator, Integrand, IntegrationResult, Target};
 
@@ -24,21 +26,59 @@ impl Vegas {
         target.check("vegas+", ((plan.warmup + 1) * plan.per_iter) as u64)
     }
 
-    /// [`crate::integrate::Integrator::integrate_to`] for VEGAS+.
+    /// The evaluations of the warm-up a run to `target` starts with.
+    pub(crate) fn warm_up_evals(&self, target: &Target) -> u64 {
+        let plan = self.plan(NOMINAL_EVALS.min(target.max_evals));
+        (plan.warmup * plan.per_iter) as u64
+    }
+
+    /// [`crate::integrate::Integrator::integrate_to`] for VEGAS+: the warm-up of the nominal
+    /// budget's plan, then the pursuit.
     pub(super) fn run_to(
         &mut self,
         f: &dyn Integrand,
         target: &Target,
     ) -> Result<IntegrationResult> {
+        self.check_target_plan(target)?;
+        let warm = self.warm_up(f, target, NOMINAL_EVALS, Instant::now())?;
+        match self.pursue(f, target, warm, None)? {
+            Pursued::Done(result) => Ok(*result),
+            Pursued::GaveUp { .. } => unreachable!("a pursuit without a race does not give up"),
+        }
+    }
+
+    /// [`Vegas::run_to`] racing a rival (`integrate/nis/race.rs`): gives up as soon as, after
+    /// `race.least` seconds, its predicted time exceeds the rival's.
+    pub(crate) fn race_to(
+        &mut self,
+        f: &dyn Integrand,
+        target: &Target,
+        started: Instant,
+        others: u64,
+        race: Race,
+    ) -> Result<Pursued> {
+        let mut warm = self.warm_up(f, target, NOMINAL_EVALS, started)?;
+        warm.others = others;
+        self.pursue(f, target, warm, Some(race))
+    }
+
+    /// The warm-up of a `nominal` budget's plan: adapts the map and the strata and measures what
+    /// the pursuit starts from. `started`: when the run began (its time limit counts from then).
+    fn warm_up(
+        &mut self,
+        f: &dyn Integrand,
+        target: &Target,
+        nominal: u64,
+        started: Instant,
+    ) -> Result<Warm> {
+        let clock = Instant::now();
         let dim = self.dim;
         check_dim(f, dim)?;
         let k = f.components();
         let train_on = self.config.train_on;
         train_on.check(k)?;
-        self.check_target_plan(target)?;
-        let plan = self.plan(NOMINAL_EVALS.min(target.max_evals));
+        let plan = self.plan(nominal.min(target.max_evals));
         let per_iter = plan.per_iter;
-        let started = Instant::now();
         let (min_per_cube, alpha, beta) = (
             self.config.min_per_cube,
             self.config.alpha,
@@ -50,7 +90,7 @@ impl Vegas {
         let (rng, comm) = (&mut self.rng, &self.comm);
         let mut contribution_var = vec![0.0; strata.cubes];
         let mut n_eval = 0u64;
-        let mut prior = None;
+        let mut last = (0.0, 0.0);
         for _ in 0..plan.warmup {
             let measure = Measure {
                 f,
@@ -62,30 +102,66 @@ impl Vegas {
             let counts = strata.allocate(per_iter, min_per_cube);
             let measured = measure.iteration(map, strata, rng, &counts, &mut contribution_var)?;
             n_eval += measured.evals;
-            prior = Some((measured.variance * measured.evals as f64, measured.estimate));
+            last = (measured.variance * measured.evals as f64, measured.estimate);
             strata.adapt(&contribution_var, beta);
             map.adapt(alpha);
             report(&mut self.progress, n_eval, n_eval, "vegas: adapting");
         }
-        let mut pursuit = Pursuit::new(*target, started, n_eval).adapting();
-        let (var_per_eval, estimate) = prior.unwrap_or((0.0, 0.0));
-        let mut prior = Prior {
-            var_per_eval,
-            estimate,
-            seconds_per_eval: pursuit.elapsed(comm) / n_eval.max(1) as f64,
-        };
-        let wanted = target.error_for(estimate);
-        let predicted = if wanted > 0.0 {
-            (var_per_eval / (AIM * wanted).powi(2)).min(target.max_evals as f64)
-        } else {
-            target.max_evals as f64
-        };
+        let seconds = slowest(comm, clock);
+        Ok(Warm {
+            started,
+            others: 0,
+            n_eval,
+            seconds,
+            per_iter,
+            contribution_var,
+            prior: Prior {
+                var_per_eval: last.0,
+                estimate: last.1,
+                seconds_per_eval: seconds / n_eval.max(1) as f64,
+            },
+        })
+    }
+
+    /// Iterations planned by a [`Pursuit`] from where `warm` left the map and the strata, until
+    /// the target or a limit, or until `race` says give up.
+    fn pursue(
+        &mut self,
+        f: &dyn Integrand,
+        target: &Target,
+        warm: Warm,
+        race: Option<Race>,
+    ) -> Result<Pursued> {
+        let clock = Instant::now();
+        let dim = self.dim;
+        let k = f.components();
+        let train_on = self.config.train_on;
+        let (min_per_cube, alpha, beta) = (
+            self.config.min_per_cube,
+            self.config.alpha,
+            self.config.beta,
+        );
+        let Warm {
+            started,
+            others,
+            mut n_eval,
+            seconds: warm_seconds,
+            per_iter,
+            mut contribution_var,
+            mut prior,
+        } = warm;
+        let map = self.map.as_mut().expect("made by the warm-up");
+        let strata = self.strata.as_mut().expect("set by the warm-up");
+        let (rng, comm) = (&mut self.rng, &self.comm);
+        let mut pursuit = Pursuit::new(*target, started, n_eval + others).adapting();
+        let predicted = prior.evals_to(target, target.max_evals as f64);
         let mut acc = Accumulator::new(predicted as u64);
         let warm = n_eval;
         // Iterations grow at most ×2 each towards a tenth of the predicted need, the strata with
         // them: the map keeps adapting as they grow, and a warm-up's (too large) prediction
         // cannot make the first ones huge.
         let (mut chunk, mut strata_for) = (per_iter, per_iter);
+        let mut best = prior.var_per_eval;
         loop {
             let wanted = target.error_for(pursuit.estimate().unwrap_or(prior.estimate));
             if wanted > 0.0 {
@@ -102,6 +178,30 @@ impl Vegas {
             let Some(step) = pursuit.next(prior, least, chunk as u64, elapsed)? else {
                 break;
             };
+            if let Some(race) = race {
+                // Another iteration is needed: is VEGAS+ still predicted to win? Its seconds to
+                // the target: the evaluations that would bring the pooled variance down to the
+                // aim at the best variance per evaluation of the last two iterations (one just
+                // after new strata reads high). Every rank decides alike, on the slowest rank's
+                // time.
+                let own = warm_seconds + slowest(comm, clock);
+                let v = best.min(prior.var_per_eval);
+                let wanted = AIM * target.error_for(pursuit.estimate().unwrap_or(prior.estimate));
+                let pooled = pursuit.variance().unwrap_or(f64::INFINITY);
+                let left = v * (1.0 / (wanted * wanted) - 1.0 / pooled).max(0.0);
+                let left = left * prior.seconds_per_eval;
+                let next = step.evals as f64 * prior.seconds_per_eval;
+                // Its weights so far already far from the integrand's shape: its result would
+                // carry the divergence warning, and NIS would answer after all.
+                let far = own >= SURE_SHARE * (own + left)
+                    && acc
+                        .divergence_so_far(comm)
+                        .is_some_and(|d| d > FAR_DIVERGENCE * DIVERGENCE_LIMIT);
+                if far || (own + left > race.rival && own + next > race.least) {
+                    return Ok(Pursued::GaveUp { evals: n_eval });
+                }
+                best = prior.var_per_eval;
+            }
             let measure = Measure {
                 f,
                 comm,
@@ -114,7 +214,7 @@ impl Vegas {
             n_eval += measured.evals;
             // The map keeps improving: the latest iteration predicts the next best.
             prior.var_per_eval = measured.variance * measured.evals as f64;
-            prior.seconds_per_eval = pursuit.elapsed(comm) / n_eval as f64;
+            prior.seconds_per_eval = (warm_seconds + slowest(comm, clock)) / n_eval as f64;
             acc.observe(&measured.w_eff);
             let iteration = measured.iteration(comm);
             pursuit.record(step, &iteration);
@@ -129,8 +229,55 @@ impl Vegas {
             );
         }
         acc.reduce_tail(comm);
-        let mut result = acc.finish(Some(pursuit.shares()), n_eval, started);
+        let mut result = acc.finish(Some(pursuit.shares()), n_eval + others, started);
         pursuit.finish(&mut result);
-        Ok(result)
+        Ok(Pursued::Done(Box::new(result)))
     }
+}
+
+/// The share of its predicted time after which a racing VEGAS+ whose weights so far are far from
+/// the integrand's shape gives up, and how far, in units of the divergence warning's limit: on
+/// gauss d = 16 and camel d = 8 the running divergence n/ESS − 1 is 15–30 there and ends at 8–9
+/// (warned); on gauss d = 8 and camel d = 4 it is below 3 from a few per cent of the run on.
+const SURE_SHARE: f64 = 0.1;
+const FAR_DIVERGENCE: f64 = 2.0;
+
+/// When a racing VEGAS+ gives up ([`Vegas::race_to`]).
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct Race {
+    /// Seconds it runs in any case.
+    pub(crate) least: f64,
+    /// Seconds the rival is predicted to take; after `least`, VEGAS+ gives up when its own time
+    /// so far plus its predicted time to the target exceeds them.
+    pub(crate) rival: f64,
+}
+
+/// How a pursuit ended.
+pub(crate) enum Pursued {
+    Done(Box<IntegrationResult>),
+    /// Given up in a race, after `evals` evaluations of its own.
+    GaveUp {
+        evals: u64,
+    },
+}
+
+/// What a VEGAS+ warm-up leaves for the pursuit.
+struct Warm {
+    started: Instant,
+    /// Evaluations spent on the run by others before it (NIS's first batches when VEGAS+ races
+    /// it): counted in the result and against `max_evals`.
+    others: u64,
+    n_eval: u64,
+    /// Seconds the warm-up took (the slowest rank's).
+    seconds: f64,
+    per_iter: usize,
+    contribution_var: Vec<f64>,
+    prior: Prior,
+}
+
+/// The seconds since `clock`, as the slowest rank saw them (every rank decides alike).
+fn slowest(comm: &Comm, clock: Instant) -> f64 {
+    let mut t = [clock.elapsed().as_secs_f64()];
+    comm.max_f64(&mut t);
+    t[0]
 }
