@@ -366,6 +366,31 @@ fn targets_and_channels_run_alike_on_every_rank() {
                 );
             }
         }
+        // NIS to a target on a smooth integrand in d = 6: the race with VEGAS+ (on by default)
+        // and, without it, the switch to the codes and the training after it decide alike on
+        // every rank.
+        for config in ["{}", r#"{"race_vegas": false}"#] {
+            let args = [
+                "integrate",
+                "gauss",
+                "--dim",
+                "6",
+                "--json",
+                "--seed",
+                "3",
+                "--method",
+                "nis",
+                "--rel-err",
+                "1e-2",
+                "--nis-config",
+                config,
+            ];
+            let a = run_json(ranks, &args);
+            assert_eq!(a["stop"], "target", "{config}, {ranks} ranks: {a}");
+            assert!(pull(&a).abs() < 5.0, "{config}, {ranks} ranks: {a}");
+            let sums = a["rank_checksums"].as_array().unwrap();
+            assert!(sums.iter().all(|s| s == &sums[0]), "{config}: {sums:?}");
+        }
         // Through channels, split by sign where the pilot sees both, and NIS with one flow
         // shared by the channels (its training reduces counts and gradients over the ranks),
         // with a flow per channel, and with learned channel weights (every rank fits the same
