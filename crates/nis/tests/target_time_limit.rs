@@ -1,7 +1,8 @@
 //! A time limit ends a run to a precision target with a warning and its reason. Alone in its
-//! test binary: the check on the time it took must not share the cores with other tests.
+//! test binary: the checks on the time taken must not share the cores with other tests.
 
 use nis::integrands;
+use nis::integrate::nis::{NisConfig, NisIntegrator};
 use nis::integrate::vegas::{Vegas, VegasConfig};
 use nis::integrate::{Integrator, Stop, Target};
 
@@ -24,4 +25,22 @@ fn a_time_limit_ends_the_run_with_a_warning_and_its_reason() {
         "{:?}",
         r.warnings
     );
+}
+
+#[test]
+fn nis_keeps_to_a_time_limit_far_below_its_target() {
+    // 10⁻⁴ on camel d = 8 needs seconds; 0.05 s leaves a flow barely trained, whose predicted
+    // need (10⁸ evaluations, the limit) must not size a final phase the time cannot pay for
+    // (it took 7–9 s before the plan was capped by the time left).
+    let f = integrands::by_name("camel", Some(8)).unwrap();
+    let config = NisConfig {
+        race_vegas: false,
+        ..NisConfig::default()
+    };
+    let mut nis = NisIntegrator::new(8, config).unwrap();
+    let r = nis
+        .integrate_to(&f, &Target::rel(1e-4).max_seconds(0.05))
+        .unwrap();
+    assert_eq!(r.stop, Some(Stop::MaxSeconds));
+    assert!(r.seconds < 1.0, "{}", r.seconds);
 }

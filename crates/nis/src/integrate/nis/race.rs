@@ -9,9 +9,10 @@
 //! that at NIS's seconds per point (a costly integrand); else it runs [`LEAST_SHARE`] of it in
 //! any case and goes on while its time so far plus its prediction from the latest iteration
 //! stays below [`ESTIMATE_TOO`] times it, and while its weights are not already far from f's
-//! shape (`vegas/to_target.rs`). When it meets the target with no warning, or a limit ends the
-//! run, its result is the answer (`IntegrationResult::answered_by`); when it gives up, or its
-//! result warns, NIS trains on as without the race, VEGAS+'s evaluations counted but not used.
+//! shape (`vegas/to_target.rs`), within half of `max_evals` and `max_seconds`. When it meets the
+//! target with no warning, its result is the answer (`IntegrationResult::answered_by`); when it
+//! gives up, its result warns or half a limit stops it, NIS trains on as without the race,
+//! VEGAS+'s evaluations counted but not used.
 //! Either way one sampler's iterations, each with its share fixed before it is drawn, make the
 //! estimate (docs/ESTIMATE.md, "Precision targets").
 
@@ -74,12 +75,18 @@ impl NisIntegrator {
         if vegas.warm_up_evals(target) as f64 * per_point > LEAST_SHARE * rival {
             return Ok(Raced::Lost { evals: 0 });
         }
-        // VEGAS+'s warm-up and first iteration must leave NIS half of `max_evals`.
+        // VEGAS+ may spend half of the limits (NIS's first batches included), so that NIS has
+        // the other half when VEGAS+ does not meet the target in its.
         let half = Target {
-            max_evals: (target.max_evals / 2).saturating_sub(nis_evals),
+            max_evals: target.max_evals / 2,
+            max_seconds: target.max_seconds.map(|s| s / 2.0),
             ..*target
         };
-        if vegas.check_target(&half).is_err() {
+        let own = Target {
+            max_evals: half.max_evals.saturating_sub(nis_evals),
+            ..half
+        };
+        if vegas.check_target(&own).is_err() {
             return Ok(Raced::Lost { evals: 0 });
         }
         vegas.set_comm(self.comm.clone());
@@ -88,10 +95,10 @@ impl NisIntegrator {
             least: LEAST_SHARE * rival,
             rival: ESTIMATE_TOO * rival,
         };
-        let pursued = vegas.race_to(f, target, started, nis_evals, race);
+        let pursued = vegas.race_to(f, &half, started, nis_evals, race);
         self.progress = vegas.take_progress();
         Ok(match pursued? {
-            Pursued::Done(mut r) if r.warnings.is_empty() || r.stop != Some(Stop::Target) => {
+            Pursued::Done(mut r) if r.warnings.is_empty() && r.stop == Some(Stop::Target) => {
                 r.answered_by = Some(Method::Vegas);
                 Raced::Won(r)
             }

@@ -166,9 +166,18 @@ impl NisIntegrator {
             estimate,
             seconds_per_eval,
         };
-        // The final phase's layout (its latent grid) for the size the training predicts.
+        // The final phase's layout (its latent grid) for the size the training predicts, within
+        // the evaluations and the seconds left (its least iteration is half a planned one, so
+        // a plan the time cannot pay for would overrun max_seconds by that much).
         let wanted = target.error_for(estimate);
-        let room = target.max_evals.saturating_sub(trained) as f64;
+        let mut room = target.max_evals.saturating_sub(trained) as f64;
+        if let Some(limit) = target.max_seconds {
+            let mut elapsed = [started.elapsed().as_secs_f64()];
+            self.comm.max_f64(&mut elapsed);
+            let affordable =
+                (limit - elapsed[0]).max(0.0) / seconds_per_eval.max(f64::MIN_POSITIVE);
+            room = room.min(affordable);
+        }
         let predicted = if wanted > 0.0 {
             (var_per_eval / (AIM * wanted).powi(2)).min(room)
         } else {
