@@ -181,8 +181,8 @@ fn vegas_answers_a_race_it_wins_and_nis_one_it_loses() {
         }
         r
     });
-    // How many VEGAS+ answers depends on measured times (58 of 60 alone, 16 with the other
-    // tests of this file running beside it): the race must only have been won.
+    // How many VEGAS+ answers depends on measured times (50 or more of 60 alone, 16 with the
+    // other tests of this file running beside it): the race must only have been won.
     assert!(by_vegas.load(Ordering::Relaxed) >= 1, "{by_vegas:?}");
     // camel d = 6, two peaks on the diagonal: VEGAS+'s separable map puts mass on the corners
     // their product makes, its weights stay far from the integrand's shape, and NIS answers.
