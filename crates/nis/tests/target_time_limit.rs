@@ -29,18 +29,22 @@ fn a_time_limit_ends_the_run_with_a_warning_and_its_reason() {
 
 #[test]
 fn nis_keeps_to_a_time_limit_far_below_its_target() {
-    // 10⁻⁴ on camel d = 8 needs seconds; 0.05 s leaves a flow barely trained, whose predicted
+    // 10⁻⁴ on camel d = 8 needs seconds; 0.5 s leaves a flow barely trained, whose predicted
     // need (10⁸ evaluations, the limit) must not size a final phase the time cannot pay for
-    // (it took 7–9 s before the plan was capped by the time left).
+    // (with 0.05 s it took 7–9 s before the plan was capped by the time left).
     let f = integrands::by_name("camel", Some(8)).unwrap();
     let config = NisConfig {
         race_vegas: false,
         ..NisConfig::default()
     };
     let mut nis = NisIntegrator::new(8, config).unwrap();
-    let r = nis
-        .integrate_to(&f, &Target::rel(1e-4).max_seconds(0.05))
-        .unwrap();
-    assert_eq!(r.stop, Some(Stop::MaxSeconds));
-    assert!(r.seconds < 1.0, "{}", r.seconds);
+    match nis.integrate_to(&f, &Target::rel(1e-4).max_seconds(0.5)) {
+        Ok(r) => {
+            assert_eq!(r.stop, Some(Stop::MaxSeconds));
+            assert!(r.seconds < 5.0, "{}", r.seconds);
+        }
+        // A stalled machine can make one batch of the flow look slower than the share of the
+        // limit training may take: refused before any evaluation, which keeps to it too.
+        Err(e) => assert!(e.to_string().contains("less than one batch"), "{e}"),
+    }
 }
