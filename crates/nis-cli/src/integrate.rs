@@ -368,7 +368,7 @@ pub fn run(args: &IntegrateArgs, comm: &Comm) -> Result<(), Error> {
             }
             if let Some(by) = r.answered_by {
                 println!(
-                    "{:<8} estimated by {}: it met the target first",
+                    "{:<8} estimated by {}: it met the target first, with no warning",
                     "",
                     by.label()
                 );

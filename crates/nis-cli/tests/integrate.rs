@@ -17,6 +17,17 @@ fn nis(args: &[&str]) -> std::process::Output {
         .unwrap()
 }
 
+/// The JSON `nis` prints for `args`, which must succeed.
+fn json_of(args: &[&str]) -> serde_json::Value {
+    let out = nis(args);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    serde_json::from_slice(&out.stdout).unwrap()
+}
+
 #[test]
 fn json_without_a_method_holds_every_method_and_the_warnings() {
     let out = nis(&[
@@ -344,25 +355,13 @@ fn channels_run_on_the_multi_channel_examples_only() {
         "100000",
         "--json",
     ];
-    let out = nis(&[&args[..], &["--channels", "--flow-per-channel"]].concat());
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
-    let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    let v = json_of(&[&args[..], &["--channels", "--flow-per-channel"]].concat());
     assert_eq!(v["channels"]["means"].as_array().unwrap().len(), 2);
     let out = nis(&[&args[..], &["--flow-per-channel"]].concat());
     assert!(!out.status.success());
     assert!(String::from_utf8_lossy(&out.stderr).contains("--channels or --signs"));
     // Learned channel weights; the flag needs channels.
-    let out = nis(&[&args[..], &["--channels", "--weight-network"]].concat());
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
-    let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    let v = json_of(&[&args[..], &["--channels", "--weight-network"]].concat());
     let pull = (v["value"].as_f64().unwrap() - v["exact"].as_f64().unwrap())
         / v["std_err"].as_f64().unwrap();
     assert!(pull.abs() < 5.0, "{v}");

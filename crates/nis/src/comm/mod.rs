@@ -144,6 +144,14 @@ impl Comm {
         v[0]
     }
 
+    /// The largest of one number over the ranks (e.g. the slowest rank's seconds, on which every
+    /// rank then decides alike).
+    pub fn max(&self, value: f64) -> f64 {
+        let mut v = [value];
+        self.max_f64(&mut v);
+        v[0]
+    }
+
     /// Whether `flag` holds on any rank.
     pub fn any(&self, flag: bool) -> bool {
         let mut v = [if flag { 1.0 } else { 0.0 }];

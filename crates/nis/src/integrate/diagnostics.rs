@@ -39,6 +39,28 @@ pub fn tail_len(n: u64) -> usize {
     (0.2 * n).min(3.0 * n.sqrt()).ceil() as usize
 }
 
+/// PSIS's k̂ of `n` weights from their largest values `top` (any order; at least the M + 1
+/// largest): the M largest above the (M+1)-th, NaN with too few.
+fn k_hat(mut top: Vec<f64>, n: u64) -> f64 {
+    top.sort_by(f64::total_cmp);
+    let m = tail_len(n).min(top.len().saturating_sub(1));
+    if n < 25 || m < MIN_TAIL {
+        return f64::NAN;
+    }
+    let tail = &top[top.len() - m - 1..];
+    let x: Vec<f64> = tail[1..].iter().map(|v| v - tail[0]).collect();
+    gpd_shape(&x).unwrap_or(f64::NAN)
+}
+
+/// The effective sample size (Σ|w|)²/Σw² of weights with these sums (0 for all zero).
+fn ess(sum_abs: f64, sum_sq: f64) -> f64 {
+    if sum_sq > 0.0 {
+        sum_abs * sum_abs / sum_sq
+    } else {
+        0.0
+    }
+}
+
 /// The shape k̂ of a generalized Pareto distribution fitted to exceedances `x` (non-negative,
 /// sorted ascending, not all zero) by Zhang and Stephens' (2009) empirical-Bayes estimator, with
 /// the weakly informative prior PSIS puts on it (10 pseudo-observations at k = 1/2).
@@ -285,29 +307,16 @@ impl WeightTail {
             .filter(|(t, _)| t.heap.len() >= t.capacity)
             .filter_map(|(t, s)| t.heap.peek().map(|Reverse(b)| f64::from_bits(*b) * s))
             .fold(0.0f64, f64::max);
-        let mut top: Vec<f64> = tails
+        let top: Vec<f64> = tails
             .iter()
             .flat_map(|(t, s)| t.heap.iter().map(move |Reverse(b)| f64::from_bits(*b) * s))
             .filter(|v| *v >= known)
             .collect();
-        top.sort_by(f64::total_cmp);
-        let m = tail_len(n).min(top.len().saturating_sub(1));
-        let pareto_k = if n >= 25 && m >= MIN_TAIL {
-            let tail = &top[top.len() - m - 1..];
-            let x: Vec<f64> = tail[1..].iter().map(|v| v - tail[0]).collect();
-            gpd_shape(&x).unwrap_or(f64::NAN)
-        } else {
-            f64::NAN
-        };
         let sum_abs: f64 = tails.iter().map(|(t, s)| t.sum_abs * s).sum();
         let sum_sq: f64 = tails.iter().map(|(t, s)| t.sum_sq * s * s).sum();
         Reliability {
-            pareto_k,
-            ess: if sum_sq > 0.0 {
-                sum_abs * sum_abs / sum_sq
-            } else {
-                0.0
-            },
+            pareto_k: k_hat(top, n),
+            ess: ess(sum_abs, sum_sq),
             var_rel_err: f64::NAN,
         }
     }
@@ -317,26 +326,13 @@ impl WeightTail {
         let n = self.n;
         let nf = n as f64;
         // The PSIS tail of the weights seen: the M largest above the (M+1)-th.
-        let mut top: Vec<f64> = self
+        let top: Vec<f64> = self
             .heap
             .iter()
             .map(|Reverse(b)| f64::from_bits(*b))
             .collect();
-        top.sort_by(f64::total_cmp);
-        let m = tail_len(n).min(top.len().saturating_sub(1));
-        let pareto_k = if n >= 25 && m >= MIN_TAIL {
-            let tail = &top[top.len() - m - 1..];
-            let cutoff = tail[0];
-            let x: Vec<f64> = tail[1..].iter().map(|v| v - cutoff).collect();
-            gpd_shape(&x).unwrap_or(f64::NAN)
-        } else {
-            f64::NAN
-        };
-        let ess = if self.sum_sq > 0.0 {
-            self.sum_abs * self.sum_abs / self.sum_sq
-        } else {
-            0.0
-        };
+        let pareto_k = k_hat(top, n);
+        let ess = ess(self.sum_abs, self.sum_sq);
         let var_rel_err = if n >= 4 && self.m2 > 0.0 {
             // s² = M₂/(n−1); the fourth central moment m₄ = M₄/n, the second σ² ≈ M₂/n.
             let s2 = self.m2 / nf;

@@ -180,7 +180,7 @@ impl std::fmt::Display for IntegrationResult {
         if let Some(m) = self.answered_by {
             write!(
                 f,
-                "\nestimated by {}: predicted to meet the target sooner",
+                "\nestimated by {}: it met the target first, with no warning",
                 m.label()
             )?;
         }

@@ -279,9 +279,7 @@ impl Pursuit {
 
     /// Wall-clock seconds since the start, the same on every rank of `comm` (their largest).
     pub(crate) fn elapsed(&self, comm: &Comm) -> f64 {
-        let mut t = [self.started.elapsed().as_secs_f64()];
-        comm.max_f64(&mut t);
-        t[0]
+        comm.max(self.started.elapsed().as_secs_f64())
     }
 
     /// Evaluations still allowed, and seconds (∞ without a time limit), at `elapsed`.

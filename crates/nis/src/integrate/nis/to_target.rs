@@ -15,7 +15,7 @@ use crate::flow::mask::{default_layers, Masks};
 use crate::flow::mixture::Record;
 use crate::flow::Density;
 use crate::integrate::moments::iid_iteration;
-use crate::integrate::target::{Prior, Pursuit, AIM};
+use crate::integrate::target::{Prior, Pursuit};
 use crate::integrate::{check_dim, report, Accumulator, Integrand, IntegrationResult, Target};
 
 /// Training batches at most when integrating to a target (or twice the annealing's and the
@@ -96,9 +96,7 @@ impl NisIntegrator {
                 Record::Nothing,
             )?;
             // Every rank decides alike: on the slowest rank's time.
-            let mut one = [t.elapsed().as_secs_f64()];
-            self.comm.max_f64(&mut one);
-            let one = one[0];
+            let one = self.comm.max(t.elapsed().as_secs_f64());
             if seconds * share < one {
                 return Err(Error::Config(format!(
                     "precision target: max_seconds = {seconds} leaves {:.2e} s to train, less \
@@ -169,20 +167,12 @@ impl NisIntegrator {
         // The final phase's layout (its latent grid) for the size the training predicts, within
         // the evaluations and the seconds left (its least iteration is half a planned one, so
         // a plan the time cannot pay for would overrun max_seconds by that much).
-        let wanted = target.error_for(estimate);
         let mut room = target.max_evals.saturating_sub(trained) as f64;
         if let Some(limit) = target.max_seconds {
-            let mut elapsed = [started.elapsed().as_secs_f64()];
-            self.comm.max_f64(&mut elapsed);
-            let affordable =
-                (limit - elapsed[0]).max(0.0) / seconds_per_eval.max(f64::MIN_POSITIVE);
-            room = room.min(affordable);
+            let elapsed = self.comm.max(started.elapsed().as_secs_f64());
+            room = room.min((limit - elapsed).max(0.0) / seconds_per_eval.max(f64::MIN_POSITIVE));
         }
-        let predicted = if wanted > 0.0 {
-            (var_per_eval / (AIM * wanted).powi(2)).min(room)
-        } else {
-            room
-        };
+        let predicted = prior.evals_to(target, room);
         let plan = FinalPlan::new(&self.config, dim, (predicted as u64).max(least_final));
         let chunk = plan.evals / iters;
         let least = plan.least.max(chunk / 2);
@@ -216,9 +206,7 @@ impl NisIntegrator {
                     })?
                 }
             };
-            let mut spent = [t.elapsed().as_secs_f64()];
-            self.comm.max_f64(&mut spent);
-            seconds += spent[0];
+            seconds += self.comm.max(t.elapsed().as_secs_f64());
             done += iteration.evals;
             prior.seconds_per_eval = seconds / done as f64;
             pursuit.record(step, &iteration);

@@ -146,14 +146,13 @@ impl TrainingLength {
         if self.ess.len() < PROBE_BATCHES {
             return false;
         }
-        let seen = self.log_var[..PROBE_BATCHES].iter().zip(&self.estimates);
-        let ess: Vec<f64> = seen
-            .zip(&self.ess)
-            .map(|((v, m), e)| {
-                if *m == 0.0 && *v == f64::NEG_INFINITY {
+        let ess: Vec<f64> = (0..PROBE_BATCHES)
+            .map(|i| {
+                let zero = self.estimates[i] == 0.0 && self.log_var[i] == f64::NEG_INFINITY;
+                if zero {
                     0.0
                 } else {
-                    *e
+                    self.ess[i]
                 }
             })
             .collect();
@@ -164,7 +163,7 @@ impl TrainingLength {
     /// and the settling at the slow pace, at the median time of the batches so far.
     pub(super) fn room_to_restart(&self, batches: usize, seconds: f64) -> bool {
         let need = self.anneal + SETTLE_BATCHES;
-        batches >= need && seconds >= need as f64 * median(&self.seconds)
+        batches >= need && seconds >= self.slow_seconds(need)
     }
 
     /// The batches trained so far.
@@ -176,8 +175,12 @@ impl TrainingLength {
     /// ([`anneal_batches`] + [`SETTLE_BATCHES`] in all) at the median time of the batches so far:
     /// NIS's training at its slowest, without the estimate, the time a rival must beat.
     pub(super) fn slow_seconds_left(&self) -> f64 {
-        let n = self.log_var.len();
-        (self.anneal + SETTLE_BATCHES).saturating_sub(n) as f64 * median(&self.seconds)
+        self.slow_seconds((self.anneal + SETTLE_BATCHES).saturating_sub(self.batches()))
+    }
+
+    /// `batches` batches at the median time of the batches so far.
+    fn slow_seconds(&self, batches: usize) -> f64 {
+        batches as f64 * median(&self.seconds)
     }
 
     /// The tempered target's exponent β for the next batch.
@@ -229,7 +232,7 @@ impl TrainingLength {
         if self.paused() {
             return false;
         }
-        if n >= self.max_batches || self.seconds.iter().sum::<f64>() >= self.max_seconds {
+        if n >= self.max_batches || self.seconds() >= self.max_seconds {
             return false;
         }
         let settled = self.annealed_at.is_some_and(|a| n >= a + SETTLE_BATCHES);

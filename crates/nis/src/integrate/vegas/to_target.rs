@@ -40,7 +40,7 @@ impl Vegas {
         target: &Target,
     ) -> Result<IntegrationResult> {
         self.check_target_plan(target)?;
-        let warm = self.warm_up(f, target, NOMINAL_EVALS, Instant::now())?;
+        let warm = self.warm_up(f, target, Instant::now())?;
         match self.pursue(f, target, warm, None)? {
             Pursued::Done(result) => Ok(*result),
             Pursued::GaveUp { .. } => unreachable!("a pursuit without a race does not give up"),
@@ -57,27 +57,21 @@ impl Vegas {
         others: u64,
         race: Race,
     ) -> Result<Pursued> {
-        let mut warm = self.warm_up(f, target, NOMINAL_EVALS, started)?;
+        let mut warm = self.warm_up(f, target, started)?;
         warm.others = others;
         self.pursue(f, target, warm, Some(race))
     }
 
-    /// The warm-up of a `nominal` budget's plan: adapts the map and the strata and measures what
+    /// The warm-up of the nominal budget's plan: adapts the map and the strata and measures what
     /// the pursuit starts from. `started`: when the run began (its time limit counts from then).
-    fn warm_up(
-        &mut self,
-        f: &dyn Integrand,
-        target: &Target,
-        nominal: u64,
-        started: Instant,
-    ) -> Result<Warm> {
+    fn warm_up(&mut self, f: &dyn Integrand, target: &Target, started: Instant) -> Result<Warm> {
         let clock = Instant::now();
         let dim = self.dim;
         check_dim(f, dim)?;
         let k = f.components();
         let train_on = self.config.train_on;
         train_on.check(k)?;
-        let plan = self.plan(nominal.min(target.max_evals));
+        let plan = self.plan(NOMINAL_EVALS.min(target.max_evals));
         let per_iter = plan.per_iter;
         let (min_per_cube, alpha, beta) = (
             self.config.min_per_cube,
@@ -277,7 +271,5 @@ struct Warm {
 
 /// The seconds since `clock`, as the slowest rank saw them (every rank decides alike).
 fn slowest(comm: &Comm, clock: Instant) -> f64 {
-    let mut t = [clock.elapsed().as_secs_f64()];
-    comm.max_f64(&mut t);
-    t[0]
+    comm.max(clock.elapsed().as_secs_f64())
 }
