@@ -20,13 +20,19 @@ def test_every_method_stops_at_its_target(method):
 
 
 def test_nis_leaves_a_cheap_smooth_integrand_to_vegas_when_it_wins_the_race():
+    # Who wins depends on measured times (under load NIS may win every race): seeds run until
+    # VEGAS+ has answered once; every answer stops at the target, VEGAS+'s unwarned.
     g = nis.integrands.gauss(dim=4)
-    answered = [nis.Integrator(4, method="nis", seed=s)(g, rel_err=2e-3) for s in (1, 2, 3)]
-    for r in answered:
+    answered = []
+    for seed in range(1, 21):
+        r = nis.Integrator(4, method="nis", seed=seed)(g, rel_err=2e-3)
         assert r.stop == "target" and abs(r.mean - g.exact) < 5 * r.sdev
         assert r.answered_by in ("vegas", None)
         assert r.answered_by is None or not r.warnings
-    assert any(r.answered_by == "vegas" for r in answered)
+        answered.append(r.answered_by)
+        if r.answered_by == "vegas":
+            break
+    assert "vegas" in answered, answered
     own = nis.Integrator(4, method="nis", seed=1, race_vegas=False)(g, rel_err=2e-3)
     assert own.answered_by is None and own.stop == "target"
 
