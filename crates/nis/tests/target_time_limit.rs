@@ -48,3 +48,30 @@ fn nis_keeps_to_a_time_limit_far_below_its_target() {
         Err(e) => assert!(e.to_string().contains("less than one batch"), "{e}"),
     }
 }
+
+#[test]
+fn channels_keep_to_a_time_limit_from_the_adaptation_on() {
+    // At 20 µs a point the parts' adaptation (100,000 evaluations each by default) alone takes
+    // seconds; the probe of its cost caps it to the limit's share.
+    use nis::channels::{examples, ChannelSet};
+    use nis::integrate::multichannel::{MultiChannel, MultiChannelConfig};
+    use nis::integrate::{Method, Settings};
+    let ex = examples::by_name("resonances-4d").unwrap();
+    let slow = |x: &[f64]| {
+        std::thread::sleep(std::time::Duration::from_micros(20));
+        ex.integrand.value(x)
+    };
+    for method in [Method::Nis, Method::Uniform] {
+        let set = ChannelSet::new(examples::by_name("resonances-4d").unwrap().channels).unwrap();
+        let config = MultiChannelConfig::default();
+        let mut mc = MultiChannel::new(set, method, Settings::default(), config).unwrap();
+        match mc.integrate_to(&slow, &Target::rel(1e-5).max_seconds(1.0)) {
+            Ok(r) => {
+                assert_eq!(r.stop, Some(Stop::MaxSeconds), "{method:?}");
+                assert!(r.seconds < 4.0, "{method:?}: {}", r.seconds);
+            }
+            // A stalled machine can make the least adaptation look slower than the limit.
+            Err(e) => assert!(e.to_string().contains("cannot pay"), "{e}"),
+        }
+    }
+}

@@ -271,11 +271,17 @@ fn a_limit_ends_a_multi_channel_run_with_a_warning() {
         .unwrap();
     assert_eq!(r.stop, Some(crate::integrate::Stop::MaxEvals));
     assert!(r.n_eval <= 200_000, "{}", r.n_eval);
-    // A time limit shorter than the adaptation: one iteration of the estimate still runs, so
-    // the answer is an estimate with its error bar, stopped by max_seconds with the warning.
+    // A time limit shorter than the least adaptation and estimate is refused (the cap of a
+    // longer one on the adaptation: tests/target_time_limit.rs); one far from the target ends
+    // with an estimate and its error bar, stopped by max_seconds, warned.
     let mut mc = to_target("resonances-4d", Method::Uniform, 2, 5_000);
+    let e = mc
+        .integrate_to(&ex.integrand, &Target::rel(1e-6).max_seconds(1e-4))
+        .unwrap_err();
+    assert!(e.to_string().contains("cannot pay"), "{e}");
+    let mut mc = to_target("resonances-4d", Method::Uniform, 2, 100_000);
     let r = mc
-        .integrate_to(&ex.integrand, &Target::rel(1e-6).max_seconds(1e-3))
+        .integrate_to(&ex.integrand, &Target::rel(1e-6).max_seconds(0.1))
         .unwrap();
     assert_eq!(r.stop, Some(crate::integrate::Stop::MaxSeconds));
     assert!(

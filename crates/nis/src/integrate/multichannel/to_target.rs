@@ -1,6 +1,7 @@
 //! Multi-channel integration to a precision target ([`MultiChannel::integrate_to`]): every part
-//! adapts on [`MultiChannelConfig::target_adapt`] evaluations, the a-priori weights move, and
-//! then iterations planned by a [`Pursuit`] make the estimate. Each iteration spreads its
+//! adapts on [`MultiChannelConfig::target_adapt`] evaluations (fewer when a time limit, at the
+//! cost per evaluation a throwaway sampler measures first, cannot pay for them), the a-priori
+//! weights move, and then iterations planned by a [`Pursuit`] make the estimate. Each iteration spreads its
 //! evaluations over the parts in proportion to their σ (fixed from the adaptation, as in
 //! [`MultiChannel::integrate`]) and its share of the estimate is fixed before it is drawn, so the
 //! stopped estimate stays unbiased (docs/ESTIMATE.md, "Precision targets"). Each part's
@@ -8,15 +9,22 @@
 
 use std::time::Instant;
 
+use rand::{Rng, SeedableRng};
+use rand_pcg::Pcg64Mcg;
+
 use super::part::{PartIntegrand, Weighting};
 use super::{estimate_part, MultiChannel, MIN_PART_EVALS};
-use crate::error::Result;
+use crate::error::{Error, Result};
 use crate::integrate::estimate::chi2_per_dof;
+use crate::integrate::nis::NisIntegrator;
 use crate::integrate::target::{Prior, Pursuit, AIM};
-use crate::integrate::{Integrand, IntegrationResult, Iteration, Method, Source, Target};
+use crate::integrate::{evaluate, Integrand, IntegrationResult, Iteration, Method, Source, Target};
 
 /// The estimate's iterations a plan aims at (later ones grow at most ×2 each).
 const RESULT_ITERATIONS: f64 = 10.0;
+
+/// Salt of the cost probe's throwaway sampler and points ("cost").
+const PROBE_SALT: u64 = 0x636f_7374;
 
 /// One part's estimates of the iterations so far.
 #[derive(Clone, Default)]
@@ -70,7 +78,23 @@ impl MultiChannel {
         let parts = self.parts.len() as u64;
         // Adapt: at most adapt_fraction of max_evals, shared equally.
         let cap = (target.max_evals as f64 * self.config.adapt_fraction) as u64 / parts;
-        let adapt = self.config.target_adapt.min(cap).max(MIN_PART_EVALS);
+        let mut adapt = self.config.target_adapt.min(cap).max(MIN_PART_EVALS);
+        if let Some(limit) = target.max_seconds {
+            // The adaptation takes at most adapt_fraction of the time, as of the evaluations.
+            let (per_eval, probed) = self.adapt_cost(f)?;
+            spent += probed;
+            let elapsed = self.comm.max(started.elapsed().as_secs_f64());
+            let least = (2 * parts * MIN_PART_EVALS) as f64 * per_eval;
+            if elapsed + least > limit {
+                return Err(Error::Config(format!(
+                    "precision target: max_seconds = {limit} cannot pay for the least \
+                     adaptation and estimate of {parts} parts ({least:.2e} s at the \
+                     {per_eval:.2e} s per evaluation measured)"
+                )));
+            }
+            let afford = (limit * self.config.adapt_fraction - elapsed) / (parts as f64 * per_eval);
+            adapt = adapt.min(afford.max(0.0) as u64).max(MIN_PART_EVALS);
+        }
         let (measured, adapted, sd) = self.adapt_parts(f, adapt)?;
         spent += adapted;
         let total_sd: f64 = sd.iter().sum();
@@ -142,6 +166,47 @@ impl MultiChannel {
         result.iterations = combined;
         pursuit.finish(&mut result);
         Ok(result)
+    }
+}
+
+impl MultiChannel {
+    /// Seconds per evaluation of the parts' adaptation, on the slowest rank, and the evaluations
+    /// spent measuring it: one training batch of a fresh flow on the first part (NIS), or the
+    /// first part at a batch of uniform points (the other methods, whose adaptation costs about
+    /// the integrand's and the channels' time). The sampler is thrown away.
+    fn adapt_cost(&self, f: &dyn Integrand) -> Result<(f64, u64)> {
+        let p = &self.parts[0];
+        let w = Weighting {
+            set: &self.set,
+            a: &self.weights,
+            net: None,
+        };
+        let h = PartIntegrand::new(f, w, p.channel, p.sign);
+        let dim = self.dim();
+        let batch = self.settings.nis.batch as u64;
+        let seed = self.settings.seed_of(self.method) ^ PROBE_SALT;
+        // Two rounds, the second timed: the first pays for starting the threads.
+        let mut seconds = 0.0;
+        if self.method == Method::Nis {
+            let config = self.settings.clone().seed(seed).nis;
+            let mut nis = NisIntegrator::new(dim, config)?;
+            nis.set_comm(self.comm.clone());
+            for _ in 0..2 {
+                let t = Instant::now();
+                nis.train(&h, batch)?;
+                seconds = t.elapsed().as_secs_f64();
+            }
+        } else {
+            let mut rng = Pcg64Mcg::seed_from_u64(self.comm.stream_seed(seed));
+            let mine = self.comm.share(batch) as usize;
+            for _ in 0..2 {
+                let u: Vec<f64> = (0..mine * dim).map(|_| rng.random::<f64>()).collect();
+                let t = Instant::now();
+                self.comm.check(evaluate(&h, &u, dim))?;
+                seconds = t.elapsed().as_secs_f64();
+            }
+        }
+        Ok((self.comm.max(seconds) / batch as f64, 2 * batch))
     }
 }
 
