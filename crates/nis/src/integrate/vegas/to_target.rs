@@ -153,14 +153,18 @@ impl Vegas {
         let warm = n_eval;
         // Iterations grow at most ×2 each towards a tenth of the predicted need, the strata with
         // them: the map keeps adapting as they grow, and a warm-up's (too large) prediction
-        // cannot make the first ones huge.
+        // cannot make the first ones huge. While the map still improves fast they grow by √2
+        // only: it adapts once per iteration, so more of them sooner make it better sooner.
         let (mut chunk, mut strata_for) = (per_iter, per_iter);
         let mut best = prior.var_per_eval;
+        let (mut lowest, mut improving) = (prior.var_per_eval, true);
         loop {
             let wanted = target.error_for(pursuit.estimate().unwrap_or(prior.estimate));
             if wanted > 0.0 {
                 let need = prior.var_per_eval / (AIM * wanted).powi(2) / RESULT_ITERATIONS;
-                chunk = (need as usize).clamp(per_iter, 2 * chunk);
+                let growth = if improving { SLOW_GROWTH } else { 2.0 };
+                let most = (chunk as f64 * growth) as usize;
+                chunk = (need as usize).clamp(per_iter, most.max(per_iter));
             }
             if chunk > 2 * strata_for {
                 *strata = Strata::plan(dim, chunk, min_per_cube);
@@ -208,6 +212,8 @@ impl Vegas {
             n_eval += measured.evals;
             // The map keeps improving: the latest iteration predicts the next best.
             prior.var_per_eval = measured.variance * measured.evals as f64;
+            improving = prior.var_per_eval < IMPROVING * lowest;
+            lowest = lowest.min(prior.var_per_eval);
             prior.seconds_per_eval = (warm_seconds + slowest(comm, clock)) / n_eval as f64;
             acc.observe(&measured.w_eff);
             let iteration = measured.iteration(comm);
@@ -228,6 +234,14 @@ impl Vegas {
         Ok(Pursued::Done(Box::new(result)))
     }
 }
+
+/// The map still improves fast when an iteration's variance per evaluation is below this
+/// fraction of the lowest before it; the iterations then grow by [`SLOW_GROWTH`] instead of 2.
+/// Holding the size instead (growth 1) was faster still, but its maps, adapted on many small
+/// iterations, gave heavier-tailed weights and false k̂ warnings (docs/results/integration.md,
+/// "Precision targets").
+const IMPROVING: f64 = 0.8;
+const SLOW_GROWTH: f64 = std::f64::consts::SQRT_2;
 
 /// The share of its predicted time after which a racing VEGAS+ whose weights so far are far from
 /// the integrand's shape gives up, and how far, in units of the divergence warning's limit: on
