@@ -420,5 +420,26 @@ fn targets_and_channels_run_alike_on_every_rank() {
             assert!(pull(&a).abs() < 5.0, "{name}, {ranks} ranks: {a}");
             assert_eq!(a, run_json(ranks, &args), "{name}, {ranks} ranks, two runs");
         }
+        // Through channels to a target with a time limit: every rank sizes the adaptation
+        // from the slowest rank's measured cost (a rank deciding otherwise would hang the run).
+        for method in ["nis", "uniform"] {
+            let args = [
+                "integrate",
+                "dalitz",
+                "--channels",
+                "--json",
+                "--seed",
+                "3",
+                "--method",
+                method,
+                "--rel-err",
+                "1e-2",
+                "--seconds",
+                "60",
+            ];
+            let a = run_json(ranks, &args);
+            assert_eq!(a["stop"], "target", "{method}, {ranks} ranks: {a}");
+            assert!(pull(&a).abs() < 5.0, "{method}, {ranks} ranks: {a}");
+        }
     }
 }
