@@ -55,7 +55,11 @@ pub(crate) fn run_multichannel(
     };
     let settings = args.settings()?;
     let mut mc = if args.channels {
-        MultiChannel::new(channel_set(&f.name)?, method, settings, config)?
+        let mut set = channel_set(&f.name)?;
+        if args.no_enhancement {
+            set = set.without_enhancements();
+        }
+        MultiChannel::new(set, method, settings, config)?
     } else {
         MultiChannel::single(f.dim, method, settings, config)?
     };

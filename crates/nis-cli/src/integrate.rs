@@ -98,6 +98,11 @@ pub struct IntegrateArgs {
     /// (MadNIS's), kept only when it lowers the variance on held-out points.
     #[arg(long)]
     pub weight_network: bool,
+    /// With --channels: weight the channels by their densities alone, α_k ∝ a_k g_k (the classic
+    /// weights), instead of by the propagators the examples' channels carry as enhancements
+    /// (single-diagram enhancement; docs/guide/02-integrate.md, "Channels")
+    #[arg(long)]
+    pub no_enhancement: bool,
     /// With a target: the most evaluations per method, training included [default: 10^8].
     #[arg(long, conflicts_with = "load")]
     pub max_evals: Option<u64>,
@@ -239,6 +244,9 @@ pub fn run_method(
     }
     if args.weight_network && !args.channels {
         return Err("--weight-network needs --channels".into());
+    }
+    if args.no_enhancement && !args.channels {
+        return Err("--no-enhancement needs --channels".into());
     }
     if args.multichannel() {
         let r = run_multichannel(f, method, args, comm)?;

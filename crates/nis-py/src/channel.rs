@@ -41,6 +41,7 @@ enum Source {
     Python {
         sample: Py<PyAny>,
         density: Py<PyAny>,
+        enhancement: Option<Py<PyAny>>,
     },
     /// A channel of the library (a built-in example's).
     Builtin(Arc<dyn Channel>),
@@ -55,7 +56,10 @@ enum Source {
 /// ≥ 0, and > 0 where the channel can put a point). Both are called on whole batches, with the
 /// GIL held only then; an exception they raise propagates unchanged, and wrong shapes, points
 /// outside the cube and NaN or negative densities raise ValueError naming the channel's index
-/// and the point. `dim`, if given, is checked against the integrator's.
+/// and the point. `dim`, if given, is checked against the integrator's. `enhancement`, if
+/// given, takes an (n, d) array x and returns w(x) ≥ 0, shape (n,), large where the channel's
+/// peak is (its diagram's |M|², its propagator): the channel weights then become
+/// α_k = a_k w_k/Σ_j a_j w_j (single-diagram enhancement) instead of a_k g_k/Σ_j a_j g_j.
 ///
 ///     ramp = nis.Channel(lambda u: np.sqrt(u), lambda x: 2.0 * x[:, 0], prior=2.0)
 ///     flat = nis.Channel(lambda u: u, lambda x: np.ones(len(x)))
@@ -89,11 +93,16 @@ impl PyChannel {
             }
         }
         Ok(match &self.source {
-            Source::Python { sample, density } => Box::new(CallbackChannel {
+            Source::Python {
+                sample,
+                density,
+                enhancement,
+            } => Box::new(CallbackChannel {
                 index,
                 dim,
                 sample: sample.clone_ref(py),
                 density: density.clone_ref(py),
+                enhancement: enhancement.as_ref().map(|e| e.clone_ref(py)),
                 raised: raised.clone(),
             }),
             Source::Builtin(c) => Box::new(Shared(c.clone())),
@@ -148,14 +157,18 @@ impl PyChannel {
 #[pymethods]
 impl PyChannel {
     #[new]
-    #[pyo3(signature = (sample, density, prior = 1.0, *, dim = None))]
+    #[pyo3(signature = (sample, density, prior = 1.0, *, dim = None, enhancement = None))]
     fn new(
         sample: &Bound<'_, PyAny>,
         density: &Bound<'_, PyAny>,
         prior: f64,
         dim: Option<i64>,
+        enhancement: Option<&Bound<'_, PyAny>>,
     ) -> PyResult<PyChannel> {
-        for (what, f) in [("sample", sample), ("density", density)] {
+        let callbacks = [("sample", sample), ("density", density)]
+            .into_iter()
+            .chain(enhancement.map(|e| ("enhancement", e)));
+        for (what, f) in callbacks {
             if !f.is_callable() {
                 return Err(PyValueError::new_err(format!(
                     "a channel's {what} must be callable, got {}",
@@ -176,6 +189,7 @@ impl PyChannel {
             source: Source::Python {
                 sample: sample.clone().unbind(),
                 density: density.clone().unbind(),
+                enhancement: enhancement.map(|e| e.clone().unbind()),
             },
             prior,
             dim,
@@ -247,7 +261,12 @@ impl PyChannel {
                 self.dim.map_or("None".into(), |d| d.to_string()),
                 self.prior
             ),
-            (None, Source::Python { sample, density }) => Python::attach(|py| {
+            (
+                None,
+                Source::Python {
+                    sample, density, ..
+                },
+            ) => Python::attach(|py| {
                 let name = |f: &Py<PyAny>| {
                     f.bind(py)
                         .getattr("__name__")
@@ -279,6 +298,12 @@ impl Channel for Shared {
     fn density(&self, x: &[f64], g: &mut [f64]) -> nis::Result<()> {
         self.0.density(x, g)
     }
+    fn has_enhancement(&self) -> bool {
+        self.0.has_enhancement()
+    }
+    fn enhancement(&self, x: &[f64], w: &mut [f64]) -> nis::Result<()> {
+        self.0.enhancement(x, w)
+    }
 }
 
 /// A channel from Python callbacks, as a library channel (index `index` of its set).
@@ -287,6 +312,7 @@ struct CallbackChannel {
     dim: usize,
     sample: Py<PyAny>,
     density: Py<PyAny>,
+    enhancement: Option<Py<PyAny>>,
     raised: Arc<Raised>,
 }
 
@@ -363,6 +389,17 @@ impl Channel for CallbackChannel {
     fn density(&self, x: &[f64], g: &mut [f64]) -> nis::Result<()> {
         let n = x.len() / self.dim;
         self.call(&self.density, "density", x, &[n], g)
+    }
+
+    fn has_enhancement(&self) -> bool {
+        self.enhancement.is_some()
+    }
+
+    fn enhancement(&self, x: &[f64], w: &mut [f64]) -> nis::Result<()> {
+        match &self.enhancement {
+            Some(e) => self.call(e, "enhancement", x, &[x.len() / self.dim], w),
+            None => self.density(x, w),
+        }
     }
 }
 

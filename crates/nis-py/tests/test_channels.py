@@ -76,6 +76,28 @@ def test_two_cauchy_peaks_are_unbiased_with_every_method(method, evals):
         assert abs(r.channel_means[k] - c * mass(m) ** 2) < 0.02 * EXACT
 
 
+@pytest.mark.parametrize("method", ["nis", "uniform"])
+def test_enhancements_keep_the_integral_and_a_bad_one_is_named(method):
+    # Each channel's enhancement is its peak's propagator: α_k ∝ a_k L_k(x₀)L_k(x₁).
+    def enhanced(m):
+        c = tan_channel(m)
+        return nis.Channel(
+            c.sample, c.density, enhancement=lambda x: lorentz(x[:, 0], m) * lorentz(x[:, 1], m)
+        )
+
+    r = nis.Integrator(2, method, channels=[enhanced(m) for m, _ in PEAKS], seed=3)(
+        two_peaks, evals=100_000
+    )
+    assert within(r, EXACT), (r.mean, r.sdev, EXACT)
+    bad = nis.Channel(
+        lambda u: u, lambda x: np.ones(len(x)), enhancement=lambda x: -np.ones(len(x))
+    )
+    with pytest.raises(ValueError, match="channel 1.*enhancement"):
+        nis.Integrator(2, method, channels=[tan_channel(0.3), bad])(two_peaks, evals=10_000)
+    with pytest.raises(ValueError, match="enhancement must be callable"):
+        nis.Channel(lambda u: u, lambda x: np.ones(len(x)), enhancement=1.0)
+
+
 def test_multi_channel_beats_uniform_sampling_by_far():
     evals = 200_000
     multi = nis.Integrator(2, "uniform", channels=channels(), seed=2)(two_peaks, evals=evals)

@@ -54,47 +54,88 @@ impl Default for Options {
 /// A contender on a multi-channel example.
 #[derive(Clone, Copy)]
 enum Row {
-    /// A method through the channels, weights adapted unless `fixed`.
-    Channels { method: Method, fixed: bool },
+    /// A method through the channels, weights adapted unless `fixed`; `densities`: the channel
+    /// weights made of the densities, not of the channels' enhancements.
+    Channels {
+        method: Method,
+        fixed: bool,
+        densities: bool,
+    },
     /// NIS through the channels with one flow conditioned on the channel.
-    Shared,
+    Shared { densities: bool },
     /// A method on the integrand alone.
     Plain(Method),
 }
 
 impl Row {
     fn label(self, k: usize) -> String {
+        let by = |densities: bool| if densities { ", α ∝ a_k g_k" } else { "" };
         match self {
-            Row::Channels { method, fixed } => format!(
-                "{} ×{k}{}{}",
+            Row::Channels {
+                method,
+                fixed,
+                densities,
+            } => format!(
+                "{} ×{k}{}{}{}",
                 method.label(),
                 if method == Method::Nis {
                     ", a flow per channel"
                 } else {
                     ""
                 },
-                if fixed { ", equal fixed weights" } else { "" }
+                if fixed { ", equal fixed weights" } else { "" },
+                by(densities)
             ),
-            Row::Shared => format!("{} ×{k}, one shared flow (default)", Method::Nis.label()),
+            Row::Shared { densities } => format!(
+                "{} ×{k}, one shared flow{}",
+                Method::Nis.label(),
+                if densities { by(true) } else { " (default)" }
+            ),
             Row::Plain(m) => format!("{}, no channels", m.label()),
         }
     }
+
+    /// Whether the row weights the channels by their densities.
+    fn densities(self) -> bool {
+        matches!(
+            self,
+            Row::Channels {
+                densities: true,
+                ..
+            } | Row::Shared { densities: true }
+        )
+    }
 }
 
-const ROWS: [Row; 6] = [
+/// The rows; those weighting by densities run only for channels with enhancements.
+const ROWS: [Row; 9] = [
     Row::Channels {
         method: Method::Nis,
         fixed: false,
+        densities: false,
     },
-    Row::Shared,
+    Row::Shared { densities: false },
+    Row::Shared { densities: true },
     Row::Plain(Method::Nis),
     Row::Channels {
         method: Method::Uniform,
         fixed: true,
+        densities: false,
+    },
+    Row::Channels {
+        method: Method::Uniform,
+        fixed: true,
+        densities: true,
     },
     Row::Channels {
         method: Method::Vegas,
         fixed: false,
+        densities: false,
+    },
+    Row::Channels {
+        method: Method::Vegas,
+        fixed: false,
+        densities: true,
     },
     Row::Plain(Method::Vegas),
 ];
@@ -161,20 +202,27 @@ pub fn run(o: &Options, docs: Option<&Path>, log: &mut dyn FnMut(&str)) -> Resul
     for name in &o.examples {
         let ex = examples::by_name(name)?;
         let (dim, k, exact) = (ex.integrand.dim, ex.channels.len(), ex.exact);
+        let enhanced = ChannelSet::new(examples::by_name(name)?.channels)?.enhanced();
         for row in ROWS {
+            if row.densities() && !enhanced {
+                continue;
+            }
             let mut runs = Runs::default();
             for seed in 1..=o.seeds {
                 let settings = Settings::default().seed(seed);
                 let (r, s) = match row {
-                    Row::Channels { .. } | Row::Shared => {
+                    Row::Channels { .. } | Row::Shared { .. } => {
                         let (method, fixed) = match row {
-                            Row::Channels { method, fixed } => (method, fixed),
+                            Row::Channels { method, fixed, .. } => (method, fixed),
                             _ => (Method::Nis, false),
                         };
-                        let set = ChannelSet::new(examples::by_name(name)?.channels)?;
+                        let mut set = ChannelSet::new(examples::by_name(name)?.channels)?;
+                        if row.densities() {
+                            set = set.without_enhancements();
+                        }
                         let config = MultiChannelConfig {
                             adapt_weights: !fixed,
-                            shared_flow: matches!(row, Row::Shared),
+                            shared_flow: matches!(row, Row::Shared { .. }),
                             ..MultiChannelConfig::default()
                         };
                         let mut mc = MultiChannel::new(set, method, settings, config)?;

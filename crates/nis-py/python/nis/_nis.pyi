@@ -359,7 +359,11 @@ class Channel:
     puts points). Both are called on whole batches with the GIL held only then; an exception
     they raise propagates unchanged; wrong shapes, points outside the cube and NaN or negative
     densities raise ValueError naming the channel's index and the point. ``dim``, if given, is
-    checked against the integrator's. Built-in examples' channels:
+    checked against the integrator's. ``enhancement``, if given, takes an (n, d) array x and
+    returns w(x) ≥ 0, shape (n,), large where the channel's peak is (its diagram's |M|², its
+    propagator): the channel weights become α_k = a_k w_k / Σ_j a_j w_j (single-diagram
+    enhancement; w_j counts only where channel j's density is > 0) instead of a_k g_k / Σ_j a_j g_j.
+    Built-in examples' channels (with their propagators as enhancements):
     ``nis.integrands.channels(name)``.
     """
 
@@ -370,6 +374,7 @@ class Channel:
         prior: float = 1.0,
         *,
         dim: Optional[int] = None,
+        enhancement: Optional[Callable[[npt.NDArray[np.float64]], npt.ArrayLike]] = None,
     ) -> None: ...
     def sample(self, u: Points) -> npt.NDArray[np.float64]:
         """x for the uniform points u, checked as an integrator checks them."""

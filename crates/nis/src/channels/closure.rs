@@ -22,10 +22,11 @@ use crate::integrate::points_per_task;
 /// ramp.sample(&[0.25, 0.5], &mut x).unwrap();
 /// assert_eq!(x, [0.5, 0.5]);
 /// ```
-pub struct ChannelFn<S, D> {
+pub struct ChannelFn<S, D, E = fn(&[f64]) -> f64> {
     dim: usize,
     sample: S,
     density: D,
+    enhancement: Option<E>,
 }
 
 impl<S, D> ChannelFn<S, D>
@@ -40,14 +41,52 @@ where
             dim,
             sample,
             density,
+            enhancement: None,
         }
     }
 }
 
-impl<S, D> Channel for ChannelFn<S, D>
+impl<S, D, E> ChannelFn<S, D, E> {
+    /// The channel with the enhancement `w(x)` ([`Channel::enhancement`]).
+    pub fn with_enhancement<W>(self, w: W) -> ChannelFn<S, D, W>
+    where
+        W: Fn(&[f64]) -> f64 + Send + Sync,
+    {
+        ChannelFn {
+            dim: self.dim,
+            sample: self.sample,
+            density: self.density,
+            enhancement: Some(w),
+        }
+    }
+}
+
+/// `out[i] = value(x_i)` for the points of `x` (`d` each), in parallel.
+fn per_point(
+    d: usize,
+    what: &'static str,
+    x: &[f64],
+    out: &mut [f64],
+    value: impl Fn(&[f64]) -> f64 + Send + Sync,
+) -> Result<()> {
+    let n = points(what, d, x.len())?;
+    same_len(what, n, out.len())?;
+    let chunk = points_per_task(n);
+    out.par_chunks_mut(chunk)
+        .zip(x.par_chunks(chunk * d))
+        .for_each(|(out, x)| {
+            for (o, x) in out.iter_mut().zip(x.chunks_exact(d)) {
+                *o = value(x);
+            }
+        });
+    Ok(())
+}
+
+impl<S, D, E> Channel for ChannelFn<S, D, E>
 where
     S: Fn(&[f64], &mut [f64]) + Send + Sync,
     D: Fn(&[f64]) -> f64 + Send + Sync,
+    E: Fn(&[f64]) -> f64 + Send + Sync,
 {
     fn dim(&self) -> usize {
         self.dim
@@ -69,17 +108,17 @@ where
     }
 
     fn density(&self, x: &[f64], g: &mut [f64]) -> Result<()> {
-        let d = self.dim;
-        let n = points("channel density x", d, x.len())?;
-        same_len("channel density g", n, g.len())?;
-        let chunk = points_per_task(n);
-        g.par_chunks_mut(chunk)
-            .zip(x.par_chunks(chunk * d))
-            .for_each(|(g, x)| {
-                for (g, x) in g.iter_mut().zip(x.chunks_exact(d)) {
-                    *g = (self.density)(x);
-                }
-            });
-        Ok(())
+        per_point(self.dim, "channel density", x, g, &self.density)
+    }
+
+    fn has_enhancement(&self) -> bool {
+        self.enhancement.is_some()
+    }
+
+    fn enhancement(&self, x: &[f64], w: &mut [f64]) -> Result<()> {
+        match &self.enhancement {
+            Some(e) => per_point(self.dim, "channel enhancement", x, w, e),
+            None => self.density(x, w),
+        }
     }
 }

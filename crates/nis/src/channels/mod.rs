@@ -57,6 +57,23 @@ pub trait Channel: Send + Sync {
     fn sample(&self, u: &[f64], x: &mut [f64]) -> Result<()>;
     /// Writes g(x) for each point of `x` (n × d, row-major) into `g` (n values).
     fn density(&self, x: &[f64], g: &mut [f64]) -> Result<()>;
+
+    /// Whether the channel has an enhancement ([`Channel::enhancement`]); false by default.
+    fn has_enhancement(&self) -> bool {
+        false
+    }
+
+    /// Writes the channel's enhancement w(x) ≥ 0 for each point of `x` into `w`: a function
+    /// large where the channel's own peak is (its diagram's |M_k|², its propagator). When a set
+    /// has them the channel weights are α_k = a_k w̃_k/Σ_j a_j w̃_j, w̃_j = w_j where g_j > 0
+    /// and 0 elsewhere (a channel gets no share where it cannot sample; those without an
+    /// enhancement use their density): MadEvent's single-diagram enhancement (Maltoni &
+    /// Stelzer 2003, hep-ph/0208156). Any weights that sum to one keep the integral; these
+    /// leave each channel its own peak where the densities of broad channels would not.
+    /// The default is the density.
+    fn enhancement(&self, x: &[f64], w: &mut [f64]) -> Result<()> {
+        self.density(x, w)
+    }
 }
 
 #[cfg(test)]

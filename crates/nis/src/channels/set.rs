@@ -25,6 +25,8 @@ pub struct ChannelSet {
     channels: Vec<Box<dyn Channel>>,
     priors: Vec<f64>,
     dim: usize,
+    /// Whether the channel weights use the channels' enhancements when they have them.
+    enhance: bool,
 }
 
 impl std::fmt::Debug for ChannelSet {
@@ -73,6 +75,7 @@ impl ChannelSet {
             channels,
             priors,
             dim,
+            enhance: true,
         })
     }
 
@@ -140,6 +143,49 @@ impl ChannelSet {
                     });
                 }
                 g[i * k + j] = v;
+            }
+        }
+        Ok(())
+    }
+
+    /// The set whose channel weights are made of the densities alone, whatever enhancements
+    /// its channels have (the classic a_k g_k/Σ_j a_j g_j).
+    pub fn without_enhancements(mut self) -> ChannelSet {
+        self.enhance = false;
+        self
+    }
+
+    /// Whether the channel weights are made of enhancements ([`Channel::enhancement`]): some
+    /// channel has one, and [`ChannelSet::without_enhancements`] was not asked for.
+    pub fn enhanced(&self) -> bool {
+        self.enhance && self.channels.iter().any(|c| c.has_enhancement())
+    }
+
+    /// What the channel weights are made of at the points `x` (n × d), given every channel's
+    /// density there (`g`, n × K, from [`ChannelSet::densities`]): into `b` (n × K), the
+    /// densities themselves, or with enhancements w̃_j = w_j where g_j > 0 and 0 elsewhere.
+    /// An enhancement that is negative or not finite is an error.
+    pub fn weight_basis(&self, x: &[f64], g: &[f64], b: &mut [f64]) -> Result<()> {
+        let n = points("channel weight basis x", self.dim, x.len())?;
+        let k = self.len();
+        same_len("channel weight basis g", n * k, g.len())?;
+        same_len("channel weight basis", n * k, b.len())?;
+        b.copy_from_slice(g);
+        let mut one = vec![0.0; n];
+        for (j, c) in self.channels.iter().enumerate() {
+            if !(self.enhance && c.has_enhancement()) {
+                continue;
+            }
+            c.enhancement(x, &mut one)?;
+            for (i, &v) in one.iter().enumerate() {
+                if !(v.is_finite() && v >= 0.0) {
+                    return Err(Error::Channel {
+                        channel: j,
+                        point: x[i * self.dim..(i + 1) * self.dim].to_vec(),
+                        reason: format!("its enhancement is {v}; it must be finite and ≥ 0"),
+                    });
+                }
+                b[i * k + j] = if g[i * k + j] > 0.0 { v } else { 0.0 };
             }
         }
         Ok(())

@@ -210,3 +210,51 @@ fn breit_wigner_inverts_its_cdf_is_normalised_and_rejects_bad_parameters() {
     assert!(BreitWigner::new(0.3, 0.1, 1.0, 1.0).is_err());
     assert!(BreitWigner::new(f64::NAN, 0.1, 0.0, 1.0).is_err());
 }
+
+#[test]
+fn enhancements_count_only_where_their_channel_samples_and_bad_ones_are_errors() {
+    // Channel 0 reaches x₀ < ½ only; its enhancement (10) does not vanish beyond.
+    let half = ChannelFn::new(
+        1,
+        |u: &[f64], x: &mut [f64]| x[0] = 0.5 * u[0],
+        |x: &[f64]| if x[0] < 0.5 { 2.0 } else { 0.0 },
+    )
+    .with_enhancement(|_: &[f64]| 10.0);
+    let set = ChannelSet::new(vec![Box::new(half), flat(1)]).unwrap();
+    assert!(set.enhanced());
+    let x = [0.25, 0.75];
+    let mut g = [0.0; 4];
+    set.densities(&x, &mut g).unwrap();
+    let mut b = [0.0; 4];
+    set.weight_basis(&x, &g, &mut b).unwrap();
+    // Channel 1 has none: its density stands in.
+    assert_eq!(b, [10.0, 1.0, 0.0, 1.0]);
+    let plain = ChannelSet::new(vec![
+        Box::new(
+            ChannelFn::new(1, |u: &[f64], x: &mut [f64]| x[0] = u[0], |_: &[f64]| 1.0)
+                .with_enhancement(|_: &[f64]| 10.0),
+        ),
+        flat(1),
+    ])
+    .unwrap()
+    .without_enhancements();
+    assert!(!plain.enhanced());
+    plain.weight_basis(&x, &g, &mut b).unwrap();
+    assert_eq!(b, g);
+    for bad in [-1.0, f64::NAN, f64::INFINITY] {
+        let c = ChannelFn::new(1, |u: &[f64], x: &mut [f64]| x[0] = u[0], |_: &[f64]| 1.0)
+            .with_enhancement(move |_: &[f64]| bad);
+        let set = ChannelSet::new(vec![flat(1), Box::new(c)]).unwrap();
+        let mut g = [0.0; 2];
+        set.densities(&[0.5], &mut g).unwrap();
+        match set.weight_basis(&[0.5], &g, &mut [0.0; 2]) {
+            Err(Error::Channel {
+                channel, reason, ..
+            }) => {
+                assert_eq!(channel, 1);
+                assert!(reason.contains("enhancement"), "{reason}");
+            }
+            other => panic!("{other:?}"),
+        }
+    }
+}

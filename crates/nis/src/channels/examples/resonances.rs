@@ -84,14 +84,31 @@ pub(crate) fn integrand() -> Builtin {
 /// flat.
 pub(crate) fn sum_channel(a: usize, b: usize, (c, g): (f64, f64)) -> Box<dyn Channel> {
     let bw = move |xa: f64| BreitWigner::unchecked(c, g, xa, xa + 1.0);
-    Box::new(ChannelFn::new(
-        4,
-        move |u: &[f64], x: &mut [f64]| {
-            x.copy_from_slice(u);
-            x[b] = (bw(u[a]).sample(u[b]) - u[a]).clamp(0.0, 1.0);
-        },
-        move |x: &[f64]| bw(x[a]).pdf(x[a] + x[b]),
-    ))
+    enhanced(
+        (c, g),
+        move |x: &[f64]| x[a] + x[b],
+        ChannelFn::new(
+            4,
+            move |u: &[f64], x: &mut [f64]| {
+                x.copy_from_slice(u);
+                x[b] = (bw(u[a]).sample(u[b]) - u[a]).clamp(0.0, 1.0);
+            },
+            move |x: &[f64]| bw(x[a]).pdf(x[a] + x[b]),
+        ),
+    )
+}
+
+/// The channel with its peak's propagator L(t(x)) as its enhancement.
+fn enhanced<S, D>(
+    peak: (f64, f64),
+    t: impl Fn(&[f64]) -> f64 + Send + Sync + 'static,
+    channel: ChannelFn<S, D>,
+) -> Box<dyn Channel>
+where
+    S: Fn(&[f64], &mut [f64]) + Send + Sync + 'static,
+    D: Fn(&[f64]) -> f64 + Send + Sync + 'static,
+{
+    Box::new(channel.with_enhancement(move |x: &[f64]| cauchy(t(x), peak)))
 }
 
 /// Below this x₂ the product channel takes its limit x₂ → 0 (x₃ flat, g = 1): the truncated
@@ -102,36 +119,44 @@ const TINY: f64 = 1e-200;
 fn product_channel() -> Box<dyn Channel> {
     let (c, g) = PEAKS[1];
     let bw = move |x2: f64| BreitWigner::unchecked(c, g, 0.0, x2);
-    Box::new(ChannelFn::new(
-        4,
-        move |u: &[f64], x: &mut [f64]| {
-            x.copy_from_slice(u);
-            if u[2] > TINY {
-                x[3] = (bw(u[2]).sample(u[3]) / u[2]).clamp(0.0, 1.0);
-            }
-        },
-        move |x: &[f64]| {
-            if x[2] > TINY {
-                x[2] * bw(x[2]).pdf(x[2] * x[3])
-            } else {
-                1.0
-            }
-        },
-    ))
+    enhanced(
+        PEAKS[1],
+        |x: &[f64]| x[2] * x[3],
+        ChannelFn::new(
+            4,
+            move |u: &[f64], x: &mut [f64]| {
+                x.copy_from_slice(u);
+                if u[2] > TINY {
+                    x[3] = (bw(u[2]).sample(u[3]) / u[2]).clamp(0.0, 1.0);
+                }
+            },
+            move |x: &[f64]| {
+                if x[2] > TINY {
+                    x[2] * bw(x[2]).pdf(x[2] * x[3])
+                } else {
+                    1.0
+                }
+            },
+        ),
+    )
 }
 
 /// The peak in x₁ − x₃: x₃ = x₁ − t, t Breit–Wigner on [x₁ − 1, x₁].
 fn difference_channel() -> Box<dyn Channel> {
     let (c, g) = PEAKS[2];
     let bw = move |x1: f64| BreitWigner::unchecked(c, g, x1 - 1.0, x1);
-    Box::new(ChannelFn::new(
-        4,
-        move |u: &[f64], x: &mut [f64]| {
-            x.copy_from_slice(u);
-            x[3] = (u[1] - bw(u[1]).sample(u[3])).clamp(0.0, 1.0);
-        },
-        move |x: &[f64]| bw(x[1]).pdf(x[1] - x[3]),
-    ))
+    enhanced(
+        PEAKS[2],
+        |x: &[f64]| x[1] - x[3],
+        ChannelFn::new(
+            4,
+            move |u: &[f64], x: &mut [f64]| {
+                x.copy_from_slice(u);
+                x[3] = (u[1] - bw(u[1]).sample(u[3])).clamp(0.0, 1.0);
+            },
+            move |x: &[f64]| bw(x[1]).pdf(x[1] - x[3]),
+        ),
+    )
 }
 
 /// One channel per peak, in the order of [`PEAKS`].

@@ -390,6 +390,11 @@ impl MultiChannel {
             let fx = self.comm.check(super::evaluate(f, &x, dim))?;
             let mut g = vec![0.0; n * k];
             self.set.densities(&x, &mut g)?;
+            if self.set.enhanced() {
+                // The network refines α_k ∝ a_k w̃_k.
+                let densities = g.clone();
+                self.set.weight_basis(&x, &densities, &mut g)?;
+            }
             let inv_q: Vec<f64> = inv_q.iter().zip(&gk).map(|(q, g)| q / g).collect();
             points.push(PartPoints::new(
                 p.channel,

@@ -1,8 +1,9 @@
 //! One part of a multi-channel integral as an integrand of its own over the channel's cube:
 //! h_k(u) = a_k·f(x)/g(x) at x = φ_k(u), g = Σ_j a_j g_j the mixture of the channels' densities
 //! (Kleiss & Pittau 1994: ∫ α_k f dx with α_k = a_k g_k/g, written over u), or its positive or
-//! negative part, max(±h_k, 0), when the integrand changes sign. With a weight network N
-//! (`weight_net.rs`) every a_j is a_j e^{N_j(x)}.
+//! negative part, max(±h_k, 0), when the integrand changes sign. When the channels have
+//! enhancements w ([`crate::channels::Channel::enhancement`]), α_k = a_k w̃_k/Σ_j a_j w̃_j and
+//! h_k = α_k f/g_k. With a weight network N (`weight_net.rs`) every a_j is a_j e^{N_j(x)}.
 
 use std::sync::atomic::{AtomicBool, Ordering};
 
@@ -140,27 +141,48 @@ fn values(
     let channels = set.len();
     let mut g = vec![0.0; fx.len() * channels];
     set.densities(x, &mut g)?;
+    // With enhancements α_k = a_k w̃_k/Σ a_j w̃_j, so h = α_k f/g_k; without, w̃ = g and g_k
+    // cancels.
+    let basis = if set.enhanced() {
+        let mut b = vec![0.0; g.len()];
+        set.weight_basis(x, &g, &mut b)?;
+        Some(b)
+    } else {
+        None
+    };
     let corrections = net.map(|n| n.corrections(x));
     let mut e = vec![1.0; channels];
     let mut i = 0;
     for (&(k, sign), &m) in parts.iter().zip(counts) {
         for _ in 0..m {
-            let row = &g[i * channels..(i + 1) * channels];
+            let cols = i * channels..(i + 1) * channels;
+            let row = &basis.as_deref().unwrap_or(&g)[cols.clone()];
             if let Some(c) = &corrections {
-                exp_shifted(&c[i * channels..(i + 1) * channels], &mut e);
+                exp_shifted(&c[cols.clone()], &mut e);
             }
-            let mixture: f64 = row.iter().zip(a).zip(&e).map(|((g, a), e)| g * a * e).sum();
-            // g_k(x) > 0 was checked, so the mixture is > 0 unless a weight underflowed.
-            if !(mixture > 0.0 && mixture.is_finite()) {
+            let total: f64 = row.iter().zip(a).zip(&e).map(|((b, a), e)| b * a * e).sum();
+            let ratio = if basis.is_some() {
+                row[k] / g[cols][k]
+            } else {
+                1.0
+            };
+            let h = if fx[i] == 0.0 {
+                0.0
+            } else if total > 0.0 && total.is_finite() {
+                a[k] * e[k] * ratio * fx[i] / total
+            } else {
+                // g_k(x) > 0 was checked, so the mixture is > 0 unless a weight underflowed
+                // or every enhancement vanishes at a point where f does not.
                 return Err(Error::Channel {
                     channel: k,
                     point: x[i * dim..(i + 1) * dim].to_vec(),
                     reason: format!(
-                        "the mixture Σ a_j g_j of the channels' densities is {mixture} there"
+                        "the channel weights' normalisation Σ a_j w_j (w the channels' \
+                         densities, or their enhancements) is {total} there, where f = {}",
+                        fx[i]
                     ),
                 });
-            }
-            let h = a[k] * e[k] * fx[i] / mixture;
+            };
             out[i] = match sign {
                 Sign::Both => h,
                 Sign::Plus => h.max(0.0),

@@ -548,3 +548,55 @@ fn a_weight_network_keeps_estimates_unbiased_lowers_the_variance_and_is_saved() 
     std::fs::remove_dir_all(&dir).unwrap();
     assert_eq!(loaded.net, mc.net);
 }
+
+#[test]
+fn enhanced_channel_weights_keep_the_integral_and_vanishing_ones_are_an_error() {
+    use crate::channels::{Channel, ChannelFn};
+    // f = 1 + x on [0, 1] (∫ = 1.5); channel 0 reaches x < ½ only, its enhancement 10 does not
+    // vanish beyond: counted there, α₀ = 10/11 would leave 10/11 of ∫_{½}^1 f (0.80) to a
+    // channel that never samples it.
+    let half = || -> Box<dyn Channel> {
+        Box::new(
+            ChannelFn::new(
+                1,
+                |u: &[f64], x: &mut [f64]| x[0] = 0.5 * u[0],
+                |x: &[f64]| if x[0] < 0.5 { 2.0 } else { 0.0 },
+            )
+            .with_enhancement(|_: &[f64]| 10.0),
+        )
+    };
+    let flat = || -> Box<dyn Channel> {
+        Box::new(
+            ChannelFn::new(1, |u: &[f64], x: &mut [f64]| x[0] = u[0], |_: &[f64]| 1.0)
+                .with_enhancement(|x: &[f64]| x[0]),
+        )
+    };
+    let f = |x: &[f64]| 1.0 + x[0];
+    for method in [Method::Uniform, Method::Vegas, Method::Nis] {
+        let set = ChannelSet::new(vec![half(), flat()]).unwrap();
+        let config = MultiChannelConfig::default();
+        let mut mc = MultiChannel::new(set, method, Settings::default().seed(5), config).unwrap();
+        let r = mc.integrate(&f, 100_000).unwrap();
+        assert!(
+            (r.value - 1.5).abs() < 4.0 * r.std_err,
+            "{method:?}: {} ± {}",
+            r.value,
+            r.std_err
+        );
+    }
+    // Every enhancement 0 where f is not: that mass has no channel.
+    let zero = ChannelFn::new(1, |u: &[f64], x: &mut [f64]| x[0] = u[0], |_: &[f64]| 1.0)
+        .with_enhancement(|_: &[f64]| 0.0);
+    let set = ChannelSet::new(vec![Box::new(zero)]).unwrap();
+    let config = MultiChannelConfig::default();
+    let mut mc = MultiChannel::new(set, Method::Uniform, Settings::default(), config).unwrap();
+    match mc.integrate(&f, 10_000) {
+        Err(Error::Channel {
+            channel, reason, ..
+        }) => {
+            assert_eq!(channel, 0);
+            assert!(reason.contains("normalisation"), "{reason}");
+        }
+        other => panic!("{other:?}"),
+    }
+}

@@ -1,6 +1,7 @@
 //! A network that refines the channel weights, as MadNIS does (Heimel, Winterhalder, Butter,
 //! Isaacson, Krause, Maltoni, Mattelaer, Plehn, "MadNIS — Neural multi-channel importance
 //! sampling", SciPost Phys. 15, 141 (2023), §2.3): α_k(x) = a_k g_k(x) e^{N_k(x)} / Σ_j a_j g_j(x)
+//! (g the channels' enhancements w̃ when they have them)
 //! e^{N_j(x)}, N = 2·tanh(r/2) of a small MLP r of x with one output per channel. Σ_k α_k = 1 at
 //! every x whatever N is, so every estimate made with a fixed N is unbiased; N = 0 is
 //! Kleiss–Pittau's α.
