@@ -197,7 +197,10 @@ typedef int (*nis_channel_fn)(const double *input, size_t n, size_t dim, double 
 /**
  * A channel: `sample` maps uniform points u of the unit cube to x = φ(u) in it, `density` gives
  * the density g(x) of those points at any x of the cube (0 where φ does not reach), `user` is
- * handed to both, `prior` is its a-priori weight (0: 1). The callbacks of one channel are never
+ * handed to all callbacks, `prior` is its a-priori weight (0: 1). `enhancement`, optional (NULL:
+ * none), gives w(x) ≥ 0 at any x (n values), large where the channel's peak is (its diagram's
+ * |M|², its propagator): the channel weights are then a_k w_k/Σ_j a_j w_j instead of
+ * a_k g_k/Σ_j a_j g_j (single-diagram enhancement). The callbacks of one channel are never
  * called from two threads at once.
  */
 typedef struct nis_channel {
@@ -205,6 +208,7 @@ typedef struct nis_channel {
   nis_channel_fn density;
   void *user;
   double prior;
+  nis_channel_fn enhancement;
 } nis_channel;
 
 #ifdef __cplusplus

@@ -32,7 +32,10 @@ pub type nis_channel_fn = Option<
 
 /// A channel: `sample` maps uniform points u of the unit cube to x = φ(u) in it, `density` gives
 /// the density g(x) of those points at any x of the cube (0 where φ does not reach), `user` is
-/// handed to both, `prior` is its a-priori weight (0: 1). The callbacks of one channel are never
+/// handed to all callbacks, `prior` is its a-priori weight (0: 1). `enhancement`, optional (NULL:
+/// none), gives w(x) ≥ 0 at any x (n values), large where the channel's peak is (its diagram's
+/// |M|², its propagator): the channel weights are then a_k w_k/Σ_j a_j w_j instead of
+/// a_k g_k/Σ_j a_j g_j (single-diagram enhancement). The callbacks of one channel are never
 /// called from two threads at once.
 #[repr(C)]
 #[derive(Clone, Copy, Debug)]
@@ -41,6 +44,7 @@ pub struct nis_channel {
     pub density: nis_channel_fn,
     pub user: *mut c_void,
     pub prior: f64,
+    pub enhancement: nis_channel_fn,
 }
 
 /// A multi-channel integrator (opaque).
@@ -58,6 +62,7 @@ struct CChannel {
     dim: usize,
     sample: RawFn,
     density: RawFn,
+    enhancement: Option<RawFn>,
     user: *mut c_void,
     lock: Mutex<()>,
 }
@@ -94,6 +99,15 @@ impl Channel for CChannel {
     }
     fn density(&self, x: &[f64], g: &mut [f64]) -> nis::Result<()> {
         self.call(self.density, "density", x, g)
+    }
+    fn has_enhancement(&self) -> bool {
+        self.enhancement.is_some()
+    }
+    fn enhancement(&self, x: &[f64], w: &mut [f64]) -> nis::Result<()> {
+        match self.enhancement {
+            Some(e) => self.call(e, "enhancement", x, w),
+            None => self.density(x, w),
+        }
     }
 }
 
@@ -182,6 +196,7 @@ pub unsafe extern "C" fn nis_multichannel_create(
                     dim: config.dim,
                     sample,
                     density,
+                    enhancement: c.enhancement,
                     user: c.user,
                     lock: Mutex::new(()),
                 }));

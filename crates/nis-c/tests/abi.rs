@@ -608,6 +608,80 @@ fn create_mc(json: &str, channels: &[nis_channel]) -> (c_int, *mut nis_multichan
     (status, mc)
 }
 
+/// The peak itself, unnormalised: a channel's enhancement.
+unsafe extern "C" fn cauchy_peak(
+    x: *const f64,
+    n: usize,
+    dim: usize,
+    w: *mut f64,
+    user: *mut c_void,
+) -> c_int {
+    let c = unsafe { *(user as *const f64) };
+    let x = unsafe { std::slice::from_raw_parts(x, n * dim) };
+    let w = unsafe { std::slice::from_raw_parts_mut(w, n) };
+    for (w, x) in w.iter_mut().zip(x.chunks_exact(dim)) {
+        *w = peak(x[0], c);
+    }
+    0
+}
+
+unsafe extern "C" fn failing(
+    _: *const f64,
+    _: usize,
+    _: usize,
+    _: *mut f64,
+    _: *mut c_void,
+) -> c_int {
+    7
+}
+
+#[test]
+fn channels_with_enhancements_through_c_keep_the_integral() {
+    let mass = |c: f64| angles(c).1 - angles(c).0;
+    let exact = mass(0.2) + 0.5 * mass(0.7);
+    let centres = [0.2f64, 0.7];
+    let channels = |enhancement: nis_channel_fn| -> Vec<nis_channel> {
+        centres
+            .iter()
+            .map(|c| nis_channel {
+                sample: Some(cauchy_sample),
+                density: Some(cauchy_density),
+                user: c as *const f64 as *mut c_void,
+                prior: 0.0,
+                enhancement,
+            })
+            .collect()
+    };
+    for method in ["uniform", "nis"] {
+        let json = format!(r#"{{"method": "{method}", "dim": 2, "seed": 4}}"#);
+        let (status, mc) = create_mc(&json, &channels(Some(cauchy_peak)));
+        assert_eq!(status, NIS_OK, "{}", last_error());
+        let mut r = nis_result::default();
+        let status = unsafe {
+            nis_multichannel_integrate(mc, Some(peaks_c), std::ptr::null_mut(), 100_000, &mut r)
+        };
+        assert_eq!(status, NIS_OK, "{method}: {}", last_error());
+        assert!(
+            (r.value - exact).abs() < 5.0 * r.std_err,
+            "{method}: {r:?} vs {exact}"
+        );
+        unsafe { nis_multichannel_free(mc) };
+    }
+    // A failing enhancement stops the run with an error naming the channel and the callback.
+    let (status, mc) = create_mc(
+        r#"{"method": "uniform", "dim": 2}"#,
+        &channels(Some(failing)),
+    );
+    assert_eq!(status, NIS_OK, "{}", last_error());
+    let mut r = nis_result::default();
+    let status = unsafe {
+        nis_multichannel_integrate(mc, Some(peaks_c), std::ptr::null_mut(), 10_000, &mut r)
+    };
+    assert_ne!(status, NIS_OK);
+    assert!(last_error().contains("enhancement"), "{}", last_error());
+    unsafe { nis_multichannel_free(mc) };
+}
+
 #[test]
 fn channels_through_c_integrate_and_report_each_channel() {
     let mass = |c: f64| angles(c).1 - angles(c).0;
@@ -620,6 +694,7 @@ fn channels_through_c_integrate_and_report_each_channel() {
             density: Some(cauchy_density),
             user: c as *const f64 as *mut c_void,
             prior: 0.0,
+            enhancement: None,
         })
         .collect();
     // The three methods, and NIS with a flow per channel besides the default shared one.
@@ -686,6 +761,7 @@ fn channels_through_c_integrate_and_report_each_channel() {
         density: Some(cauchy_density),
         user: &centres[0] as *const f64 as *mut c_void,
         prior: 1.0,
+        enhancement: None,
     }];
     let (status, mc) = create_mc(r#"{"method": "uniform", "dim": 2}"#, &bad);
     assert_eq!(status, NIS_OK);

@@ -139,8 +139,10 @@ program gauss_nis
   call nis_free(integ)
 
   ! Through two channels (the identity and u -> u**2 per axis), VEGAS+ per channel.
-  channels(1) = nis_channel(c_funloc(flat_sample), c_funloc(flat_density), c_null_ptr, 0d0)
-  channels(2) = nis_channel(c_funloc(square_sample), c_funloc(square_density), c_null_ptr, 0d0)
+  channels(1) = nis_channel(c_funloc(flat_sample), c_funloc(flat_density), c_null_ptr, 0d0, &
+       c_null_funptr)
+  channels(2) = nis_channel(c_funloc(square_sample), c_funloc(square_density), c_null_ptr, 0d0, &
+       c_null_funptr)
   if (nis_multichannel_create('{"method": "vegas", "dim": 3, "seed": 3}' // c_null_char, &
        channels, 2_c_size_t, c_null_ptr, mc) /= NIS_OK) then
      print '(a, a)', 'multichannel_create: ', nis_last_error()

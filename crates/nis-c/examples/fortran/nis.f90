@@ -21,12 +21,13 @@ module nis
   integer(c_int), parameter, public :: NIS_ANSWERED_BY_OWN = 0, NIS_ANSWERED_BY_VEGAS = 1
 
   !> A channel (nis_channel in nis.h): its sample and density callbacks (bind(c) functions with
-  !> the interface nis_channel_fn below, as c_funloc), a user pointer and an a-priori weight
-  !> (0: 1).
+  !> the interface nis_channel_fn below, as c_funloc), a user pointer, an a-priori weight
+  !> (0: 1) and an optional enhancement callback (c_null_funptr: none).
   type, bind(c), public :: nis_channel
      type(c_funptr) :: sample, density
      type(c_ptr) :: user
      real(c_double) :: prior
+     type(c_funptr) :: enhancement
   end type nis_channel
 
   !> The summary of a result (nis_result in nis.h).
