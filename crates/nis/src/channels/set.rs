@@ -135,14 +135,7 @@ impl ChannelSet {
         for (j, c) in self.channels.iter().enumerate() {
             c.density(x, &mut one)?;
             for (i, &v) in one.iter().enumerate() {
-                if !(v.is_finite() && v >= 0.0) {
-                    return Err(Error::Channel {
-                        channel: j,
-                        point: x[i * self.dim..(i + 1) * self.dim].to_vec(),
-                        reason: format!("its density is {v}; it must be finite and ≥ 0"),
-                    });
-                }
-                g[i * k + j] = v;
+                g[i * k + j] = self.non_negative(j, "density", x, i, v)?;
             }
         }
         Ok(())
@@ -178,13 +171,7 @@ impl ChannelSet {
             }
             c.enhancement(x, &mut one)?;
             for (i, &v) in one.iter().enumerate() {
-                if !(v.is_finite() && v >= 0.0) {
-                    return Err(Error::Channel {
-                        channel: j,
-                        point: x[i * self.dim..(i + 1) * self.dim].to_vec(),
-                        reason: format!("its enhancement is {v}; it must be finite and ≥ 0"),
-                    });
-                }
+                let v = self.non_negative(j, "enhancement", x, i, v)?;
                 b[i * k + j] = if g[i * k + j] > 0.0 { v } else { 0.0 };
             }
         }
@@ -218,6 +205,19 @@ impl ChannelSet {
             }
         }
         Ok(())
+    }
+
+    /// `v`, channel `j`'s `what` at point `i` of `x`, if it is finite and ≥ 0; else an error
+    /// naming the channel and the point.
+    fn non_negative(&self, j: usize, what: &str, x: &[f64], i: usize, v: f64) -> Result<f64> {
+        if v.is_finite() && v >= 0.0 {
+            return Ok(v);
+        }
+        Err(Error::Channel {
+            channel: j,
+            point: x[i * self.dim..(i + 1) * self.dim].to_vec(),
+            reason: format!("its {what} is {v}; it must be finite and ≥ 0"),
+        })
     }
 
     fn channel(&self, k: usize) -> Result<&dyn Channel> {
