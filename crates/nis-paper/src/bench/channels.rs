@@ -362,7 +362,7 @@ fn machinery(o: &Options, log: &mut dyn FnMut(&str)) -> Result<String> {
         "\nThe channels' own cost: NIS on camel d = {DIM} alone and through identity channels \
          (x = u, g = 1: the parts are f/K), {} evaluations per run, seeds 1–{}, the default \
          batches, 40 % of the evaluations in training for all (`adapt_fraction` 0.5 through the \
-         channels; by default they train on 32 %); median wall time per evaluation (training \
+         channels; by default they train on 20 %); median wall time per evaluation (training \
          included) and its ratio to NIS alone, in the same run.\n\n\
          | NIS | µs per evaluation | ratio |\n|---|---:|---:|\n",
         o.evals, o.seeds

@@ -141,7 +141,7 @@ class Integrator:
     ``signs``, ``events(f, n)`` draws unweighted events that carry their channel (NIS), and the
     other NIS-only methods (``train``, ``estimate``, ``sample``, ``unweighted``, ``save``,
     ``flow``, ``trained_evals``) raise ValueError. ``channel_settings``, a dict:
-    ``adapt_fraction`` (share of a call's evaluations the samplers adapt on, default 0.4),
+    ``adapt_fraction`` (share of a call's evaluations the samplers adapt on, default 0.25),
     ``adapt_weights`` (whether the priors adapt, default True), ``weight_floor`` (smallest
     weight a channel keeps, as a fraction of 1/K, default 0.01), ``pilot`` (uniform points per
     channel of the pilot that decides the sign split, default 1000), ``target_adapt``
