@@ -100,7 +100,7 @@ pub struct IntegrateArgs {
     pub weight_network: bool,
     /// With --channels: weight the channels by their densities alone, α_k ∝ a_k g_k (the classic
     /// weights), instead of by the propagators the examples' channels carry as enhancements
-    /// (single-diagram enhancement; docs/guide/02-integrate.md, "Channels")
+    /// (single-diagram enhancement; docs/guide/02-integrate.md, "Several peaks")
     #[arg(long)]
     pub no_enhancement: bool,
     /// With a target: the most evaluations per method, training included [default: 10^8].

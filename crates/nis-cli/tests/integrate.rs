@@ -368,6 +368,29 @@ fn channels_run_on_the_multi_channel_examples_only() {
     let out = nis(&[&args[..], &["--signs", "split", "--weight-network"]].concat());
     assert!(!out.status.success());
     assert!(String::from_utf8_lossy(&out.stderr).contains("--weight-network needs --channels"));
+    // resonances-4d's channels weigh by their propagators unless told not to: two estimates,
+    // each of the exact value.
+    let res = [
+        "integrate",
+        "resonances-4d",
+        "--method",
+        "uniform",
+        "--evals",
+        "100000",
+        "--json",
+        "--channels",
+    ];
+    let enhanced = json_of(&res);
+    let by_densities = json_of(&[&res[..], &["--no-enhancement"]].concat());
+    assert_ne!(enhanced["value"], by_densities["value"]);
+    for v in [&enhanced, &by_densities] {
+        let pull = (v["value"].as_f64().unwrap() - v["exact"].as_f64().unwrap())
+            / v["std_err"].as_f64().unwrap();
+        assert!(pull.abs() < 5.0, "{v}");
+    }
+    let out = nis(&[&res[..7], &["--no-enhancement"]].concat());
+    assert!(!out.status.success());
+    assert!(String::from_utf8_lossy(&out.stderr).contains("--no-enhancement needs --channels"));
 }
 
 #[test]
