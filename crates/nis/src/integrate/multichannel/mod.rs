@@ -28,7 +28,7 @@ mod weight_net;
 
 use std::time::Instant;
 
-use rand::{Rng, SeedableRng};
+use rand::SeedableRng;
 use rand_pcg::Pcg64Mcg;
 use serde::{Deserialize, Serialize};
 
@@ -435,13 +435,11 @@ impl MultiChannel {
                 let mut rng = Pcg64Mcg::seed_from_u64(seed);
                 let (mut positive, mut negative) = (false, false);
                 let n = self.config.pilot;
-                let mine = self.comm.share(n as u64) as usize;
                 let (set, a) = (&self.set, &self.weights);
                 let w = Weighting { set, a, net: None };
                 for k in 0..channels {
                     let h = PartIntegrand::new(f, w, k, Sign::Both);
-                    let u: Vec<f64> = (0..mine * dim).map(|_| rng.random::<f64>()).collect();
-                    self.comm.check(super::evaluate(&h, &u, dim))?;
+                    part::at_uniform_points(&h, &self.comm, n as u64, dim, &mut rng)?;
                     positive |= h.saw_positive.into_inner();
                     negative |= h.saw_negative.into_inner();
                 }

@@ -7,10 +7,13 @@
 
 use std::sync::atomic::{AtomicBool, Ordering};
 
+use rand::Rng;
+use rand_pcg::Pcg64Mcg;
 use serde::{Deserialize, Serialize};
 
 use super::weight_net::{exp_shifted, WeightNet};
 use crate::channels::ChannelSet;
+use crate::comm::Comm;
 use crate::error::{Error, Result};
 use crate::integrate::{evaluate, Integrand};
 
@@ -95,6 +98,20 @@ impl Integrand for PartIntegrand<'_> {
     fn dim(&self) -> Option<usize> {
         Some(self.w.set.dim())
     }
+}
+
+/// Evaluates `h` (of dimension `dim`) at this rank's share of `n` uniform points from `rng`:
+/// the sign pilot, and the cost probe of a run to a target.
+pub(super) fn at_uniform_points(
+    h: &PartIntegrand,
+    comm: &Comm,
+    n: u64,
+    dim: usize,
+    rng: &mut Pcg64Mcg,
+) -> Result<()> {
+    let mine = comm.share(n) as usize;
+    let u: Vec<f64> = (0..mine * dim).map(|_| rng.random::<f64>()).collect();
+    comm.check(evaluate(h, &u, dim)).map(|_| ())
 }
 
 /// The values h of many parts at once, with one call of f and of the channels' densities for

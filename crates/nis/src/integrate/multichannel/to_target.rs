@@ -9,19 +9,24 @@
 
 use std::time::Instant;
 
-use rand::{Rng, SeedableRng};
+use rand::SeedableRng;
 use rand_pcg::Pcg64Mcg;
 
-use super::part::{PartIntegrand, Weighting};
+use super::part::{self, PartIntegrand, Weighting};
 use super::{estimate_part, MultiChannel, MIN_PART_EVALS};
 use crate::error::{Error, Result};
 use crate::integrate::estimate::chi2_per_dof;
 use crate::integrate::nis::NisIntegrator;
 use crate::integrate::target::{Prior, Pursuit, AIM};
-use crate::integrate::{evaluate, Integrand, IntegrationResult, Iteration, Method, Source, Target};
+use crate::integrate::{Integrand, IntegrationResult, Iteration, Method, Source, Target};
 
 /// The estimate's iterations a plan aims at (later ones grow at most ×2 each).
 const RESULT_ITERATIONS: f64 = 10.0;
+
+/// The evaluations of the least run of `parts` parts: one adaptation and one estimate each.
+fn least_run(parts: u64) -> u64 {
+    2 * parts * MIN_PART_EVALS
+}
 
 /// Salt of the cost probe's throwaway sampler and points ("cost").
 const PROBE_SALT: u64 = 0x636f_7374;
@@ -61,7 +66,7 @@ impl MultiChannel {
         };
         target.check(
             "multi-channel integration",
-            pilot + self.planned_parts() * 2 * MIN_PART_EVALS,
+            pilot + least_run(self.planned_parts()),
         )
     }
 
@@ -84,7 +89,7 @@ impl MultiChannel {
             let (per_eval, probed) = self.adapt_cost(f)?;
             spent += probed;
             let elapsed = self.comm.max(started.elapsed().as_secs_f64());
-            let least = (2 * parts * MIN_PART_EVALS) as f64 * per_eval;
+            let least = least_run(parts) as f64 * per_eval;
             if elapsed + least > limit {
                 return Err(Error::Config(format!(
                     "precision target: max_seconds = {limit} cannot pay for the least \
@@ -198,11 +203,9 @@ impl MultiChannel {
             }
         } else {
             let mut rng = Pcg64Mcg::seed_from_u64(self.comm.stream_seed(seed));
-            let mine = self.comm.share(batch) as usize;
             for _ in 0..2 {
-                let u: Vec<f64> = (0..mine * dim).map(|_| rng.random::<f64>()).collect();
                 let t = Instant::now();
-                self.comm.check(evaluate(&h, &u, dim))?;
+                part::at_uniform_points(&h, &self.comm, batch, dim, &mut rng)?;
                 seconds = t.elapsed().as_secs_f64();
             }
         }

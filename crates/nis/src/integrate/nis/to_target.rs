@@ -105,7 +105,9 @@ impl NisIntegrator {
                 )));
             }
         }
-        let max_batches = ((target.max_evals as f64 * share) as u64 / batch) as usize;
+        // Training batches within `share` of `evals`.
+        let batches_in = |evals: u64| ((evals as f64 * share) as u64 / batch) as usize;
+        let max_batches = batches_in(target.max_evals);
         let anneal = anneal_batches(dim);
         let horizon = HORIZON_BATCHES.max(2 * anneal + SETTLE_BATCHES);
         let max_seconds = target.max_seconds.map_or(f64::INFINITY, |s| s * share);
@@ -141,8 +143,9 @@ impl NisIntegrator {
                 }
             }
             let room = target.max_evals.saturating_sub(spent);
-            let left = ((room as f64 * share) as u64 / batch) as usize;
-            let left = left.min(horizon).saturating_sub(length.batches());
+            let left = batches_in(room)
+                .min(horizon)
+                .saturating_sub(length.batches());
             let seconds_left = max_seconds - length.seconds();
             if probes && length.smooth() && length.room_to_restart(left, seconds_left) {
                 // A smooth integrand: the codes' fewer layers learn it as well, in less time.
