@@ -7,7 +7,7 @@ use std::time::Instant;
 
 use super::adaptive_strata::Strata;
 use super::iteration::Measure;
-use super::Vegas;
+use super::{Plan, Vegas};
 use crate::comm::Comm;
 use crate::error::Result;
 use crate::integrate::convergence::DIVERGENCE_LIMIT;
@@ -20,15 +20,20 @@ const NOMINAL_EVALS: u64 = 100_000;
 const RESULT_ITERATIONS: f64 = 10.0;
 
 impl Vegas {
+    /// The plan whose warm-up a run to `target` starts with: the nominal budget's.
+    fn warm_up_plan(&self, target: &Target) -> Plan {
+        self.plan(NOMINAL_EVALS.min(target.max_evals))
+    }
+
     /// [`crate::integrate::Integrator::check_target`]: the warm-up and one iteration must fit.
     pub(super) fn check_target_plan(&self, target: &Target) -> Result<()> {
-        let plan = self.plan(NOMINAL_EVALS.min(target.max_evals));
+        let plan = self.warm_up_plan(target);
         target.check("vegas+", ((plan.warmup + 1) * plan.per_iter) as u64)
     }
 
     /// The evaluations of the warm-up a run to `target` starts with.
     pub(crate) fn warm_up_evals(&self, target: &Target) -> u64 {
-        let plan = self.plan(NOMINAL_EVALS.min(target.max_evals));
+        let plan = self.warm_up_plan(target);
         (plan.warmup * plan.per_iter) as u64
     }
 
@@ -71,7 +76,7 @@ impl Vegas {
         let k = f.components();
         let train_on = self.config.train_on;
         train_on.check(k)?;
-        let plan = self.plan(NOMINAL_EVALS.min(target.max_evals));
+        let plan = self.warm_up_plan(target);
         let per_iter = plan.per_iter;
         let (min_per_cube, alpha, beta) = (
             self.config.min_per_cube,
