@@ -50,7 +50,7 @@ pub(crate) fn run_multichannel(
     let config = MultiChannelConfig {
         signs: args.signs.map_or(Signs::Auto, SignsArg::signs),
         shared_flow: !args.flow_per_channel,
-        weight_network: args.weight_network,
+        weight_network: !args.no_weight_network,
         ..MultiChannelConfig::default()
     };
     let settings = args.settings()?;

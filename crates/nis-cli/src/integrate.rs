@@ -94,10 +94,11 @@ pub struct IntegrateArgs {
     /// shared by the channels").
     #[arg(long)]
     pub flow_per_channel: bool,
-    /// With --channels, NIS: fit a network that refines the channel weights after the parts adapt
-    /// (MadNIS's), kept only when it lowers the variance on held-out points.
+    /// With --channels, NIS: no network refining the channel weights (by default one is fitted
+    /// after the parts adapt, MadNIS's, and kept only when it lowers the variance on held-out
+    /// points).
     #[arg(long)]
-    pub weight_network: bool,
+    pub no_weight_network: bool,
     /// With --channels: weight the channels by their densities alone, α_k ∝ a_k g_k (the classic
     /// weights), instead of by the propagators the examples' channels carry as enhancements
     /// (single-diagram enhancement; docs/guide/02-integrate.md, "Several peaks")
@@ -242,8 +243,8 @@ pub fn run_method(
     if args.flow_per_channel && !args.multichannel() {
         return Err("--flow-per-channel needs --channels or --signs".into());
     }
-    if args.weight_network && !args.channels {
-        return Err("--weight-network needs --channels".into());
+    if args.no_weight_network && !args.channels {
+        return Err("--no-weight-network needs --channels".into());
     }
     if args.no_enhancement && !args.channels {
         return Err("--no-enhancement needs --channels".into());

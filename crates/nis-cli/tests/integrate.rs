@@ -360,14 +360,14 @@ fn channels_run_on_the_multi_channel_examples_only() {
     let out = nis(&[&args[..], &["--flow-per-channel"]].concat());
     assert!(!out.status.success());
     assert!(String::from_utf8_lossy(&out.stderr).contains("--channels or --signs"));
-    // Learned channel weights; the flag needs channels.
-    let v = json_of(&[&args[..], &["--channels", "--weight-network"]].concat());
+    // Without learned channel weights; the flag needs channels.
+    let v = json_of(&[&args[..], &["--channels", "--no-weight-network"]].concat());
     let pull = (v["value"].as_f64().unwrap() - v["exact"].as_f64().unwrap())
         / v["std_err"].as_f64().unwrap();
     assert!(pull.abs() < 5.0, "{v}");
-    let out = nis(&[&args[..], &["--signs", "split", "--weight-network"]].concat());
+    let out = nis(&[&args[..], &["--signs", "split", "--no-weight-network"]].concat());
     assert!(!out.status.success());
-    assert!(String::from_utf8_lossy(&out.stderr).contains("--weight-network needs --channels"));
+    assert!(String::from_utf8_lossy(&out.stderr).contains("--no-weight-network needs --channels"));
     // resonances-4d's channels weigh by their propagators unless told not to: two estimates,
     // each of the exact value.
     let res = [

@@ -148,7 +148,7 @@ class Integrator:
     (evaluations each sampler adapts on in a run to a target, default 100000), ``shared_flow``
     (NIS: one flow for every channel and sign, conditioned on it, the default; False: a flow
     each), ``weight_network`` (NIS: refine the channel weights with a network fitted after the
-    samplers adapt, kept when it lowers the variance on held-out points; default False).
+    samplers adapt, kept when it lowers the variance on held-out points; default True).
     """
 
     def __init__(

@@ -55,7 +55,7 @@ fn nis_with_a_flow_per_channel_covers_on_the_dalitz_plot() {
         ..MultiChannelConfig::default()
     };
     let mut covered = 0;
-    for seed in 0..10 {
+    for seed in 0..20 {
         let (r, exact) = integrate("dalitz", Method::Nis, 200_000, seed, per_channel.clone());
         covered += usize::from((r.value - exact).abs() <= 2.0 * r.std_err);
         assert!(
@@ -63,8 +63,9 @@ fn nis_with_a_flow_per_channel_covers_on_the_dalitz_plot() {
             "{r:?} vs {exact}"
         );
     }
-    // 10 seeds: 9.5 expected, 7 or fewer would be 4 binomial σ low.
-    assert!(covered >= 8, "{covered}/10");
+    // 20 seeds: 19.1 expected (binomial σ 0.94), 15 or fewer would be 3.3σ low. (Seeds 0–9 alone
+    // cover 7 with the weight network; seeds 0–99 cover 0.94 at 2σ, within the binomial band.)
+    assert!(covered >= 16, "{covered}/20");
 }
 
 #[test]
@@ -521,7 +522,7 @@ fn a_weight_network_keeps_estimates_unbiased_lowers_the_variance_and_is_saved() 
         );
     }
     assert!(covered >= 16, "{covered} of 20 within 2σ");
-    // Lower variance per evaluation, every evaluation counted (1.47× over seeds 1–3 at 10⁶,
+    // Lower variance per evaluation, every evaluation counted (2.6× over seeds 1–3 at 10⁶,
     // docs/results/integration.md; each seed's σ² is within ~20 % at this budget).
     let rel_var = |r: &IntegrationResult| r.std_err.powi(2) * r.n_eval as f64 / r.value.powi(2);
     let (mut plain, mut net) = (0.0, 0.0);
