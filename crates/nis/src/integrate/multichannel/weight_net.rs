@@ -9,9 +9,10 @@
 //! estimate's σ per evaluation is Σ_p σ_p, σ_p² = Var_{Q_p}(α_k f/Q_p). N is fitted to minimise
 //! it after the parts adapt, on fresh points of every part's frozen sampler (half to fit, half
 //! held out; each step on a few parts drawn at random, so that a fit's cost does not grow with
-//! the channels), and kept only when it lowers (Σσ_p)² on the held-out half by [`MIN_GAIN`]. It moves
-//! each x's share towards the channels whose trained samplers cover x best (the pointwise
-//! optimum at fixed samplers is α_k ∝ n_k Q_k(x), which would need every channel's inverse map).
+//! the channels), and kept only when it lowers (Σσ_p)² on the held-out half by [`MIN_GAIN`].
+//! It moves each x's share towards the channels whose trained samplers cover x best (the
+//! pointwise optimum at fixed samplers is α_k ∝ n_k Q_k(x), which would need every channel's
+//! inverse map).
 
 use rand::seq::index::sample;
 use rand::SeedableRng;
@@ -272,23 +273,23 @@ pub(super) fn fit(
             .collect()
     };
     let held_x = inputs(&held);
-    let held_corrections = |params: &[f32]| -> Vec<Vec<f32>> {
-        held_x
+    let held_sigmas = |params: &[f32]| {
+        let n: Vec<Vec<f32>> = held_x
             .iter()
             .map(|x| {
                 let f = mlp.forward_batch(params, x);
                 f.outputs().map(|r| squash(*r).0).collect()
             })
-            .collect()
+            .collect();
+        sigmas(&held, Some(&n), k, None)
     };
-    let held_sigmas = |params: &[f32]| sigmas(&held, Some(&held_corrections(params)), k, None);
     // The best held-out Σσ and its parameters and σ_p; the last Σσ that made progress and the
     // checks since it.
     let (mut best, mut best_fit) = (base_total, None);
     let (mut mark, mut since) = (base_total, 0);
     let mut grad = vec![0.0f32; params.len()];
     let mut one = vec![0.0f32; params.len()];
-    let mut rows = 0;
+    let mut fitted_rows = 0;
     for step in 1..=STEPS {
         let chosen = if train.len() > PARTS_PER_STEP {
             sample(&mut rng, train.len(), PARTS_PER_STEP).into_vec()
@@ -326,8 +327,8 @@ pub(super) fn fit(
             grad.iter_mut().zip(&one).for_each(|(t, o)| *t += o);
         }
         adam.step(&mut params, &grad)?;
-        rows += batch.iter().map(PartPoints::len).sum::<usize>();
-        let last = rows >= max_rows;
+        fitted_rows += batch.iter().map(PartPoints::len).sum::<usize>();
+        let last = fitted_rows >= max_rows;
         if step % CHECK_EVERY == 0 || last {
             let sigmas = held_sigmas(&params);
             let total: f64 = sigmas.iter().sum();
