@@ -20,10 +20,21 @@ unsafe extern "C" fn bump_c(
     out: *mut f64,
     _user: *mut c_void,
 ) -> c_int {
+    unsafe { each_point(x, n, dim, out, bump) }
+}
+
+/// `out[i] = value(x_i)` for the `n` points of `x` (`dim` each), a callback's body.
+unsafe fn each_point(
+    x: *const f64,
+    n: usize,
+    dim: usize,
+    out: *mut f64,
+    value: impl Fn(&[f64]) -> f64,
+) -> c_int {
     let x = unsafe { std::slice::from_raw_parts(x, n * dim) };
     let out = unsafe { std::slice::from_raw_parts_mut(out, n) };
     for (o, p) in out.iter_mut().zip(x.chunks_exact(dim)) {
-        *o = bump(p);
+        *o = value(p);
     }
     0
 }
@@ -530,12 +541,7 @@ unsafe extern "C" fn peaks_c(
     out: *mut f64,
     _: *mut c_void,
 ) -> c_int {
-    let x = unsafe { std::slice::from_raw_parts(x, n * dim) };
-    let out = unsafe { std::slice::from_raw_parts_mut(out, n) };
-    for (o, p) in out.iter_mut().zip(x.chunks_exact(dim)) {
-        *o = peak(p[0], 0.2) + 0.5 * peak(p[0], 0.7);
-    }
-    0
+    unsafe { each_point(x, n, dim, out, |p| peak(p[0], 0.2) + 0.5 * peak(p[0], 0.7)) }
 }
 
 /// The channel's centre is the f64 behind `user`.
@@ -566,12 +572,7 @@ unsafe extern "C" fn cauchy_density(
 ) -> c_int {
     let c = unsafe { *(user as *const f64) };
     let (lo, hi) = angles(c);
-    let x = unsafe { std::slice::from_raw_parts(x, n * dim) };
-    let g = unsafe { std::slice::from_raw_parts_mut(g, n) };
-    for (g, x) in g.iter_mut().zip(x.chunks_exact(dim)) {
-        *g = peak(x[0], c) / (hi - lo);
-    }
-    0
+    unsafe { each_point(x, n, dim, g, |x| peak(x[0], c) / (hi - lo)) }
 }
 
 /// A sample callback that leaves the cube.
@@ -617,12 +618,7 @@ unsafe extern "C" fn cauchy_peak(
     user: *mut c_void,
 ) -> c_int {
     let c = unsafe { *(user as *const f64) };
-    let x = unsafe { std::slice::from_raw_parts(x, n * dim) };
-    let w = unsafe { std::slice::from_raw_parts_mut(w, n) };
-    for (w, x) in w.iter_mut().zip(x.chunks_exact(dim)) {
-        *w = peak(x[0], c);
-    }
-    0
+    unsafe { each_point(x, n, dim, w, |x| peak(x[0], c)) }
 }
 
 unsafe extern "C" fn failing(
@@ -818,12 +814,7 @@ unsafe extern "C" fn signed_c(
     out: *mut f64,
     _: *mut c_void,
 ) -> c_int {
-    let x = unsafe { std::slice::from_raw_parts(x, n * dim) };
-    let out = unsafe { std::slice::from_raw_parts_mut(out, n) };
-    for (o, p) in out.iter_mut().zip(x.chunks_exact(dim)) {
-        *o = p[0] - 0.3;
-    }
-    0
+    unsafe { each_point(x, n, dim, out, |p| p[0] - 0.3) }
 }
 
 #[test]

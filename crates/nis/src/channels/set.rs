@@ -155,18 +155,21 @@ impl ChannelSet {
     }
 
     /// What the channel weights are made of at the points `x` (n × d), given every channel's
-    /// density there (`g`, n × K, from [`ChannelSet::densities`]): into `b` (n × K), the
-    /// densities themselves, or with enhancements w̃_j = w_j where g_j > 0 and 0 elsewhere.
-    /// An enhancement that is negative or not finite is an error.
-    pub fn weight_basis(&self, x: &[f64], g: &[f64], b: &mut [f64]) -> Result<()> {
+    /// density there (`g`, n × K, from [`ChannelSet::densities`]): `None` when they are the
+    /// densities themselves (no enhancements, [`ChannelSet::enhanced`]), else the enhancements
+    /// w̃_j = w_j where g_j > 0 and 0 elsewhere, n × K (a channel without one: its density). An
+    /// enhancement that is negative or not finite is an error.
+    pub fn weight_basis(&self, x: &[f64], g: &[f64]) -> Result<Option<Vec<f64>>> {
+        if !self.enhanced() {
+            return Ok(None);
+        }
         let n = points("channel weight basis x", self.dim, x.len())?;
         let k = self.len();
         same_len("channel weight basis g", n * k, g.len())?;
-        same_len("channel weight basis", n * k, b.len())?;
-        b.copy_from_slice(g);
+        let mut b = g.to_vec();
         let mut one = vec![0.0; n];
         for (j, c) in self.channels.iter().enumerate() {
-            if !(self.enhance && c.has_enhancement()) {
+            if !c.has_enhancement() {
                 continue;
             }
             c.enhancement(x, &mut one)?;
@@ -175,7 +178,7 @@ impl ChannelSet {
                 b[i * k + j] = if g[i * k + j] > 0.0 { v } else { 0.0 };
             }
         }
-        Ok(())
+        Ok(Some(b))
     }
 
     /// The mixture density g(x) = Σ_k a_k g_k(x) at the points `x` (n × d), into `g` (n values).
@@ -193,10 +196,14 @@ impl ChannelSet {
     }
 
     /// The channel weights α_k(x) = a_k g_k(x)/Σ_j a_j g_j(x) at the points `x` (n × d), into
-    /// `alpha` (n × K, row-major); they sum to 1 at every point some channel reaches (and are
-    /// all 0 where none does).
+    /// `alpha` (n × K, row-major), g the [`ChannelSet::weight_basis`] where the channels have
+    /// enhancements; they sum to 1 at every point some channel reaches (and are all 0 where none
+    /// does).
     pub fn channel_weights(&self, x: &[f64], alpha: &mut [f64]) -> Result<()> {
         self.densities(x, alpha)?;
+        if let Some(b) = self.weight_basis(x, alpha)? {
+            alpha.copy_from_slice(&b);
+        }
         let a = self.weights();
         for row in alpha.chunks_exact_mut(self.len()) {
             let total: f64 = row.iter().zip(&a).map(|(g, a)| g * a).sum();

@@ -225,10 +225,15 @@ fn enhancements_count_only_where_their_channel_samples_and_bad_ones_are_errors()
     let x = [0.25, 0.75];
     let mut g = [0.0; 4];
     set.densities(&x, &mut g).unwrap();
-    let mut b = [0.0; 4];
-    set.weight_basis(&x, &g, &mut b).unwrap();
+    let b = set.weight_basis(&x, &g).unwrap().unwrap();
     // Channel 1 has none: its density stands in.
     assert_eq!(b, [10.0, 1.0, 0.0, 1.0]);
+    // The channel weights are made of them (equal priors).
+    let mut alpha = [0.0; 4];
+    set.channel_weights(&x, &mut alpha).unwrap();
+    for (got, want) in alpha.iter().zip([10.0 / 11.0, 1.0 / 11.0, 0.0, 1.0]) {
+        assert!((got - want).abs() < 1e-15, "{alpha:?}");
+    }
     let plain = ChannelSet::new(vec![
         Box::new(
             ChannelFn::new(1, |u: &[f64], x: &mut [f64]| x[0] = u[0], |_: &[f64]| 1.0)
@@ -239,15 +244,15 @@ fn enhancements_count_only_where_their_channel_samples_and_bad_ones_are_errors()
     .unwrap()
     .without_enhancements();
     assert!(!plain.enhanced());
-    plain.weight_basis(&x, &g, &mut b).unwrap();
-    assert_eq!(b, g);
+    // The densities themselves.
+    assert_eq!(plain.weight_basis(&x, &g).unwrap(), None);
     for bad in [-1.0, f64::NAN, f64::INFINITY] {
         let c = ChannelFn::new(1, |u: &[f64], x: &mut [f64]| x[0] = u[0], |_: &[f64]| 1.0)
             .with_enhancement(move |_: &[f64]| bad);
         let set = ChannelSet::new(vec![flat(1), Box::new(c)]).unwrap();
         let mut g = [0.0; 2];
         set.densities(&[0.5], &mut g).unwrap();
-        match set.weight_basis(&[0.5], &g, &mut [0.0; 2]) {
+        match set.weight_basis(&[0.5], &g) {
             Err(Error::Channel {
                 channel, reason, ..
             }) => {

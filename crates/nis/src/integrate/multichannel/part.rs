@@ -160,13 +160,7 @@ fn values(
     set.densities(x, &mut g)?;
     // With enhancements α_k = a_k w̃_k/Σ a_j w̃_j, so h = α_k f/g_k; without, w̃ = g and g_k
     // cancels.
-    let basis = if set.enhanced() {
-        let mut b = vec![0.0; g.len()];
-        set.weight_basis(x, &g, &mut b)?;
-        Some(b)
-    } else {
-        None
-    };
+    let basis = set.weight_basis(x, &g)?;
     let corrections = net.map(|n| n.corrections(x));
     let mut e = vec![1.0; channels];
     let mut i = 0;
