@@ -631,31 +631,51 @@ unsafe extern "C" fn failing(
     7
 }
 
+/// The peaks of [`peaks_c`]; a channel's `user` points at its own.
+static CENTRES: [f64; 2] = [0.2, 0.7];
+
+/// ∫ [`peaks_c`] over the square.
+fn peaks_exact() -> f64 {
+    let mass = |c: f64| angles(c).1 - angles(c).0;
+    mass(CENTRES[0]) + 0.5 * mass(CENTRES[1])
+}
+
+/// A Cauchy channel per peak, each with `enhancement`.
+fn channels(enhancement: nis_channel_fn) -> Vec<nis_channel> {
+    CENTRES
+        .iter()
+        .map(|c| nis_channel {
+            sample: Some(cauchy_sample),
+            density: Some(cauchy_density),
+            user: c as *const f64 as *mut c_void,
+            prior: 0.0,
+            enhancement,
+        })
+        .collect()
+}
+
+/// Makes a multi-channel integrator from `json` and `channels` (which must succeed) and
+/// integrates [`peaks_c`] with `evals`: the integrator (to free), the status and the result.
+fn integrate_peaks(
+    json: &str,
+    channels: &[nis_channel],
+    evals: u64,
+) -> (*mut nis_multichannel, c_int, nis_result) {
+    let (status, mc) = create_mc(json, channels);
+    assert_eq!(status, NIS_OK, "{}", last_error());
+    let mut r = nis_result::default();
+    let status = unsafe {
+        nis_multichannel_integrate(mc, Some(peaks_c), std::ptr::null_mut(), evals, &mut r)
+    };
+    (mc, status, r)
+}
+
 #[test]
 fn channels_with_enhancements_through_c_keep_the_integral() {
-    let mass = |c: f64| angles(c).1 - angles(c).0;
-    let exact = mass(0.2) + 0.5 * mass(0.7);
-    let centres = [0.2f64, 0.7];
-    let channels = |enhancement: nis_channel_fn| -> Vec<nis_channel> {
-        centres
-            .iter()
-            .map(|c| nis_channel {
-                sample: Some(cauchy_sample),
-                density: Some(cauchy_density),
-                user: c as *const f64 as *mut c_void,
-                prior: 0.0,
-                enhancement,
-            })
-            .collect()
-    };
+    let exact = peaks_exact();
     for method in ["uniform", "nis"] {
         let json = format!(r#"{{"method": "{method}", "dim": 2, "seed": 4}}"#);
-        let (status, mc) = create_mc(&json, &channels(Some(cauchy_peak)));
-        assert_eq!(status, NIS_OK, "{}", last_error());
-        let mut r = nis_result::default();
-        let status = unsafe {
-            nis_multichannel_integrate(mc, Some(peaks_c), std::ptr::null_mut(), 100_000, &mut r)
-        };
+        let (mc, status, r) = integrate_peaks(&json, &channels(Some(cauchy_peak)), 100_000);
         assert_eq!(status, NIS_OK, "{method}: {}", last_error());
         assert!(
             (r.value - exact).abs() < 5.0 * r.std_err,
@@ -664,15 +684,8 @@ fn channels_with_enhancements_through_c_keep_the_integral() {
         unsafe { nis_multichannel_free(mc) };
     }
     // A failing enhancement stops the run with an error naming the channel and the callback.
-    let (status, mc) = create_mc(
-        r#"{"method": "uniform", "dim": 2}"#,
-        &channels(Some(failing)),
-    );
-    assert_eq!(status, NIS_OK, "{}", last_error());
-    let mut r = nis_result::default();
-    let status = unsafe {
-        nis_multichannel_integrate(mc, Some(peaks_c), std::ptr::null_mut(), 10_000, &mut r)
-    };
+    let json = r#"{"method": "uniform", "dim": 2}"#;
+    let (mc, status, _) = integrate_peaks(json, &channels(Some(failing)), 10_000);
     assert_ne!(status, NIS_OK);
     assert!(last_error().contains("enhancement"), "{}", last_error());
     unsafe { nis_multichannel_free(mc) };
@@ -680,19 +693,8 @@ fn channels_with_enhancements_through_c_keep_the_integral() {
 
 #[test]
 fn channels_through_c_integrate_and_report_each_channel() {
-    let mass = |c: f64| angles(c).1 - angles(c).0;
-    let exact = mass(0.2) + 0.5 * mass(0.7);
-    let centres = [0.2f64, 0.7];
-    let channels: Vec<nis_channel> = centres
-        .iter()
-        .map(|c| nis_channel {
-            sample: Some(cauchy_sample),
-            density: Some(cauchy_density),
-            user: c as *const f64 as *mut c_void,
-            prior: 0.0,
-            enhancement: None,
-        })
-        .collect();
+    let exact = peaks_exact();
+    let channels = channels(None);
     // The three methods, and NIS with a flow per channel besides the default shared one.
     let per_channel = r#""multichannel": {"shared_flow": false}"#;
     for (method, extra) in [
@@ -703,12 +705,7 @@ fn channels_through_c_integrate_and_report_each_channel() {
     ] {
         let comma = if extra.is_empty() { "" } else { ", " };
         let json = format!(r#"{{"method": "{method}", "dim": 2, "seed": 4{comma}{extra}}}"#);
-        let (status, mc) = create_mc(&json, &channels);
-        assert_eq!(status, NIS_OK, "{}", last_error());
-        let mut r = nis_result::default();
-        let status = unsafe {
-            nis_multichannel_integrate(mc, Some(peaks_c), std::ptr::null_mut(), 200_000, &mut r)
-        };
+        let (mc, status, r) = integrate_peaks(&json, &channels, 200_000);
         assert_eq!(status, NIS_OK, "{method}: {}", last_error());
         assert!(
             (r.value - exact).abs() < 5.0 * r.std_err,
@@ -755,7 +752,7 @@ fn channels_through_c_integrate_and_report_each_channel() {
     let bad = [nis_channel {
         sample: Some(outside),
         density: Some(cauchy_density),
-        user: &centres[0] as *const f64 as *mut c_void,
+        user: &CENTRES[0] as *const f64 as *mut c_void,
         prior: 1.0,
         enhancement: None,
     }];

@@ -336,6 +336,13 @@ fn targets_and_channels_run_alike_on_every_rank() {
             / v["std_err"].as_f64().unwrap()
     };
     for ranks in [2, 3] {
+        // A run to a target, which must stop there with an honest result.
+        let to_target = |args: &[&str], what: &str| {
+            let a = run_json(ranks, args);
+            assert_eq!(a["stop"], "target", "{what}, {ranks} ranks: {a}");
+            assert!(pull(&a).abs() < 5.0, "{what}, {ranks} ranks: {a}");
+            a
+        };
         // To a target: VEGAS+ and plain MC plan from counts alone, so two runs agree to the bit;
         // NIS decides its training from the slowest rank's times, the same on every rank.
         for method in ["vegas", "uniform", "nis"] {
@@ -352,9 +359,7 @@ fn targets_and_channels_run_alike_on_every_rank() {
                 "--rel-err",
                 "1e-2",
             ];
-            let a = run_json(ranks, &args);
-            assert_eq!(a["stop"], "target", "{method}, {ranks} ranks: {a}");
-            assert!(pull(&a).abs() < 5.0, "{method}, {ranks} ranks: {a}");
+            let a = to_target(&args, method);
             if method == "nis" {
                 let sums = a["rank_checksums"].as_array().unwrap();
                 assert!(sums.iter().all(|s| s == &sums[0]), "{sums:?}");
@@ -385,9 +390,7 @@ fn targets_and_channels_run_alike_on_every_rank() {
                 "--nis-config",
                 config,
             ];
-            let a = run_json(ranks, &args);
-            assert_eq!(a["stop"], "target", "{config}, {ranks} ranks: {a}");
-            assert!(pull(&a).abs() < 5.0, "{config}, {ranks} ranks: {a}");
+            let a = to_target(&args, config);
             let sums = a["rank_checksums"].as_array().unwrap();
             assert!(sums.iter().all(|s| s == &sums[0]), "{config}: {sums:?}");
         }
@@ -437,9 +440,7 @@ fn targets_and_channels_run_alike_on_every_rank() {
                 "--seconds",
                 "60",
             ];
-            let a = run_json(ranks, &args);
-            assert_eq!(a["stop"], "target", "{method}, {ranks} ranks: {a}");
-            assert!(pull(&a).abs() < 5.0, "{method}, {ranks} ranks: {a}");
+            to_target(&args, method);
         }
     }
 }
