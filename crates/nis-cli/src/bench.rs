@@ -183,6 +183,10 @@ pub struct BenchTimeToPrecisionArgs {
     /// Markdown file the results go to (plots in img/ beside it).
     #[arg(long, default_value = "docs/results/integration.md")]
     docs: PathBuf,
+    /// Count only answers that carry no warning: a result of ours that warns does not reach a
+    /// target however small its error bar (a section of its own in the docs).
+    #[arg(long)]
+    trusted: bool,
 }
 
 /// The cells `--only` names: NAME:D, or NAME in the dimensions of the default cells that have it
@@ -241,6 +245,7 @@ pub fn run_time_to_precision(
         cost_us: a.cost_us,
         cli: Some(std::env::current_exe()?),
         docs: Some(a.docs.clone()),
+        trusted: a.trusted,
     };
     let pb = ProgressBar::new(0);
     pb.set_style(

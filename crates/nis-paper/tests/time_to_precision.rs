@@ -16,6 +16,7 @@ fn a_tiny_race_has_a_ladder_per_method_and_seed_and_writes_its_section_and_plot(
         cost_us: 0.0,
         cli: None,
         docs: Some(docs.clone()),
+        trusted: false,
     };
     let mut events = (0, 0);
     let (cells, md) = ttp::run(&options, &mut |p| {
@@ -68,6 +69,19 @@ fn a_tiny_race_has_a_ladder_per_method_and_seed_and_writes_its_section_and_plot(
     assert!(written.contains("](../img/time-to-precision-camel-d2.png)"));
     let png = std::fs::read(dir.join("img/time-to-precision-camel-d2.png")).unwrap();
     assert_eq!(&png[1..4], b"PNG");
+    // Trusted answers only: a section and plots of their own beside the first.
+    let trusted = Options {
+        contenders: vec![Contender::Vegas],
+        seeds: 1,
+        trusted: true,
+        ..options
+    };
+    let (_, md) = ttp::run(&trusted, &mut |_| {}).unwrap();
+    assert!(md.contains("Trusted answers only"), "{md}");
+    let written = std::fs::read_to_string(&docs).unwrap();
+    assert!(written.contains("<!-- time-to-precision:start -->"));
+    assert!(written.contains("<!-- time-to-precision-trusted:start -->"));
+    assert!(written.contains("](../img/time-to-precision-camel-d2-trusted.png)"));
     std::fs::remove_dir_all(&dir).unwrap();
 }
 

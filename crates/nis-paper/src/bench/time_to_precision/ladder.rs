@@ -1,8 +1,9 @@
 //! The measurement rule of `nis bench time-to-precision`, on run records alone (no clocks here,
 //! so it can be tested on synthetic records): fresh runs at budgets doubling from 10⁴; the time
 //! to a target is the wall time of the first run whose relative error std_err/|value| is below
-//! the target with |pull| < [`MAX_PULL`]; a ladder stops when every target is reached or when its
-//! next run would take it past the wall-time cap; over seeds, the median.
+//! the target with |pull| < [`MAX_PULL`] (and, asked for trusted answers, no warning); a ladder
+//! stops when every target is reached or when its next run would take it past the wall-time
+//! cap; over seeds, the median.
 
 /// The first budget of a ladder, in evaluations.
 pub const FIRST_BUDGET: u64 = 10_000;
@@ -22,6 +23,9 @@ pub struct Run {
     pub value: f64,
     /// Its standard error.
     pub std_err: f64,
+    /// Whether its warning disowns it: the result warned that its error bar cannot be trusted
+    /// and the bench counts only answers a user could take as they are (`--trusted`).
+    pub disowned: bool,
 }
 
 impl Run {
@@ -40,9 +44,10 @@ impl Run {
         (self.value - exact) / self.std_err
     }
 
-    /// Whether the answer is honest: a finite positive error bar with |pull| < [`MAX_PULL`].
+    /// Whether the answer counts: a finite positive error bar with |pull| < [`MAX_PULL`], not
+    /// disowned by its warning.
     pub fn honest(&self, exact: f64) -> bool {
-        self.std_err > 0.0 && self.pull(exact).abs() < MAX_PULL
+        self.std_err > 0.0 && self.pull(exact).abs() < MAX_PULL && !self.disowned
     }
 
     /// Whether this run reaches `target` honestly within `cap` seconds.
@@ -160,6 +165,7 @@ mod tests {
             seconds,
             value: EXACT + pull * std_err,
             std_err,
+            disowned: false,
         }
     }
 
@@ -210,6 +216,30 @@ mod tests {
         );
         // A wrong run keeps the ladder going.
         assert_eq!(next_budget(&runs[..1], &[1e-3], EXACT, 300.0), Some(20_000));
+    }
+
+    #[test]
+    fn a_run_disowned_by_its_warning_does_not_reach_the_target() {
+        let warned = Run {
+            disowned: true,
+            ..run(10_000, 0.1, 5e-4, 0.5)
+        };
+        let runs = [warned, run(20_000, 0.2, 4e-4, 0.5)];
+        assert_eq!(
+            outcome(&runs, 1e-3, EXACT, 300.0),
+            Outcome::Reached {
+                seconds: 0.2,
+                evals: 20_000
+            }
+        );
+        assert_eq!(next_budget(&runs[..1], &[1e-3], EXACT, 300.0), Some(20_000));
+        // Alone, it leaves the target capped with no answer that counts.
+        assert_eq!(
+            outcome(&runs[..1], 1e-3, EXACT, 300.0),
+            Outcome::Capped {
+                rel_err: f64::INFINITY
+            }
+        );
     }
 
     #[test]

@@ -114,6 +114,7 @@ impl VegasPackage {
             seconds: a.seconds,
             value: a.value,
             std_err: a.std_err,
+            disowned: false,
         })
     }
 }
