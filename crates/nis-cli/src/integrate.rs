@@ -340,6 +340,7 @@ pub fn run(args: &IntegrateArgs, comm: &Comm) -> Result<(), Error> {
         v["exact"] = serde_json::json!(f.exact);
         v["integrand"] = serde_json::json!(integrand);
         v["warnings"] = serde_json::json!(r.warnings);
+        v["convergence"] = serde_json::to_value(r.convergence)?;
         if let Some(sums) = run.rank_checksums {
             v["rank_checksums"] = serde_json::json!(sums);
         }

@@ -263,6 +263,11 @@ fn a_target_stops_each_method_and_bad_targets_are_errors() {
     let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
     assert_eq!(v["stop"], "target");
     assert!(v["std_err"].as_f64().unwrap() <= 1e-2 * v["value"].as_f64().unwrap());
+    // The figures the warnings read come with the result.
+    assert!(
+        v["convergence"]["divergence"].as_f64().unwrap() >= 0.0,
+        "{v}"
+    );
     // A limit: not an error, the reason and a warning on stderr.
     let out = nis(&[
         "integrate",
