@@ -6,7 +6,7 @@
 //! per batch and with it the time its annealing and settling would take at the slow pace
 //! ([`TrainingLength::slow_seconds_left`]), NIS's training at its slowest. VEGAS+ (its own run to
 //! the target, its own seed) does not start when its warm-up alone would take [`LEAST_SHARE`] of
-//! that at NIS's seconds per point (a costly integrand); else it runs [`LEAST_SHARE`] of it in
+//! that at the integrand's seconds per point (a costly integrand); else it runs [`LEAST_SHARE`] of it in
 //! any case and goes on while its time so far plus its prediction from the latest iteration
 //! stays below [`ESTIMATE_TOO`] times it, and while its weights are not already far from f's
 //! shape (`vegas/to_target.rs`), within half of `max_evals` and `max_seconds`. When it meets the
@@ -31,7 +31,7 @@ const RACE_SEED_SALT: u64 = 0x7261_6365;
 /// The share of NIS's slowest training time that VEGAS+ runs in any case before its prediction
 /// must beat NIS's: its first iterations adapt the map and predict too long a time (gauss d = 16
 /// at 0.03 s of its 0.7 s: 23 s). What NIS loses where VEGAS+ gives up. VEGAS+ does not start
-/// when its warm-up alone, at NIS's seconds per point, would take longer (a costly integrand:
+/// when its warm-up alone, at the integrand's seconds per point, would take longer (a costly integrand:
 /// camel d = 4 at 100 µs a point lost 17 % to a warm-up of 4·10⁴ points).
 const LEAST_SHARE: f64 = 0.2;
 
@@ -71,7 +71,9 @@ impl NisIntegrator {
             ..VegasConfig::default()
         };
         let mut vegas = Vegas::new(self.flow().dim(), config)?;
-        let per_point = length.latest().map_or(f64::INFINITY, |(_, _, s)| s);
+        // Priced at the integrand's own cost per point: NIS's includes drawing from the flow,
+        // which VEGAS+'s points do not pay (on cheap integrands most of it).
+        let per_point = length.integrand_seconds_per_eval().unwrap_or(f64::INFINITY);
         if vegas.warm_up_evals(target) as f64 * per_point > LEAST_SHARE * rival {
             return Ok(Raced::Lost { evals: 0 });
         }

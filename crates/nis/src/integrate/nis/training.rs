@@ -122,6 +122,7 @@ impl NisIntegrator {
                 &mut self.streams.train,
                 Record::DensityShare,
             );
+            let sampled_in = started.elapsed().as_secs_f64();
             // The failure flag of the batch: an error on any rank stops every rank here.
             let (b, fx) = self
                 .comm
@@ -182,13 +183,18 @@ impl NisIntegrator {
             report(&mut self.progress, done, evals, "nis: training");
             if let (Some(rule), Some(m)) = (length.as_deref_mut(), moments) {
                 // Times as the slowest rank saw them, so every rank decides alike.
-                let mut t = [drawn_in, started.elapsed().as_secs_f64()];
+                let mut t = [
+                    drawn_in,
+                    started.elapsed().as_secs_f64(),
+                    drawn_in - sampled_in,
+                ];
                 self.comm.max_f64(&mut t);
                 let (mean, cov) = m.mean_and_cov_of_mean();
                 let go_on = rule.go_on(BatchReport {
                     var_per_eval: cov[0] * m.n() as f64,
                     estimate: mean[0],
                     seconds_per_eval: t[0] / batch as f64,
+                    integrand_seconds_per_eval: t[2] / batch as f64,
                     seconds: t[1],
                     tempered_ess,
                 });

@@ -64,6 +64,9 @@ pub(super) struct BatchReport {
     pub(super) estimate: f64,
     /// Seconds spent drawing and evaluating the batch's points, per point.
     pub(super) seconds_per_eval: f64,
+    /// Seconds spent evaluating the integrand alone, per point (what another sampler's points
+    /// would cost).
+    pub(super) integrand_seconds_per_eval: f64,
     /// Seconds the whole batch took, its training step included.
     pub(super) seconds: f64,
     /// The ESS fraction (Σw)²/(n·Σw²) of the tempered weights w = |f|^β/q_mix of the batch
@@ -93,6 +96,7 @@ pub(super) struct TrainingLength {
     log_var: Vec<f64>,
     estimates: Vec<f64>,
     seconds_per_eval: Vec<f64>,
+    integrand_seconds_per_eval: Vec<f64>,
     seconds: Vec<f64>,
     ess: Vec<f64>,
 }
@@ -122,6 +126,7 @@ impl TrainingLength {
             log_var: Vec::new(),
             estimates: Vec::new(),
             seconds_per_eval: Vec::new(),
+            integrand_seconds_per_eval: Vec::new(),
             seconds: Vec::new(),
             ess: Vec::new(),
         }
@@ -225,6 +230,8 @@ impl TrainingLength {
         });
         self.estimates.push(b.estimate);
         self.seconds_per_eval.push(b.seconds_per_eval);
+        self.integrand_seconds_per_eval
+            .push(b.integrand_seconds_per_eval);
         self.seconds.push(b.seconds);
         self.ess.push(b.tempered_ess);
         self.advance_beta();
@@ -283,6 +290,13 @@ impl TrainingLength {
             median(&self.seconds_per_eval[n - w..]),
         ))
     }
+
+    /// The seconds per point of the integrand alone over the last window (as [`Self::latest`]'s;
+    /// `None` before any batch): what a rival sampler's points cost.
+    pub(super) fn integrand_seconds_per_eval(&self) -> Option<f64> {
+        let n = self.integrand_seconds_per_eval.len();
+        (n > 0).then(|| median(&self.integrand_seconds_per_eval[n - (n / 5).clamp(1, n)..]))
+    }
 }
 
 /// The median of `v` (the upper one of an even count); NaNs sort last.
@@ -312,6 +326,7 @@ mod tests {
                 var_per_eval: var(n),
                 estimate: 1.0,
                 seconds_per_eval: per_eval,
+                integrand_seconds_per_eval: per_eval,
                 seconds: 256.0 * per_eval + step,
                 tempered_ess: ess,
             });
@@ -330,6 +345,7 @@ mod tests {
             var_per_eval: 1.0,
             estimate: 1.0,
             seconds_per_eval: 1e-6,
+            integrand_seconds_per_eval: 1e-6,
             seconds: 1e-3,
             tempered_ess: ess,
         }
@@ -392,6 +408,29 @@ mod tests {
         let more = (1..).find(|_| !rule.go_on(report(0.5))).unwrap();
         assert!(!rule.paused());
         assert_eq!(PROBE_BATCHES + more, 100);
+    }
+
+    #[test]
+    fn the_integrand_cost_is_apart_from_the_flows() {
+        let mut rule = TrainingLength::new(Target::rel(1e-4), 50, 0.1, 5_000, f64::INFINITY);
+        assert_eq!(rule.integrand_seconds_per_eval(), None);
+        for i in 0..10 {
+            rule.go_on(BatchReport {
+                seconds_per_eval: 1e-5,
+                integrand_seconds_per_eval: if i == 9 { 1e-3 } else { 1e-7 },
+                ..report(0.5)
+            });
+        }
+        // The last window (two batches of ten): its upper median, the slow last batch.
+        assert_eq!(rule.integrand_seconds_per_eval(), Some(1e-3));
+        assert_eq!(rule.latest().map(|l| l.2), Some(1e-5));
+        for _ in 0..2 {
+            rule.go_on(BatchReport {
+                integrand_seconds_per_eval: 1e-7,
+                ..report(0.5)
+            });
+        }
+        assert_eq!(rule.integrand_seconds_per_eval(), Some(1e-7));
     }
 
     #[test]
