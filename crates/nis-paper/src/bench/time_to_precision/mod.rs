@@ -15,7 +15,7 @@ pub mod vegas_package;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
-use nis::integrate::{integrator, Integrand, Method, Settings, Target};
+use nis::integrate::{integrator, Integrand, IntegrationResult, Method, Settings, Target};
 
 use self::cost::SyntheticCost;
 use self::ladder::{Outcome, Run};
@@ -444,13 +444,19 @@ fn ours(
 ) -> Result<Run> {
     let start = Instant::now();
     let r = integrator(method, dim, settings)?.integrate(f, evals)?;
-    Ok(Run {
+    Ok(record(&r, evals, start, trusted))
+}
+
+/// The record of result `r` of `evals` evaluations, started at `start`; `trusted`: a warning
+/// disowns it.
+fn record(r: &IntegrationResult, evals: u64, start: Instant, trusted: bool) -> Run {
+    Run {
         evals,
         seconds: start.elapsed().as_secs_f64(),
         value: r.value,
         std_err: r.std_err,
         disowned: trusted && !r.warnings.is_empty(),
-    })
+    }
 }
 
 /// One run to each target (loosest first, so that [`ladder::outcome`] takes each target's own
@@ -472,13 +478,7 @@ fn to_targets(
             let start = Instant::now();
             let r = integrator(method, dim, settings)?
                 .integrate_to(f, &Target::rel(t).max_seconds(cap))?;
-            Ok(Run {
-                evals: r.n_eval,
-                seconds: start.elapsed().as_secs_f64(),
-                value: r.value,
-                std_err: r.std_err,
-                disowned: trusted && !r.warnings.is_empty(),
-            })
+            Ok(record(&r, r.n_eval, start, trusted))
         })
         .collect()
 }

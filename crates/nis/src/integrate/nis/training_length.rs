@@ -283,7 +283,7 @@ impl TrainingLength {
         if n == 0 {
             return None;
         }
-        let w = (n / 5).clamp(1, n);
+        let w = latest_window(n);
         Some((
             median(&self.log_var[n - w..]).exp(),
             self.estimates[n - w..].iter().sum::<f64>() / w as f64,
@@ -295,8 +295,13 @@ impl TrainingLength {
     /// `None` before any batch): what a rival sampler's points cost.
     pub(super) fn integrand_seconds_per_eval(&self) -> Option<f64> {
         let n = self.integrand_seconds_per_eval.len();
-        (n > 0).then(|| median(&self.integrand_seconds_per_eval[n - (n / 5).clamp(1, n)..]))
+        (n > 0).then(|| median(&self.integrand_seconds_per_eval[n - latest_window(n)..]))
     }
+}
+
+/// The batches of the last window after `n` (at least one): the latest fifth.
+fn latest_window(n: usize) -> usize {
+    (n / 5).clamp(1, n)
 }
 
 /// The median of `v` (the upper one of an even count); NaNs sort last.
