@@ -6,10 +6,10 @@
 //! per batch and with it the time its annealing and settling would take at the slow pace
 //! ([`TrainingLength::slow_seconds_left`]), NIS's training at its slowest. VEGAS+ (its own run to
 //! the target, its own seed) does not start when its warm-up alone would take [`LEAST_SHARE`] of
-//! that at the integrand's seconds per point (a costly integrand); else it runs [`LEAST_SHARE`] of it in
-//! any case and goes on while its time so far plus its prediction from the latest iteration
-//! stays below [`ESTIMATE_TOO`] times it, and while its weights are not already far from f's
-//! shape (`vegas/to_target.rs`), within half of `max_evals` and `max_seconds`. When it meets the
+//! that at the integrand's seconds per point (a costly integrand); else it runs [`LEAST_SHARE`]
+//! of it in any case and goes on while its time so far plus its prediction from the latest
+//! iteration stays below [`ESTIMATE_TOO`] times it, and while its weights are not already far
+//! from f's shape (`vegas/to_target.rs`), within half of `max_evals` and `max_seconds`. When it meets the
 //! target with no warning, its result is the answer (`IntegrationResult::answered_by`); when it
 //! gives up, its result warns or half a limit stops it, NIS trains on as without the race,
 //! VEGAS+'s evaluations counted but not used.
@@ -31,8 +31,8 @@ const RACE_SEED_SALT: u64 = 0x7261_6365;
 /// The share of NIS's slowest training time that VEGAS+ runs in any case before its prediction
 /// must beat NIS's: its first iterations adapt the map and predict too long a time (gauss d = 16
 /// at 0.03 s of its 0.7 s: 23 s). What NIS loses where VEGAS+ gives up. VEGAS+ does not start
-/// when its warm-up alone, at the integrand's seconds per point, would take longer (a costly integrand:
-/// camel d = 4 at 100 µs a point lost 17 % to a warm-up of 4·10⁴ points).
+/// when its warm-up alone, at the integrand's seconds per point, would take longer (a costly
+/// integrand: camel d = 4 at 100 µs a point lost 17 % to a warm-up of 4·10⁴ points).
 const LEAST_SHARE: f64 = 0.2;
 
 /// NIS's time to the target over its training's: its estimate phase comes on top (at 10⁻³ on
