@@ -182,6 +182,11 @@ pub fn run_render(args: &RenderArgs, comm: &Comm) -> Result<(), Box<dyn std::err
         return Ok(());
     }
     let (scene, width, height) = scene_of(args)?;
+    if comm.is_root() {
+        for w in &scene.warnings {
+            eprintln!("warning: {w}");
+        }
+    }
     let strategy = match args.strategy.as_str() {
         "nee" => Strategy::Nee,
         "bsdf" => Strategy::Bsdf,

@@ -30,6 +30,7 @@ pub mod bvh;
 pub mod camera;
 pub mod compare;
 pub mod film;
+pub mod filter;
 pub mod geometry;
 pub mod guiding;
 pub mod light;
@@ -39,6 +40,7 @@ pub mod sampling;
 pub mod scene;
 pub mod scenes;
 pub mod shape;
+pub mod spectrum;
 pub mod xml;
 
 /// Everything that can go wrong while loading, rendering or writing.

@@ -102,6 +102,11 @@ impl Distribution1D {
         i.min(self.cdf.len() - 1)
     }
 
+    /// The cumulative probability up to and including index `i`.
+    pub fn cdf_at(&self, i: usize) -> f32 {
+        self.cdf[i]
+    }
+
     /// Probability of index `i`.
     pub fn pmf(&self, i: usize) -> f32 {
         let lo = if i == 0 { 0.0 } else { self.cdf[i - 1] };

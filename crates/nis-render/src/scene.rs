@@ -10,6 +10,7 @@ use glam::Vec3;
 use crate::bsdf::Material;
 use crate::bvh::{Bvh, Triangle};
 use crate::camera::Camera;
+use crate::filter::Filter;
 use crate::geometry::{Ray, Rgb};
 use crate::light::{AreaLight, LightPrimitive, Lights};
 use crate::shape::{Geometry, Shape, Sphere};
@@ -27,6 +28,8 @@ pub struct RenderSettings {
     pub rr_depth: u32,
     /// Hide directly visible emitters (Mitsuba `hide_emitters`).
     pub hide_emitters: bool,
+    /// The film's reconstruction filter (Mitsuba `rfilter`).
+    pub filter: Filter,
 }
 
 impl Default for RenderSettings {
@@ -36,6 +39,7 @@ impl Default for RenderSettings {
             max_depth: -1,
             rr_depth: 5,
             hide_emitters: false,
+            filter: Filter::default(),
         }
     }
 }
@@ -87,6 +91,8 @@ pub struct Scene {
     pub materials: Vec<Material>,
     /// All lights.
     pub lights: Lights,
+    /// What the scene file asked for that is read differently (file:line: message).
+    pub warnings: Vec<String>,
     bvh: Bvh,
     triangles: Vec<TriangleInfo>,
     vertex_normals: Vec<[Vec3; 3]>,
@@ -192,6 +198,7 @@ impl Scene {
             settings,
             materials,
             lights: Lights::new(area_lights, environment),
+            warnings: Vec::new(),
             bvh,
             triangles,
             vertex_normals,

@@ -4,7 +4,9 @@
 //! Every sample has its own random stream, seeded from `(seed, pixel, sample index)` by the
 //! SplitMix64 finaliser ([`splitmix64`], Steele et al. 2014), so an image depends only on the
 //! seed and the sample count, never on the number of threads or on how samples are split into
-//! passes. Pixels use a box filter: a sample lands uniformly in its pixel and counts only there.
+//! passes. A sample counts in its own pixel only: its position is drawn from the scene's
+//! reconstruction filter around the pixel, with the filter's weight (`filter.rs`; a box filter
+//! lands uniformly in the pixel).
 //!
 //! Across processes (MPI ranks, [`render_across`]) the waves of every pass's first sample slice
 //! are dealt out to the ranks in turn, and each rank traces its tiles in every slice; the pixel sums are then summed over the ranks — each pixel's from the one rank
@@ -443,6 +445,8 @@ impl Renderer<'_> {
         let mut pixels = Vec::new();
         let mut rays = Vec::new();
         let mut rngs = Vec::new();
+        let mut weights = Vec::new();
+        let filter = &scene.settings.filter;
         for &(x0, y0) in wave {
             for y in y0..(y0 + TILE_SIZE).min(h) {
                 for x in x0..(x0 + TILE_SIZE).min(w) {
@@ -450,11 +454,10 @@ impl Renderer<'_> {
                     pixels.push(pixel as usize);
                     for s in samples.clone() {
                         let mut rng = sample_rng(self.options.seed, pixel, u64::from(s));
-                        rays.push(
-                            scene
-                                .camera
-                                .ray(x as f32 + uniform(&mut rng), y as f32 + uniform(&mut rng)),
-                        );
+                        let (dx, wx) = filter.sample(uniform(&mut rng));
+                        let (dy, wy) = filter.sample(uniform(&mut rng));
+                        rays.push(scene.camera.ray(x as f32 + dx, y as f32 + dy));
+                        weights.push(wx * wy);
                         rngs.push(rng);
                     }
                 }
@@ -482,12 +485,12 @@ impl Renderer<'_> {
         let per_pixel = samples.len().max(1);
         let pixels = pixels
             .iter()
-            .zip(radiance.chunks(per_pixel))
-            .map(|(&pixel, ls)| {
+            .zip(radiance.chunks(per_pixel).zip(weights.chunks(per_pixel)))
+            .map(|(&pixel, (ls, ws))| {
                 let mut sum = PixelSum::default();
-                for l in ls {
+                for (l, &w) in ls.iter().zip(ws) {
                     if l.is_finite() {
-                        sum.add_sample(*l);
+                        sum.add_sample(*l * w);
                     } else {
                         stats.invalid += 1;
                     }

@@ -1,19 +1,22 @@
-//! A loader for the subset of Mitsuba 3's XML scene format that the experiments use.
+//! A loader for Mitsuba 3's XML scene format, and for Mitsuba 0.x files by their own names.
 //!
-//! Supported: `<default>` parameters; the `path` integrator (`max_depth`, `rr_depth`,
-//! `hide_emitters`); a `perspective` sensor (`fov`, `fov_axis`, `to_world`) with an `hdrfilm`
-//! (`width`, `height`, a `box` rfilter) and a sampler (`sample_count`); shapes `obj`,
-//! `rectangle`, `cube`, `sphere` (with `to_world`, `flip_normals`, `face_normals`); BSDFs
-//! `diffuse`, `conductor`, `roughconductor`, `dielectric`, `roughdielectric` (GGX only) and
-//! `twosided`, inline or by `<ref id=…>`; `area` emitters in shapes and a `constant`
-//! environment. Values mean what they mean in Mitsuba 3 (its plugin documentation is the
-//! reference): `rgb` values are linear, `fov_axis` defaults to `x`, the film's resolution and the
-//! sampler's sample count are defaults that the caller may override. Anything else is an error
-//! that names the element and its line, so a scene never renders differently in silence.
-//! One deliberate difference: without an `<rfilter>` Mitsuba uses a Gaussian; we always use a box.
+//! Values mean what they mean in Mitsuba 3 (its plugin documentation is the reference): `rgb`
+//! values are linear, spectra convert to RGB as in its RGB variants, `fov_axis` defaults to `x`,
+//! the film's filter to a Gaussian, the film's resolution and the sampler's sample count are
+//! defaults that the caller may override. A Mitsuba 0.x file (`version` below 2) is upgraded
+//! first (`upgrade.rs`). What the renderer leaves out (participating media, say) is an error
+//! that names the element and its line, before anything renders, so a scene never renders
+//! differently in silence; what it reads differently is a warning ([`Scene::warnings`]): an
+//! integrator plugin other than `path` (a guiding paper's, `volpath`) is read as `path`,
+//! `direct` as `path` with `max_depth = 2`.
+//!
+//! One file per kind of element: `sensor.rs` (camera, film, filter, sampler), `bsdf.rs`.
 
+mod bsdf;
 mod dom;
 mod props;
+mod sensor;
+mod upgrade;
 
 use std::collections::HashMap;
 use std::path::{Path, PathBuf};
@@ -21,13 +24,13 @@ use std::path::{Path, PathBuf};
 use glam::{Mat3, Vec3};
 
 use crate::bsdf::{Bsdf, Material};
-use crate::camera::{Camera, FovAxis};
+use crate::camera::Camera;
 use crate::geometry::Rgb;
 use crate::scene::{RenderSettings, Scene};
 use crate::shape::{Geometry, Shape, Sphere, TriangleMesh};
 use crate::Error;
 use dom::{err, Element, XmlError};
-use props::{ior, Props, PROPERTY_TAGS};
+use props::{Props, PROPERTY_TAGS};
 
 /// Load a Mitsuba 3 XML scene file; `params` override its `<default>`s (`$name` values).
 pub fn load_scene(path: &Path, params: &[(String, String)]) -> Result<Scene, Error> {
@@ -59,6 +62,10 @@ pub fn load_scene_str(
             message: format!("the root element must be <scene>, not <{}>", root.name),
         }));
     }
+    let legacy = upgrade::is_legacy(&root).map_err(to_error)?;
+    if legacy {
+        upgrade::upgrade(&mut root).map_err(to_error)?;
+    }
     let mut values: HashMap<String, String> = params.iter().cloned().collect();
     for d in root.children.iter().filter(|c| c.name == "default") {
         let name = d.required("name").map_err(to_error)?;
@@ -74,10 +81,16 @@ pub fn load_scene_str(
         base_dir: base_dir.to_path_buf(),
         ..Default::default()
     };
-    loader.scene(&root).map_err(|e| match e {
+    let mut scene = loader.scene(&root).map_err(|e| match e {
         LoadError::Xml(x) => to_error(x),
         LoadError::Other(e) => e,
-    })
+    })?;
+    scene.warnings = loader
+        .warnings
+        .iter()
+        .map(|(line, m)| format!("{source}:{line}: {m}"))
+        .collect();
+    Ok(scene)
 }
 
 enum LoadError {
@@ -102,6 +115,8 @@ struct Loader {
     environment: Option<Rgb>,
     camera: Option<Camera>,
     settings: RenderSettings,
+    /// What was read differently from Mitsuba 3, with its line.
+    warnings: Vec<(usize, String)>,
 }
 
 /// Largest film side the loader accepts, in pixels.
@@ -169,12 +184,35 @@ impl Loader {
         .map_err(LoadError::Other)
     }
 
+    /// The `<integrator>`: `path` and its parameters; any other plugin is read as `path` with
+    /// a warning (`direct` with `max_depth = 2`, the light it sees directly and once
+    /// reflected), and a wrapper (`aov`, `moment`, …) by the integrator it nests.
     fn integrator(&mut self, el: &Element) -> LoadResult<()> {
-        if el.required("type")? != "path" {
-            return unsupported(el, "path");
+        let kind = el.required("type")?;
+        let nested: Vec<&Element> = el
+            .children
+            .iter()
+            .filter(|c| c.name == "integrator")
+            .collect();
+        if let [inner] = nested.as_slice() {
+            self.warnings.push((
+                el.line,
+                format!("integrator '{kind}' is read as the integrator it wraps"),
+            ));
+            return self.integrator(inner);
         }
         let p = Props::new(el)?;
-        let max_depth = p.int("max_depth", -1)?;
+        let (default_depth, note) = match kind {
+            "path" => (-1, None),
+            "direct" => (2, Some("read as 'path' with max_depth = 2")),
+            "volpath" | "volpathmis" => (-1, Some("read as 'path' (the scene has no media)")),
+            _ => (-1, Some("read as 'path'")),
+        };
+        if let Some(note) = note {
+            self.warnings
+                .push((el.line, format!("integrator '{kind}' {note}")));
+        }
+        let max_depth = p.int("max_depth", default_depth)?;
         self.settings.max_depth = i32::try_from(max_depth)
             .ok()
             .filter(|&d| d >= -1)
@@ -185,216 +223,15 @@ impl Loader {
         self.settings.rr_depth = u32::try_from(rr_depth)
             .map_err(|_| out_of_range(el, "rr_depth", rr_depth, "0..=2^32-1"))?;
         self.settings.hide_emitters = p.boolean("hide_emitters", false)?;
-        p.finish()?;
+        if kind == "path" {
+            p.finish()?;
+        } else {
+            // Another renderer's settings (a guide's budget, light samples) do not change the
+            // image that `path` converges to.
+            let others: Vec<&str> = p.by_name.keys().copied().collect();
+            p.ignore(&others);
+        }
         Ok(())
-    }
-
-    fn sensor(&mut self, el: &Element) -> LoadResult<()> {
-        if el.required("type")? != "perspective" {
-            return unsupported(el, "perspective");
-        }
-        if self.camera.is_some() {
-            return Err(err::<()>(el.line, "only one <sensor> is supported")
-                .unwrap_err()
-                .into());
-        }
-        let p = Props::new(el)?;
-        let Some(fov) = p.float_opt("fov")? else {
-            return Err(err::<()>(el.line, "the sensor needs <float name=\"fov\">")
-                .unwrap_err()
-                .into());
-        };
-        if !(fov > 0.0 && fov < 180.0) {
-            return Err(err::<()>(
-                el.line,
-                format!("the field of view must be between 0 and 180 degrees, got {fov}"),
-            )
-            .unwrap_err()
-            .into());
-        }
-        let fov_axis = match p.string("fov_axis")?.unwrap_or("x") {
-            "x" => FovAxis::X,
-            "y" => FovAxis::Y,
-            "diagonal" => FovAxis::Diagonal,
-            "smaller" => FovAxis::Smaller,
-            "larger" => FovAxis::Larger,
-            other => {
-                return Err(err::<()>(el.line, format!("unknown fov_axis '{other}'"))
-                    .unwrap_err()
-                    .into())
-            }
-        };
-        let to_world = p.transform("to_world")?;
-        p.ignore(&["near_clip", "far_clip", "focus_distance"]);
-        p.finish()?;
-        let (mut width, mut height) = (768, 576);
-        for c in el
-            .children
-            .iter()
-            .filter(|c| !PROPERTY_TAGS.contains(&c.name.as_str()))
-        {
-            match c.name.as_str() {
-                "film" => {
-                    if c.required("type")? != "hdrfilm" {
-                        return unsupported(c, "hdrfilm");
-                    }
-                    let f = Props::new(c)?;
-                    width = f.int("width", 768)?;
-                    height = f.int("height", 576)?;
-                    f.ignore(&[
-                        "pixel_format",
-                        "component_format",
-                        "file_format",
-                        "banner",
-                        "rfilter",
-                    ]);
-                    f.finish()?;
-                    if !(1..=MAX_FILM_SIDE).contains(&width)
-                        || !(1..=MAX_FILM_SIDE).contains(&height)
-                        || width * height > MAX_FILM_PIXELS
-                    {
-                        return Err(err::<()>(
-                            c.line,
-                            format!("film of {width}×{height} pixels: each side must be 1..={MAX_FILM_SIDE} and the film at most {MAX_FILM_PIXELS} pixels"),
-                        )
-                        .unwrap_err()
-                        .into());
-                    }
-                    for r in c
-                        .children
-                        .iter()
-                        .filter(|r| !PROPERTY_TAGS.contains(&r.name.as_str()))
-                    {
-                        if r.name != "rfilter" || r.attr("type") != Some("box") {
-                            return unsupported(r, "<rfilter type=\"box\">");
-                        }
-                    }
-                }
-                "sampler" => {
-                    let s = Props::new(c)?;
-                    let spp = s.int("sample_count", 4)?;
-                    self.settings.spp = u32::try_from(spp)
-                        .ok()
-                        .filter(|&n| n >= 1)
-                        .ok_or_else(|| out_of_range(c, "sample_count", spp, "1..=2^32-1"))?;
-                    s.ignore(&["seed", "jitter"]);
-                    s.finish()?;
-                }
-                _ => return unsupported(c, "film, sampler"),
-            }
-        }
-        self.camera = Some(Camera::new(
-            to_world,
-            fov,
-            fov_axis,
-            width as u32,
-            height as u32,
-        ));
-        Ok(())
-    }
-
-    fn bsdf(&mut self, el: &Element) -> LoadResult<Material> {
-        let kind = el.required("type")?;
-        if kind == "twosided" {
-            let inner: Vec<&Element> = el.children.iter().filter(|c| c.name == "bsdf").collect();
-            if inner.len() != 1 || el.children.len() != 1 {
-                return Err(err::<()>(
-                    el.line,
-                    "<bsdf type=\"twosided\"> needs exactly one nested <bsdf>",
-                )
-                .unwrap_err()
-                .into());
-            }
-            let mut m = self.bsdf(inner[0])?;
-            m.two_sided = true;
-            return Ok(m);
-        }
-        if let Some(c) = el
-            .children
-            .iter()
-            .find(|c| !PROPERTY_TAGS.contains(&c.name.as_str()))
-        {
-            return unsupported(c, "plain properties inside a bsdf (no textures)");
-        }
-        let p = Props::new(el)?;
-        let alpha = |p: &Props| -> Result<f32, XmlError> {
-            let dist = p.string("distribution")?.unwrap_or("beckmann");
-            if dist != "ggx" {
-                return err(el.line, format!("microfacet distribution '{dist}' is not supported: add <string name=\"distribution\" value=\"ggx\"/> (Mitsuba's default is beckmann)"));
-            }
-            let a = p.float("alpha", 0.1)?;
-            let (au, av) = (p.float("alpha_u", a)?, p.float("alpha_v", a)?);
-            if au != av {
-                return err(
-                    el.line,
-                    "anisotropic roughness (alpha_u ≠ alpha_v) is not supported",
-                );
-            }
-            p.ignore(&["sample_visible"]);
-            Ok(au.max(1e-4))
-        };
-        let conductor = |p: &Props| -> Result<(Rgb, Rgb), XmlError> {
-            let material = p.string("material")?.unwrap_or("none");
-            if p.by_name.contains_key("eta") || p.by_name.contains_key("k") {
-                return Ok((p.rgb("eta", Rgb::ZERO)?, p.rgb("k", Rgb::ONE)?));
-            }
-            if material != "none" {
-                return err(el.line, format!("conductor material '{material}' is not supported: give <rgb name=\"eta\"> and <rgb name=\"k\">"));
-            }
-            Ok((Rgb::ZERO, Rgb::ONE))
-        };
-        let dielectric_eta = |p: &Props| -> Result<f32, XmlError> {
-            let int = match p.get("int_ior", &["float", "string"])? {
-                Some(e) => ior(e.required("value")?, e.line)?,
-                None => 1.5046,
-            };
-            let ext = match p.get("ext_ior", &["float", "string"])? {
-                Some(e) => ior(e.required("value")?, e.line)?,
-                None => 1.000_277,
-            };
-            Ok(int / ext)
-        };
-        let bsdf = match kind {
-            "diffuse" => Bsdf::Diffuse {
-                reflectance: p.rgb("reflectance", Rgb::splat(0.5))?,
-            },
-            "conductor" => {
-                let (eta, k) = conductor(&p)?;
-                Bsdf::Conductor {
-                    eta,
-                    k,
-                    specular_reflectance: p.rgb("specular_reflectance", Rgb::ONE)?,
-                }
-            }
-            "roughconductor" => {
-                let (eta, k) = conductor(&p)?;
-                Bsdf::RoughConductor {
-                    alpha: alpha(&p)?,
-                    eta,
-                    k,
-                    specular_reflectance: p.rgb("specular_reflectance", Rgb::ONE)?,
-                }
-            }
-            "dielectric" => Bsdf::Dielectric {
-                eta: dielectric_eta(&p)?,
-                specular_reflectance: p.rgb("specular_reflectance", Rgb::ONE)?,
-                specular_transmittance: p.rgb("specular_transmittance", Rgb::ONE)?,
-            },
-            "roughdielectric" => Bsdf::RoughDielectric {
-                alpha: alpha(&p)?,
-                eta: dielectric_eta(&p)?,
-                specular_reflectance: p.rgb("specular_reflectance", Rgb::ONE)?,
-                specular_transmittance: p.rgb("specular_transmittance", Rgb::ONE)?,
-            },
-            _ => {
-                return unsupported(
-                    el,
-                    "diffuse, conductor, roughconductor, dielectric, roughdielectric, twosided",
-                )
-            }
-        };
-        p.finish()?;
-        Ok(Material::new(bsdf))
     }
 
     fn shape(&mut self, el: &Element) -> LoadResult<()> {

@@ -9,6 +9,7 @@ use glam::{Mat4, Vec3};
 
 use super::dom::{err, parse_float, parse_transform, parse_vector, Element, XmlError};
 use crate::geometry::Rgb;
+use crate::spectrum::{list_to_rgb, uniform_to_rgb, Role};
 
 /// The property children of a plugin element, with a record of which were read.
 pub(super) struct Props<'a> {
@@ -112,16 +113,21 @@ impl<'a> Props<'a> {
         }
     }
 
-    /// An RGB value from `<rgb>`, `<float>` or a constant `<spectrum>`.
+    /// A reflectance from `<rgb>`, `<float>` or a `<spectrum>`.
     pub(super) fn rgb(&self, name: &'a str, default: Rgb) -> Result<Rgb, XmlError> {
+        self.spectrum(name, default, Role::Reflectance)
+    }
+
+    /// A colour from `<rgb>`, `<float>` or a `<spectrum>` (a constant or `wavelength:value`
+    /// pairs, converted as Mitsuba's RGB variants do for `role`).
+    pub(super) fn spectrum(
+        &self,
+        name: &'a str,
+        default: Rgb,
+        role: Role,
+    ) -> Result<Rgb, XmlError> {
         match self.get(name, &["rgb", "float", "spectrum"])? {
-            Some(p) if p.name == "spectrum" => {
-                let v = p.required("value")?;
-                match v.trim().parse::<f32>() {
-                    Ok(_) => parse_float(v, p.line).map(Rgb::splat),
-                    Err(_) => err(p.line, format!("only constant <spectrum value=\"number\"> is supported, not '{v}'; use <rgb>")),
-                }
-            }
+            Some(p) if p.name == "spectrum" => spectrum_value(p, role),
             Some(p) => parse_vector(p.required("value")?, p.line),
             None => Ok(default),
         }
@@ -213,4 +219,33 @@ pub(super) fn ior(value: &str, line: usize) -> Result<f32, XmlError> {
             line,
             message: format!("unknown index of refraction '{value}'"),
         })
+}
+
+/// The RGB of a `<spectrum value=…>`: one number, or `wavelength:value` pairs separated by
+/// commas.
+pub(super) fn spectrum_value(p: &Element, role: Role) -> Result<Rgb, XmlError> {
+    if p.attr("filename").is_some() {
+        return err(
+            p.line,
+            "<spectrum filename=…> (a spectrum from a file) is not supported: give its \
+             wavelength:value pairs in value=\"…\"",
+        );
+    }
+    let v = p.required("value")?;
+    if !v.contains(':') {
+        return parse_float(v, p.line).map(|c| uniform_to_rgb(f64::from(c), role));
+    }
+    let mut points = Vec::new();
+    for pair in v.split(',').map(str::trim).filter(|s| !s.is_empty()) {
+        let Some((w, x)) = pair.split_once(':') else {
+            return err(p.line, format!("'{pair}' is not a wavelength:value pair"));
+        };
+        points.push((
+            f64::from(parse_float(w, p.line)?),
+            f64::from(parse_float(x, p.line)?),
+        ));
+    }
+    list_to_rgb(&points, role)
+        .map(|(rgb, _)| rgb)
+        .or_else(|m| err(p.line, m))
 }

@@ -1,0 +1,189 @@
+//! The `<sensor>`: a `perspective` camera with its film (`hdrfilm`, or Mitsuba 0.x's `ldrfilm`,
+//! whose tonemapping does not change the linear image), reconstruction filter and sampler
+//! (any type: only its `sample_count` matters to an unbiased renderer).
+
+use super::dom::{err, Element};
+use super::props::{Props, PROPERTY_TAGS};
+use super::{out_of_range, unsupported, LoadResult, Loader, MAX_FILM_PIXELS, MAX_FILM_SIDE};
+use crate::camera::{Camera, FovAxis};
+use crate::filter::{Filter, FilterKind};
+
+impl Loader {
+    pub(super) fn sensor(&mut self, el: &Element) -> LoadResult<()> {
+        let kind = el.required("type")?;
+        if kind != "perspective" {
+            return unsupported(el, "perspective");
+        }
+        if self.camera.is_some() {
+            return Err(err::<()>(el.line, "only one <sensor> is supported")
+                .unwrap_err()
+                .into());
+        }
+        let p = Props::new(el)?;
+        let Some(fov) = p.float_opt("fov")? else {
+            return Err(err::<()>(el.line, "the sensor needs <float name=\"fov\">")
+                .unwrap_err()
+                .into());
+        };
+        if !(fov > 0.0 && fov < 180.0) {
+            return Err(err::<()>(
+                el.line,
+                format!("the field of view must be between 0 and 180 degrees, got {fov}"),
+            )
+            .unwrap_err()
+            .into());
+        }
+        let fov_axis = match p.string("fov_axis")?.unwrap_or("x") {
+            "x" => FovAxis::X,
+            "y" => FovAxis::Y,
+            "diagonal" => FovAxis::Diagonal,
+            "smaller" => FovAxis::Smaller,
+            "larger" => FovAxis::Larger,
+            other => {
+                return Err(err::<()>(el.line, format!("unknown fov_axis '{other}'"))
+                    .unwrap_err()
+                    .into())
+            }
+        };
+        let to_world = p.transform("to_world")?;
+        p.ignore(&[
+            "near_clip",
+            "far_clip",
+            "focus_distance",
+            "shutter_open",
+            "shutter_close",
+        ]);
+        p.finish()?;
+        let (mut width, mut height) = (768, 576);
+        for c in el
+            .children
+            .iter()
+            .filter(|c| !PROPERTY_TAGS.contains(&c.name.as_str()))
+        {
+            match c.name.as_str() {
+                "film" => (width, height) = self.film(c)?,
+                "sampler" => {
+                    let s = Props::new(c)?;
+                    let spp = s.int("sample_count", 4)?;
+                    self.settings.spp = u32::try_from(spp)
+                        .ok()
+                        .filter(|&n| n >= 1)
+                        .ok_or_else(|| out_of_range(c, "sample_count", spp, "1..=2^32-1"))?;
+                    // Every sampler type gives the same expected image; the rest of its
+                    // settings only change the noise.
+                    let others: Vec<&str> = s
+                        .by_name
+                        .keys()
+                        .copied()
+                        .filter(|k| *k != "sample_count")
+                        .collect();
+                    s.ignore(&others);
+                    s.finish()?;
+                }
+                _ => return unsupported(c, "film, sampler"),
+            }
+        }
+        self.camera = Some(Camera::new(
+            to_world,
+            fov,
+            fov_axis,
+            width as u32,
+            height as u32,
+        ));
+        Ok(())
+    }
+
+    /// The film's size, and its reconstruction filter into the settings.
+    fn film(&mut self, c: &Element) -> LoadResult<(i64, i64)> {
+        let kind = c.required("type")?;
+        if kind != "hdrfilm" && kind != "ldrfilm" {
+            return unsupported(c, "hdrfilm, ldrfilm");
+        }
+        let f = Props::new(c)?;
+        let width = f.int("width", 768)?;
+        let height = f.int("height", 576)?;
+        f.ignore(&[
+            "pixel_format",
+            "component_format",
+            "file_format",
+            "banner",
+            "rfilter",
+            "high_quality_edges",
+            "sample_border",
+            "attach_log",
+            "compensate",
+            // ldrfilm's tonemapping: the image we keep is the linear one.
+            "tonemap_method",
+            "gamma",
+            "exposure",
+            "key",
+            "burn",
+        ]);
+        if f.by_name.contains_key("crop_width") || f.by_name.contains_key("crop_offset_x") {
+            return Err(err::<()>(
+                c.line,
+                "crop windows (crop_width, crop_offset_x, …) are not supported",
+            )
+            .unwrap_err()
+            .into());
+        }
+        f.finish()?;
+        if !(1..=MAX_FILM_SIDE).contains(&width)
+            || !(1..=MAX_FILM_SIDE).contains(&height)
+            || width * height > MAX_FILM_PIXELS
+        {
+            return Err(err::<()>(
+                c.line,
+                format!("film of {width}×{height} pixels: each side must be 1..={MAX_FILM_SIDE} and the film at most {MAX_FILM_PIXELS} pixels"),
+            )
+            .unwrap_err()
+            .into());
+        }
+        // Mitsuba's default filter is the Gaussian of standard deviation ½.
+        let mut filter = FilterKind::Gaussian { stddev: 0.5 };
+        for r in c
+            .children
+            .iter()
+            .filter(|r| !PROPERTY_TAGS.contains(&r.name.as_str()))
+        {
+            if r.name != "rfilter" {
+                return unsupported(r, "rfilter inside a film");
+            }
+            filter = rfilter(r)?;
+        }
+        self.settings.filter = Filter::new(filter)
+            .map_err(|m| err::<()>(c.line, format!("reconstruction filter: {m}")).unwrap_err())?;
+        Ok((width, height))
+    }
+}
+
+/// A `<rfilter>` as Mitsuba 3 defines its plugins' parameters and defaults.
+fn rfilter(r: &Element) -> LoadResult<FilterKind> {
+    let p = Props::new(r)?;
+    let kind = match r.required("type")? {
+        "box" => FilterKind::Box,
+        "tent" => FilterKind::Tent {
+            radius: p.float("radius", 1.0)?,
+        },
+        "gaussian" => FilterKind::Gaussian {
+            stddev: p.float("stddev", 0.5)?,
+        },
+        "mitchell" => FilterKind::Mitchell {
+            b: p.float("b", 1.0 / 3.0)?,
+            c: p.float("c", 1.0 / 3.0)?,
+        },
+        "catmullrom" => FilterKind::Mitchell { b: 0.0, c: 0.5 },
+        "lanczos" => {
+            let lobes = p.int("lobes", 3)?;
+            FilterKind::Lanczos {
+                lobes: u32::try_from(lobes)
+                    .ok()
+                    .filter(|l| (1..=16).contains(l))
+                    .ok_or_else(|| out_of_range(r, "lobes", lobes, "1..=16"))?,
+            }
+        }
+        _ => return unsupported(r, "box, tent, gaussian, mitchell, catmullrom, lanczos"),
+    };
+    p.finish()?;
+    Ok(kind)
+}
