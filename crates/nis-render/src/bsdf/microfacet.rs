@@ -1,11 +1,15 @@
-//! The GGX (Trowbridge–Reitz) microfacet distribution and the rough conductor and rough
-//! dielectric BSDFs built on it.
+//! The GGX (Trowbridge–Reitz) and Beckmann microfacet distributions and the rough conductor and
+//! rough dielectric BSDFs built on them.
 //!
-//! GGX and the rough dielectric follow Walter, Marschner, Li & Torrance, "Microfacet Models for
-//! Refraction through Rough Surfaces" (EGSR 2007); microfacet normals are drawn from the
-//! distribution of visible normals with Heitz, "Sampling the GGX Distribution of Visible
-//! Normals" (JCGT 7(4), 2018). Shadowing–masking is the separable Smith form
-//! `G1(wo) G1(wi)`, which is what Mitsuba 3 uses, so that our images agree with it.
+//! GGX, Beckmann and the rough dielectric follow Walter, Marschner, Li & Torrance, "Microfacet
+//! Models for Refraction through Rough Surfaces" (EGSR 2007); microfacet normals are drawn from
+//! the distribution of visible normals: GGX's with Heitz, "Sampling the GGX Distribution of
+//! Visible Normals" (JCGT 7(4), 2018), Beckmann's with Heitz & d'Eon, "Importance Sampling
+//! Microfacet-Based BSDFs using the Distribution of Visible Normals" (EGSR 2014), its visible
+//! slope inverted by a safeguarded Newton iteration. Shadowing–masking is the separable Smith
+//! form `G1(wo) G1(wi)`, which is what Mitsuba 3 uses, with its Beckmann `G1`: Walter et al.'s
+//! rational fit of the exact `1/(1 + Λ)`. Densities use the exact `G1`, since that is what the
+//! visible normals are drawn from.
 
 use std::f32::consts::PI;
 
@@ -14,16 +18,70 @@ use glam::{Vec2, Vec3};
 use super::fresnel::{fresnel_conductor, fresnel_dielectric, refract};
 use crate::geometry::{reflect, Rgb};
 
-/// Isotropic GGX with roughness `alpha` (the slope parameter, not squared).
-#[derive(Clone, Copy, Debug)]
-pub struct Ggx {
+/// Which microfacet normal distribution.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum MicrofacetKind {
+    /// GGX (Trowbridge–Reitz).
+    Ggx,
+    /// Beckmann (Mitsuba's default).
+    Beckmann,
+}
+
+/// An isotropic microfacet distribution with roughness `alpha` (the slope parameter, not
+/// squared).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Microfacet {
+    /// The distribution.
+    pub kind: MicrofacetKind,
     /// Roughness.
     pub alpha: f32,
 }
 
-impl Ggx {
+impl Microfacet {
+    /// GGX of roughness `alpha`.
+    pub fn ggx(alpha: f32) -> Self {
+        Microfacet {
+            kind: MicrofacetKind::Ggx,
+            alpha,
+        }
+    }
+
     /// Microfacet normal density `D(m)` (per unit projected area).
     pub fn d(&self, m: Vec3) -> f32 {
+        match self.kind {
+            MicrofacetKind::Ggx => self.ggx_d(m),
+            MicrofacetKind::Beckmann => beckmann_d(self.alpha, m),
+        }
+    }
+
+    /// Smith masking `G1(v, m)` as Mitsuba evaluates it; zero when `v` sees the back of `m`.
+    pub fn g1(&self, v: Vec3, m: Vec3) -> f32 {
+        match self.kind {
+            MicrofacetKind::Ggx => self.ggx_g1(v, m),
+            MicrofacetKind::Beckmann => beckmann_g1_fit(self.alpha, v, m),
+        }
+    }
+
+    /// A microfacet normal from the distribution of normals visible from `v` (`v.z > 0`).
+    pub fn sample_visible(&self, v: Vec3, u: Vec2) -> Vec3 {
+        match self.kind {
+            MicrofacetKind::Ggx => self.ggx_sample_visible(v, u),
+            MicrofacetKind::Beckmann => beckmann_sample_visible(self.alpha, v, u),
+        }
+    }
+
+    /// Density of [`Microfacet::sample_visible`] for normal `m`: `G1(v, m) |v·m| D(m) / v.z`
+    /// with the exact `G1`.
+    pub fn pdf_visible(&self, v: Vec3, m: Vec3) -> f32 {
+        let g1 = match self.kind {
+            MicrofacetKind::Ggx => self.ggx_g1(v, m),
+            MicrofacetKind::Beckmann => beckmann_g1_exact(self.alpha, v, m),
+        };
+        g1 * v.dot(m).abs() * self.d(m) / v.z.abs()
+    }
+
+    /// Microfacet normal density `D(m)` (per unit projected area).
+    fn ggx_d(&self, m: Vec3) -> f32 {
         if m.z <= 0.0 {
             return 0.0;
         }
@@ -34,7 +92,7 @@ impl Ggx {
     }
 
     /// Smith masking `G1(v, m)`; zero when `v` sees the back of `m`.
-    pub fn g1(&self, v: Vec3, m: Vec3) -> f32 {
+    fn ggx_g1(&self, v: Vec3, m: Vec3) -> f32 {
         if v.dot(m) * v.z <= 0.0 {
             return 0.0;
         }
@@ -44,7 +102,7 @@ impl Ggx {
     }
 
     /// A microfacet normal from the distribution of normals visible from `v` (`v.z > 0`).
-    pub fn sample_visible(&self, v: Vec3, u: Vec2) -> Vec3 {
+    fn ggx_sample_visible(&self, v: Vec3, u: Vec2) -> Vec3 {
         let a = self.alpha;
         let vh = Vec3::new(a * v.x, a * v.y, v.z).normalize();
         let len2 = vh.x * vh.x + vh.y * vh.y;
@@ -62,39 +120,207 @@ impl Ggx {
         let nh = p1 * t1 + p2 * t2 + (1.0 - p1 * p1 - p2 * p2).max(0.0).sqrt() * vh;
         Vec3::new(a * nh.x, a * nh.y, nh.z.max(1e-6)).normalize()
     }
+}
 
-    /// Density of [`Ggx::sample_visible`] for normal `m`: `G1(v, m) |v·m| D(m) / v.z`.
-    pub fn pdf_visible(&self, v: Vec3, m: Vec3) -> f32 {
-        self.g1(v, m) * v.dot(m).abs() * self.d(m) / v.z.abs()
+/// Beckmann `D(m) = exp(−tan²θ/α²) / (π α² cos⁴θ)`.
+fn beckmann_d(alpha: f32, m: Vec3) -> f32 {
+    if m.z <= 0.0 {
+        return 0.0;
+    }
+    let a2 = alpha * alpha;
+    let cos2 = m.z * m.z;
+    let tan2 = (m.x * m.x + m.y * m.y) / cos2;
+    (-tan2 / a2).exp() / (PI * a2 * cos2 * cos2)
+}
+
+/// `a = 1/(α tan θ)` of a direction, or `None` at normal incidence (where `G1 = 1`), and
+/// whether `v` sees the front of `m`.
+fn beckmann_a(alpha: f32, v: Vec3, m: Vec3) -> Option<Option<f32>> {
+    if v.dot(m) * v.z <= 0.0 {
+        return None;
+    }
+    let cos2 = v.z * v.z;
+    let tan = ((1.0 - cos2).max(0.0) / cos2).sqrt();
+    Some((tan > 0.0).then(|| 1.0 / (alpha * tan)))
+}
+
+/// Walter et al.'s rational fit of Beckmann's Smith `G1`, as Mitsuba evaluates the BSDF.
+fn beckmann_g1_fit(alpha: f32, v: Vec3, m: Vec3) -> f32 {
+    match beckmann_a(alpha, v, m) {
+        None => 0.0,
+        Some(None) => 1.0,
+        Some(Some(a)) if a >= 1.6 => 1.0,
+        Some(Some(a)) => (3.535 * a + 2.181 * a * a) / (1.0 + 2.276 * a + 2.577 * a * a),
     }
 }
 
+/// Beckmann's exact Smith `G1 = 2 / (1 + erf(a) + exp(−a²)/(a√π))`.
+fn beckmann_g1_exact(alpha: f32, v: Vec3, m: Vec3) -> f32 {
+    match beckmann_a(alpha, v, m) {
+        None => 0.0,
+        Some(None) => 1.0,
+        Some(Some(a)) => beckmann_g1_of_a(f64::from(a)) as f32,
+    }
+}
+
+fn beckmann_g1_of_a(a: f64) -> f64 {
+    let sqrt_pi = PI64.sqrt();
+    2.0 / (1.0 + libm::erf(a) + (-a * a).exp() / (a * sqrt_pi))
+}
+
+const PI64: f64 = std::f64::consts::PI;
+
+/// A visible normal of the Beckmann distribution (Heitz & d'Eon 2014): stretch `v` to unit
+/// roughness, draw the visible slope in the incidence plane by inverting its CDF
+/// `C(x) = G1 [(1 + erf x)/2 + tan θ exp(−x²)/(2√π)]` for `x ≤ cot θ`, the other slope from
+/// its Gaussian by inverting `erf`, rotate and unstretch.
+fn beckmann_sample_visible(alpha: f32, v: Vec3, u: Vec2) -> Vec3 {
+    let vs = Vec3::new(alpha * v.x, alpha * v.y, v.z).normalize();
+    let (u1, u2) = (f64::from(u.x), f64::from(u.y));
+    let cos = f64::from(vs.z).clamp(-1.0, 1.0);
+    let sin = (1.0 - cos * cos).max(0.0).sqrt();
+    let (sx, sy) = if sin < 1e-4 {
+        // Normal incidence: the slopes are the isotropic Gaussian of variance ½.
+        let r = (-(1.0 - u1).max(1e-300).ln()).sqrt();
+        let phi = 2.0 * PI64 * u2;
+        (r * phi.cos(), r * phi.sin())
+    } else {
+        let tan = sin / cos;
+        let cot = cos / sin;
+        let g1 = beckmann_g1_of_a(cot);
+        let sqrt_pi = PI64.sqrt();
+        let cdf =
+            |x: f64| g1 * (0.5 * (1.0 + libm::erf(x)) + tan * (-x * x).exp() / (2.0 * sqrt_pi));
+        let density = |x: f64| g1 * (1.0 - x * tan).max(0.0) * (-x * x).exp() / sqrt_pi;
+        let sx = invert_monotone(u1, -6.0, cot.min(6.0), cdf, density);
+        let sy = erf_inv(2.0 * u2 - 1.0);
+        (sx, sy)
+    };
+    // Rotate the slopes to the azimuth of v, unstretch, and turn them into a normal.
+    let len = (vs.x * vs.x + vs.y * vs.y).sqrt();
+    let (c, s) = if len > 0.0 {
+        (f64::from(vs.x / len), f64::from(vs.y / len))
+    } else {
+        (1.0, 0.0)
+    };
+    let (x, y) = (c * sx - s * sy, s * sx + c * sy);
+    let a = f64::from(alpha);
+    Vec3::new((-x * a) as f32, (-y * a) as f32, 1.0).normalize()
+}
+
+/// The `x` in `[lo, hi]` with `cdf(x) = target` for an increasing `cdf` with derivative
+/// `density`: Newton steps kept inside a shrinking bracket, bisection where Newton leaves it.
+fn invert_monotone(
+    target: f64,
+    mut lo: f64,
+    mut hi: f64,
+    cdf: impl Fn(f64) -> f64,
+    density: impl Fn(f64) -> f64,
+) -> f64 {
+    let mut x = 0.5 * (lo + hi);
+    for _ in 0..60 {
+        let f = cdf(x) - target;
+        if f.abs() < 1e-10 {
+            break;
+        }
+        if f > 0.0 {
+            hi = x;
+        } else {
+            lo = x;
+        }
+        let d = density(x);
+        let newton = x - f / d;
+        x = if d > 0.0 && newton > lo && newton < hi {
+            newton
+        } else {
+            0.5 * (lo + hi)
+        };
+        if hi - lo < 1e-12 {
+            break;
+        }
+    }
+    x
+}
+
+/// `erf⁻¹(y)` for `y ∈ (−1, 1)`: Newton on `erf` from Giles's single-precision start
+/// ("Approximating the erfinv function", GPU Computing Gems, 2011).
+fn erf_inv(y: f64) -> f64 {
+    let y = y.clamp(-1.0 + 1e-15, 1.0 - 1e-15);
+    let w = -((1.0 - y) * (1.0 + y)).ln();
+    let mut x = if w < 5.0 {
+        let w = w - 2.5;
+        let mut p = 2.810_226_36e-08;
+        for c in [
+            3.432_739_39e-07,
+            -3.523_387_7e-06,
+            -4.391_506_54e-06,
+            0.000_218_580_87,
+            -0.001_253_725_03,
+            -0.004_177_681_64,
+            0.246_640_727,
+            1.501_409_41,
+        ] {
+            p = c + p * w;
+        }
+        p * y
+    } else {
+        let w = w.sqrt() - 3.0;
+        let mut p = -0.000_200_214_257;
+        for c in [
+            0.000_100_950_558,
+            0.001_349_343_22,
+            -0.003_673_428_44,
+            0.005_739_507_73,
+            -0.007_622_461_3,
+            0.009_438_870_47,
+            1.001_674_06,
+            2.832_976_82,
+        ] {
+            p = c + p * w;
+        }
+        p * y
+    };
+    let two_over_sqrt_pi = 2.0 / PI64.sqrt();
+    for _ in 0..3 {
+        let err = libm::erf(x) - y;
+        x -= err / (two_over_sqrt_pi * (-x * x).exp());
+    }
+    x
+}
+
 /// Rough conductor: `f = F(wo·h) D(h) G1(wo) G1(wi) / (4 cos θo cos θi)`, one-sided.
-pub fn rough_conductor_f(ggx: &Ggx, eta: Rgb, k: Rgb, specular: Rgb, wo: Vec3, wi: Vec3) -> Rgb {
+pub fn rough_conductor_f(
+    dist: &Microfacet,
+    eta: Rgb,
+    k: Rgb,
+    specular: Rgb,
+    wo: Vec3,
+    wi: Vec3,
+) -> Rgb {
     if wo.z <= 0.0 || wi.z <= 0.0 {
         return Rgb::ZERO;
     }
     let h = (wo + wi).normalize();
-    let g = ggx.g1(wo, h) * ggx.g1(wi, h);
-    let scale = ggx.d(h) * g / (4.0 * wo.z * wi.z);
+    let g = dist.g1(wo, h) * dist.g1(wi, h);
+    let scale = dist.d(h) * g / (4.0 * wo.z * wi.z);
     specular * fresnel_conductor(wo.dot(h), eta, k) * scale
 }
 
 /// Density of sampling `wi` by reflecting `wo` about a visible normal: `G1(wo) D(h) / 4 cos θo`.
-pub fn rough_conductor_pdf(ggx: &Ggx, wo: Vec3, wi: Vec3) -> f32 {
+pub fn rough_conductor_pdf(dist: &Microfacet, wo: Vec3, wi: Vec3) -> f32 {
     if wo.z <= 0.0 || wi.z <= 0.0 {
         return 0.0;
     }
     let h = (wo + wi).normalize();
-    ggx.pdf_visible(wo, h) / (4.0 * wo.dot(h))
+    dist.pdf_visible(wo, h) / (4.0 * wo.dot(h))
 }
 
 /// Reflect `wo` about a visible GGX normal.
-pub fn rough_conductor_sample(ggx: &Ggx, wo: Vec3, u: Vec2) -> Option<Vec3> {
+pub fn rough_conductor_sample(dist: &Microfacet, wo: Vec3, u: Vec2) -> Option<Vec3> {
     if wo.z <= 0.0 {
         return None;
     }
-    let wi = reflect(wo, ggx.sample_visible(wo, u));
+    let wi = reflect(wo, dist.sample_visible(wo, u));
     (wi.z > 0.0).then_some(wi)
 }
 
@@ -120,12 +346,12 @@ fn dielectric_half_vector(eta: f32, wo: Vec3, wi: Vec3) -> Option<(Vec3, bool, f
 }
 
 /// Rough dielectric BSDF value (radiance transport: transmission is scaled by `1/η'²`).
-pub fn rough_dielectric_f(ggx: &Ggx, eta: f32, r: Rgb, t: Rgb, wo: Vec3, wi: Vec3) -> Rgb {
+pub fn rough_dielectric_f(dist: &Microfacet, eta: f32, r: Rgb, t: Rgb, wo: Vec3, wi: Vec3) -> Rgb {
     let Some((h, reflection, etap)) = dielectric_half_vector(eta, wo, wi) else {
         return Rgb::ZERO;
     };
     let f = fresnel_dielectric(wo.dot(h), eta).0;
-    let dg = ggx.d(h) * ggx.g1(wo, h) * ggx.g1(wi, h);
+    let dg = dist.d(h) * dist.g1(wo, h) * dist.g1(wi, h);
     if reflection {
         r * (f * dg / (4.0 * (wo.z * wi.z).abs()))
     } else {
@@ -137,12 +363,12 @@ pub fn rough_dielectric_f(ggx: &Ggx, eta: f32, r: Rgb, t: Rgb, wo: Vec3, wi: Vec
 }
 
 /// Density of [`rough_dielectric_sample`].
-pub fn rough_dielectric_pdf(ggx: &Ggx, eta: f32, wo: Vec3, wi: Vec3) -> f32 {
+pub fn rough_dielectric_pdf(dist: &Microfacet, eta: f32, wo: Vec3, wi: Vec3) -> f32 {
     let Some((h, reflection, etap)) = dielectric_half_vector(eta, wo, wi) else {
         return 0.0;
     };
     let wo_up = if wo.z < 0.0 { -wo } else { wo };
-    let pdf_m = ggx.pdf_visible(wo_up, h);
+    let pdf_m = dist.pdf_visible(wo_up, h);
     let f = fresnel_dielectric(wo.dot(h), eta).0;
     if reflection {
         pdf_m * f / (4.0 * wo.dot(h).abs())
@@ -155,7 +381,7 @@ pub fn rough_dielectric_pdf(ggx: &Ggx, eta: f32, wo: Vec3, wi: Vec3) -> f32 {
 /// Draw a visible normal for `wo` (flipped to the upper side), then reflect with probability
 /// `F` or refract otherwise.
 pub fn rough_dielectric_sample(
-    ggx: &Ggx,
+    dist: &Microfacet,
     eta: f32,
     wo: Vec3,
     u_lobe: f32,
@@ -165,7 +391,7 @@ pub fn rough_dielectric_sample(
         return None;
     }
     let wo_up = if wo.z < 0.0 { -wo } else { wo };
-    let m = ggx.sample_visible(wo_up, u);
+    let m = dist.sample_visible(wo_up, u);
     let cos_i = wo.dot(m);
     let (f, cos_t, etap) = fresnel_dielectric(cos_i, eta);
     let wi = if u_lobe < f {

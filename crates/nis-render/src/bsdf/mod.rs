@@ -10,15 +10,18 @@
 //! and conductors are one-sided (black when seen from below) unless wrapped as two-sided, and
 //! transmission carries the `1/η²` radiance scaling.
 
+pub mod conductors;
 mod fresnel;
 mod microfacet;
+mod plastic;
 
 use std::f32::consts::FRAC_1_PI;
 
 use glam::{Vec2, Vec3};
 
 pub use fresnel::{fresnel_conductor, fresnel_dielectric, refract};
-pub use microfacet::Ggx;
+pub use microfacet::{Microfacet, MicrofacetKind};
+pub use plastic::Plastic;
 
 use crate::geometry::{reflect_z, Rgb};
 use crate::sampling::square_to_cosine_hemisphere;
@@ -45,10 +48,10 @@ pub enum Bsdf {
         /// Extra multiplicative factor.
         specular_reflectance: Rgb,
     },
-    /// GGX rough conductor (Mitsuba `roughconductor`, `distribution = ggx`).
+    /// Rough conductor (Mitsuba `roughconductor`).
     RoughConductor {
-        /// GGX roughness.
-        alpha: f32,
+        /// Microfacet distribution and roughness.
+        dist: Microfacet,
         /// Real part of the relative index of refraction.
         eta: Rgb,
         /// Imaginary part (absorption).
@@ -65,10 +68,10 @@ pub enum Bsdf {
         /// Factor on transmission.
         specular_transmittance: Rgb,
     },
-    /// GGX rough dielectric (Mitsuba `roughdielectric`, `distribution = ggx`).
+    /// Rough dielectric (Mitsuba `roughdielectric`).
     RoughDielectric {
-        /// GGX roughness.
-        alpha: f32,
+        /// Microfacet distribution and roughness.
+        dist: Microfacet,
         /// Interior over exterior index of refraction.
         eta: f32,
         /// Factor on reflection.
@@ -76,6 +79,19 @@ pub enum Bsdf {
         /// Factor on transmission.
         specular_transmittance: Rgb,
     },
+    /// A thin dielectric sheet, e.g. a window pane: reflects as the sum of its internal
+    /// reflections, transmits without bending (Mitsuba `thindielectric`).
+    ThinDielectric {
+        /// Interior over exterior index of refraction.
+        eta: f32,
+        /// Factor on reflection.
+        specular_reflectance: Rgb,
+        /// Factor on transmission.
+        specular_transmittance: Rgb,
+    },
+    /// A diffuse base under a smooth or rough dielectric coating (Mitsuba `plastic`,
+    /// `roughplastic`).
+    Plastic(Box<Plastic>),
 }
 
 /// A direction drawn from a BSDF.
@@ -100,6 +116,9 @@ pub struct Material {
     pub bsdf: Bsdf,
     /// When set, the back side behaves like the front (Mitsuba `twosided`).
     pub two_sided: bool,
+    /// Probability that light meets the BSDF rather than passing straight through (Mitsuba
+    /// `mask`; 1: opaque).
+    pub opacity: f32,
 }
 
 impl Material {
@@ -108,6 +127,7 @@ impl Material {
         Self {
             bsdf,
             two_sided: false,
+            opacity: 1.0,
         }
     }
 
@@ -117,36 +137,77 @@ impl Material {
 
     /// Whether every lobe is a Dirac delta (no point in light sampling or MIS).
     pub fn is_delta(&self) -> bool {
-        matches!(self.bsdf, Bsdf::Conductor { .. } | Bsdf::Dielectric { .. })
-    }
-
-    /// Whether light may pass through the surface (a dielectric); every other BSDF scatters
-    /// only into `wo`'s side of the shading normal (one-sided ones only from the front).
-    pub fn transmits(&self) -> bool {
         matches!(
             self.bsdf,
-            Bsdf::Dielectric { .. } | Bsdf::RoughDielectric { .. }
+            Bsdf::Conductor { .. } | Bsdf::Dielectric { .. } | Bsdf::ThinDielectric { .. }
         )
+    }
+
+    /// Whether light may pass through the surface (a dielectric, or a mask); every other BSDF
+    /// scatters only into `wo`'s side of the shading normal (one-sided ones only from the
+    /// front).
+    pub fn transmits(&self) -> bool {
+        self.opacity < 1.0
+            || matches!(
+                self.bsdf,
+                Bsdf::Dielectric { .. }
+                    | Bsdf::RoughDielectric { .. }
+                    | Bsdf::ThinDielectric { .. }
+            )
     }
 
     /// BSDF value `f(wo, wi)` (zero for delta lobes).
     pub fn f(&self, wo: Vec3, wi: Vec3) -> Rgb {
-        if self.flip(wo) {
-            return self.bsdf.f(-wo, -wi);
+        let f = if self.flip(wo) {
+            self.bsdf.f(-wo, -wi)
+        } else {
+            self.bsdf.f(wo, wi)
+        };
+        if self.opacity < 1.0 {
+            f * self.opacity
+        } else {
+            f
         }
-        self.bsdf.f(wo, wi)
     }
 
     /// Solid-angle density with which [`Material::sample`] draws `wi` (zero for delta lobes).
     pub fn pdf(&self, wo: Vec3, wi: Vec3) -> f32 {
-        if self.flip(wo) {
-            return self.bsdf.pdf(-wo, -wi);
+        let pdf = if self.flip(wo) {
+            self.bsdf.pdf(-wo, -wi)
+        } else {
+            self.bsdf.pdf(wo, wi)
+        };
+        if self.opacity < 1.0 {
+            pdf * self.opacity
+        } else {
+            pdf
         }
-        self.bsdf.pdf(wo, wi)
     }
 
-    /// Draw `wi` given `wo` and three uniform numbers (`u_lobe` picks a lobe).
+    /// Draw `wi` given `wo` and three uniform numbers (`u_lobe` picks a lobe). A mask passes
+    /// light straight through with probability `1 − opacity` (a delta lobe of weight 1).
     pub fn sample(&self, wo: Vec3, u_lobe: f32, u: Vec2) -> Option<BsdfSample> {
+        if self.opacity < 1.0 {
+            let pass = 1.0 - self.opacity;
+            if u_lobe < pass {
+                return Some(BsdfSample {
+                    wi: -wo,
+                    f: Rgb::splat(pass / wo.z.abs().max(1e-12)),
+                    pdf: pass,
+                    delta: true,
+                    eta: 1.0,
+                });
+            }
+            let u_lobe = ((u_lobe - pass) / self.opacity).min(1.0 - f32::EPSILON);
+            let mut s = self.sample_bsdf(wo, u_lobe, u)?;
+            s.f *= self.opacity;
+            s.pdf *= self.opacity;
+            return Some(s);
+        }
+        self.sample_bsdf(wo, u_lobe, u)
+    }
+
+    fn sample_bsdf(&self, wo: Vec3, u_lobe: f32, u: Vec2) -> Option<BsdfSample> {
         if self.flip(wo) {
             let mut s = self.bsdf.sample(-wo, u_lobe, u)?;
             s.wi = -s.wi;
@@ -168,25 +229,28 @@ impl Bsdf {
                 }
             }
             Bsdf::RoughConductor {
-                alpha,
+                dist,
                 eta,
                 k,
                 specular_reflectance,
-            } => rough_conductor_f(&Ggx { alpha }, eta, k, specular_reflectance, wo, wi),
+            } => rough_conductor_f(&dist, eta, k, specular_reflectance, wo, wi),
             Bsdf::RoughDielectric {
-                alpha,
+                dist,
                 eta,
                 specular_reflectance,
                 specular_transmittance,
             } => rough_dielectric_f(
-                &Ggx { alpha },
+                &dist,
                 eta,
                 specular_reflectance,
                 specular_transmittance,
                 wo,
                 wi,
             ),
-            Bsdf::Conductor { .. } | Bsdf::Dielectric { .. } => Rgb::ZERO,
+            Bsdf::Plastic(ref p) => p.f(wo, wi),
+            Bsdf::Conductor { .. } | Bsdf::Dielectric { .. } | Bsdf::ThinDielectric { .. } => {
+                Rgb::ZERO
+            }
         }
     }
 
@@ -200,11 +264,10 @@ impl Bsdf {
                     0.0
                 }
             }
-            Bsdf::RoughConductor { alpha, .. } => rough_conductor_pdf(&Ggx { alpha }, wo, wi),
-            Bsdf::RoughDielectric { alpha, eta, .. } => {
-                rough_dielectric_pdf(&Ggx { alpha }, eta, wo, wi)
-            }
-            Bsdf::Conductor { .. } | Bsdf::Dielectric { .. } => 0.0,
+            Bsdf::RoughConductor { dist, .. } => rough_conductor_pdf(&dist, wo, wi),
+            Bsdf::RoughDielectric { dist, eta, .. } => rough_dielectric_pdf(&dist, eta, wo, wi),
+            Bsdf::Plastic(ref p) => p.pdf(wo, wi),
+            Bsdf::Conductor { .. } | Bsdf::Dielectric { .. } | Bsdf::ThinDielectric { .. } => 0.0,
         }
     }
 
@@ -227,11 +290,39 @@ impl Bsdf {
                 }
                 from_density(square_to_cosine_hemisphere(u))
             }
-            Bsdf::RoughConductor { alpha, .. } => {
-                from_density(rough_conductor_sample(&Ggx { alpha }, wo, u)?)
+            Bsdf::RoughConductor { dist, .. } => {
+                from_density(rough_conductor_sample(&dist, wo, u)?)
             }
-            Bsdf::RoughDielectric { alpha, eta, .. } => {
-                let wi = rough_dielectric_sample(&Ggx { alpha }, eta, wo, u_lobe, u)?;
+            Bsdf::Plastic(ref p) => p.sample(wo, u_lobe, u),
+            Bsdf::ThinDielectric {
+                eta,
+                specular_reflectance,
+                specular_transmittance,
+            } => {
+                // Reflectance of the sheet, its internal reflections summed: 2R / (1 + R).
+                let r = fresnel_dielectric(wo.z.abs(), eta).0;
+                let r = 2.0 * r / (1.0 + r);
+                let cos = wo.z.abs().max(1e-12);
+                Some(if u_lobe < r {
+                    BsdfSample {
+                        wi: reflect_z(wo),
+                        f: specular_reflectance * r / cos,
+                        pdf: r,
+                        delta: true,
+                        eta: 1.0,
+                    }
+                } else {
+                    BsdfSample {
+                        wi: -wo,
+                        f: specular_transmittance * (1.0 - r) / cos,
+                        pdf: 1.0 - r,
+                        delta: true,
+                        eta: 1.0,
+                    }
+                })
+            }
+            Bsdf::RoughDielectric { dist, eta, .. } => {
+                let wi = rough_dielectric_sample(&dist, eta, wo, u_lobe, u)?;
                 let mut s = from_density(wi)?;
                 if wi.z * wo.z < 0.0 {
                     s.eta = if wo.z > 0.0 { eta } else { 1.0 / eta };

@@ -467,8 +467,10 @@ impl PathTracer {
             Technique::Bsdf(sample, query) => sample.map(|s| Scatter {
                 wi: b.frame.to_world(s.wi),
                 f: s.f,
+                // A delta lobe of a mixed BSDF (plastic, mask) at a guided vertex is drawn only
+                // when the BSDF is chosen: with probability 1 − α.
                 pdf: if s.delta {
-                    s.pdf
+                    b.mixture_pdf(0.0, s.pdf)
                 } else {
                     b.mixture_pdf(query.map_or(0.0, |q| batch.pdfs[q]), s.pdf)
                 },

@@ -1,80 +1,72 @@
-//! BSDFs: Mitsuba 3's `diffuse`, `conductor`, `roughconductor`, `dielectric`,
-//! `roughdielectric` and `twosided`, inline or defined once and used by `<ref id=…>`.
+//! BSDFs as Mitsuba 3 defines its plugins: `diffuse`, `conductor`, `roughconductor`,
+//! `dielectric`, `roughdielectric`, `thindielectric`, `plastic`, `roughplastic`, and the
+//! wrappers `twosided` and `mask`; inline or defined once and used by `<ref id=…>`. Rough
+//! BSDFs take Beckmann (Mitsuba's default) or GGX microfacets; conductors an `eta`/`k` pair or
+//! a named `material` (`Au`, `Cu`, …, `bsdf::conductors`).
 
 use super::dom::{err, Element, XmlError};
 use super::props::{ior, Props, PROPERTY_TAGS};
 use super::{unsupported, LoadResult, Loader};
-use crate::bsdf::{Bsdf, Material};
+use crate::bsdf::{conductors, Bsdf, Material, Microfacet, MicrofacetKind, Plastic};
 use crate::geometry::Rgb;
+use crate::spectrum::Role;
+
+/// The BSDF plugins the reader knows, for error messages.
+const SUPPORTED: &str = "diffuse, conductor, roughconductor, dielectric, roughdielectric, \
+                         thindielectric, plastic, roughplastic, twosided, mask";
 
 impl Loader {
     pub(super) fn bsdf(&mut self, el: &Element) -> LoadResult<Material> {
         let kind = el.required("type")?;
-        if kind == "twosided" {
-            let inner: Vec<&Element> = el.children.iter().filter(|c| c.name == "bsdf").collect();
-            if inner.len() != 1 || el.children.len() != 1 {
+        match kind {
+            "twosided" => {
+                let mut m = self.nested_bsdf(el)?;
+                m.two_sided = true;
+                return Ok(m);
+            }
+            "mask" => {
+                let p = Props::new(el)?;
+                let opacity = p.float("opacity", 0.5)?;
+                if !(0.0..=1.0).contains(&opacity) {
+                    return Err(err::<()>(
+                        el.line,
+                        format!("mask opacity {opacity} must be in [0, 1]"),
+                    )
+                    .unwrap_err()
+                    .into());
+                }
+                p.finish()?;
+                let mut m = self.nested_bsdf(el)?;
+                m.opacity *= opacity;
+                return Ok(m);
+            }
+            "principled" | "principledthin" | "hair" | "blendbsdf" | "pplastic" | "measured"
+            | "polarizer" | "retarder" | "circular" | "normalmap" => {
                 return Err(err::<()>(
                     el.line,
-                    "<bsdf type=\"twosided\"> needs exactly one nested <bsdf>",
+                    format!(
+                        "the BSDF <bsdf type=\"{kind}\"> is not supported (supported: {SUPPORTED})"
+                    ),
                 )
                 .unwrap_err()
-                .into());
+                .into())
             }
-            let mut m = self.bsdf(inner[0])?;
-            m.two_sided = true;
-            return Ok(m);
+            _ => {}
         }
         if let Some(c) = el
             .children
             .iter()
             .find(|c| !PROPERTY_TAGS.contains(&c.name.as_str()))
         {
-            return unsupported(c, "plain properties inside a bsdf (no textures)");
+            return unsupported(c, "plain properties inside this bsdf (no textures)");
         }
         let p = Props::new(el)?;
-        let alpha = |p: &Props| -> Result<f32, XmlError> {
-            let dist = p.string("distribution")?.unwrap_or("beckmann");
-            if dist != "ggx" {
-                return err(el.line, format!("microfacet distribution '{dist}' is not supported: add <string name=\"distribution\" value=\"ggx\"/> (Mitsuba's default is beckmann)"));
-            }
-            let a = p.float("alpha", 0.1)?;
-            let (au, av) = (p.float("alpha_u", a)?, p.float("alpha_v", a)?);
-            if au != av {
-                return err(
-                    el.line,
-                    "anisotropic roughness (alpha_u ≠ alpha_v) is not supported",
-                );
-            }
-            p.ignore(&["sample_visible"]);
-            Ok(au.max(1e-4))
-        };
-        let conductor = |p: &Props| -> Result<(Rgb, Rgb), XmlError> {
-            let material = p.string("material")?.unwrap_or("none");
-            if p.by_name.contains_key("eta") || p.by_name.contains_key("k") {
-                return Ok((p.rgb("eta", Rgb::ZERO)?, p.rgb("k", Rgb::ONE)?));
-            }
-            if material != "none" {
-                return err(el.line, format!("conductor material '{material}' is not supported: give <rgb name=\"eta\"> and <rgb name=\"k\">"));
-            }
-            Ok((Rgb::ZERO, Rgb::ONE))
-        };
-        let dielectric_eta = |p: &Props| -> Result<f32, XmlError> {
-            let int = match p.get("int_ior", &["float", "string"])? {
-                Some(e) => ior(e.required("value")?, e.line)?,
-                None => 1.5046,
-            };
-            let ext = match p.get("ext_ior", &["float", "string"])? {
-                Some(e) => ior(e.required("value")?, e.line)?,
-                None => 1.000_277,
-            };
-            Ok(int / ext)
-        };
         let bsdf = match kind {
             "diffuse" => Bsdf::Diffuse {
                 reflectance: p.rgb("reflectance", Rgb::splat(0.5))?,
             },
             "conductor" => {
-                let (eta, k) = conductor(&p)?;
+                let (eta, k) = conductor(&p, el)?;
                 Bsdf::Conductor {
                     eta,
                     k,
@@ -82,33 +74,177 @@ impl Loader {
                 }
             }
             "roughconductor" => {
-                let (eta, k) = conductor(&p)?;
+                let (eta, k) = conductor(&p, el)?;
                 Bsdf::RoughConductor {
-                    alpha: alpha(&p)?,
+                    dist: microfacet(&p, el)?,
                     eta,
                     k,
                     specular_reflectance: p.rgb("specular_reflectance", Rgb::ONE)?,
                 }
             }
             "dielectric" => Bsdf::Dielectric {
-                eta: dielectric_eta(&p)?,
+                eta: dielectric_eta(&p, "bk7")?,
+                specular_reflectance: p.rgb("specular_reflectance", Rgb::ONE)?,
+                specular_transmittance: p.rgb("specular_transmittance", Rgb::ONE)?,
+            },
+            "thindielectric" => Bsdf::ThinDielectric {
+                eta: dielectric_eta(&p, "bk7")?,
                 specular_reflectance: p.rgb("specular_reflectance", Rgb::ONE)?,
                 specular_transmittance: p.rgb("specular_transmittance", Rgb::ONE)?,
             },
             "roughdielectric" => Bsdf::RoughDielectric {
-                alpha: alpha(&p)?,
-                eta: dielectric_eta(&p)?,
+                dist: microfacet(&p, el)?,
+                eta: dielectric_eta(&p, "bk7")?,
                 specular_reflectance: p.rgb("specular_reflectance", Rgb::ONE)?,
                 specular_transmittance: p.rgb("specular_transmittance", Rgb::ONE)?,
             },
+            "plastic" | "roughplastic" => {
+                let eta = dielectric_eta(&p, "polypropylene")?;
+                let rough = if kind == "roughplastic" {
+                    if eta == 1.0 {
+                        return Err(err::<()>(
+                            el.line,
+                            "a rough plastic's indices of refraction must differ",
+                        )
+                        .unwrap_err()
+                        .into());
+                    }
+                    Some(microfacet(&p, el)?)
+                } else {
+                    None
+                };
+                Bsdf::Plastic(Box::new(Plastic::new(
+                    eta,
+                    p.rgb("diffuse_reflectance", Rgb::splat(0.5))?,
+                    p.rgb("specular_reflectance", Rgb::ONE)?,
+                    p.boolean("nonlinear", false)?,
+                    rough,
+                )))
+            }
             _ => {
-                return unsupported(
-                    el,
-                    "diffuse, conductor, roughconductor, dielectric, roughdielectric, twosided",
-                )
+                return unsupported(el, SUPPORTED);
             }
         };
         p.finish()?;
         Ok(Material::new(bsdf))
     }
+
+    /// The one BSDF a wrapper (`twosided`, `mask`) holds, inline or by reference.
+    fn nested_bsdf(&mut self, el: &Element) -> LoadResult<Material> {
+        let kind = el.required("type")?;
+        let inner: Vec<&Element> = el
+            .children
+            .iter()
+            .filter(|c| !PROPERTY_TAGS.contains(&c.name.as_str()))
+            .collect();
+        match inner.as_slice() {
+            [c] if c.name == "bsdf" => self.bsdf(c),
+            [c] if c.name == "ref" => {
+                let id = c.required("id")?;
+                match self.bsdf_ids.get(id) {
+                    Some(&i) => Ok(self.materials[i].clone()),
+                    None => Err(err::<()>(
+                        c.line,
+                        format!("no bsdf with id '{id}' is defined before this point"),
+                    )
+                    .unwrap_err()
+                    .into()),
+                }
+            }
+            [_, _] if kind == "twosided" => Err(err::<()>(
+                el.line,
+                "a twosided BSDF with different front and back BSDFs is not supported",
+            )
+            .unwrap_err()
+            .into()),
+            _ => Err(err::<()>(
+                el.line,
+                format!("<bsdf type=\"{kind}\"> needs exactly one nested <bsdf> (or <ref>)"),
+            )
+            .unwrap_err()
+            .into()),
+        }
+    }
+}
+
+/// The microfacet distribution of a rough BSDF: `distribution` (Mitsuba's default `beckmann`,
+/// or `ggx`) and `alpha` (isotropic only).
+fn microfacet(p: &Props, el: &Element) -> Result<Microfacet, XmlError> {
+    let kind = match p.string("distribution")?.unwrap_or("beckmann") {
+        "beckmann" => MicrofacetKind::Beckmann,
+        "ggx" => MicrofacetKind::Ggx,
+        other => {
+            return err(
+                el.line,
+                format!("unknown microfacet distribution '{other}' (beckmann, ggx)"),
+            )
+        }
+    };
+    let a = p.float("alpha", 0.1)?;
+    let (au, av) = (p.float("alpha_u", a)?, p.float("alpha_v", a)?);
+    if au != av {
+        return err(
+            el.line,
+            "anisotropic roughness (alpha_u ≠ alpha_v) is not supported",
+        );
+    }
+    if au < 0.0 {
+        return err(
+            el.line,
+            format!("roughness alpha = {au} must be non-negative"),
+        );
+    }
+    p.ignore(&["sample_visible"]);
+    Ok(Microfacet {
+        kind,
+        alpha: au.max(1e-4),
+    })
+}
+
+/// A conductor's complex index `(eta, k)`: given directly, or a named `material` (Mitsuba's
+/// default `none`, a perfect mirror), relative to the exterior (`ext_eta`, Mitsuba 0.x).
+fn conductor(p: &Props, el: &Element) -> Result<(Rgb, Rgb), XmlError> {
+    let material = p.string("material")?.unwrap_or("none");
+    let ext = p.float("ext_eta", 1.0)?;
+    let (eta, k) = if p.by_name.contains_key("eta") || p.by_name.contains_key("k") {
+        (
+            p.spectrum("eta", Rgb::ZERO, Role::Unbounded)?,
+            p.spectrum("k", Rgb::ONE, Role::Unbounded)?,
+        )
+    } else if material == "none" {
+        (Rgb::ZERO, Rgb::ONE)
+    } else {
+        let Some((eta, k)) = conductors::lookup(material) else {
+            let names: Vec<&str> = conductors::CONDUCTORS.iter().map(|c| c.0).collect();
+            return err(
+                el.line,
+                format!(
+                    "unknown conductor material '{material}' (known: none, {})",
+                    names.join(", ")
+                ),
+            );
+        };
+        (Rgb::from_array(eta), Rgb::from_array(k))
+    };
+    if ext <= 0.0 {
+        return err(el.line, format!("ext_eta = {ext} must be positive"));
+    }
+    Ok((eta / ext, k / ext))
+}
+
+/// Interior over exterior index of refraction (`int_ior`, `ext_ior`: numbers or Mitsuba's
+/// material names).
+fn dielectric_eta(p: &Props, default_int: &str) -> Result<f32, XmlError> {
+    let int = match p.get("int_ior", &["float", "string"])? {
+        Some(e) => ior(e.required("value")?, e.line)?,
+        None => ior(default_int, 0)?,
+    };
+    let ext = match p.get("ext_ior", &["float", "string"])? {
+        Some(e) => ior(e.required("value")?, e.line)?,
+        None => 1.000_277,
+    };
+    if !(int > 0.0 && ext > 0.0) {
+        return err(p.line(), "indices of refraction must be positive");
+    }
+    Ok(int / ext)
 }

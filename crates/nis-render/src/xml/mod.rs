@@ -28,6 +28,7 @@ use crate::camera::Camera;
 use crate::geometry::Rgb;
 use crate::scene::{RenderSettings, Scene};
 use crate::shape::{Geometry, Shape, Sphere, TriangleMesh};
+use crate::spectrum::Role;
 use crate::Error;
 use dom::{err, Element, XmlError};
 use props::{Props, PROPERTY_TAGS};
@@ -161,7 +162,8 @@ impl Loader {
                 "emitter" => match c.required("type")? {
                     "constant" => {
                         let p = Props::new(c)?;
-                        self.environment = Some(p.rgb("radiance", Rgb::ONE)?);
+                        self.environment =
+                            Some(p.spectrum("radiance", Rgb::ONE, Role::Emission)?);
                         p.finish()?;
                     }
                     _ => return unsupported(c, "constant here, area inside a shape"),
@@ -358,7 +360,7 @@ impl Loader {
                         return unsupported(c, "area (inside a shape)");
                     }
                     let e = Props::new(c)?;
-                    emission = Some(e.rgb("radiance", Rgb::ONE)?);
+                    emission = Some(e.spectrum("radiance", Rgb::ONE, Role::Emission)?);
                     e.finish()?;
                 }
                 _ => return unsupported(c, "bsdf, ref, emitter inside a shape"),

@@ -154,6 +154,11 @@ impl<'a> Props<'a> {
         }
     }
 
+    /// The plugin element's line.
+    pub(super) fn line(&self) -> usize {
+        self.el.line
+    }
+
     /// Accept (and ignore) properties that do not change the image.
     pub(super) fn ignore(&self, names: &[&'a str]) {
         self.used.borrow_mut().extend(names.iter().copied());
