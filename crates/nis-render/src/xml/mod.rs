@@ -242,9 +242,10 @@ impl Loader {
         let material = match material {
             Some(m) => m,
             None => {
-                // Mitsuba's default BSDF: diffuse with reflectance 0.5.
+                // Mitsuba's default BSDF: diffuse with reflectance 0.5, black on an emitter.
+                let reflectance = if emission.is_some() { 0.0 } else { 0.5 };
                 self.materials.push(Material::new(Bsdf::Diffuse {
-                    reflectance: Rgb::splat(0.5),
+                    reflectance: Rgb::splat(reflectance),
                 }));
                 self.materials.len() - 1
             }
