@@ -104,6 +104,16 @@ def features():
     </shape>
     <emitter type="constant"><spectrum name="radiance" value="0.2"/></emitter>""")
     add("integrator-direct", integrator='<integrator type="direct"/>')
+    add("directional", light=AREA + """
+    <emitter type="directional"><vector name="direction" x="-0.4" y="-1" z="-0.3"/><rgb name="irradiance" value="2, 1.8, 1.5"/></emitter>""")
+    add("disk", light="""<shape type="disk">
+        <transform name="to_world"><rotate x="1" angle="90"/><scale value="0.4"/><translate x="0.4" y="2.2" z="0.3"/></transform>
+        <emitter type="area"><rgb name="radiance" value="12, 11, 10"/></emitter>
+    </shape>
+    <shape type="disk">
+        <transform name="to_world"><scale value="0.6"/><translate x="-0.8" y="0.8" z="-1.2"/></transform>
+        <bsdf type="diffuse"><rgb name="reflectance" value="0.2, 0.7, 0.3"/></bsdf>
+    </shape>""")
     add("integrator-plugin", mitsuba=scene("integrator-plugin", integrator='<integrator type="path"><integer name="max_depth" value="6"/></integrator>'),
         integrator='<integrator type="guided_path"><integer name="max_depth" value="6"/><string name="budget_type" value="spp"/></integrator>')
     legacy = scene("legacy-0.5", version="0.5.0",

@@ -1,8 +1,10 @@
-//! Light sources: emissive shapes (Mitsuba's one-sided `area` emitter) and a constant
-//! environment, with the light-sampling strategy used for next-event estimation.
+//! Light sources: emissive shapes (Mitsuba's one-sided `area` emitter), a constant environment
+//! and distant `directional` lights, with the light-sampling strategy used for next-event
+//! estimation.
 //!
-//! A light is chosen with probability proportional to its power (area × luminance; the
-//! environment, when there are also area lights, gets half of the choices), then a point is
+//! Each kind present (the environment, the area lights, the directional lights) gets an equal
+//! share of the choices; an area light is then chosen with probability proportional to its
+//! power (area × luminance), a directional one to its irradiance's luminance, and a point is
 //! chosen uniformly on its surface; densities are converted to solid angle at the shading
 //! point so that they can be combined with BSDF sampling by multiple importance sampling
 //! (Veach 1997, §9.2). Emission is one-sided: only the side the shading normal faces emits.
@@ -61,8 +63,20 @@ pub struct LightSample {
     pub point: Vec3,
     /// Radiance arriving along `wi` if unoccluded.
     pub radiance: Rgb,
-    /// Solid-angle density, including the choice of light.
+    /// Solid-angle density, including the choice of light; for a delta light (directional),
+    /// the discrete probability of its choice.
     pub pdf: f32,
+    /// Whether the light is a Dirac delta in direction (no BSDF sample can reach it).
+    pub delta: bool,
+}
+
+/// A light infinitely far away in one direction (Mitsuba `directional`).
+#[derive(Clone, Copy, Debug)]
+pub struct DirectionalLight {
+    /// Unit direction the light travels in.
+    pub direction: Vec3,
+    /// Irradiance on a surface facing the light.
+    pub irradiance: Rgb,
 }
 
 /// All lights of a scene.
@@ -72,36 +86,87 @@ pub struct Lights {
     pub area: Vec<AreaLight>,
     /// Constant environment radiance (Mitsuba `constant` emitter).
     pub environment: Option<Rgb>,
+    /// Distant lights.
+    pub directional: Vec<DirectionalLight>,
     selection: Option<Distribution1D>,
+    directional_selection: Option<Distribution1D>,
 }
 
 impl Lights {
     /// Collect lights and build the selection distribution.
     pub fn new(area: Vec<AreaLight>, environment: Option<Rgb>) -> Self {
+        Self::with_directional(area, environment, Vec::new())
+    }
+
+    /// [`Lights::new`] with directional lights.
+    pub fn with_directional(
+        area: Vec<AreaLight>,
+        environment: Option<Rgb>,
+        directional: Vec<DirectionalLight>,
+    ) -> Self {
         let weights: Vec<f32> = area
             .iter()
             .map(|l| l.area * luminance(l.radiance))
             .collect();
         let selection = Distribution1D::new(&weights);
+        let weights: Vec<f32> = directional
+            .iter()
+            .map(|l| luminance(l.irradiance))
+            .collect();
+        let directional_selection = Distribution1D::new(&weights);
         Lights {
             area,
             environment,
+            directional,
             selection,
+            directional_selection,
         }
+    }
+
+    /// Replace the directional lights.
+    pub fn set_directional(&mut self, directional: Vec<DirectionalLight>) {
+        *self = Self::with_directional(
+            std::mem::take(&mut self.area),
+            self.environment,
+            directional,
+        );
+    }
+
+    /// Number of kinds of light present (environment, area, directional).
+    fn kinds(&self) -> f32 {
+        (u8::from(self.environment.is_some())
+            + u8::from(self.selection.is_some())
+            + u8::from(self.directional_selection.is_some())) as f32
     }
 
     /// Probability of choosing the environment.
     fn env_probability(&self) -> f32 {
-        match (self.environment.is_some(), self.selection.is_some()) {
-            (false, _) => 0.0,
-            (true, false) => 1.0,
-            (true, true) => 0.5,
+        match (
+            self.environment.is_some(),
+            self.selection.is_some(),
+            self.directional_selection.is_some(),
+        ) {
+            (false, _, _) => 0.0,
+            (true, false, false) => 1.0,
+            (true, true, false) => 0.5,
+            (true, _, true) => 1.0 / self.kinds(),
+        }
+    }
+
+    /// Probability of choosing one of the area lights.
+    fn area_probability(&self) -> f32 {
+        if self.directional_selection.is_none() {
+            1.0 - self.env_probability()
+        } else if self.selection.is_some() {
+            1.0 / self.kinds()
+        } else {
+            0.0
         }
     }
 
     /// Whether there is anything to sample.
     pub fn is_empty(&self) -> bool {
-        self.selection.is_none() && self.environment.is_none()
+        self.selection.is_none() && self.environment.is_none() && self.directional.is_empty()
     }
 
     /// Sample a light as seen from `p`; `None` if it is back-facing or has no lights.
@@ -115,10 +180,32 @@ impl Lights {
                 point: Vec3::ZERO,
                 radiance: self.environment?,
                 pdf: p_env / (4.0 * PI),
+                delta: false,
+            });
+        }
+        let p_area = self.area_probability();
+        if u_select >= p_env + p_area {
+            let selection = self.directional_selection.as_ref()?;
+            let p_dir = 1.0 - p_env - p_area;
+            let u = ((u_select - p_env - p_area) / p_dir).min(1.0 - f32::EPSILON);
+            let index = selection.sample(u);
+            let light = &self.directional[index];
+            return Some(LightSample {
+                wi: -light.direction,
+                dist: f32::INFINITY,
+                point: Vec3::ZERO,
+                radiance: light.irradiance,
+                pdf: p_dir * selection.pmf(index),
+                delta: true,
             });
         }
         let selection = self.selection.as_ref()?;
-        let u_select = ((u_select - p_env) / (1.0 - p_env)).min(1.0 - f32::EPSILON);
+        let u_select = if self.directional_selection.is_none() {
+            (u_select - p_env) / (1.0 - p_env)
+        } else {
+            (u_select - p_env) / p_area
+        }
+        .min(1.0 - f32::EPSILON);
         let index = selection.sample(u_select);
         let light = &self.area[index];
         let (q, n) = match light.primitive {
@@ -143,13 +230,14 @@ impl Lights {
         if cos_light <= 0.0 || dist2 == 0.0 {
             return None;
         }
-        let pmf = selection.pmf(index) * (1.0 - p_env);
+        let pmf = selection.pmf(index) * p_area;
         Some(LightSample {
             wi,
             dist,
             point: q,
             radiance: light.radiance,
             pdf: pmf / light.area * dist2 / cos_light,
+            delta: false,
         })
     }
 
@@ -159,7 +247,7 @@ impl Lights {
         let Some(selection) = &self.selection else {
             return 0.0;
         };
-        let pmf = selection.pmf(index) * (1.0 - self.env_probability());
+        let pmf = selection.pmf(index) * self.area_probability();
         pmf / self.area[index].area * dist * dist / cos_light.abs().max(1e-12)
     }
 

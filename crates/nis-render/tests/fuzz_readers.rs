@@ -107,9 +107,35 @@ fn xml_random_bytes_are_rejected_or_loaded() {
     });
 }
 
+/// The built-in scenes and the reader's feature scenes (`tests/scenes/features`: every BSDF,
+/// filter, emitter and Mitsuba 0.x name the reader knows), without their comments.
+fn corpus() -> Vec<(String, String)> {
+    let mut scenes: Vec<(String, String)> = SCENES
+        .iter()
+        .map(|(n, x)| (n.to_string(), x.to_string()))
+        .collect();
+    let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/scenes/features");
+    let mut paths: Vec<_> = std::fs::read_dir(dir)
+        .unwrap()
+        .map(|e| e.unwrap().path())
+        .filter(|p| p.extension().is_some_and(|e| e == "xml"))
+        .collect();
+    paths.sort();
+    for path in paths {
+        let text = std::fs::read_to_string(&path).unwrap();
+        let text: String = text
+            .lines()
+            .filter(|l| !l.trim_start().starts_with("<!--"))
+            .map(|l| format!("{l}\n"))
+            .collect();
+        scenes.push((path.display().to_string(), text));
+    }
+    scenes
+}
+
 #[test]
 fn xml_byte_edits_of_the_built_in_scenes() {
-    let scenes = prop::sample::select(SCENES.to_vec());
+    let scenes = prop::sample::select(corpus());
     let strategy = scenes.prop_flat_map(|(_, xml)| mutated(xml.as_bytes().to_vec(), 6));
     fuzz::fuzz("xml-byte-edits", 400, strategy, |tally, bytes| {
         load_xml(tally, &String::from_utf8_lossy(&bytes), &[])
@@ -226,7 +252,7 @@ fn apply_xml_edit(xml: &str, e: &XmlEdit) -> String {
 
 #[test]
 fn xml_element_mutations_of_the_built_in_scenes() {
-    let scenes = prop::sample::select(SCENES.to_vec());
+    let scenes = prop::sample::select(corpus());
     let strategy = (scenes, prop::collection::vec(xml_edit(), 1..4));
     fuzz::fuzz("xml-elements", 400, strategy, |tally, ((_, xml), edits)| {
         let text = edits

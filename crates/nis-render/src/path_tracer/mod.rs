@@ -448,7 +448,7 @@ impl PathTracer {
         if scene.occluded(&shadow, t_max) {
             return None;
         }
-        let w = if self.strategy == Strategy::Mis {
+        let w = if self.strategy == Strategy::Mis && !ls.delta {
             power_heuristic(ls.pdf, material.pdf(b.wo, wi))
         } else {
             1.0

@@ -10,10 +10,12 @@
 //! integrator plugin other than `path` (a guiding paper's, `volpath`) is read as `path`,
 //! `direct` as `path` with `max_depth = 2`.
 //!
-//! One file per kind of element: `sensor.rs` (camera, film, filter, sampler), `bsdf.rs`.
+//! One file per kind of element: `sensor.rs` (camera, film, filter, sampler), `bsdf.rs`,
+//! `emitter.rs` (the scene's own emitters; area emitters are read with their shape).
 
 mod bsdf;
 mod dom;
+mod emitter;
 mod props;
 mod sensor;
 mod upgrade;
@@ -26,6 +28,7 @@ use glam::{Mat3, Vec3};
 use crate::bsdf::{Bsdf, Material};
 use crate::camera::Camera;
 use crate::geometry::Rgb;
+use crate::light::DirectionalLight;
 use crate::scene::{RenderSettings, Scene};
 use crate::shape::{Geometry, Shape, Sphere, TriangleMesh};
 use crate::spectrum::Role;
@@ -116,6 +119,7 @@ struct Loader {
     environment: Option<Rgb>,
     camera: Option<Camera>,
     settings: RenderSettings,
+    directional: Vec<DirectionalLight>,
     /// What was read differently from Mitsuba 3, with its line.
     warnings: Vec<(usize, String)>,
 }
@@ -159,15 +163,7 @@ impl Loader {
                     self.bsdf_ids.insert(id, self.materials.len() - 1);
                 }
                 "shape" => self.shape(c)?,
-                "emitter" => match c.required("type")? {
-                    "constant" => {
-                        let p = Props::new(c)?;
-                        self.environment =
-                            Some(p.spectrum("radiance", Rgb::ONE, Role::Emission)?);
-                        p.finish()?;
-                    }
-                    _ => return unsupported(c, "constant here, area inside a shape"),
-                },
+                "emitter" => self.emitter(c)?,
                 _ => return unsupported(c, "default, integrator, sensor, bsdf, shape, emitter"),
             }
         }
@@ -176,14 +172,20 @@ impl Loader {
                 .unwrap_err()
                 .into());
         };
-        Scene::new(
+        let mut scene = Scene::new(
             camera,
             self.settings.clone(),
             std::mem::take(&mut self.materials),
             std::mem::take(&mut self.shapes),
             self.environment,
         )
-        .map_err(LoadError::Other)
+        .map_err(LoadError::Other)?;
+        if !self.directional.is_empty() {
+            scene
+                .lights
+                .set_directional(std::mem::take(&mut self.directional));
+        }
+        Ok(scene)
     }
 
     /// The `<integrator>`: `path` and its parameters; any other plugin is read as `path` with
@@ -268,6 +270,7 @@ impl Loader {
         let geometry = match kind {
             "rectangle" => Geometry::Mesh(TriangleMesh::rectangle(&to_world)),
             "cube" => Geometry::Mesh(TriangleMesh::cube(&to_world)),
+            "disk" => Geometry::Mesh(TriangleMesh::disk(&to_world)),
             "obj" => {
                 let file = p.string("filename")?.ok_or_else(|| {
                     LoadError::Xml(XmlError {
@@ -306,7 +309,7 @@ impl Loader {
                     inward: false,
                 })
             }
-            _ => return unsupported(el, "obj, rectangle, cube, sphere"),
+            _ => return unsupported(el, "obj, rectangle, cube, disk, sphere"),
         };
         p.finish()?;
         let geometry = match geometry {
