@@ -3,8 +3,9 @@
 
 Writes crates/nis-render/tests/scenes/features/*.xml (one small scene per feature the reader
 supports: filters, BSDFs, spectra, emitters, shapes, Mitsuba 0.x names, integrator plugins),
-renders each with Mitsuba 3 (scalar_rgb) over several seeds, and writes their mean radiance and
-its standard error to mitsuba-means.json beside them; `tests/mitsuba_features.rs` renders the
+renders each with Mitsuba 3 (scalar_rgb) over several seeds, and writes their mean radiance, the
+means of the image's four quadrants (which see a flipped texture or a mirrored camera) and
+their standard errors to mitsuba-means.json beside them; `tests/mitsuba_features.rs` renders the
 same files with nis-render and compares. A scene that Mitsuba 3 itself cannot read as written
 (a Mitsuba 0.4 `<lookAt>`, a guiding paper's integrator plugin) is rendered from its Mitsuba 3
 twin, which says the same thing in Mitsuba 3's words.
@@ -41,10 +42,8 @@ BASE = """<?xml version="1.0" encoding="utf-8"?>
             {filter}
         </film>
     </sensor>
-    <shape type="rectangle">
-        <transform name="to_world"><rotate x="1" angle="-90"/><scale value="2"/></transform>
-        {floor}
-    </shape>
+    {defs}
+    {floor_shape}
     <shape type="sphere">
         <point name="center" x="0" y="0.5" z="0"/>
         <float name="radius" value="0.5"/>
@@ -60,6 +59,13 @@ AREA = """<shape type="rectangle">
     </shape>
     <emitter type="constant"><rgb name="radiance" value="0.15, 0.2, 0.25"/></emitter>"""
 
+FLOOR = """<shape type="rectangle">
+        <transform name="to_world"><rotate x="1" angle="-90"/><scale value="2"/></transform>
+        {bsdf}
+    </shape>"""
+CHECKS = """<texture type="checkerboard" id="checks">
+        <transform name="to_uv"><scale x="6" y="6"/></transform>
+    </texture>"""
 DIFFUSE = '<bsdf type="diffuse"><rgb name="reflectance" value="0.6, 0.55, 0.5"/></bsdf>'
 PATH = '<integrator type="path"><integer name="max_depth" value="8"/></integrator>'
 BOX = '<rfilter type="box"/>'
@@ -67,8 +73,14 @@ BOX = '<rfilter type="box"/>'
 
 def scene(name, *, floor=DIFFUSE, sphere=DIFFUSE, light=AREA, integrator=PATH, rfilter=BOX,
           version="3.0.0"):
+    """A feature scene; `floor` is the floor's BSDF, or a whole `<shape>` in its place."""
+    if floor.startswith("<shape"):
+        floor_shape = floor
+    else:
+        floor_shape = FLOOR.format(bsdf=floor)
     return BASE.format(name=name, version=version, integrator=integrator, res=RES,
-                       filter=rfilter, floor=floor, sphere=sphere, light=light)
+                       filter=rfilter, floor_shape=floor_shape, sphere=sphere, light=light,
+                       defs=CHECKS if 'id="checks"' in floor else "")
 
 
 def features():
@@ -116,6 +128,19 @@ def features():
     </shape>""")
     add("integrator-plugin", mitsuba=scene("integrator-plugin", integrator='<integrator type="path"><integer name="max_depth" value="6"/></integrator>'),
         integrator='<integrator type="guided_path"><integer name="max_depth" value="6"/><string name="budget_type" value="spp"/></integrator>')
+    add("bitmap",
+        floor='<shape type="obj"><string name="filename" value="quad-uv.obj"/>'
+              '<bsdf type="diffuse"><texture type="bitmap" name="reflectance"><string name="filename" value="texture.png"/></texture></bsdf></shape>',
+        sphere='<bsdf type="roughplastic"><float name="alpha" value="0.3"/><texture type="bitmap" name="diffuse_reflectance">'
+               '<string name="filename" value="texture.png"/><string name="filter_type" value="nearest"/>'
+               '<string name="wrap_mode" value="mirror"/><transform name="to_uv"><scale x="3" y="2"/></transform></texture></bsdf>')
+    add("checkerboard",
+        floor='<bsdf type="diffuse"><ref name="reflectance" id="checks"/></bsdf>',
+        sphere='<bsdf type="diffuse"><texture type="checkerboard" name="reflectance"><rgb name="color0" value="0.8, 0.2, 0.1"/>'
+               '<rgb name="color1" value="0.1, 0.3, 0.8"/><transform name="to_uv"><scale x="8" y="4"/></transform></texture></bsdf>')
+    add("mask-bitmap",
+        sphere='<bsdf type="mask"><texture type="bitmap" name="opacity"><string name="filename" value="texture.png"/></texture>'
+               '<bsdf type="diffuse"><rgb name="reflectance" value="0.7, 0.7, 0.2"/></bsdf></bsdf>')
     legacy = scene("legacy-0.5", version="0.5.0",
                    sphere='<bsdf type="roughconductor"><float name="alpha" value="0.2"/><string name="material" value="Cu"/>'
                           '<float name="extEta" value="1.0"/></bsdf>',
@@ -132,6 +157,29 @@ def features():
     return out
 
 
+QUAD_OBJ = """# A 4 x 4 floor quad at y = 0 facing +y, texture coordinates 0..2 (the image repeats).
+v -2 0 2
+v 2 0 2
+v 2 0 -2
+v -2 0 -2
+vt 0 0
+vt 2 0
+vt 2 2
+vt 0 2
+vn 0 1 0
+f 1/1/1 2/2/1 3/3/1 4/4/1
+"""
+
+
+def write_data(mi):
+    """The mesh and the 16 x 12 sRGB image the textured scenes read."""
+    import numpy as np
+    (OUT / "quad-uv.obj").write_text(QUAD_OBJ)
+    y, x = np.mgrid[0:12, 0:16]
+    img = np.stack([(x * 16) % 256, (y * 21) % 256, ((x + y) % 2) * 200 + 30], axis=-1).astype(np.uint8)
+    mi.Bitmap(img).write(str(OUT / "texture.png"))
+
+
 def srgb_to_linear(c):
     return c / 12.92 if c <= 0.04045 else ((c + 0.055) / 1.055) ** 2.4
 
@@ -145,24 +193,32 @@ def main():
     import mitsuba as mi
     mi.set_variant("scalar_rgb")
     OUT.mkdir(parents=True, exist_ok=True)
+    write_data(mi)
     means_path = OUT / "mitsuba-means.json"
     means = json.loads(means_path.read_text()) if means_path.exists() else {}
+    means = {k: v for k, v in means.items() if "quadrants" in v}
     for name, ours, theirs in features():
         (OUT / f"{name}.xml").write_text(ours)
         if args.only and name not in args.only:
             continue
-        with tempfile.NamedTemporaryFile("w", suffix=".xml", delete=False) as f:
+        with tempfile.NamedTemporaryFile("w", suffix=".xml", dir=OUT, delete=False) as f:
             f.write(theirs or ours)
         sc = mi.load_file(f.name, spp=args.spp)
+        Path(f.name).unlink()
+        import numpy as np
         values = []
         for seed in range(args.seeds):
-            img = mi.TensorXf(mi.render(sc, seed=seed + 1, spp=args.spp))
-            import numpy as np
-            values.append(float(np.asarray(img)[..., :3].mean()))
-        m = sum(values) / len(values)
-        se = math.sqrt(sum((v - m) ** 2 for v in values) / (len(values) - 1) / len(values))
-        means[name] = {"mean": m, "std_err": se, "spp": args.spp * args.seeds, "mitsuba": mi.__version__}
-        print(f"{name:28s} {m:.6f} ± {se:.6f}", flush=True)
+            img = np.asarray(mi.TensorXf(mi.render(sc, seed=seed + 1, spp=args.spp)))[..., :3]
+            h, w = img.shape[0] // 2, img.shape[1] // 2
+            quads = [img[:h, :w], img[:h, w:], img[h:, :w], img[h:, w:]]
+            values.append([float(img.mean())] + [float(q.mean()) for q in quads])
+        values = np.array(values)
+        m = values.mean(axis=0)
+        se = values.std(axis=0, ddof=1) / math.sqrt(len(values))
+        means[name] = {"mean": m[0], "std_err": se[0], "quadrants": list(m[1:]),
+                       "quadrant_std_errs": list(se[1:]), "spp": args.spp * args.seeds,
+                       "mitsuba": mi.__version__}
+        print(f"{name:28s} {m[0]:.6f} ± {se[0]:.6f}", flush=True)
     means_path.write_text(json.dumps(means, indent=1, sort_keys=True) + "\n")
     print(f"wrote {means_path}")
 

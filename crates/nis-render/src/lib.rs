@@ -41,6 +41,7 @@ pub mod scene;
 pub mod scenes;
 pub mod shape;
 pub mod spectrum;
+pub mod texture;
 pub mod xml;
 
 /// Everything that can go wrong while loading, rendering or writing.

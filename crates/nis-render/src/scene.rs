@@ -5,7 +5,7 @@
 //! [`Scene::new`] turns a list of [`Shape`]s into the structures the integrator queries:
 //! closest-hit and shadow-ray tests, and per-hit shading data.
 
-use glam::Vec3;
+use glam::{Vec2, Vec3};
 
 use crate::bsdf::Material;
 use crate::bvh::{Bvh, Triangle};
@@ -59,6 +59,8 @@ pub struct SurfaceHit {
     pub material: u32,
     /// Index into the scene's area lights, or [`NO_LIGHT`].
     pub light: u32,
+    /// Texture coordinates (Mitsuba's conventions per shape; `(0, 0)` on a mesh without them).
+    pub uv: Vec2,
 }
 
 /// [`SurfaceHit::light`] of a surface that does not emit.
@@ -69,6 +71,8 @@ struct TriangleInfo {
     ng: Vec3,
     /// Index of the vertex normals in `Scene::vertex_normals`, or `u32::MAX` (flat).
     smooth: u32,
+    /// Index of the vertex texture coordinates in `Scene::vertex_uvs`, or `u32::MAX` (none).
+    uv: u32,
     material: u32,
     light: u32,
 }
@@ -96,6 +100,7 @@ pub struct Scene {
     bvh: Bvh,
     triangles: Vec<TriangleInfo>,
     vertex_normals: Vec<[Vec3; 3]>,
+    vertex_uvs: Vec<[Vec2; 3]>,
     spheres: Vec<SphereInfo>,
 }
 
@@ -111,6 +116,7 @@ impl Scene {
         let mut tris = Vec::new();
         let mut infos = Vec::new();
         let mut vertex_normals = Vec::new();
+        let mut vertex_uvs = Vec::new();
         let mut emission = Vec::new();
         let mut spheres = Vec::new();
         for shape in &shapes {
@@ -137,9 +143,17 @@ impl Scene {
                             }
                             None => u32::MAX,
                         };
+                        let uv = match &mesh.uvs {
+                            Some(t) => {
+                                vertex_uvs.push(f.map(|i| t[i as usize]));
+                                (vertex_uvs.len() - 1) as u32
+                            }
+                            None => u32::MAX,
+                        };
                         infos.push(TriangleInfo {
                             ng: cross.normalize(),
                             smooth,
+                            uv,
                             material: shape.material as u32,
                             light: NO_LIGHT,
                         });
@@ -202,6 +216,7 @@ impl Scene {
             bvh,
             triangles,
             vertex_normals,
+            vertex_uvs,
             spheres,
         })
     }
@@ -225,6 +240,12 @@ impl Scene {
                 let s = (1.0 - h.u - h.v) * n[0] + h.u * n[1] + h.v * n[2];
                 s.try_normalize().unwrap_or(info.ng)
             };
+            let uv = if info.uv == u32::MAX {
+                Vec2::ZERO
+            } else {
+                let t = &self.vertex_uvs[info.uv as usize];
+                (1.0 - h.u - h.v) * t[0] + h.u * t[1] + h.v * t[2]
+            };
             best = Some(SurfaceHit {
                 p: ray.at(h.t),
                 t: h.t,
@@ -232,6 +253,7 @@ impl Scene {
                 ns,
                 material: info.material,
                 light: info.light,
+                uv,
             });
         }
         for s in &self.spheres {
@@ -240,6 +262,13 @@ impl Scene {
                 let p = ray.at(t);
                 let n = (p - s.sphere.center) / s.sphere.radius;
                 let n = if s.sphere.inward { -n } else { n };
+                // Mitsuba's sphere coordinates (φ/2π, θ/π), here about the world axes.
+                let d = (p - s.sphere.center) / s.sphere.radius;
+                let phi = d.y.atan2(d.x).rem_euclid(2.0 * std::f32::consts::PI);
+                let uv = Vec2::new(
+                    phi / (2.0 * std::f32::consts::PI),
+                    d.z.clamp(-1.0, 1.0).acos() / std::f32::consts::PI,
+                );
                 best = Some(SurfaceHit {
                     p,
                     t,
@@ -247,6 +276,7 @@ impl Scene {
                     ns: n,
                     material: s.material,
                     light: s.light,
+                    uv,
                 });
             }
         }

@@ -9,7 +9,7 @@
 
 use std::path::Path;
 
-use glam::{Mat3, Mat4, Vec3};
+use glam::{Mat3, Mat4, Vec2, Vec3};
 
 use crate::Error;
 
@@ -22,6 +22,8 @@ pub struct TriangleMesh {
     pub normals: Option<Vec<Vec3>>,
     /// Vertex indices of each triangle, counter-clockwise around the face normal.
     pub indices: Vec<[u32; 3]>,
+    /// Per-vertex texture coordinates (`None`: the mesh has none, textures see `(0, 0)`).
+    pub uvs: Option<Vec<Vec2>>,
 }
 
 /// Triangles of a [`TriangleMesh::disk`].
@@ -39,6 +41,13 @@ impl TriangleMesh {
             ],
             normals: None,
             indices: vec![[0, 1, 2], [2, 3, 0]],
+            // Mitsuba's: (x, y) ∈ [−1, 1]² maps to ((x + 1)/2, (y + 1)/2).
+            uvs: Some(vec![
+                Vec2::new(0.0, 0.0),
+                Vec2::new(1.0, 0.0),
+                Vec2::new(1.0, 1.0),
+                Vec2::new(0.0, 1.0),
+            ]),
         };
         mesh.transform(to_world);
         // Mitsuba transforms the rectangle's normal as a normal; keep the winding consistent.
@@ -58,10 +67,15 @@ impl TriangleMesh {
             Vec3::new(phi.cos(), phi.sin(), 0.0)
         }));
         let indices = (0..n).map(|i| [0, 1 + i, 1 + (i + 1) % n]).collect();
+        // Mitsuba's disk coordinates: (radius, angle / 2π).
+        let uvs = std::iter::once(Vec2::ZERO)
+            .chain((0..n).map(|i| Vec2::new(1.0, i as f32 / n as f32)))
+            .collect();
         let mut mesh = TriangleMesh {
             positions,
             normals: None,
             indices,
+            uvs: Some(uvs),
         };
         mesh.transform(to_world);
         if Mat3::from_mat4(*to_world).determinant() < 0.0 {
@@ -73,6 +87,7 @@ impl TriangleMesh {
     /// Mitsuba's `cube`: `[-1,1]³` with outward-facing sides, placed by `to_world`.
     pub fn cube(to_world: &Mat4) -> Self {
         let mut mesh = TriangleMesh::default();
+        let mut uvs = Vec::new();
         for axis in 0..3 {
             for sign in [-1.0f32, 1.0] {
                 let n = Vec3::AXES[axis] * sign;
@@ -80,6 +95,7 @@ impl TriangleMesh {
                 let base = mesh.positions.len() as u32;
                 for (s, t) in [(-1.0, -1.0), (1.0, -1.0), (1.0, 1.0), (-1.0, 1.0)] {
                     mesh.positions.push(n + s * a + t * b);
+                    uvs.push(Vec2::new(0.5 * (s + 1.0), 0.5 * (t + 1.0)));
                 }
                 // a × b = n for the positive side; reverse the winding for the negative one.
                 if sign > 0.0 {
@@ -91,6 +107,7 @@ impl TriangleMesh {
                 }
             }
         }
+        mesh.uvs = Some(uvs);
         mesh.transform(to_world);
         mesh
     }
@@ -113,7 +130,9 @@ impl TriangleMesh {
         })?;
         let mut mesh = TriangleMesh::default();
         let mut normals = Vec::new();
+        let mut uvs = Vec::new();
         let mut all_have_normals = true;
+        let mut all_have_uvs = true;
         for model in &models {
             let m = &model.mesh;
             let base = mesh.positions.len() as u32;
@@ -124,6 +143,14 @@ impl TriangleMesh {
                 normals.extend((0..nv).map(|i| Vec3::from_slice(&m.normals[3 * i..3 * i + 3])));
             } else {
                 all_have_normals = false;
+            }
+            if m.texcoords.len() == 2 * nv {
+                // Mitsuba flips an OBJ's v (`flip_tex_coords`), so that v = 0 is the image's top.
+                uvs.extend(
+                    (0..nv).map(|i| Vec2::new(m.texcoords[2 * i], 1.0 - m.texcoords[2 * i + 1])),
+                );
+            } else {
+                all_have_uvs = false;
             }
             for f in m.indices.chunks_exact(3) {
                 mesh.indices.push([base + f[0], base + f[1], base + f[2]]);
@@ -148,6 +175,9 @@ impl TriangleMesh {
         }
         if !face_normals && all_have_normals {
             mesh.normals = Some(normals);
+        }
+        if all_have_uvs {
+            mesh.uvs = Some(uvs);
         }
         mesh.transform(to_world);
         if !face_normals && mesh.normals.is_none() {

@@ -17,6 +17,8 @@ mod plastic;
 
 use std::f32::consts::FRAC_1_PI;
 
+use std::sync::Arc;
+
 use glam::{Vec2, Vec3};
 
 pub use fresnel::{fresnel_conductor, fresnel_dielectric, refract};
@@ -25,6 +27,7 @@ pub use plastic::Plastic;
 
 use crate::geometry::{reflect_z, Rgb};
 use crate::sampling::square_to_cosine_hemisphere;
+use crate::texture::Texture;
 use microfacet::{
     rough_conductor_f, rough_conductor_pdf, rough_conductor_sample, rough_dielectric_f,
     rough_dielectric_pdf, rough_dielectric_sample,
@@ -119,6 +122,21 @@ pub struct Material {
     /// Probability that light meets the BSDF rather than passing straight through (Mitsuba
     /// `mask`; 1: opaque).
     pub opacity: f32,
+    /// Parameters that vary over the surface, looked up by [`Material::at`].
+    pub textures: Vec<(Slot, Arc<Texture>)>,
+}
+
+/// A BSDF parameter a texture can drive.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Slot {
+    /// A diffuse BSDF's `reflectance`, a plastic's `diffuse_reflectance`.
+    Reflectance,
+    /// `specular_reflectance`.
+    SpecularReflectance,
+    /// `specular_transmittance`.
+    SpecularTransmittance,
+    /// A mask's `opacity` (the texture's luminance).
+    Opacity,
 }
 
 impl Material {
@@ -128,7 +146,71 @@ impl Material {
             bsdf,
             two_sided: false,
             opacity: 1.0,
+            textures: Vec::new(),
         }
+    }
+
+    /// The material at texture coordinates `uv`, its textured parameters looked up; `None`
+    /// when nothing is textured (the material is the same everywhere).
+    pub fn at(&self, uv: Vec2) -> Option<Material> {
+        if self.textures.is_empty() {
+            return None;
+        }
+        let mut m = Material {
+            bsdf: self.bsdf.clone(),
+            two_sided: self.two_sided,
+            opacity: self.opacity,
+            textures: Vec::new(),
+        };
+        for (slot, t) in &self.textures {
+            let v = t.eval(uv);
+            match (slot, &mut m.bsdf) {
+                (Slot::Opacity, _) => m.opacity = t.eval_scalar(uv).clamp(0.0, 1.0),
+                (Slot::Reflectance, Bsdf::Diffuse { reflectance }) => *reflectance = v,
+                (Slot::Reflectance, Bsdf::Plastic(p)) => p.diffuse_reflectance = v,
+                (
+                    Slot::SpecularReflectance,
+                    Bsdf::Conductor {
+                        specular_reflectance,
+                        ..
+                    }
+                    | Bsdf::RoughConductor {
+                        specular_reflectance,
+                        ..
+                    }
+                    | Bsdf::Dielectric {
+                        specular_reflectance,
+                        ..
+                    }
+                    | Bsdf::RoughDielectric {
+                        specular_reflectance,
+                        ..
+                    }
+                    | Bsdf::ThinDielectric {
+                        specular_reflectance,
+                        ..
+                    },
+                ) => *specular_reflectance = v,
+                (Slot::SpecularReflectance, Bsdf::Plastic(p)) => p.specular_reflectance = v,
+                (
+                    Slot::SpecularTransmittance,
+                    Bsdf::Dielectric {
+                        specular_transmittance,
+                        ..
+                    }
+                    | Bsdf::RoughDielectric {
+                        specular_transmittance,
+                        ..
+                    }
+                    | Bsdf::ThinDielectric {
+                        specular_transmittance,
+                        ..
+                    },
+                ) => *specular_transmittance = v,
+                _ => {}
+            }
+        }
+        Some(m)
     }
 
     fn flip(&self, wo: Vec3) -> bool {
@@ -148,6 +230,7 @@ impl Material {
     /// front).
     pub fn transmits(&self) -> bool {
         self.opacity < 1.0
+            || self.textures.iter().any(|(s, _)| *s == Slot::Opacity)
             || matches!(
                 self.bsdf,
                 Bsdf::Dielectric { .. }

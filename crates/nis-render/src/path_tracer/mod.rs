@@ -222,7 +222,9 @@ impl PathTracer {
             }
             let wo_world = -path.ray.dir;
             let frame = Frame::from_normal(hit.ns);
-            let material = &scene.materials[hit.material as usize];
+            let base = &scene.materials[hit.material as usize];
+            let textured = base.at(hit.uv).map(Box::new);
+            let material = textured.as_deref().unwrap_or(base);
             let vertex = GuideVertex {
                 p: hit.p,
                 n: hit.ns,
@@ -236,6 +238,7 @@ impl PathTracer {
                 frame,
                 hit,
                 vertex,
+                textured,
                 delta,
                 guided: (!delta && path.bounces < guided_bounces).then(|| batch.push(vertex)),
                 alpha: 0.0,
@@ -261,10 +264,10 @@ impl PathTracer {
             ..
         } = wave;
         for b in bounces.iter_mut() {
-            let material = &scene.materials[b.hit.material as usize];
             if let Some(g) = b.guided {
                 b.alpha = batch.alphas[g];
             }
+            let material = b.material(scene);
             let rng = &mut rngs[b.path];
             if !b.delta {
                 let path = &mut paths[b.path];
@@ -275,7 +278,7 @@ impl PathTracer {
             let u_select = uniform(rng);
             let u_lobe = uniform(rng);
             let u_dir = uniform2(rng);
-            b.technique = match b.guided {
+            let technique = match b.guided {
                 Some(g) if b.alpha > 0.0 && u_select < b.alpha => {
                     Technique::Guide(batch.sample(g, u_dir))
                 }
@@ -289,6 +292,7 @@ impl PathTracer {
                     Technique::Bsdf(sample, query)
                 }
             };
+            b.technique = technique;
         }
     }
 
@@ -308,7 +312,7 @@ impl PathTracer {
             ..
         } = wave;
         for b in bounces.iter() {
-            let material = &scene.materials[b.hit.material as usize];
+            let material = b.material(scene);
             let path = &mut paths[b.path];
             let Some(scatter) = Self::scatter(b, material, batch) else {
                 path.alive = false;

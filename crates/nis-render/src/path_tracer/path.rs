@@ -3,10 +3,10 @@
 
 use glam::Vec3;
 
-use crate::bsdf::BsdfSample;
+use crate::bsdf::{BsdfSample, Material};
 use crate::geometry::{Frame, Ray, Rgb};
 use crate::guiding::{GuideRecord, GuideVertex};
-use crate::scene::SurfaceHit;
+use crate::scene::{Scene, SurfaceHit};
 
 /// A vertex kept while a path is traced so that guides can learn from it afterwards.
 pub(super) struct PendingRecord {
@@ -108,6 +108,8 @@ pub(super) struct Bounce {
     pub(super) frame: Frame,
     pub(super) wo: Vec3,
     pub(super) vertex: GuideVertex,
+    /// The material at the hit's texture coordinates, where it is textured.
+    pub(super) textured: Option<Box<Material>>,
     /// Whether the material is a delta BSDF (no light sampling, never guided).
     pub(super) delta: bool,
     /// Index of the vertex in the step's guide batch (`None` where the guide does not serve
@@ -119,6 +121,14 @@ pub(super) struct Bounce {
 }
 
 impl Bounce {
+    /// The material at this vertex: its textured instance, or the scene's.
+    pub(super) fn material<'a>(&'a self, scene: &'a Scene) -> &'a Material {
+        match &self.textured {
+            Some(m) => m,
+            None => &scene.materials[self.hit.material as usize],
+        }
+    }
+
     /// Density of the one-sample guide–BSDF mixture, given the guide's and the BSDF's.
     pub(super) fn mixture_pdf(&self, guide_pdf: f32, bsdf_pdf: f32) -> f32 {
         if self.alpha > 0.0 {

@@ -7,8 +7,8 @@
 use super::dom::{err, Element, XmlError};
 use super::props::{ior, Props, PROPERTY_TAGS};
 use super::{unsupported, LoadResult, Loader};
-use crate::bsdf::{conductors, Bsdf, Material, Microfacet, MicrofacetKind, Plastic};
-use crate::geometry::Rgb;
+use crate::bsdf::{conductors, Bsdf, Material, Microfacet, MicrofacetKind, Plastic, Slot};
+use crate::geometry::{luminance, Rgb};
 use crate::spectrum::Role;
 
 /// The BSDF plugins the reader knows, for error messages.
@@ -25,8 +25,13 @@ impl Loader {
                 return Ok(m);
             }
             "mask" => {
+                let textures = self.named_textures(el)?;
                 let p = Props::new(el)?;
-                let opacity = p.float("opacity", 0.5)?;
+                let texture = textures.into_iter().find(|(n, _)| n == "opacity");
+                let opacity = match &texture {
+                    Some((_, t)) => luminance(t.mean()).clamp(0.0, 1.0),
+                    None => p.float("opacity", 0.5)?,
+                };
                 if !(0.0..=1.0).contains(&opacity) {
                     return Err(err::<()>(
                         el.line,
@@ -38,6 +43,9 @@ impl Loader {
                 p.finish()?;
                 let mut m = self.nested_bsdf(el)?;
                 m.opacity *= opacity;
+                if let Some((_, t)) = texture {
+                    m.textures.push((Slot::Opacity, t));
+                }
                 return Ok(m);
             }
             "principled" | "principledthin" | "hair" | "blendbsdf" | "pplastic" | "measured"
@@ -53,24 +61,44 @@ impl Loader {
             }
             _ => {}
         }
+        let textures = self.named_textures(el)?;
         if let Some(c) = el
             .children
             .iter()
-            .find(|c| !PROPERTY_TAGS.contains(&c.name.as_str()))
+            .find(|c| !PROPERTY_TAGS.contains(&c.name.as_str()) && !is_named_texture(c))
         {
-            return unsupported(c, "plain properties inside this bsdf (no textures)");
+            return unsupported(c, "properties and textures inside this bsdf");
         }
         let p = Props::new(el)?;
+        let mut slots = Vec::new();
+        let mut used = Vec::new();
+        // A textured colour: its mean stands for it where one value is needed (lobe choice).
+        let mut colour = |p: &Props, name: &'static str, slot: Slot, default: Rgb| match textures
+            .iter()
+            .find(|(n, _)| n == name)
+        {
+            Some((_, t)) => {
+                slots.push((slot, t.clone()));
+                used.push(name);
+                Ok::<_, XmlError>(t.mean())
+            }
+            None => p.rgb(name, default),
+        };
         let bsdf = match kind {
             "diffuse" => Bsdf::Diffuse {
-                reflectance: p.rgb("reflectance", Rgb::splat(0.5))?,
+                reflectance: colour(&p, "reflectance", Slot::Reflectance, Rgb::splat(0.5))?,
             },
             "conductor" => {
                 let (eta, k) = conductor(&p, el)?;
                 Bsdf::Conductor {
                     eta,
                     k,
-                    specular_reflectance: p.rgb("specular_reflectance", Rgb::ONE)?,
+                    specular_reflectance: colour(
+                        &p,
+                        "specular_reflectance",
+                        Slot::SpecularReflectance,
+                        Rgb::ONE,
+                    )?,
                 }
             }
             "roughconductor" => {
@@ -79,24 +107,59 @@ impl Loader {
                     dist: microfacet(&p, el)?,
                     eta,
                     k,
-                    specular_reflectance: p.rgb("specular_reflectance", Rgb::ONE)?,
+                    specular_reflectance: colour(
+                        &p,
+                        "specular_reflectance",
+                        Slot::SpecularReflectance,
+                        Rgb::ONE,
+                    )?,
                 }
             }
             "dielectric" => Bsdf::Dielectric {
                 eta: dielectric_eta(&p, "bk7")?,
-                specular_reflectance: p.rgb("specular_reflectance", Rgb::ONE)?,
-                specular_transmittance: p.rgb("specular_transmittance", Rgb::ONE)?,
+                specular_reflectance: colour(
+                    &p,
+                    "specular_reflectance",
+                    Slot::SpecularReflectance,
+                    Rgb::ONE,
+                )?,
+                specular_transmittance: colour(
+                    &p,
+                    "specular_transmittance",
+                    Slot::SpecularTransmittance,
+                    Rgb::ONE,
+                )?,
             },
             "thindielectric" => Bsdf::ThinDielectric {
                 eta: dielectric_eta(&p, "bk7")?,
-                specular_reflectance: p.rgb("specular_reflectance", Rgb::ONE)?,
-                specular_transmittance: p.rgb("specular_transmittance", Rgb::ONE)?,
+                specular_reflectance: colour(
+                    &p,
+                    "specular_reflectance",
+                    Slot::SpecularReflectance,
+                    Rgb::ONE,
+                )?,
+                specular_transmittance: colour(
+                    &p,
+                    "specular_transmittance",
+                    Slot::SpecularTransmittance,
+                    Rgb::ONE,
+                )?,
             },
             "roughdielectric" => Bsdf::RoughDielectric {
                 dist: microfacet(&p, el)?,
                 eta: dielectric_eta(&p, "bk7")?,
-                specular_reflectance: p.rgb("specular_reflectance", Rgb::ONE)?,
-                specular_transmittance: p.rgb("specular_transmittance", Rgb::ONE)?,
+                specular_reflectance: colour(
+                    &p,
+                    "specular_reflectance",
+                    Slot::SpecularReflectance,
+                    Rgb::ONE,
+                )?,
+                specular_transmittance: colour(
+                    &p,
+                    "specular_transmittance",
+                    Slot::SpecularTransmittance,
+                    Rgb::ONE,
+                )?,
             },
             "plastic" | "roughplastic" => {
                 let eta = dielectric_eta(&p, "polypropylene")?;
@@ -115,8 +178,18 @@ impl Loader {
                 };
                 Bsdf::Plastic(Box::new(Plastic::new(
                     eta,
-                    p.rgb("diffuse_reflectance", Rgb::splat(0.5))?,
-                    p.rgb("specular_reflectance", Rgb::ONE)?,
+                    colour(
+                        &p,
+                        "diffuse_reflectance",
+                        Slot::Reflectance,
+                        Rgb::splat(0.5),
+                    )?,
+                    colour(
+                        &p,
+                        "specular_reflectance",
+                        Slot::SpecularReflectance,
+                        Rgb::ONE,
+                    )?,
                     p.boolean("nonlinear", false)?,
                     rough,
                 )))
@@ -126,7 +199,17 @@ impl Loader {
             }
         };
         p.finish()?;
-        Ok(Material::new(bsdf))
+        if let Some((name, _)) = textures.iter().find(|(n, _)| !used.contains(&n.as_str())) {
+            return Err(err::<()>(
+                el.line,
+                format!("parameter '{name}' of <bsdf type=\"{kind}\"> cannot be a texture here"),
+            )
+            .unwrap_err()
+            .into());
+        }
+        let mut m = Material::new(bsdf);
+        m.textures = slots;
+        Ok(m)
     }
 
     /// The one BSDF a wrapper (`twosided`, `mask`) holds, inline or by reference.
@@ -135,7 +218,7 @@ impl Loader {
         let inner: Vec<&Element> = el
             .children
             .iter()
-            .filter(|c| !PROPERTY_TAGS.contains(&c.name.as_str()))
+            .filter(|c| !PROPERTY_TAGS.contains(&c.name.as_str()) && !is_named_texture(c))
             .collect();
         match inner.as_slice() {
             [c] if c.name == "bsdf" => self.bsdf(c),
@@ -165,6 +248,12 @@ impl Loader {
             .into()),
         }
     }
+}
+
+/// Whether a child element is a texture given to a parameter (`<texture name=…>`, or a
+/// `<ref name=…>`; a wrapper's BSDF comes unnamed).
+fn is_named_texture(c: &Element) -> bool {
+    (c.name == "texture" || c.name == "ref") && c.attr("name").is_some()
 }
 
 /// The microfacet distribution of a rough BSDF: `distribution` (Mitsuba's default `beckmann`,

@@ -11,17 +11,20 @@
 //! `direct` as `path` with `max_depth = 2`.
 //!
 //! One file per kind of element: `sensor.rs` (camera, film, filter, sampler), `bsdf.rs`,
-//! `emitter.rs` (the scene's own emitters; area emitters are read with their shape).
+//! `emitter.rs` (the scene's own emitters; area emitters are read with their shape),
+//! `texture.rs`.
 
 mod bsdf;
 mod dom;
 mod emitter;
 mod props;
 mod sensor;
+mod texture;
 mod upgrade;
 
 use std::collections::HashMap;
 use std::path::{Path, PathBuf};
+use std::sync::Arc;
 
 use glam::{Mat3, Vec3};
 
@@ -32,6 +35,7 @@ use crate::light::DirectionalLight;
 use crate::scene::{RenderSettings, Scene};
 use crate::shape::{Geometry, Shape, Sphere, TriangleMesh};
 use crate::spectrum::Role;
+use crate::texture::{Bitmap, Texture};
 use crate::Error;
 use dom::{err, Element, XmlError};
 use props::{Props, PROPERTY_TAGS};
@@ -120,6 +124,10 @@ struct Loader {
     camera: Option<Camera>,
     settings: RenderSettings,
     directional: Vec<DirectionalLight>,
+    /// Textures defined at the top with an `id`.
+    textures: HashMap<String, Arc<Texture>>,
+    /// Images read so far.
+    bitmaps: HashMap<texture::BitmapKey, Arc<Bitmap>>,
     /// What was read differently from Mitsuba 3, with its line.
     warnings: Vec<(usize, String)>,
 }
@@ -164,7 +172,17 @@ impl Loader {
                 }
                 "shape" => self.shape(c)?,
                 "emitter" => self.emitter(c)?,
-                _ => return unsupported(c, "default, integrator, sensor, bsdf, shape, emitter"),
+                "texture" => {
+                    let id = c.required("id")?.to_string();
+                    let t = self.texture(c)?;
+                    self.textures.insert(id, t);
+                }
+                _ => {
+                    return unsupported(
+                        c,
+                        "default, integrator, sensor, bsdf, texture, shape, emitter",
+                    )
+                }
             }
         }
         let Some(camera) = self.camera.take() else {
