@@ -141,6 +141,11 @@ def features():
     add("mask-bitmap",
         sphere='<bsdf type="mask"><texture type="bitmap" name="opacity"><string name="filename" value="texture.png"/></texture>'
                '<bsdf type="diffuse"><rgb name="reflectance" value="0.7, 0.7, 0.2"/></bsdf></bsdf>')
+    add("envmap", light="""<emitter type="envmap">
+        <string name="filename" value="sky.exr"/>
+        <float name="scale" value="1.5"/>
+        <transform name="to_world"><rotate y="1" angle="70"/></transform>
+    </emitter>""", sphere='<bsdf type="roughconductor"><string name="material" value="Al"/><float name="alpha" value="0.1"/></bsdf>')
     legacy = scene("legacy-0.5", version="0.5.0",
                    sphere='<bsdf type="roughconductor"><float name="alpha" value="0.2"/><string name="material" value="Cu"/>'
                           '<float name="extEta" value="1.0"/></bsdf>',
@@ -178,6 +183,12 @@ def write_data(mi):
     y, x = np.mgrid[0:12, 0:16]
     img = np.stack([(x * 16) % 256, (y * 21) % 256, ((x + y) % 2) * 200 + 30], axis=-1).astype(np.uint8)
     mi.Bitmap(img).write(str(OUT / "texture.png"))
+    # A 32 x 16 sky: a blue gradient, a bright sun and a dark ground.
+    v, u = (np.mgrid[0:16, 0:32] + 0.5) / np.array([16, 32])[:, None, None]
+    sky = np.stack([0.3 + 0.4 * v, 0.4 + 0.3 * v, 0.9 - 0.2 * v], axis=-1) * (v < 0.5)[..., None]
+    sky += 0.1 * (v >= 0.5)[..., None]
+    sky[3, 21] = [60.0, 55.0, 45.0]
+    mi.Bitmap(sky.astype(np.float32)).write(str(OUT / "sky.exr"))
 
 
 def srgb_to_linear(c):

@@ -29,6 +29,7 @@ pub mod bsdf;
 pub mod bvh;
 pub mod camera;
 pub mod compare;
+pub mod envmap;
 pub mod film;
 pub mod filter;
 pub mod geometry;

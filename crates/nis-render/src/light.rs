@@ -11,8 +11,11 @@
 
 use std::f32::consts::PI;
 
+use std::sync::Arc;
+
 use glam::{Vec2, Vec3};
 
+use crate::envmap::EnvMap;
 use crate::geometry::{luminance, Rgb};
 use crate::sampling::{square_to_triangle, square_to_uniform_sphere, Distribution1D};
 
@@ -86,6 +89,8 @@ pub struct Lights {
     pub area: Vec<AreaLight>,
     /// Constant environment radiance (Mitsuba `constant` emitter).
     pub environment: Option<Rgb>,
+    /// An environment map (Mitsuba `envmap`), in place of a constant environment.
+    pub environment_map: Option<Arc<EnvMap>>,
     /// Distant lights.
     pub directional: Vec<DirectionalLight>,
     selection: Option<Distribution1D>,
@@ -117,6 +122,7 @@ impl Lights {
         Lights {
             area,
             environment,
+            environment_map: None,
             directional,
             selection,
             directional_selection,
@@ -125,16 +131,38 @@ impl Lights {
 
     /// Replace the directional lights.
     pub fn set_directional(&mut self, directional: Vec<DirectionalLight>) {
+        let map = self.environment_map.take();
         *self = Self::with_directional(
             std::mem::take(&mut self.area),
             self.environment,
             directional,
         );
+        self.environment_map = map;
+    }
+
+    /// Light the scene by an environment map instead of a constant environment.
+    pub fn set_environment_map(&mut self, map: EnvMap) {
+        self.environment_map = Some(Arc::new(map));
+        self.environment = None;
+    }
+
+    /// Whether any environment lights the scene.
+    fn has_environment(&self) -> bool {
+        self.environment.is_some() || self.environment_map.is_some()
+    }
+
+    /// Radiance arriving from the environment along world direction `dir` (away from the
+    /// scene), if there is an environment.
+    pub fn environment_radiance(&self, dir: Vec3) -> Option<Rgb> {
+        match &self.environment_map {
+            Some(map) => Some(map.eval(dir)),
+            None => self.environment,
+        }
     }
 
     /// Number of kinds of light present (environment, area, directional).
     fn kinds(&self) -> f32 {
-        (u8::from(self.environment.is_some())
+        (u8::from(self.has_environment())
             + u8::from(self.selection.is_some())
             + u8::from(self.directional_selection.is_some())) as f32
     }
@@ -142,7 +170,7 @@ impl Lights {
     /// Probability of choosing the environment.
     fn env_probability(&self) -> f32 {
         match (
-            self.environment.is_some(),
+            self.has_environment(),
             self.selection.is_some(),
             self.directional_selection.is_some(),
         ) {
@@ -166,13 +194,24 @@ impl Lights {
 
     /// Whether there is anything to sample.
     pub fn is_empty(&self) -> bool {
-        self.selection.is_none() && self.environment.is_none() && self.directional.is_empty()
+        self.selection.is_none() && !self.has_environment() && self.directional.is_empty()
     }
 
     /// Sample a light as seen from `p`; `None` if it is back-facing or has no lights.
     pub fn sample(&self, p: Vec3, u_select: f32, u: Vec2) -> Option<LightSample> {
         let p_env = self.env_probability();
         if u_select < p_env {
+            if let Some(map) = &self.environment_map {
+                let s = map.sample(u)?;
+                return Some(LightSample {
+                    wi: s.wi,
+                    dist: f32::INFINITY,
+                    point: Vec3::ZERO,
+                    radiance: s.radiance,
+                    pdf: p_env * s.pdf,
+                    delta: false,
+                });
+            }
             let wi = square_to_uniform_sphere(u);
             return Some(LightSample {
                 wi,
@@ -251,8 +290,11 @@ impl Lights {
         pmf / self.area[index].area * dist * dist / cos_light.abs().max(1e-12)
     }
 
-    /// Solid-angle density of sampling the environment in any direction.
-    pub fn pdf_environment(&self) -> f32 {
-        self.env_probability() / (4.0 * PI)
+    /// Solid-angle density of sampling the environment in world direction `dir`.
+    pub fn pdf_environment(&self, dir: Vec3) -> f32 {
+        match &self.environment_map {
+            Some(map) => self.env_probability() * map.pdf(dir),
+            None => self.env_probability() / (4.0 * PI),
+        }
     }
 }

@@ -56,6 +56,8 @@ pub struct Bitmap {
     texels: Texels,
     filter: FilterMode,
     wrap: WrapMode,
+    /// Wrapping along v (rows), when it differs from `wrap` (an environment map's poles).
+    wrap_v: WrapMode,
     mean: Rgb,
 }
 
@@ -218,6 +220,7 @@ impl Bitmap {
             texels,
             filter,
             wrap,
+            wrap_v: wrap,
             mean: Rgb::ZERO,
         };
         let mut sum = [0.0f64; 3];
@@ -236,6 +239,17 @@ impl Bitmap {
         b
     }
 
+    /// The same image wrapped by `wrap_v` along v.
+    pub fn with_wrap_v(mut self, wrap_v: WrapMode) -> Bitmap {
+        self.wrap_v = wrap_v;
+        self
+    }
+
+    /// The texel at column `x`, row `y` (from the top), decoded.
+    pub fn texel_at(&self, x: usize, y: usize) -> Rgb {
+        self.texel(y * self.width + x)
+    }
+
     /// Width and height in texels.
     pub fn size(&self) -> (usize, usize) {
         (self.width, self.height)
@@ -252,9 +266,9 @@ impl Bitmap {
     }
 
     /// Index of texel `i` along an axis of `n` texels, wrapped.
-    fn wrap_index(&self, i: i64, n: usize) -> usize {
+    fn wrap_index(wrap: WrapMode, i: i64, n: usize) -> usize {
         let n = n as i64;
-        let j = match self.wrap {
+        let j = match wrap {
             WrapMode::Repeat => i.rem_euclid(n),
             WrapMode::Clamp => i.clamp(0, n - 1),
             WrapMode::Mirror => {
@@ -270,10 +284,8 @@ impl Bitmap {
     }
 
     fn at(&self, x: i64, y: i64) -> Rgb {
-        let (x, y) = (
-            self.wrap_index(x, self.width),
-            self.wrap_index(y, self.height),
-        );
+        let x = Self::wrap_index(self.wrap, x, self.width);
+        let y = Self::wrap_index(self.wrap_v, y, self.height);
         self.texel(y * self.width + x)
     }
 
@@ -285,8 +297,14 @@ impl Bitmap {
         // Texture coordinates far outside the unit square only repeat; keep them small so
         // that the texel index stays exact.
         let uv = uv.clamp(Vec2::splat(-1e6), Vec2::splat(1e6));
-        let x = uv.x * self.width as f32 - 0.5;
-        let y = uv.y * self.height as f32 - 0.5;
+        self.eval_texels(
+            uv.x * self.width as f32 - 0.5,
+            uv.y * self.height as f32 - 0.5,
+        )
+    }
+
+    /// The value at texel coordinates `(x, y)`, texel `(i, j)`'s centre at `(i, j)`.
+    pub fn eval_texels(&self, x: f32, y: f32) -> Rgb {
         match self.filter {
             FilterMode::Nearest => self.at((x + 0.5).floor() as i64, (y + 0.5).floor() as i64),
             FilterMode::Bilinear => {

@@ -372,11 +372,11 @@ impl PathTracer {
         }
         let lights = &scene.lights;
         let Some(hit) = hit else {
-            let env = lights.environment?;
+            let env = lights.environment_radiance(path.ray.dir)?;
             let weight = self.emitter_weight(
                 path.prev_delta,
                 path.prev_bsdf_pdf,
-                lights.pdf_environment(),
+                lights.pdf_environment(path.ray.dir),
             );
             return Some(Emission {
                 radiance: env,

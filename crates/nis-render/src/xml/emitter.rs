@@ -1,27 +1,51 @@
-//! The scene's own emitters: a `constant` environment and `directional` lights (Mitsuba 3's
+//! The scene's own emitters: a `constant` environment or an `envmap`, and `directional` lights (Mitsuba 3's
 //! plugins, their parameters and defaults). Area emitters belong to their shape.
 
-use glam::Vec3;
+use glam::{Mat3, Vec3};
 
 use super::dom::{err, Element};
 use super::props::Props;
 use super::{unsupported, LoadResult, Loader};
+use crate::envmap::EnvMap;
 use crate::geometry::Rgb;
 use crate::light::DirectionalLight;
 use crate::spectrum::Role;
+use crate::texture::{Bitmap, FilterMode, WrapMode};
 
 impl Loader {
     pub(super) fn emitter(&mut self, c: &Element) -> LoadResult<()> {
         let kind = c.required("type")?;
         let p = Props::new(c)?;
         match kind {
+            "constant" | "envmap" if self.environment.is_some() || self.environment_map.is_some() => {
+                return Err(err::<()>(c.line, "only one environment emitter (constant or envmap) is supported")
+                    .unwrap_err()
+                    .into());
+            }
             "constant" => {
-                if self.environment.is_some() {
-                    return Err(err::<()>(c.line, "only one constant environment is supported")
+                self.environment = Some(p.spectrum("radiance", Rgb::ONE, Role::Emission)?);
+            }
+            "envmap" => {
+                let Some(file) = p.string("filename")? else {
+                    return Err(err::<()>(c.line, "<emitter type=\"envmap\"> needs <string name=\"filename\">")
                         .unwrap_err()
                         .into());
+                };
+                let scale = p.float("scale", 1.0)?;
+                let to_world = Mat3::from_mat4(p.transform("to_world")?);
+                // Mitsuba 0.x's `gamma` (−1: sRGB for 8-bit images, 1: linear); caching and
+                // sampling weights do not change the image.
+                let raw = p.float("gamma", -1.0)? == 1.0 || p.boolean("raw", false)?;
+                p.ignore(&["cache", "sampling_weight", "filter_type", "mis_compensation"]);
+                let path = self.base_dir.join(file);
+                let image = Bitmap::load(&path, raw, FilterMode::Bilinear, WrapMode::Repeat)
+                    .map_err(|e| err::<()>(c.line, e.to_string()).unwrap_err())?;
+                match EnvMap::new(image, scale, to_world) {
+                    Some(map) => self.environment_map = Some(map),
+                    None => self
+                        .warnings
+                        .push((c.line, format!("the environment map {file} is black"))),
                 }
-                self.environment = Some(p.spectrum("radiance", Rgb::ONE, Role::Emission)?);
             }
             "directional" => {
                 let irradiance = p.spectrum("irradiance", Rgb::ONE, Role::Emission)?;
@@ -40,15 +64,15 @@ impl Loader {
                     irradiance,
                 });
             }
-            "envmap" | "sunsky" | "sky" | "sun" | "point" | "spot" | "projector" => {
+            "sunsky" | "sky" | "sun" | "point" | "spot" | "projector" => {
                 return Err(err::<()>(
                     c.line,
-                    format!("the emitter <emitter type=\"{kind}\"> is not supported yet (supported: constant, directional, area inside a shape)"),
+                    format!("the emitter <emitter type=\"{kind}\"> is not supported yet (supported: constant, envmap, directional, area inside a shape)"),
                 )
                 .unwrap_err()
                 .into())
             }
-            _ => return unsupported(c, "constant, directional; area inside a shape"),
+            _ => return unsupported(c, "constant, envmap, directional; area inside a shape"),
         }
         p.finish()?;
         Ok(())

@@ -30,6 +30,7 @@ use glam::{Mat3, Vec3};
 
 use crate::bsdf::{Bsdf, Material};
 use crate::camera::Camera;
+use crate::envmap::EnvMap;
 use crate::geometry::Rgb;
 use crate::light::DirectionalLight;
 use crate::scene::{RenderSettings, Scene};
@@ -124,6 +125,7 @@ struct Loader {
     camera: Option<Camera>,
     settings: RenderSettings,
     directional: Vec<DirectionalLight>,
+    environment_map: Option<EnvMap>,
     /// Textures defined at the top with an `id`.
     textures: HashMap<String, Arc<Texture>>,
     /// Images read so far.
@@ -198,6 +200,9 @@ impl Loader {
             self.environment,
         )
         .map_err(LoadError::Other)?;
+        if let Some(map) = self.environment_map.take() {
+            scene.lights.set_environment_map(map);
+        }
         if !self.directional.is_empty() {
             scene
                 .lights

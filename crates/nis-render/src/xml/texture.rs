@@ -111,14 +111,14 @@ impl Loader {
         let mut out = Vec::new();
         for c in &el.children {
             let Some(name) = c.attr("name") else { continue };
-            let texture =
-                match c.name.as_str() {
-                    "texture" => self.texture(c)?,
-                    "ref" => {
-                        let id = c.required("id")?;
-                        match self.textures.get(id) {
-                            Some(t) => t.clone(),
-                            None => return Err(LoadError::Xml(
+            let texture = match c.name.as_str() {
+                "texture" => self.texture(c)?,
+                "ref" => {
+                    let id = c.required("id")?;
+                    match self.textures.get(id) {
+                        Some(t) => t.clone(),
+                        None => {
+                            return Err(LoadError::Xml(
                                 err::<()>(
                                     c.line,
                                     format!(
@@ -126,11 +126,12 @@ impl Loader {
                                     ),
                                 )
                                 .unwrap_err(),
-                            )),
+                            ))
                         }
                     }
-                    _ => continue,
-                };
+                }
+                _ => continue,
+            };
             if out.iter().any(|(n, _)| n == name) {
                 return Err(
                     err::<()>(c.line, format!("parameter '{name}' is given twice"))
