@@ -141,6 +141,12 @@ def features():
     add("mask-bitmap",
         sphere='<bsdf type="mask"><texture type="bitmap" name="opacity"><string name="filename" value="texture.png"/></texture>'
                '<bsdf type="diffuse"><rgb name="reflectance" value="0.7, 0.7, 0.2"/></bsdf></bsdf>')
+    add("serialized",
+        floor='<shape type="serialized"><string name="filename" value="meshes.serialized"/>'
+              '<integer name="shape_index" value="1"/><bsdf type="diffuse"><texture type="checkerboard" name="reflectance"/></bsdf></shape>'
+              '<shape type="serialized"><string name="filename" value="meshes.serialized"/>'
+              '<transform name="to_world"><scale value="0.8"/><translate x="-0.9" z="0.5"/></transform>'
+              '<bsdf type="diffuse"><rgb name="reflectance" value="0.2, 0.6, 0.3"/></bsdf></shape>')
     add("envmap", light="""<emitter type="envmap">
         <string name="filename" value="sky.exr"/>
         <float name="scale" value="1.5"/>
@@ -176,10 +182,36 @@ f 1/1/1 2/2/1 3/3/1 4/4/1
 """
 
 
+def serialized_v4(meshes):
+    """Mitsuba's serialized format, version 4 (what Mitsuba 0.x wrote), single precision:
+    each mesh (positions, normals or None, uvs or None, triangles) zlib-compressed after its
+    header, the table of offsets and the count at the end."""
+    import struct
+    import zlib
+    out, offsets = b"", []
+    for positions, normals, uvs, triangles in meshes:
+        offsets.append(len(out))
+        flags = 0x1000 | (0x1 if normals else 0) | (0x2 if uvs else 0)
+        body = struct.pack("<I", flags) + b"mesh\0" + struct.pack("<QQ", len(positions), len(triangles))
+        for rows in (positions, normals or [], uvs or []):
+            for row in rows:
+                body += struct.pack(f"<{len(row)}f", *row)
+        for t in triangles:
+            body += struct.pack("<3I", *t)
+        out += struct.pack("<HH", 0x041C, 4) + zlib.compress(body)
+    return out + b"".join(struct.pack("<Q", o) for o in offsets) + struct.pack("<I", len(meshes))
+
+
 def write_data(mi):
     """The mesh and the 16 x 12 sRGB image the textured scenes read."""
     import numpy as np
     (OUT / "quad-uv.obj").write_text(QUAD_OBJ)
+    # Two meshes: a wedge (index 0) and the floor quad with normals and uvs (index 1).
+    wedge = ([(-0.5, 0, -0.5), (0.5, 0, -0.5), (0, 0.8, -0.2), (0, 0, 0.4)], None, None,
+             [(0, 2, 1), (0, 1, 3), (1, 2, 3), (0, 3, 2)])
+    floor = ([(-2, 0, 2), (2, 0, 2), (2, 0, -2), (-2, 0, -2)], [(0, 1, 0)] * 4,
+             [(0, 0), (2, 0), (2, 2), (0, 2)], [(0, 1, 2), (2, 3, 0)])
+    (OUT / "meshes.serialized").write_bytes(serialized_v4([wedge, floor]))
     y, x = np.mgrid[0:12, 0:16]
     img = np.stack([(x * 16) % 256, (y * 21) % 256, ((x + y) % 2) * 200 + 30], axis=-1).astype(np.uint8)
     mi.Bitmap(img).write(str(OUT / "texture.png"))

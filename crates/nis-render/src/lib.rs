@@ -40,6 +40,7 @@ pub mod render;
 pub mod sampling;
 pub mod scene;
 pub mod scenes;
+pub mod serialized;
 pub mod shape;
 pub mod spectrum;
 pub mod texture;

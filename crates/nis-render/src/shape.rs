@@ -173,17 +173,26 @@ impl TriangleMesh {
                 message: format!("face refers to missing vertex {bad}"),
             });
         }
-        if !face_normals && all_have_normals {
+        if all_have_normals {
             mesh.normals = Some(normals);
         }
         if all_have_uvs {
             mesh.uvs = Some(uvs);
         }
-        mesh.transform(to_world);
-        if !face_normals && mesh.normals.is_none() {
-            mesh.normals = Some(mesh.vertex_normals());
-        }
+        mesh.finish(to_world, face_normals);
         Ok(mesh)
+    }
+
+    /// Place a mesh read from a file: drop its normals for `face_normals`, transform it, and
+    /// give it angle-weighted vertex normals where it has none.
+    pub fn finish(&mut self, to_world: &Mat4, face_normals: bool) {
+        if face_normals {
+            self.normals = None;
+        }
+        self.transform(to_world);
+        if !face_normals && self.normals.is_none() {
+            self.normals = Some(self.vertex_normals());
+        }
     }
 
     /// Apply `m` to positions (as points) and normals (by the inverse transpose).

@@ -347,6 +347,47 @@ fn obj_meshes_random_and_mutated() {
     let _ = std::fs::remove_dir_all(&dir);
 }
 
+/// Mitsuba serialized meshes: byte edits of a valid two-mesh file (a corrupt zlib stream,
+/// counts past the data, offsets past the end) and random bytes after a valid header.
+#[test]
+fn serialized_meshes_mutated() {
+    let mesh = |z: f32| TriangleMesh {
+        positions: vec![glam::Vec3::new(0.0, 0.0, z), glam::Vec3::X, glam::Vec3::Y],
+        normals: Some(vec![glam::Vec3::Z; 3]),
+        indices: vec![[0, 1, 2]],
+        uvs: Some(vec![glam::Vec2::ZERO, glam::Vec2::X, glam::Vec2::Y]),
+    };
+    let valid = nis_render::serialized::write(&[mesh(0.0), mesh(1.0)]);
+    let bytes = prop_oneof![
+        3 => mutated(valid, 6),
+        1 => prop::collection::vec(any::<u8>(), 0..256).prop_map(|mut b| {
+            let mut v = vec![0x1C, 0x04, 4, 0];
+            v.append(&mut b);
+            v
+        }),
+    ];
+    fuzz::fuzz(
+        "serialized",
+        400,
+        (bytes, 0u32..3),
+        |tally, (bytes, index)| {
+            let mesh = check(
+                tally,
+                bytes.len(),
+                || nis_render::serialized::parse(&bytes, index),
+                |_| 0,
+            )?;
+            if let Ok(mesh) = mesh {
+                let n = mesh.positions.len();
+                prop_assert!(!mesh.indices.is_empty());
+                prop_assert!(mesh.indices.iter().flatten().all(|&i| (i as usize) < n));
+                prop_assert!(mesh.positions.iter().all(|p| p.is_finite()));
+            }
+            Ok(())
+        },
+    );
+}
+
 fn small_exr(dir: &Path) -> Vec<u8> {
     let mut img = Image::new(5, 3);
     for (i, p) in img.pixels.iter_mut().enumerate() {

@@ -312,6 +312,30 @@ impl Loader {
                 })?;
                 Geometry::Mesh(mesh)
             }
+            "serialized" => {
+                let file = p.string("filename")?.ok_or_else(|| {
+                    LoadError::Xml(XmlError {
+                        line: el.line,
+                        message: "<shape type=\"serialized\"> needs <string name=\"filename\">"
+                            .into(),
+                    })
+                })?;
+                let index = p.int("shape_index", 0)?;
+                let index = u32::try_from(index)
+                    .map_err(|_| out_of_range(el, "shape_index", index, "0..=2^32-1"))?;
+                let face_normals = p.boolean("face_normals", false)?;
+                p.ignore(&["max_smooth_angle"]);
+                let path = self.base_dir.join(file);
+                let mesh = crate::serialized::load(&path, index, &to_world, face_normals).map_err(
+                    |e| {
+                        LoadError::Xml(XmlError {
+                            line: el.line,
+                            message: e.to_string(),
+                        })
+                    },
+                )?;
+                Geometry::Mesh(mesh)
+            }
             "sphere" => {
                 let center = p.point("center", Vec3::ZERO)?;
                 let radius = p.float("radius", 1.0)?;
@@ -332,7 +356,7 @@ impl Loader {
                     inward: false,
                 })
             }
-            _ => return unsupported(el, "obj, rectangle, cube, disk, sphere"),
+            _ => return unsupported(el, "obj, serialized, rectangle, cube, disk, sphere"),
         };
         p.finish()?;
         let geometry = match geometry {
