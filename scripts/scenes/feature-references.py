@@ -147,6 +147,11 @@ def features():
               '<shape type="serialized"><string name="filename" value="meshes.serialized"/>'
               '<transform name="to_world"><scale value="0.8"/><translate x="-0.9" z="0.5"/></transform>'
               '<bsdf type="diffuse"><rgb name="reflectance" value="0.2, 0.6, 0.3"/></bsdf></shape>')
+    add("bumpmap",
+        floor='<shape type="obj"><string name="filename" value="quad-uv.obj"/>'
+              '<bsdf type="bumpmap"><texture type="bitmap" name="height"><string name="filename" value="texture.png"/>'
+              '<boolean name="raw" value="true"/></texture><float name="scale" value="0.3"/>'
+              '<bsdf type="roughplastic"><float name="alpha" value="0.15"/></bsdf></bsdf></shape>')
     add("envmap", light="""<emitter type="envmap">
         <string name="filename" value="sky.exr"/>
         <float name="scale" value="1.5"/>

@@ -26,6 +26,7 @@
 #![warn(missing_docs)]
 
 pub mod bsdf;
+pub mod bump;
 pub mod bvh;
 pub mod camera;
 pub mod compare;

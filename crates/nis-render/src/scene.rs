@@ -61,7 +61,12 @@ pub struct SurfaceHit {
     pub light: u32,
     /// Texture coordinates (Mitsuba's conventions per shape; `(0, 0)` on a mesh without them).
     pub uv: Vec2,
+    /// The triangle hit (in the BVH's order), or [`NO_TRIANGLE`] for a sphere.
+    pub triangle: u32,
 }
+
+/// [`SurfaceHit::triangle`] of a sphere.
+pub const NO_TRIANGLE: u32 = u32::MAX;
 
 /// [`SurfaceHit::light`] of a surface that does not emit.
 pub const NO_LIGHT: u32 = u32::MAX;
@@ -221,6 +226,25 @@ impl Scene {
         })
     }
 
+    /// `∂p/∂u` and `∂p/∂v` of the triangle a hit is on, from its positions and texture
+    /// coordinates (pbrt's construction); `None` on spheres and on triangles without texture
+    /// coordinates or with degenerate ones.
+    pub fn uv_derivatives(&self, hit: &SurfaceHit) -> Option<(Vec3, Vec3)> {
+        let info = self.triangles.get(hit.triangle as usize)?;
+        let t = self.vertex_uvs.get(info.uv as usize)?;
+        let tri = &self.bvh.triangles()[hit.triangle as usize];
+        let (p0, p1, p2) = (tri.p0, tri.p0 + tri.e1, tri.p0 + tri.e2);
+        let (d02, d12) = (t[0] - t[2], t[1] - t[2]);
+        let (dp02, dp12) = (p0 - p2, p1 - p2);
+        let det = d02.x * d12.y - d02.y * d12.x;
+        if det.abs() < 1e-12 {
+            return None;
+        }
+        let dpdu = (d12.y * dp02 - d02.y * dp12) / det;
+        let dpdv = (d02.x * dp12 - d12.x * dp02) / det;
+        (dpdu.is_finite() && dpdv.is_finite()).then_some((dpdu, dpdv))
+    }
+
     /// Number of triangles in the BVH.
     pub fn triangle_count(&self) -> usize {
         self.triangles.len()
@@ -254,6 +278,7 @@ impl Scene {
                 material: info.material,
                 light: info.light,
                 uv,
+                triangle: h.prim,
             });
         }
         for s in &self.spheres {
@@ -277,6 +302,7 @@ impl Scene {
                     material: s.material,
                     light: s.light,
                     uv,
+                    triangle: NO_TRIANGLE,
                 });
             }
         }

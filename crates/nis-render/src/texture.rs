@@ -108,6 +108,22 @@ impl Texture {
         luminance(self.eval(uv))
     }
 
+    /// The gradient of [`Texture::eval_scalar`] with respect to `uv` (zero for the nearest
+    /// filter and the checkerboard, which are flat almost everywhere), as a bump map reads it.
+    pub fn eval_scalar_grad(&self, uv: Vec2) -> Vec2 {
+        match self {
+            Texture::Bitmap { image, to_uv } => {
+                let g = image.luminance_grad(to_uv.transform_point2(uv));
+                // Chain rule through the affine map: ∂f/∂uv = Mᵀ ∂f/∂uv'.
+                Vec2::new(
+                    to_uv.x_axis.x * g.x + to_uv.x_axis.y * g.y,
+                    to_uv.y_axis.x * g.x + to_uv.y_axis.y * g.y,
+                )
+            }
+            Texture::Checkerboard { .. } => Vec2::ZERO,
+        }
+    }
+
     /// The mean over the texture (what Mitsuba's BSDFs use to choose lobes).
     pub fn mean(&self) -> Rgb {
         match self {
@@ -303,6 +319,24 @@ impl Bitmap {
         )
     }
 
+    /// The gradient of the bilinearly interpolated luminance at `uv`, per unit of `uv`.
+    pub fn luminance_grad(&self, uv: Vec2) -> Vec2 {
+        if self.filter == FilterMode::Nearest || !uv.is_finite() {
+            return Vec2::ZERO;
+        }
+        let uv = uv.clamp(Vec2::splat(-1e6), Vec2::splat(1e6));
+        let x = uv.x * self.width as f32 - 0.5;
+        let y = uv.y * self.height as f32 - 0.5;
+        let (x0, y0) = (x.floor(), y.floor());
+        let (fx, fy) = (x - x0, y - y0);
+        let (x0, y0) = (x0 as i64, y0 as i64);
+        let f = |dx, dy| luminance(self.at(x0 + dx, y0 + dy));
+        let (f00, f10, f01, f11) = (f(0, 0), f(1, 0), f(0, 1), f(1, 1));
+        let dx = (1.0 - fy) * (f10 - f00) + fy * (f11 - f01);
+        let dy = (1.0 - fx) * (f01 - f00) + fx * (f11 - f10);
+        Vec2::new(dx * self.width as f32, dy * self.height as f32)
+    }
+
     /// The value at texel coordinates `(x, y)`, texel `(i, j)`'s centre at `(i, j)`.
     pub fn eval_texels(&self, x: f32, y: f32) -> Rgb {
         match self.filter {
@@ -348,6 +382,33 @@ mod tests {
         assert_eq!(mirror.eval(p).x, 1.0);
         assert_eq!(clamp.eval(p).x, 1.0);
         assert_eq!(repeat.eval(Vec2::new(-0.25, 0.25)).x, 1.0);
+    }
+
+    #[test]
+    fn the_luminance_gradient_matches_finite_differences() {
+        let texels = (0..20)
+            .map(|i| [i as f32 * 0.1, (i * i) as f32 * 0.01, 0.5])
+            .collect();
+        let image = Arc::new(
+            Bitmap::from_linear(5, 4, texels, FilterMode::Bilinear, WrapMode::Repeat).unwrap(),
+        );
+        let to_uv = Mat3::from_cols(
+            Vec3::new(1.5, 0.2, 0.0),
+            Vec3::new(-0.3, 0.8, 0.0),
+            Vec3::new(0.1, 0.2, 1.0),
+        );
+        let t = Texture::Bitmap { image, to_uv };
+        let uv = Vec2::new(0.37, 0.61);
+        let h = 1e-3;
+        let fd = Vec2::new(
+            (t.eval_scalar(uv + Vec2::X * h) - t.eval_scalar(uv - Vec2::X * h)) / (2.0 * h),
+            (t.eval_scalar(uv + Vec2::Y * h) - t.eval_scalar(uv - Vec2::Y * h)) / (2.0 * h),
+        );
+        let g = t.eval_scalar_grad(uv);
+        assert!(
+            (g - fd).length() < 1e-2 * fd.length().max(1.0),
+            "{g} vs {fd}"
+        );
     }
 
     #[test]

@@ -25,6 +25,7 @@ pub use fresnel::{fresnel_conductor, fresnel_dielectric, refract};
 pub use microfacet::{Microfacet, MicrofacetKind};
 pub use plastic::Plastic;
 
+use crate::bump::Bump;
 use crate::geometry::{reflect_z, Rgb};
 use crate::sampling::square_to_cosine_hemisphere;
 use crate::texture::Texture;
@@ -124,6 +125,8 @@ pub struct Material {
     pub opacity: f32,
     /// Parameters that vary over the surface, looked up by [`Material::at`].
     pub textures: Vec<(Slot, Arc<Texture>)>,
+    /// A bump map that tilts the shading normal (Mitsuba `bumpmap`).
+    pub bump: Option<Bump>,
 }
 
 /// A BSDF parameter a texture can drive.
@@ -147,6 +150,7 @@ impl Material {
             two_sided: false,
             opacity: 1.0,
             textures: Vec::new(),
+            bump: None,
         }
     }
 
@@ -161,6 +165,7 @@ impl Material {
             two_sided: self.two_sided,
             opacity: self.opacity,
             textures: Vec::new(),
+            bump: None,
         };
         for (slot, t) in &self.textures {
             let v = t.eval(uv);

@@ -19,6 +19,7 @@ use rand::RngCore;
 use rand_pcg::Pcg32;
 
 use crate::bsdf::Material;
+use crate::bump::BumpShading;
 use crate::geometry::{offset_origin, Frame, Ray, Rgb, RAY_EPSILON};
 use crate::guiding::{Guide, GuideRecord, GuideVertex};
 use crate::sampling::power_heuristic;
@@ -221,8 +222,17 @@ impl PathTracer {
                 continue;
             }
             let wo_world = -path.ray.dir;
-            let frame = Frame::from_normal(hit.ns);
             let base = &scene.materials[hit.material as usize];
+            let mut hit = hit;
+            let mut bump = None;
+            if let Some(b) = &base.bump {
+                if let Some(d) = scene.uv_derivatives(&hit) {
+                    let n = b.normal(hit.uv, hit.ns, hit.ng, d, wo_world);
+                    bump = Some(BumpShading::new(hit.ns, n));
+                    hit.ns = n;
+                }
+            }
+            let frame = Frame::from_normal(hit.ns);
             let textured = base.at(hit.uv).map(Box::new);
             let material = textured.as_deref().unwrap_or(base);
             let vertex = GuideVertex {
@@ -239,6 +249,7 @@ impl PathTracer {
                 hit,
                 vertex,
                 textured,
+                bump,
                 delta,
                 guided: (!delta && path.bounces < guided_bounces).then(|| batch.push(vertex)),
                 alpha: 0.0,
@@ -433,7 +444,7 @@ impl PathTracer {
         let u_light = uniform(rng);
         let ls = lights.sample(b.hit.p, u_light, uniform2(rng))?;
         let wi = b.frame.to_local(ls.wi);
-        let f = material.f(b.wo, wi);
+        let f = b.f(material, wi, ls.wi);
         if f == Rgb::ZERO {
             return None;
         }
@@ -453,7 +464,7 @@ impl PathTracer {
             return None;
         }
         let w = if self.strategy == Strategy::Mis && !ls.delta {
-            power_heuristic(ls.pdf, material.pdf(b.wo, wi))
+            power_heuristic(ls.pdf, b.bsdf_pdf(material, wi, ls.wi))
         } else {
             1.0
         };
@@ -470,7 +481,10 @@ impl PathTracer {
         match b.technique {
             Technique::Bsdf(sample, query) => sample.map(|s| Scatter {
                 wi: b.frame.to_world(s.wi),
-                f: s.f,
+                f: match &b.bump {
+                    Some(bump) => s.f * bump.factor(b.frame.to_world(s.wi)),
+                    None => s.f,
+                },
                 // A delta lobe of a mixed BSDF (plastic, mask) at a guided vertex is drawn only
                 // when the BSDF is chosen: with probability 1 − α.
                 pdf: if s.delta {
@@ -484,10 +498,10 @@ impl PathTracer {
             }),
             Technique::Guide(q) => batch.samples[q].map(|g| {
                 let wi = b.frame.to_local(g.wi);
-                let bsdf_pdf = material.pdf(b.wo, wi);
+                let bsdf_pdf = b.bsdf_pdf(material, wi, g.wi);
                 Scatter {
                     wi: g.wi,
-                    f: material.f(b.wo, wi),
+                    f: b.f(material, wi, g.wi),
                     pdf: b.mixture_pdf(g.pdf, bsdf_pdf),
                     bsdf_pdf,
                     delta: false,

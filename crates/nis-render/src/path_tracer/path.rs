@@ -4,6 +4,7 @@
 use glam::Vec3;
 
 use crate::bsdf::{BsdfSample, Material};
+use crate::bump::BumpShading;
 use crate::geometry::{Frame, Ray, Rgb};
 use crate::guiding::{GuideRecord, GuideVertex};
 use crate::scene::{Scene, SurfaceHit};
@@ -110,6 +111,8 @@ pub(super) struct Bounce {
     pub(super) vertex: GuideVertex,
     /// The material at the hit's texture coordinates, where it is textured.
     pub(super) textured: Option<Box<Material>>,
+    /// The normals of a bump-mapped vertex (`frame` is the bumped one's).
+    pub(super) bump: Option<BumpShading>,
     /// Whether the material is a delta BSDF (no light sampling, never guided).
     pub(super) delta: bool,
     /// Index of the vertex in the step's guide batch (`None` where the guide does not serve
@@ -121,6 +124,25 @@ pub(super) struct Bounce {
 }
 
 impl Bounce {
+    /// The BSDF value for world direction `wi` (local `wi_local`), with a bump map's
+    /// shadowing.
+    pub(super) fn f(&self, material: &Material, wi_local: Vec3, wi: Vec3) -> Rgb {
+        let f = material.f(self.wo, wi_local);
+        match &self.bump {
+            Some(s) => f * s.factor(wi),
+            None => f,
+        }
+    }
+
+    /// The BSDF's sampling density for world direction `wi` (local `wi_local`); zero across a
+    /// bump map's two normals.
+    pub(super) fn bsdf_pdf(&self, material: &Material, wi_local: Vec3, wi: Vec3) -> f32 {
+        match &self.bump {
+            Some(s) if !s.same_side(wi) => 0.0,
+            _ => material.pdf(self.wo, wi_local),
+        }
+    }
+
     /// The material at this vertex: its textured instance, or the scene's.
     pub(super) fn material<'a>(&'a self, scene: &'a Scene) -> &'a Material {
         match &self.textured {

@@ -1,6 +1,6 @@
 //! BSDFs as Mitsuba 3 defines its plugins: `diffuse`, `conductor`, `roughconductor`,
 //! `dielectric`, `roughdielectric`, `thindielectric`, `plastic`, `roughplastic`, and the
-//! wrappers `twosided` and `mask`; inline or defined once and used by `<ref id=…>`. Rough
+//! wrappers `twosided`, `mask` and `bumpmap`; inline or defined once and used by `<ref id=…>`. Rough
 //! BSDFs take Beckmann (Mitsuba's default) or GGX microfacets; conductors an `eta`/`k` pair or
 //! a named `material` (`Au`, `Cu`, …, `bsdf::conductors`).
 
@@ -8,12 +8,13 @@ use super::dom::{err, Element, XmlError};
 use super::props::{ior, Props, PROPERTY_TAGS};
 use super::{unsupported, LoadResult, Loader};
 use crate::bsdf::{conductors, Bsdf, Material, Microfacet, MicrofacetKind, Plastic, Slot};
+use crate::bump::Bump;
 use crate::geometry::{luminance, Rgb};
 use crate::spectrum::Role;
 
 /// The BSDF plugins the reader knows, for error messages.
 const SUPPORTED: &str = "diffuse, conductor, roughconductor, dielectric, roughdielectric, \
-                         thindielectric, plastic, roughplastic, twosided, mask";
+                         thindielectric, plastic, roughplastic, twosided, mask, bumpmap";
 
 impl Loader {
     pub(super) fn bsdf(&mut self, el: &Element) -> LoadResult<Material> {
@@ -48,6 +49,7 @@ impl Loader {
                 }
                 return Ok(m);
             }
+            "bumpmap" => return self.bumpmap(el),
             "principled" | "principledthin" | "hair" | "blendbsdf" | "pplastic" | "measured"
             | "polarizer" | "retarder" | "circular" | "normalmap" => {
                 return Err(err::<()>(
@@ -212,16 +214,70 @@ impl Loader {
         Ok(m)
     }
 
-    /// The one BSDF a wrapper (`twosided`, `mask`) holds, inline or by reference.
+    /// A `bumpmap`: a height texture (any name; Mitsuba 0.x wraps it in a `scale` texture),
+    /// its `scale`, and the BSDF it tilts.
+    fn bumpmap(&mut self, el: &Element) -> LoadResult<Material> {
+        let p = Props::new(el)?;
+        let mut scale = p.float("scale", 1.0)?;
+        p.ignore(&["flip_invalid_normals"]);
+        p.finish()?;
+        let textures: Vec<&Element> = el.children.iter().filter(|c| c.name == "texture").collect();
+        let [texture] = textures.as_slice() else {
+            return Err(err::<()>(
+                el.line,
+                "<bsdf type=\"bumpmap\"> needs exactly one <texture> (the height)",
+            )
+            .unwrap_err()
+            .into());
+        };
+        let texture = if texture.attr("type") == Some("scale") {
+            let q = Props::new(texture)?;
+            scale *= q.float("scale", 1.0)?;
+            q.finish()?;
+            let inner: Vec<&Element> = texture
+                .children
+                .iter()
+                .filter(|c| c.name == "texture")
+                .collect();
+            let [inner] = inner.as_slice() else {
+                return Err(
+                    err::<()>(texture.line, "a scale texture needs one nested <texture>")
+                        .unwrap_err()
+                        .into(),
+                );
+            };
+            self.texture(inner)?
+        } else {
+            self.texture(texture)?
+        };
+        let mut m = self.nested_bsdf(el)?;
+        m.bump = Some(Bump { texture, scale });
+        Ok(m)
+    }
+
+    /// The one BSDF a wrapper (`twosided`, `mask`, `bumpmap`) holds, inline or by reference;
+    /// an inline one with an `id` can be referred to by that id too (as Mitsuba 0.x scenes
+    /// do with the BSDF inside a bump map).
     fn nested_bsdf(&mut self, el: &Element) -> LoadResult<Material> {
         let kind = el.required("type")?;
         let inner: Vec<&Element> = el
             .children
             .iter()
-            .filter(|c| !PROPERTY_TAGS.contains(&c.name.as_str()) && !is_named_texture(c))
+            .filter(|c| {
+                let height_map = kind == "bumpmap" && c.name == "texture";
+                !(PROPERTY_TAGS.contains(&c.name.as_str()) || is_named_texture(c) || height_map)
+            })
             .collect();
         match inner.as_slice() {
-            [c] if c.name == "bsdf" => self.bsdf(c),
+            [c] if c.name == "bsdf" => {
+                let m = self.bsdf(c)?;
+                if let Some(id) = c.attr("id") {
+                    self.materials.push(m.clone());
+                    self.bsdf_ids
+                        .insert(id.to_string(), self.materials.len() - 1);
+                }
+                Ok(m)
+            }
             [c] if c.name == "ref" => {
                 let id = c.required("id")?;
                 match self.bsdf_ids.get(id) {

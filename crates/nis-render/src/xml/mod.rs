@@ -167,10 +167,14 @@ impl Loader {
                 "integrator" => self.integrator(c)?,
                 "sensor" => self.sensor(c)?,
                 "bsdf" => {
-                    let id = c.required("id")?.to_string();
                     let m = self.bsdf(c)?;
-                    self.materials.push(m);
-                    self.bsdf_ids.insert(id, self.materials.len() - 1);
+                    // One without an id can never be used (Mitsuba 0.x scenes have such, with
+                    // the id on a BSDF nested in it).
+                    if let Some(id) = c.attr("id") {
+                        self.materials.push(m);
+                        self.bsdf_ids
+                            .insert(id.to_string(), self.materials.len() - 1);
+                    }
                 }
                 "shape" => self.shape(c)?,
                 "emitter" => self.emitter(c)?,
