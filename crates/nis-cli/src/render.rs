@@ -84,6 +84,11 @@ pub struct RenderArgs {
     #[arg(short = 'D', value_name = "NAME=VALUE")]
     pub define: Vec<String>,
 
+    /// Leave out, with a warning, the shapes whose mesh files are missing (public snapshots of
+    /// scenes sometimes lack their largest files) instead of stopping with an error.
+    #[arg(long)]
+    pub drop_missing_meshes: bool,
+
     /// Write the scene's Mitsuba XML to this file (for built-in scenes) and do not render.
     #[arg(long, value_name = "FILE")]
     pub export_xml: Option<PathBuf>,
@@ -151,12 +156,56 @@ pub fn render_spec(
     Ok(render_any(scene, &options, &mut guide, comm, progress))
 }
 
+/// Peak resident memory of this process in MiB (Linux's `VmHWM`), where the system says.
+fn peak_memory_mib() -> Option<f64> {
+    let status = std::fs::read_to_string("/proc/self/status").ok()?;
+    let line = status.lines().find(|l| l.starts_with("VmHWM:"))?;
+    let kib: f64 = line.split_whitespace().nth(1)?.parse().ok()?;
+    Some(kib / 1024.0)
+}
+
+/// The scene of `args`; with `show`, a progress bar over its shapes and a line on what loaded.
 fn load(
     args: &RenderArgs,
     params: &[(String, String)],
+    show: bool,
 ) -> Result<Scene, Box<dyn std::error::Error>> {
     if Path::new(&args.scene).is_file() {
-        Ok(nis_render::xml::load_scene(Path::new(&args.scene), params)?)
+        let started = std::time::Instant::now();
+        let bar = if show {
+            ProgressBar::new(0)
+        } else {
+            ProgressBar::hidden()
+        };
+        bar.set_style(ProgressStyle::with_template(
+            "loading {msg} [{elapsed_precise}] {wide_bar} {pos}/{len} shapes",
+        )?);
+        bar.set_message(args.scene.clone());
+        let report = |done: usize, total: usize| {
+            bar.set_length(total as u64);
+            bar.set_position(done as u64);
+        };
+        let options = nis_render::xml::LoadOptions {
+            drop_missing_meshes: args.drop_missing_meshes,
+            progress: Some(&report),
+        };
+        let scene = nis_render::xml::load_scene_with(Path::new(&args.scene), params, &options);
+        bar.finish_and_clear();
+        let scene = scene?;
+        if show {
+            let memory = peak_memory_mib()
+                .map(|m| format!(", peak memory {m:.0} MiB"))
+                .unwrap_or_default();
+            eprintln!(
+                "loaded {}: {} triangles, {} area-light triangles, {} materials in {:.2} s{memory}",
+                args.scene,
+                scene.triangle_count(),
+                scene.lights.area.len(),
+                scene.materials.len(),
+                started.elapsed().as_secs_f64()
+            );
+        }
+        Ok(scene)
     } else if nis_render::scenes::xml(&args.scene).is_some() {
         Ok(nis_render::scenes::load_with(&args.scene, params)?)
     } else {
@@ -181,7 +230,7 @@ pub fn run_render(args: &RenderArgs, comm: &Comm) -> Result<(), Box<dyn std::err
         eprintln!("wrote {}", path.display());
         return Ok(());
     }
-    let (scene, width, height) = scene_of(args)?;
+    let (scene, width, height) = scene_of(args, comm.is_root())?;
     if comm.is_root() {
         for w in &scene.warnings {
             eprintln!("warning: {w}");
@@ -242,7 +291,10 @@ pub fn run_render(args: &RenderArgs, comm: &Comm) -> Result<(), Box<dyn std::err
 
 /// The scene `args` name, with its `-D` parameters, resolution and depth applied: the scene and
 /// the image's width and height.
-fn scene_of(args: &RenderArgs) -> Result<(Scene, u32, u32), Box<dyn std::error::Error>> {
+fn scene_of(
+    args: &RenderArgs,
+    show: bool,
+) -> Result<(Scene, u32, u32), Box<dyn std::error::Error>> {
     let params = args
         .define
         .iter()
@@ -252,7 +304,7 @@ fn scene_of(args: &RenderArgs) -> Result<(Scene, u32, u32), Box<dyn std::error::
                 .ok_or_else(|| format!("-D expects NAME=VALUE, got '{d}'"))
         })
         .collect::<Result<Vec<_>, _>>()?;
-    let mut scene = load(args, &params)?;
+    let mut scene = load(args, &params, show)?;
     let width = args.width.or(args.res).unwrap_or(scene.camera.width());
     let height = args.height.or(args.res).unwrap_or(scene.camera.height());
     if width == 0 || height == 0 {

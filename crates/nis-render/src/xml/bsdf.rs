@@ -29,9 +29,10 @@ impl Loader {
                 let textures = self.named_textures(el)?;
                 let p = Props::new(el)?;
                 let texture = textures.into_iter().find(|(n, _)| n == "opacity");
+                // A colour opacity (Mitsuba 0.x scenes give one) acts by its luminance.
                 let opacity = match &texture {
                     Some((_, t)) => luminance(t.mean()).clamp(0.0, 1.0),
-                    None => p.float("opacity", 0.5)?,
+                    None => luminance(p.rgb("opacity", Rgb::splat(0.5))?),
                 };
                 if !(0.0..=1.0).contains(&opacity) {
                     return Err(err::<()>(

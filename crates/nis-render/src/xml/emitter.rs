@@ -37,7 +37,7 @@ impl Loader {
                 // sampling weights do not change the image.
                 let raw = p.float("gamma", -1.0)? == 1.0 || p.boolean("raw", false)?;
                 p.ignore(&["cache", "sampling_weight", "filter_type", "mis_compensation"]);
-                let path = self.base_dir.join(file);
+                let path = self.resolve(file);
                 let image = Bitmap::load(&path, raw, FilterMode::Bilinear, WrapMode::Repeat)
                     .map_err(|e| err::<()>(c.line, e.to_string()).unwrap_err())?;
                 match EnvMap::new(image, scale, to_world) {

@@ -12,13 +12,15 @@
 //!
 //! One file per kind of element: `sensor.rs` (camera, film, filter, sampler), `bsdf.rs`,
 //! `emitter.rs` (the scene's own emitters; area emitters are read with their shape),
-//! `texture.rs`.
+//! `texture.rs`, `shape.rs`; `include.rs` splices `<include>`d files in first.
 
 mod bsdf;
 mod dom;
 mod emitter;
+mod include;
 mod props;
 mod sensor;
+mod shape;
 mod texture;
 mod upgrade;
 
@@ -26,29 +28,44 @@ use std::collections::HashMap;
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
-use glam::{Mat3, Vec3};
-
-use crate::bsdf::{Bsdf, Material};
+use crate::bsdf::Material;
 use crate::camera::Camera;
 use crate::envmap::EnvMap;
 use crate::geometry::Rgb;
 use crate::light::DirectionalLight;
 use crate::scene::{RenderSettings, Scene};
-use crate::shape::{Geometry, Shape, Sphere, TriangleMesh};
-use crate::spectrum::Role;
+use crate::shape::Shape;
 use crate::texture::{Bitmap, Texture};
 use crate::Error;
 use dom::{err, Element, XmlError};
-use props::{Props, PROPERTY_TAGS};
+use props::Props;
+
+/// How a scene is loaded, beyond what its file says.
+#[derive(Default)]
+pub struct LoadOptions<'a> {
+    /// Leave out, with a warning, the shapes whose mesh files are missing (instead of failing).
+    pub drop_missing_meshes: bool,
+    /// Called after each shape is read with the shapes read so far and their number.
+    pub progress: Option<&'a dyn Fn(usize, usize)>,
+}
 
 /// Load a Mitsuba 3 XML scene file; `params` override its `<default>`s (`$name` values).
 pub fn load_scene(path: &Path, params: &[(String, String)]) -> Result<Scene, Error> {
+    load_scene_with(path, params, &LoadOptions::default())
+}
+
+/// [`load_scene`] with [`LoadOptions`].
+pub fn load_scene_with(
+    path: &Path,
+    params: &[(String, String)],
+    options: &LoadOptions,
+) -> Result<Scene, Error> {
     let text = std::fs::read_to_string(path).map_err(|source| Error::Io {
         path: path.display().to_string(),
         source,
     })?;
     let base = path.parent().map(Path::to_path_buf).unwrap_or_default();
-    load_scene_str(&text, &base, &path.display().to_string(), params)
+    load(&text, &base, &path.display().to_string(), params, options)
 }
 
 /// Load a scene from XML text; relative mesh paths are resolved against `base_dir`, and
@@ -58,6 +75,16 @@ pub fn load_scene_str(
     base_dir: &Path,
     source: &str,
     params: &[(String, String)],
+) -> Result<Scene, Error> {
+    load(text, base_dir, source, params, &LoadOptions::default())
+}
+
+fn load(
+    text: &str,
+    base_dir: &Path,
+    source: &str,
+    params: &[(String, String)],
+    options: &LoadOptions,
 ) -> Result<Scene, Error> {
     let to_error = |e: XmlError| Error::Xml {
         file: source.to_string(),
@@ -75,6 +102,9 @@ pub fn load_scene_str(
     if legacy {
         upgrade::upgrade(&mut root).map_err(to_error)?;
     }
+    let mut search_paths = Vec::new();
+    include::expand(&mut root, base_dir, &mut search_paths, 0).map_err(to_error)?;
+    include::inline_references(&mut root);
     let mut values: HashMap<String, String> = params.iter().cloned().collect();
     for d in root.children.iter().filter(|c| c.name == "default") {
         let name = d.required("name").map_err(to_error)?;
@@ -88,9 +118,13 @@ pub fn load_scene_str(
     dom::substitute(&mut root, &values, &mut budget).map_err(to_error)?;
     let mut loader = Loader {
         base_dir: base_dir.to_path_buf(),
+        search_paths,
+        options: LoaderOptions {
+            drop_missing_meshes: options.drop_missing_meshes,
+        },
         ..Default::default()
     };
-    let mut scene = loader.scene(&root).map_err(|e| match e {
+    let mut scene = loader.scene(&root, options.progress).map_err(|e| match e {
         LoadError::Xml(x) => to_error(x),
         LoadError::Other(e) => e,
     })?;
@@ -115,9 +149,18 @@ impl From<XmlError> for LoadError {
 
 type LoadResult<T> = Result<T, LoadError>;
 
+/// The [`LoadOptions`] the reader of each element sees.
+#[derive(Default)]
+struct LoaderOptions {
+    drop_missing_meshes: bool,
+}
+
 #[derive(Default)]
 struct Loader {
     base_dir: PathBuf,
+    /// Folders named by `<path>`, where relative file names are also looked for.
+    search_paths: Vec<PathBuf>,
+    options: LoaderOptions,
     materials: Vec<Material>,
     bsdf_ids: HashMap<String, usize>,
     shapes: Vec<Shape>,
@@ -160,7 +203,18 @@ fn unsupported<T>(el: &Element, supported: &str) -> LoadResult<T> {
 }
 
 impl Loader {
-    fn scene(&mut self, root: &Element) -> LoadResult<Scene> {
+    /// A file the scene names: relative to the scene's folder or to a `<path>`.
+    fn resolve(&self, name: &str) -> PathBuf {
+        include::resolve(&self.base_dir, &self.search_paths, name)
+    }
+
+    fn scene(
+        &mut self,
+        root: &Element,
+        progress: Option<&dyn Fn(usize, usize)>,
+    ) -> LoadResult<Scene> {
+        let total = root.children.iter().filter(|c| c.name == "shape").count();
+        let mut done = 0;
         for c in &root.children {
             match c.name.as_str() {
                 "default" => {}
@@ -176,7 +230,13 @@ impl Loader {
                             .insert(id.to_string(), self.materials.len() - 1);
                     }
                 }
-                "shape" => self.shape(c)?,
+                "shape" => {
+                    self.shape(c)?;
+                    done += 1;
+                    if let Some(report) = progress {
+                        report(done, total);
+                    }
+                }
                 "emitter" => self.emitter(c)?,
                 "texture" => {
                     let id = c.required("id")?.to_string();
@@ -263,165 +323,6 @@ impl Loader {
             p.ignore(&others);
         }
         Ok(())
-    }
-
-    fn shape(&mut self, el: &Element) -> LoadResult<()> {
-        let geometry = self.geometry(el)?;
-        let (material, emission) = self.shape_children(el)?;
-        let material = match material {
-            Some(m) => m,
-            None => {
-                // Mitsuba's default BSDF: diffuse with reflectance 0.5, black on an emitter.
-                let reflectance = if emission.is_some() { 0.0 } else { 0.5 };
-                self.materials.push(Material::new(Bsdf::Diffuse {
-                    reflectance: Rgb::splat(reflectance),
-                }));
-                self.materials.len() - 1
-            }
-        };
-        self.shapes.push(Shape {
-            geometry,
-            material,
-            emission,
-        });
-        Ok(())
-    }
-
-    /// A shape's geometry: its `type` with its properties, transformed to world space, its
-    /// normals flipped when asked.
-    fn geometry(&self, el: &Element) -> LoadResult<Geometry> {
-        let kind = el.required("type")?;
-        let p = Props::new(el)?;
-        let to_world = p.transform("to_world")?;
-        let flip = p.boolean("flip_normals", false)?;
-        let geometry = match kind {
-            "rectangle" => Geometry::Mesh(TriangleMesh::rectangle(&to_world)),
-            "cube" => Geometry::Mesh(TriangleMesh::cube(&to_world)),
-            "disk" => Geometry::Mesh(TriangleMesh::disk(&to_world)),
-            "obj" => {
-                let file = p.string("filename")?.ok_or_else(|| {
-                    LoadError::Xml(XmlError {
-                        line: el.line,
-                        message: "<shape type=\"obj\"> needs <string name=\"filename\">".into(),
-                    })
-                })?;
-                let face_normals = p.boolean("face_normals", false)?;
-                p.ignore(&["flip_tex_coords"]);
-                let path = self.base_dir.join(file);
-                let mesh = TriangleMesh::load_obj(&path, &to_world, face_normals).map_err(|e| {
-                    LoadError::Xml(XmlError {
-                        line: el.line,
-                        message: e.to_string(),
-                    })
-                })?;
-                Geometry::Mesh(mesh)
-            }
-            "serialized" => {
-                let file = p.string("filename")?.ok_or_else(|| {
-                    LoadError::Xml(XmlError {
-                        line: el.line,
-                        message: "<shape type=\"serialized\"> needs <string name=\"filename\">"
-                            .into(),
-                    })
-                })?;
-                let index = p.int("shape_index", 0)?;
-                let index = u32::try_from(index)
-                    .map_err(|_| out_of_range(el, "shape_index", index, "0..=2^32-1"))?;
-                let face_normals = p.boolean("face_normals", false)?;
-                p.ignore(&["max_smooth_angle"]);
-                let path = self.base_dir.join(file);
-                let mesh = crate::serialized::load(&path, index, &to_world, face_normals).map_err(
-                    |e| {
-                        LoadError::Xml(XmlError {
-                            line: el.line,
-                            message: e.to_string(),
-                        })
-                    },
-                )?;
-                Geometry::Mesh(mesh)
-            }
-            "sphere" => {
-                let center = p.point("center", Vec3::ZERO)?;
-                let radius = p.float("radius", 1.0)?;
-                let m3 = Mat3::from_mat4(to_world);
-                let scale = m3.x_axis.length();
-                if (m3.y_axis.length() - scale).abs() > 1e-4 * scale
-                    || (m3.z_axis.length() - scale).abs() > 1e-4 * scale
-                {
-                    return Err(
-                        err::<()>(el.line, "a sphere's to_world must scale uniformly")
-                            .unwrap_err()
-                            .into(),
-                    );
-                }
-                Geometry::Sphere(Sphere {
-                    center: to_world.transform_point3(center),
-                    radius: radius * scale,
-                    inward: false,
-                })
-            }
-            _ => return unsupported(el, "obj, serialized, rectangle, cube, disk, sphere"),
-        };
-        p.finish()?;
-        let geometry = match geometry {
-            Geometry::Mesh(mut m) if flip => {
-                m.flip();
-                Geometry::Mesh(m)
-            }
-            Geometry::Sphere(mut s) if flip => {
-                s.inward = true;
-                Geometry::Sphere(s)
-            }
-            g => g,
-        };
-        Ok(geometry)
-    }
-
-    /// A shape's material (its own `<bsdf>`, or a `<ref>` to one defined before; `None`: the
-    /// default) and the radiance of its area `<emitter>`, if any.
-    fn shape_children(&mut self, el: &Element) -> LoadResult<(Option<usize>, Option<Rgb>)> {
-        let mut material = None;
-        let mut emission = None;
-        for c in el
-            .children
-            .iter()
-            .filter(|c| !PROPERTY_TAGS.contains(&c.name.as_str()))
-        {
-            match c.name.as_str() {
-                "bsdf" | "ref" if material.is_some() => {
-                    return Err(err::<()>(c.line, "a shape can have only one bsdf")
-                        .unwrap_err()
-                        .into())
-                }
-                "bsdf" => {
-                    let m = self.bsdf(c)?;
-                    self.materials.push(m);
-                    material = Some(self.materials.len() - 1);
-                }
-                "ref" => {
-                    let id = c.required("id")?;
-                    let Some(&i) = self.bsdf_ids.get(id) else {
-                        return Err(err::<()>(
-                            c.line,
-                            format!("no bsdf with id '{id}' is defined before this point"),
-                        )
-                        .unwrap_err()
-                        .into());
-                    };
-                    material = Some(i);
-                }
-                "emitter" => {
-                    if c.required("type")? != "area" {
-                        return unsupported(c, "area (inside a shape)");
-                    }
-                    let e = Props::new(c)?;
-                    emission = Some(e.spectrum("radiance", Rgb::ONE, Role::Emission)?);
-                    e.finish()?;
-                }
-                _ => return unsupported(c, "bsdf, ref, emitter inside a shape"),
-            }
-        }
-        Ok((material, emission))
     }
 }
 

@@ -1,6 +1,8 @@
 //! Loader tests: every built-in scene loads; Mitsuba conventions; errors name what and where.
 
 use super::*;
+use crate::bsdf::Bsdf;
+use crate::geometry::Rgb;
 
 #[test]
 fn every_built_in_scene_loads_with_its_defaults() {
@@ -208,5 +210,67 @@ fn absurd_numbers_are_errors_not_wrapped_or_infinite_values() {
         );
         let e = load(&xml).unwrap_err().to_string();
         assert!(e.contains("not a finite number"), "{value}: {e}");
+    }
+}
+
+#[test]
+fn includes_search_paths_and_referenced_emitters_load_as_mitsuba_reads_them() {
+    let dir = std::env::temp_dir().join(format!("nis-include-{}", std::process::id()));
+    std::fs::create_dir_all(dir.join("common/meshes")).unwrap();
+    std::fs::write(
+        dir.join("common/meshes/tri.obj"),
+        "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n",
+    )
+    .unwrap();
+    std::fs::write(
+        dir.join("inc.xml"),
+        format!(
+            r#"<scene version="2.1.0"><default name="spp" value="7"/>{SENSOR}
+               <emitter type="area" id="glow"><rgb name="radiance" value="2"/></emitter></scene>"#
+        )
+        .replace("<sensor type=\"perspective\">", "<sensor type=\"perspective\"><sampler type=\"independent\"><integer name=\"sample_count\" value=\"$spp\"/></sampler>"),
+    )
+    .unwrap();
+    std::fs::write(
+        dir.join("main.xml"),
+        r#"<scene version="3.0.0"><path value="common"/><include filename="inc.xml"/>
+             <shape type="obj"><string name="filename" value="meshes/tri.obj"/><ref id="glow"/></shape>
+           </scene>"#,
+    )
+    .unwrap();
+    let scene = load_scene(&dir.join("main.xml"), &[]).unwrap();
+    assert_eq!(scene.settings.spp, 7);
+    assert_eq!(scene.lights.area.len(), 1);
+    assert_eq!(scene.lights.area[0].radiance, Rgb::splat(2.0));
+    std::fs::write(
+        dir.join("loop.xml"),
+        r#"<scene><include filename="loop.xml"/></scene>"#,
+    )
+    .unwrap();
+    let e = load_scene(&dir.join("loop.xml"), &[])
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("nest deeper"), "{e}");
+    std::fs::remove_dir_all(&dir).ok();
+}
+
+#[test]
+fn legacy_files_unknown_integrators_and_missing_features_say_what_and_where() {
+    let s = load(&format!(
+        "<scene version=\"0.5.0\">\n<integrator type=\"guided_path\"><integer name=\"maxDepth\" value=\"6\"/><string name=\"budgetType\" value=\"spp\"/></integrator>\n{SENSOR}\n</scene>"
+    ))
+    .unwrap();
+    assert_eq!(s.settings.max_depth, 6);
+    assert!(s.warnings[0].starts_with("test.xml:2:") && s.warnings[0].contains("guided_path"));
+    for (element, needle) in [
+        ("<medium type=\"homogeneous\" id=\"m\"/>", "medium"),
+        ("<bsdf type=\"principled\" id=\"p\"/>", "principled"),
+        ("<emitter type=\"sunsky\"/>", "sunsky"),
+        ("<shape type=\"ply\"/>", "ply"),
+    ] {
+        let e = load(&format!("<scene>\n{SENSOR}\n{element}\n</scene>"))
+            .unwrap_err()
+            .to_string();
+        assert!(e.starts_with("test.xml:3:") && e.contains(needle), "{e}");
     }
 }

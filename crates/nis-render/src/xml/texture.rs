@@ -75,7 +75,7 @@ impl Loader {
                 // Mitsuba 0.x's `gamma` (−1: sRGB, 1: linear), Mitsuba 3's `raw`.
                 let gamma = p.float("gamma", -1.0)?;
                 let raw = p.boolean("raw", false)? || gamma == 1.0;
-                let path = self.base_dir.join(file);
+                let path = self.resolve(file);
                 let key = (path.clone(), raw, filter, wrap);
                 let image = match self.bitmaps.get(&key) {
                     Some(b) => b.clone(),
