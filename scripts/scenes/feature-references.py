@@ -152,6 +152,10 @@ def features():
               '<bsdf type="bumpmap"><texture type="bitmap" name="height"><string name="filename" value="texture.png"/>'
               '<boolean name="raw" value="true"/></texture><float name="scale" value="0.3"/>'
               '<bsdf type="roughplastic"><float name="alpha" value="0.15"/></bsdf></bsdf></shape>')
+    add("ply", sphere='<bsdf type="diffuse"><rgb name="reflectance" value="0.7, 0.3, 0.2"/></bsdf>',
+        floor=FLOOR.format(bsdf=DIFFUSE) + '<shape type="ply"><string name="filename" value="wedge.ply"/>'
+              '<transform name="to_world"><scale value="0.9"/><translate x="0.8" z="0.6"/></transform>'
+              '<bsdf type="diffuse"><rgb name="reflectance" value="0.2, 0.4, 0.8"/></bsdf></shape>')
     add("envmap", light="""<emitter type="envmap">
         <string name="filename" value="sky.exr"/>
         <float name="scale" value="1.5"/>
@@ -207,6 +211,23 @@ def serialized_v4(meshes):
     return out + b"".join(struct.pack("<Q", o) for o in offsets) + struct.pack("<I", len(meshes))
 
 
+def ply_binary(mesh):
+    """A binary little-endian PLY of (positions, normals, uvs, triangles); normals, uvs None."""
+    import struct
+    positions, normals, uvs, triangles = mesh
+    props = ["x", "y", "z"] + (["nx", "ny", "nz"] if normals else []) + (["u", "v"] if uvs else [])
+    head = "ply\nformat binary_little_endian 1.0\n" + f"element vertex {len(positions)}\n"
+    head += "".join(f"property float {p}\n" for p in props)
+    head += f"element face {len(triangles)}\nproperty list uchar int vertex_indices\nend_header\n"
+    body = b""
+    for i, p in enumerate(positions):
+        row = list(p) + (list(normals[i]) if normals else []) + (list(uvs[i]) if uvs else [])
+        body += struct.pack(f"<{len(row)}f", *row)
+    for t in triangles:
+        body += struct.pack("<B3i", 3, *t)
+    return head.encode() + body
+
+
 def write_data(mi):
     """The mesh and the 16 x 12 sRGB image the textured scenes read."""
     import numpy as np
@@ -217,6 +238,7 @@ def write_data(mi):
     floor = ([(-2, 0, 2), (2, 0, 2), (2, 0, -2), (-2, 0, -2)], [(0, 1, 0)] * 4,
              [(0, 0), (2, 0), (2, 2), (0, 2)], [(0, 1, 2), (2, 3, 0)])
     (OUT / "meshes.serialized").write_bytes(serialized_v4([wedge, floor]))
+    (OUT / "wedge.ply").write_bytes(ply_binary(wedge))
     y, x = np.mgrid[0:12, 0:16]
     img = np.stack([(x * 16) % 256, (y * 21) % 256, ((x + y) % 2) * 200 + 30], axis=-1).astype(np.uint8)
     mi.Bitmap(img).write(str(OUT / "texture.png"))

@@ -37,6 +37,7 @@ pub mod geometry;
 pub mod guiding;
 pub mod light;
 pub mod path_tracer;
+pub mod ply;
 pub mod render;
 pub mod sampling;
 pub mod scene;

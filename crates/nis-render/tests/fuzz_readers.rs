@@ -388,6 +388,40 @@ fn serialized_meshes_mutated() {
     );
 }
 
+/// A small valid PLY: a quad with normals and texture coordinates, and a triangle.
+const PLY: &str = "ply\nformat ascii 1.0\nelement vertex 4\nproperty float x\nproperty float y\n\
+    property float z\nproperty float nx\nproperty float ny\nproperty float nz\nproperty float u\n\
+    property float v\nelement face 2\nproperty list uchar int vertex_indices\nend_header\n\
+    0 0 0 0 0 1 0 0\n1 0 0 0 0 1 1 0\n1 1 0 0 0 1 1 1\n0 1 0 0 0 1 0 1\n4 0 1 2 3\n3 0 1 2\n";
+
+/// PLY meshes: byte edits of a valid file (counts past the data, lists past the vertices,
+/// broken headers) and random headers with absurd element counts.
+#[test]
+fn ply_meshes_mutated() {
+    let dir = fuzz::scratch("ply");
+    let path = dir.join("mesh.ply");
+    let counts = prop_oneof![Just(0u64), 1u64..10, Just(u32::MAX as u64), Just(u64::MAX)];
+    let bytes = prop_oneof![
+        3 => mutated(PLY.as_bytes().to_vec(), 6),
+        1 => (counts.clone(), counts).prop_map(|(v, f)| {
+            PLY.replace("vertex 4", &format!("vertex {v}"))
+                .replace("face 2", &format!("face {f}"))
+                .into_bytes()
+        }),
+    ];
+    fuzz::fuzz("ply", 300, bytes, |tally, bytes| {
+        std::fs::write(&path, &bytes).expect("a scratch file");
+        let mesh = check(tally, bytes.len(), || nis_render::ply::load(&path), |_| 0)?;
+        if let Ok(mesh) = mesh {
+            let n = mesh.positions.len();
+            prop_assert!(!mesh.indices.is_empty());
+            prop_assert!(mesh.indices.iter().flatten().all(|&i| (i as usize) < n));
+        }
+        Ok(())
+    });
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
 fn small_exr(dir: &Path) -> Vec<u8> {
     let mut img = Image::new(5, 3);
     for (i, p) in img.pixels.iter_mut().enumerate() {

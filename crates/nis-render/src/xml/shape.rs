@@ -1,4 +1,4 @@
-//! Shapes: `obj` and `serialized` meshes, Mitsuba's `rectangle`, `cube`, `disk` and `sphere`,
+//! Shapes: `obj`, `ply` and `serialized` meshes, Mitsuba's `rectangle`, `cube`, `disk` and `sphere`,
 //! each with its BSDF (inline or by reference) and area emitter. A mesh file that is missing
 //! is an error, or, with [`LoadOptions::drop_missing_meshes`](super::LoadOptions), a warning
 //! and the shape left out (public snapshots of scenes sometimes lack their largest files).
@@ -70,6 +70,27 @@ impl Loader {
                 })?;
                 Geometry::Mesh(mesh)
             }
+            "ply" => {
+                let file = p.string("filename")?.ok_or_else(|| {
+                    LoadError::Xml(XmlError {
+                        line: el.line,
+                        message: "<shape type=\"ply\"> needs <string name=\"filename\">".into(),
+                    })
+                })?;
+                let face_normals = p.boolean("face_normals", false)?;
+                let path = self.resolve(file);
+                if self.drop_if_missing(el, &path) {
+                    return Ok(None);
+                }
+                let mut mesh = crate::ply::load(&path).map_err(|e| {
+                    LoadError::Xml(XmlError {
+                        line: el.line,
+                        message: e.to_string(),
+                    })
+                })?;
+                mesh.finish(&to_world, face_normals);
+                Geometry::Mesh(mesh)
+            }
             "serialized" => {
                 let file = p.string("filename")?.ok_or_else(|| {
                     LoadError::Xml(XmlError {
@@ -117,7 +138,7 @@ impl Loader {
                     inward: false,
                 })
             }
-            _ => return unsupported(el, "obj, serialized, rectangle, cube, disk, sphere"),
+            _ => return unsupported(el, "obj, ply, serialized, rectangle, cube, disk, sphere"),
         };
         p.finish()?;
         let geometry = match geometry {

@@ -266,7 +266,7 @@ fn legacy_files_unknown_integrators_and_missing_features_say_what_and_where() {
         ("<medium type=\"homogeneous\" id=\"m\"/>", "medium"),
         ("<bsdf type=\"principled\" id=\"p\"/>", "principled"),
         ("<emitter type=\"sunsky\"/>", "sunsky"),
-        ("<shape type=\"ply\"/>", "ply"),
+        ("<shape type=\"cylinder\"/>", "cylinder"),
     ] {
         let e = load(&format!("<scene>\n{SENSOR}\n{element}\n</scene>"))
             .unwrap_err()
