@@ -5,10 +5,13 @@
     python3 -m venv target/mitsuba-venv && target/mitsuba-venv/bin/pip install mitsuba==3.9.1
     target/mitsuba-venv/bin/python scripts/scenes/cie-tables.py
 """
-import struct
+import sys
 from pathlib import Path
 
 import mitsuba as mi
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "lib"))
+from rust_literals import f32_literal  # noqa: E402
 
 mi.set_variant("scalar_rgb")
 OUT = Path(__file__).resolve().parents[2] / "crates/nis-render/src/spectrum/cie.rs"
@@ -30,20 +33,10 @@ pub const TABLE: [[f32; 4]; 95] = [
 '''
 
 
-def lit(v):
-    """The shortest decimal that reads back as the same f32."""
-    v = struct.unpack("f", struct.pack("f", v))[0]
-    for digits in range(1, 10):
-        text = f"{v:.{digits}g}"
-        if struct.unpack("f", struct.pack("f", float(text)))[0] == v:
-            break
-    return text if any(c in text for c in ".e") else text + ".0"
-
-
 rows = []
 for k in range(95):
     w = 360.0 + 5 * k
     x = mi.cie1931_xyz(w)
-    rows.append("    [" + ", ".join(lit(v) for v in (x[0], x[1], x[2], mi.cie_d65(w))) + "],")
+    rows.append("    [" + ", ".join(f32_literal(v) for v in (x[0], x[1], x[2], mi.cie_d65(w))) + "],")
 OUT.write_text(HEADER + "\n".join(rows) + "\n];\n")
 print(f"wrote {OUT}")

@@ -5,10 +5,13 @@ variant derives them from its measured spectral data.
 
     target/mitsuba-venv/bin/python scripts/scenes/conductor-table.py
 """
-import struct
+import sys
 from pathlib import Path
 
 import mitsuba as mi
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "lib"))
+from rust_literals import f32_literal  # noqa: E402
 
 mi.set_variant("scalar_rgb")
 OUT = Path(__file__).resolve().parents[2] / "crates/nis-render/src/bsdf/conductors.rs"
@@ -16,21 +19,11 @@ NAMES = ("a-C Ag Al AlAs AlSb Au Be Cr CsI Cu Cu2O CuO d-C Hg HgTe Ir K Li MgO M
          "Ni_palik Rh Se SiC SnTe Ta Te ThF4 TiC TiN TiO2 VC V_palik VN W").split()
 
 
-def lit(v):
-    """The shortest decimal that reads back as the same f32."""
-    v = struct.unpack("f", struct.pack("f", v))[0]
-    for digits in range(1, 10):
-        text = f"{v:.{digits}g}"
-        if struct.unpack("f", struct.pack("f", float(text)))[0] == v:
-            break
-    return text if any(c in text for c in ".e") else text + ".0"
-
-
 rows = []
 for name in NAMES:
     params = mi.traverse(mi.load_dict({"type": "conductor", "material": name}))
-    eta = ", ".join(lit(float(c)) for c in params["eta.value"])
-    k = ", ".join(lit(float(c)) for c in params["k.value"])
+    eta = ", ".join(f32_literal(float(c)) for c in params["eta.value"])
+    k = ", ".join(f32_literal(float(c)) for c in params["k.value"])
     rows.append(f'    ("{name}", [{eta}], [{k}]),')
 OUT.write_text(f'''//! Mitsuba 3's named conductors (`material` of `conductor` and `roughconductor`): the
 //! complex index of refraction `eta + i k` in linear sRGB, as Mitsuba 3.9's RGB variants derive
@@ -45,7 +38,10 @@ pub const CONDUCTORS: [(&str, [f32; 3], [f32; 3]); {len(rows)}] = [
 
 /// The `(eta, k)` of a named conductor.
 pub fn lookup(name: &str) -> Option<([f32; 3], [f32; 3])> {{
-    CONDUCTORS.iter().find(|(n, _, _)| *n == name).map(|(_, e, k)| (*e, *k))
+    CONDUCTORS
+        .iter()
+        .find(|(n, _, _)| *n == name)
+        .map(|(_, e, k)| (*e, *k))
 }}
 ''')
 print(f"wrote {OUT}")

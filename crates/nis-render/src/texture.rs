@@ -14,6 +14,7 @@ use std::sync::Arc;
 use glam::{Mat3, Vec2, Vec3};
 
 use crate::geometry::{luminance, Rgb};
+use crate::spectrum::srgb_to_linear;
 use crate::Error;
 
 /// How texel values are interpolated.
@@ -130,15 +131,6 @@ impl Texture {
             Texture::Bitmap { image, .. } => image.mean,
             Texture::Checkerboard { color0, color1, .. } => 0.5 * (*color0 + *color1),
         }
-    }
-}
-
-/// sRGB-encoded value to linear (IEC 61966-2-1).
-fn srgb_to_linear(c: f32) -> f32 {
-    if c <= 0.04045 {
-        c / 12.92
-    } else {
-        ((c + 0.055) / 1.055).powf(2.4)
     }
 }
 

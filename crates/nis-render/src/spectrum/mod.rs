@@ -78,6 +78,15 @@ pub fn list_to_rgb(points: &[(f64, f64)], role: Role) -> Result<(Rgb, bool), Str
     Ok(clamp(rgb, role))
 }
 
+/// An sRGB-encoded value decoded to linear (IEC 61966-2-1).
+pub fn srgb_to_linear(c: f32) -> f32 {
+    if c <= 0.04045 {
+        c / 12.92
+    } else {
+        ((c + 0.055) / 1.055).powf(2.4)
+    }
+}
+
 /// The linear sRGB of a constant spectrum.
 pub fn uniform_to_rgb(value: f64, role: Role) -> Rgb {
     match role {

@@ -5,6 +5,7 @@
 //! spelling of `<lookat>`) and `<srgb>` colours (gamma-encoded, decoded to linear `<rgb>`).
 
 use super::dom::{err, parse_vector, Element, XmlError};
+use crate::spectrum::srgb_to_linear;
 
 /// Whether a `<scene version=…>` predates Mitsuba 2's names (no version: Mitsuba 3's).
 pub fn is_legacy(root: &Element) -> Result<bool, XmlError> {
@@ -109,15 +110,6 @@ pub fn upgrade(el: &mut Element) -> Result<(), XmlError> {
         });
     }
     Ok(())
-}
-
-/// The sRGB transfer curve inverted (IEC 61966-2-1).
-pub fn srgb_to_linear(c: f32) -> f32 {
-    if c <= 0.04045 {
-        c / 12.92
-    } else {
-        ((c + 0.055) / 1.055).powf(2.4)
-    }
 }
 
 #[cfg(test)]

@@ -1,0 +1,128 @@
+#!/usr/bin/env python3
+"""Render scene files with nis and with Mitsuba 3 (scalar_rgb) at equal settings and compare
+their image means: the check that a published scene reads as Mitsuba reads it.
+
+Mitsuba 3 refuses some files as published (a Mitsuba 0.4 `<lookAt>`, a guiding paper's
+integrator plugin): those are handed to it upgraded the way nis reads them (camelCase names to
+snake_case, `lookAt`, `srgb` colours, other integrators as `path`), which says the same thing in
+Mitsuba 3's words. Shapes whose mesh files are missing are left out for both renderers.
+
+    python3 -m venv target/mitsuba-venv && target/mitsuba-venv/bin/pip install mitsuba==3.9.1 numpy
+    cargo build --release -p nis-cli
+    target/mitsuba-venv/bin/python scripts/scenes/compare-scenes.py SCENE.xml ... [--spp 16]
+
+Both render each scene at its own film size. Prints a Markdown table: both means, their standard
+errors (from two seeds each) and the difference.
+"""
+import argparse
+import math
+import re
+import subprocess
+import sys
+import tempfile
+import xml.etree.ElementTree as ET
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[2]
+NIS = ROOT / "target" / "release" / "nis"
+
+
+def snake(name):
+    return re.sub(r"(?<=[a-z])([A-Z]+)", lambda m: "_" + m.group(1).lower(), name)
+
+
+def srgb_to_linear(c):
+    return c / 12.92 if c <= 0.04045 else ((c + 0.055) / 1.055) ** 2.4
+
+
+def upgrade(root, base):
+    """Mitsuba 0.x names to Mitsuba 3's, other integrators to path, missing meshes out."""
+    legacy = int(root.get("version", "3").split(".")[0]) < 2
+    for parent in root.iter():
+        for e in list(parent):
+            f = e.find("string[@name='filename']")
+            if e.tag == "shape" and f is not None and not (base / f.get("value")).exists():
+                parent.remove(e)
+    for e in root.iter():
+        if legacy:
+            if e.tag == "lookAt":
+                e.tag = "lookat"
+            if e.tag == "srgb":
+                e.tag = "rgb"
+                v = [float(x) for x in re.split(r"[,\s]+", e.get("value").strip())]
+                e.set("value", ", ".join(str(srgb_to_linear(x)) for x in v))
+            if e.get("name") and e.tag != "default":
+                e.set("name", snake(e.get("name")))
+            if e.tag == "bsdf" and e.get("type") == "diffuse":
+                for c in e:
+                    if c.get("name") == "diffuse_reflectance":
+                        c.set("name", "reflectance")
+        if e.tag == "bsdf" and e.get("type") in ("conductor", "roughconductor"):
+            # Mitsuba 0.x's exterior index, which Mitsuba 3 lacks: only air is expressible.
+            for c in list(e):
+                if c.get("name") in ("ext_eta", "extEta") and float(c.get("value")) == 1.0:
+                    e.remove(c)
+        if e.tag == "integrator" and e.get("type") not in ("path", "direct"):
+            keep = [c for c in e if c.get("name") in ("max_depth", "rr_depth", "hide_emitters")]
+            for c in list(e):
+                e.remove(c)
+            e.extend(keep)
+            e.set("type", "path")
+    root.set("version", "3.0.0")
+
+
+def mitsuba_mean(path, spp):
+    import mitsuba as mi
+    mi.set_variant("scalar_rgb")
+    base = path.parent
+    tree = ET.parse(path)
+    upgrade(tree.getroot(), base)
+    with tempfile.NamedTemporaryFile("wb", suffix=".xml", dir=base, delete=False) as f:
+        tree.write(f)
+    try:
+        scene = mi.load_file(f.name)
+    finally:
+        Path(f.name).unlink()
+    means = [float(np.asarray(mi.render(scene, seed=s, spp=spp))[..., :3].mean()) for s in (1, 2)]
+    return np.mean(means), abs(means[0] - means[1]) / 2
+
+
+def nis_mean(path, spp):
+    means = []
+    for seed in (1, 2):
+        with tempfile.TemporaryDirectory() as d:
+            out = Path(d) / "img.exr"
+            subprocess.run([str(NIS), "render", str(path), "--spp", str(spp),
+                            "--seed", str(seed), "--drop-missing-meshes", "--out", str(out)],
+                           check=True, capture_output=True)
+            import mitsuba as mi
+            mi.set_variant("scalar_rgb")
+            means.append(float(np.asarray(mi.Bitmap(str(out)))[..., :3].mean()))
+    return np.mean(means), abs(means[0] - means[1]) / 2
+
+
+def main():
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("scenes", nargs="+", type=Path)
+    ap.add_argument("--spp", type=int, default=16)
+    args = ap.parse_args()
+    print(f"<!-- each at its own film size, {args.spp} spp × 2 seeds -->")
+    print("| scene | nis | Mitsuba 3 | difference (± its standard error) |")
+    print("|---|---|---|---|")
+    for path in args.scenes:
+        try:
+            ours, ours_se = nis_mean(path.resolve(), args.spp)
+            theirs, theirs_se = mitsuba_mean(path.resolve(), args.spp)
+        except Exception as e:  # one scene's failure is a row, not the end of the table
+            print(f"| {path} | failed: {str(e).splitlines()[-1][:120]} | | |", flush=True)
+            continue
+        diff = 100 * (ours / theirs - 1)
+        sigma = 100 * math.hypot(ours_se, theirs_se) / theirs
+        print(f"| {path} | {ours:.5f} ± {ours_se:.5f} | {theirs:.5f} ± {theirs_se:.5f} | "
+              f"{diff:+.2f} % (± {sigma:.2f}) |", flush=True)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,51 @@
+#!/usr/bin/env bash
+# Clones the public path-guiding and Mitsuba scenes that nis render is checked on into
+# data/scenes/ (git-ignored), each at a pinned commit, and checks the SHA-256 of its scene files.
+# Not run in CI (it needs the public git hosts); for users and for re-measuring
+# docs/results/scenes.md. Idempotent: a clone already at its commit is kept.
+#
+#   data/scenes/practical-path-guiding/scenes/{cbox,kitchen,spaceship}   Müller et al. 2017's
+#       scenes in Mitsuba 0.5 form (kitchen: Jay-Artist, CC BY 3.0; spaceship: thecali, CC0;
+#       see each folder's LICENSE.txt)
+#   data/scenes/mitsuba-data/docs/scenes                                  Mitsuba 3's own
+#       documentation scenes (BSD-3-Clause, like Mitsuba)
+#
+# Then, e.g.:
+#   nis render data/scenes/practical-path-guiding/scenes/spaceship/spaceship.xml --spp 64
+#   target/mitsuba-venv/bin/python scripts/scenes/compare-scenes.py data/scenes/mitsuba-data/docs/scenes/*.xml
+#
+# Needs git and sha256sum.
+set -euo pipefail
+cd "$(dirname "$0")/../.."
+
+# name | repository | commit | "sha256 path" checks
+REPOS=(
+  "practical-path-guiding|https://github.com/Tom94/practical-path-guiding|effbd1934a87bd7c471bb6981eea758fc4b72854"
+  "mitsuba-data|https://github.com/mitsuba-renderer/mitsuba-data|01100fa9b0b154492061a92404f26dcd7b784dbb"
+)
+CHECKS=(
+  "practical-path-guiding f29ece69d068191097766fcef98335eb71c394c577c1bf86363f9bafc28ad8c7 scenes/cbox/cbox.xml"
+  "practical-path-guiding 77b783c4ef0891e1317287517201c711740dc35f13f8a98831fa70adc6f37d2d scenes/kitchen/kitchen.xml"
+  "practical-path-guiding 2bb537ad751d659a633256d36aebdaccb3d84158eef3c5e52e6a11ab64b52807 scenes/spaceship/spaceship.xml"
+  "mitsuba-data aef4e298979a55d8df0102ae080a78de9f7ade793ad4cc9920849a9693660d85 docs/scenes/include/matpreview.xml"
+  "mitsuba-data eda853c45dfbe5811baa4a4b0b2b9189fab01cd166a061d5bbba5b22099b0c11 docs/scenes/bsdf_roughplastic_beckmann.xml"
+)
+
+mkdir -p data/scenes
+for entry in "${REPOS[@]}"; do
+  IFS='|' read -r name url commit <<<"$entry"
+  dir="data/scenes/$name"
+  if [ -d "$dir/.git" ] && [ "$(git -C "$dir" rev-parse HEAD)" = "$commit" ]; then
+    echo "$name: at $commit"
+    continue
+  fi
+  echo "$name: cloning $url at $commit"
+  rm -rf "$dir"
+  git clone --quiet --filter=blob:none --no-checkout "$url" "$dir"
+  git -C "$dir" checkout --quiet "$commit"
+done
+for check in "${CHECKS[@]}"; do
+  read -r name sha path <<<"$check"
+  echo "$sha  data/scenes/$name/$path" | sha256sum --check --quiet
+done
+echo "scenes in data/scenes, checksums verified"
