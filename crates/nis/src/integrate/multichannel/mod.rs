@@ -32,9 +32,9 @@ use rand::SeedableRng;
 use rand_pcg::Pcg64Mcg;
 use serde::{Deserialize, Serialize};
 
+pub use super::result::{ChannelReport, SignReport};
 pub use events::ChannelEvents;
 pub use part::Sign;
-pub use report::{ChannelReport, SignReport};
 
 use self::part::{PartIntegrand, Weighting};
 use self::shared::SharedFlow;

@@ -3,40 +3,9 @@
 
 use std::time::Instant;
 
-use serde::{Deserialize, Serialize};
-
 use super::part::Sign;
 use crate::integrate::diagnostics::WeightTail;
-use crate::integrate::IntegrationResult;
-
-/// Every channel's contribution to a multi-channel estimate.
-#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
-pub struct ChannelReport {
-    /// The a-priori weights a_k the estimate used (summing to one).
-    pub weights: Vec<f64>,
-    /// Each channel's contribution F_k = ∫ α_k f (F⁺_k − F⁻_k when split by sign).
-    pub means: Vec<f64>,
-    /// Their standard errors.
-    pub std_errs: Vec<f64>,
-    /// The estimate's evaluations in each channel.
-    pub evals: Vec<u64>,
-    /// F⁺ and F⁻ when the integrand was split by sign.
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub signs: Option<SignReport>,
-}
-
-/// The positive and negative parts of a signed integral, F = F⁺ − F⁻.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
-pub struct SignReport {
-    /// F⁺ = ∫ max(f, 0).
-    pub positive: f64,
-    pub positive_err: f64,
-    /// F⁻ = ∫ max(−f, 0).
-    pub negative: f64,
-    pub negative_err: f64,
-    /// F⁻/(F⁺ + F⁻): the share of unweighted events that carry a negative weight.
-    pub negative_fraction: f64,
-}
+use crate::integrate::result::{ChannelReport, IntegrationResult, SignReport};
 
 /// Sums the parts' `results` ((channel, sign) each in `index`) into one result.
 pub(super) fn combine(

@@ -4,7 +4,7 @@ use serde::{Deserialize, Serialize};
 
 use crate::error::{Error, Result};
 use crate::flow::FlowConfig;
-use crate::integrate::TrainOn;
+use crate::integrate::integrand::TrainOn;
 use crate::loss::Loss;
 use crate::nn::AdamConfig;
 use crate::transform::TransformKind;
@@ -187,15 +187,6 @@ impl Default for NisConfig {
 }
 
 impl NisConfig {
-    /// These settings with the JSON object `patch` laid over them by the one reader of settings
-    /// (`integrate::settings`): a field it names is replaced, an object it gives for an object
-    /// (`"flow"`, `"adam"`, `"stratify"`) changes the fields it names and keeps the others of
-    /// `self` (what `nis integrate --nis-config` applies on top of its own options). Not
-    /// checked: building the integrator checks it.
-    pub fn patched(&self, patch: serde_json::Value) -> Result<NisConfig> {
-        crate::integrate::settings::overlaid(self, patch)
-    }
-
     /// A builder starting from the defaults.
     pub fn builder() -> NisConfigBuilder {
         NisConfigBuilder {
