@@ -20,7 +20,7 @@ use crate::channel::{PyChannel, Raised};
 use crate::flow::PyFlow;
 use crate::result::PyIntegrationResult;
 use crate::settings::{json_of, keywords};
-use crate::{check_parent, count, path_of, to_py_err, PointsAndValues};
+use crate::{check_parent, count, dimension, path_of, to_py_err, PointsAndValues};
 
 /// A Monte Carlo integrator over [0, 1]^dim that owns its adapted state, like
 /// `vegas.Integrator`.
@@ -54,7 +54,10 @@ use crate::{check_parent, count, path_of, to_py_err, PointsAndValues};
 #[pyclass(module = "nis", name = "Integrator")]
 pub(crate) struct PyIntegrator {
     // A Mutex only to make the class Sync; methods take `&mut self`, so it is never contended.
-    integrator: Mutex<Engine>,
+    // One integrator whatever it integrates: a method, or channels and/or a sign split.
+    integrator: Mutex<Box<dyn Integrator>>,
+    /// What a multi-channel integrator was made with (None for a single channel).
+    channels: Option<Channels>,
     threads: Option<usize>,
     pool: Option<Arc<rayon::ThreadPool>>,
 }
@@ -66,44 +69,34 @@ type Events<'py> = (
     Bound<'py, PyArray1<u64>>,
 );
 
-/// What integrates: one integrator, or a multi-channel one (channels and/or sign splitting).
-enum Engine {
-    Single(Box<dyn Integrator>),
-    Multi {
-        mc: Box<MultiChannel>,
-        method: Method,
-        /// Channels given (0: `signs` alone, the identity channel).
-        channels: usize,
-        signs: Signs,
-        /// The first exception a Python channel raised in the current call.
-        raised: Arc<Raised>,
-    },
+/// What a multi-channel integrator (channels and/or sign splitting) was made with.
+struct Channels {
+    /// Channels given (0: `signs` alone, the identity channel).
+    count: usize,
+    signs: Signs,
+    /// The first exception a Python channel raised in the current call.
+    raised: Arc<Raised>,
 }
 
 impl PyIntegrator {
     /// What integrates.
-    fn engine(&mut self) -> &mut Engine {
-        self.integrator.get_mut().unwrap_or_else(|p| p.into_inner())
+    fn engine(&mut self) -> &mut dyn Integrator {
+        self.integrator
+            .get_mut()
+            .unwrap_or_else(|p| p.into_inner())
+            .as_mut()
     }
 
     /// The single-channel integrator, for `what` that a multi-channel one does not do.
     fn integrator(&mut self, what: &str) -> PyResult<&mut dyn Integrator> {
-        match self.engine() {
-            Engine::Single(i) => Ok(i.as_mut()),
-            Engine::Multi { .. } => Err(PyValueError::new_err(format!(
+        if self.channels.is_some() {
+            return Err(PyValueError::new_err(format!(
                 "{what} is not available for a multi-channel integrator (one made with channels \
                  or signs): it holds a sampler per channel and sign; use a single-channel \
                  Integrator for it"
-            ))),
+            )));
         }
-    }
-
-    /// The method.
-    fn method_of(&mut self) -> Method {
-        match self.engine() {
-            Engine::Single(i) => i.method(),
-            Engine::Multi { method, .. } => *method,
-        }
+        Ok(self.engine())
     }
 
     /// The integrator as NIS, for `what` that only NIS does.
@@ -118,7 +111,11 @@ impl PyIntegrator {
         })
     }
 
-    fn with(integrator: Engine, threads: Option<i64>) -> PyResult<PyIntegrator> {
+    fn with(
+        integrator: Box<dyn Integrator>,
+        channels: Option<Channels>,
+        threads: Option<i64>,
+    ) -> PyResult<PyIntegrator> {
         let threads = threads.map(|t| count("threads", t)).transpose()?;
         let pool = match threads {
             Some(0) => return Err(PyValueError::new_err("threads must be at least 1")),
@@ -132,6 +129,7 @@ impl PyIntegrator {
         };
         Ok(PyIntegrator {
             integrator: Mutex::new(integrator),
+            channels,
             threads,
             pool,
         })
@@ -157,7 +155,7 @@ impl PyIntegrator {
         settings: Option<&Bound<'_, PyDict>>,
     ) -> PyResult<PyIntegrator> {
         let method: Method = method.parse().map_err(to_py_err)?;
-        let dim = count("dim", dim)?;
+        let dim = dimension("dim", dim)?;
         let keywords = keywords(settings)?;
         let settings = Settings::default()
             .with_keywords(
@@ -171,10 +169,8 @@ impl PyIntegrator {
                     "channel_settings needs channels or signs (a multi-channel integrator)",
                 ));
             }
-            return PyIntegrator::with(
-                Engine::Single(integrator(method, dim, &settings).map_err(to_py_err)?),
-                threads,
-            );
+            let integ = integrator(method, dim, &settings).map_err(to_py_err)?;
+            return PyIntegrator::with(integ, None, threads);
         }
         let mut config = match channel_settings {
             None => MultiChannelConfig::default(),
@@ -197,30 +193,20 @@ impl PyIntegrator {
         };
         let raised = Arc::new(Raised::default());
         let signs = config.signs;
-        let (mc, n) = match channels {
-            None => (
-                Box::new(MultiChannel::single(dim, method, settings, config).map_err(to_py_err)?),
-                0,
-            ),
+        let (mc, count) = match channels {
+            None => (MultiChannel::single(dim, method, settings, config), 0),
             Some(list) => {
                 let set = channel_set(py, list, dim, &raised)?;
                 let n = set.len();
-                (
-                    Box::new(MultiChannel::new(set, method, settings, config).map_err(to_py_err)?),
-                    n,
-                )
+                (MultiChannel::new(set, method, settings, config), n)
             }
         };
-        PyIntegrator::with(
-            Engine::Multi {
-                mc,
-                method,
-                channels: n,
-                signs,
-                raised,
-            },
-            threads,
-        )
+        let channels = Channels {
+            count,
+            signs,
+            raised,
+        };
+        PyIntegrator::with(Box::new(mc.map_err(to_py_err)?), Some(channels), threads)
     }
 
     /// Spends `evals` evaluations of `f`: adapts, then estimates ∫ f (the docstring Python
@@ -252,33 +238,22 @@ impl PyIntegrator {
             (_, evals) => count("evals", evals.unwrap_or(1_000_000))? as u64,
         };
         let pool = self.pool.clone();
-        let (mc, raised) = match self.engine() {
-            Engine::Single(integ) => {
-                let integ = integ.as_mut();
-                if let Some(t) = &target {
-                    integ.check_target(t).map_err(to_py_err)?;
-                }
-                return with_integrand(py, f, integ.dim(), |g, vector| {
-                    let r = run(py, pool.as_deref(), g.call, || match &target {
-                        Some(t) => integ.integrate_to(g.f, t),
-                        None => integ.integrate(g.f, evals),
-                    })?;
-                    Ok(PyIntegrationResult::new(r, vector))
-                });
-            }
-            Engine::Multi { mc, raised, .. } => (mc, raised.clone()),
-        };
+        let raised = self.channels.as_ref().map(|c| c.raised.clone());
+        let integ = self.engine();
         if let Some(t) = &target {
-            mc.check_target(t).map_err(to_py_err)?;
+            integ.check_target(t).map_err(to_py_err)?;
         }
-        with_integrand(py, f, mc.dim(), |g, vector| {
-            raised.take();
+        with_integrand(py, f, integ.dim(), |g, vector| {
+            let raised = raised.as_deref();
+            if let Some(r) = raised {
+                r.take();
+            }
             let r = run(py, pool.as_deref(), g.call, || match &target {
-                Some(t) => mc.integrate_to(g.f, t),
-                None => mc.integrate(g.f, evals),
+                Some(t) => integ.integrate_to(g.f, t),
+                None => integ.integrate(g.f, evals),
             });
             // A channel's own exception wins over the library's error it caused.
-            if let (Err(_), Some(e)) = (&r, raised.take()) {
+            if let (Err(_), Some(e)) = (&r, raised.and_then(Raised::take)) {
                 return Err(e);
             }
             Ok(PyIntegrationResult::new(r?, vector))
@@ -393,13 +368,14 @@ impl PyIntegrator {
     ) -> PyResult<Events<'py>> {
         let n = count("n", n)?;
         let pool = self.pool.clone();
-        let Engine::Multi { mc, raised, .. } = self.engine() else {
-            return Err(PyValueError::new_err(
+        let not_multi = || {
+            PyValueError::new_err(
                 "events come from a multi-channel integrator (one made with channels or signs); \
                  use unweighted for a single-channel one",
-            ));
+            )
         };
-        let raised = raised.clone();
+        let raised = self.channels.as_ref().ok_or_else(not_multi)?.raised.clone();
+        let mc = self.engine().as_multichannel().ok_or_else(not_multi)?;
         let dim = mc.dim();
         with_integrand(py, f, dim, |g, _| {
             raised.take();
@@ -434,41 +410,33 @@ impl PyIntegrator {
     fn load(path: &Bound<'_, PyAny>, threads: Option<i64>) -> PyResult<PyIntegrator> {
         let path = path_of(path)?;
         let nis = NisIntegrator::load(&path).map_err(to_py_err)?;
-        PyIntegrator::with(Engine::Single(Box::new(nis)), threads)
+        PyIntegrator::with(Box::new(nis), None, threads)
     }
 
     /// The method: "nis", "vegas" or "uniform".
     #[getter]
     fn method(&mut self) -> &'static str {
-        self.method_of().name()
+        self.engine().method().name()
     }
 
     /// The dimension.
     #[getter]
     fn dim(&mut self) -> usize {
-        match self.engine() {
-            Engine::Single(i) => i.dim(),
-            Engine::Multi { mc, .. } => mc.dim(),
-        }
+        self.engine().dim()
     }
 
     /// The number of channels (None for a single-channel integrator; 1 for `signs` alone).
     #[getter]
-    fn channels(&mut self) -> Option<usize> {
-        match self.engine() {
-            Engine::Single(_) => None,
-            Engine::Multi { channels, .. } => Some((*channels).max(1)),
-        }
+    fn channels(&self) -> Option<usize> {
+        self.channels.as_ref().map(|c| c.count.max(1))
     }
 
     /// The a-priori channel weights the next call starts from (they adapt between calls;
     /// None for a single-channel integrator).
     #[getter]
     fn channel_weights<'py>(&mut self, py: Python<'py>) -> Option<Bound<'py, PyArray1<f64>>> {
-        match self.engine() {
-            Engine::Single(_) => None,
-            Engine::Multi { mc, .. } => Some(PyArray1::from_slice(py, mc.weights())),
-        }
+        let mc = self.engine().as_multichannel()?;
+        Some(PyArray1::from_slice(py, mc.weights()))
     }
 
     /// Threads of its own rayon pool (None: the global pool).
@@ -491,32 +459,27 @@ impl PyIntegrator {
     }
 
     fn __repr__(&mut self) -> String {
-        let integ = match self.engine() {
-            Engine::Single(i) => i.as_mut(),
-            Engine::Multi {
-                mc,
-                method,
-                channels,
-                signs,
-                ..
-            } => {
-                let (dim, method) = (mc.dim(), method.name());
-                let signs = match signs {
-                    Signs::Auto => "auto",
-                    Signs::Split => "split",
-                    Signs::Whole => "whole",
-                };
-                let channels = match channels {
-                    0 => String::new(),
-                    1 => ", channels=[1 channel]".into(),
-                    n => format!(", channels=[{n} channels]"),
-                };
-                return format!(
-                    "nis.Integrator(dim={dim}, method={method:?}{channels}, signs={signs:?})"
-                );
-            }
-        };
+        let (count, signs) = self
+            .channels
+            .as_ref()
+            .map_or((0, None), |c| (c.count, Some(c.signs)));
+        let integ = self.engine();
         let (dim, method) = (integ.dim(), integ.method().name());
+        if let Some(signs) = signs {
+            let signs = match signs {
+                Signs::Auto => "auto",
+                Signs::Split => "split",
+                Signs::Whole => "whole",
+            };
+            let channels = match count {
+                0 => String::new(),
+                1 => ", channels=[1 channel]".into(),
+                n => format!(", channels=[{n} channels]"),
+            };
+            return format!(
+                "nis.Integrator(dim={dim}, method={method:?}{channels}, signs={signs:?})"
+            );
+        }
         match integ.as_nis() {
             Some(n) => format!(
                 "nis.Integrator(dim={dim}, method=\"nis\", coupling={:?}, loss={:?}, seed={})",

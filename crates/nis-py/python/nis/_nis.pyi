@@ -82,7 +82,9 @@ class IntegrationResult:
         None for a single-channel result."""
     @property
     def channel_means(self) -> Optional[npt.NDArray[np.float64]]:
-        """Multi-channel results: each channel's contribution ∫ α_k f (they sum to ``mean``)."""
+        """Multi-channel results: each channel's weighted share ∫ α_k f of the integral (α_k the
+        channel weights, which sum to one at every point; the shares sum to ``mean``). Not the
+        integral of the peak the channel maps: a share depends on the weights."""
     @property
     def channel_sdevs(self) -> Optional[npt.NDArray[np.float64]]:
         """Multi-channel results: the standard errors of ``channel_means``."""
@@ -204,9 +206,9 @@ class Integrator:
         max_evals: Optional[int] = None,
         max_seconds: Optional[float] = None,
     ) -> IntegrationResult:
-        """Spends ``evals`` evaluations of ``f`` (default 10⁶): adapts on a share of them
-        (continuing from earlier calls), then estimates ∫ f with the rest, the sampler frozen;
-        returns an ``IntegrationResult``.
+        """Spends ``evals`` evaluations of ``f`` (10⁶ when neither ``evals`` nor a target is
+        given): adapts on a share of them (continuing from earlier calls), then estimates ∫ f with
+        the rest, the sampler frozen; returns an ``IntegrationResult``.
 
         With ``rel_err`` and/or ``abs_err`` instead of ``evals`` it integrates until
         ``sdev <= max(abs_err, rel_err * |mean|)`` or a limit is reached: ``max_evals``

@@ -141,6 +141,11 @@ pub trait Integrator: Send {
     fn as_nis(&mut self) -> Option<&mut nis::NisIntegrator> {
         None
     }
+    /// This integrator as a multi-channel one, for what only it does (its channel weights,
+    /// events that carry their channel); `None` for the methods on their own.
+    fn as_multichannel(&mut self) -> Option<&mut multichannel::MultiChannel> {
+        None
+    }
 }
 
 /// The settings of every method, for building one by name with [`integrator`].

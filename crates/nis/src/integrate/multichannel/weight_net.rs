@@ -371,7 +371,7 @@ impl MultiChannel {
         f: &dyn Integrand,
         adapt: u64,
     ) -> Result<(u64, Vec<f64>)> {
-        let (dim, k) = (self.dim(), self.set.len());
+        let (dim, k) = (self.set.dim(), self.set.len());
         let parts = self.parts.len();
         let n = (adapt as usize / 4)
             .clamp(NET_POINTS.0, NET_POINTS.1)
