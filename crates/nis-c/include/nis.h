@@ -229,6 +229,9 @@ const char *nis_version(void);
  * (default false: the callback is never called from two threads at once), `"train_on"`
  * (`{"component": j}` or `"sum_abs"`), and each method's settings `"nis"`, `"vegas"`,
  * `"uniform"` (partial objects; missing fields keep their defaults). Unknown fields are errors.
+ * As in every front end, NIS splits a scalar integrand whose first points show both signs
+ * (signs auto; `nis_result_signs` then reads F⁺ and F⁻); `nis_create_with_channels` with no
+ * channels and `signs` `"whole"` keeps it whole.
  *
  * # Safety
  * `json` must be a NUL-terminated string; `out` must point to a writable `nis_integrator *`.

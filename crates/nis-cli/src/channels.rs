@@ -37,7 +37,9 @@ pub struct ChannelArgs {
     #[arg(long, conflicts_with_all = ["load", "save"])]
     pub channels: bool,
     /// Split the integrand by sign (auto: when a pilot sees both signs; split; whole), with a
-    /// sampler per channel and sign; without --channels, through one identity channel.
+    /// sampler per channel and sign; without --channels, through one identity channel. Without
+    /// --signs and --channels, NIS splits a scalar integrand when its first points show both
+    /// signs; VEGAS+ and plain MC keep the whole.
     #[arg(long, value_enum, conflicts_with_all = ["load", "save"])]
     pub signs: Option<SignsArg>,
     /// With --channels or --signs, NIS: a flow for every channel and sign instead of the default

@@ -10,6 +10,7 @@ use crate::channels::{channel_lines, sample_events, ChannelArgs, EventsRequest};
 use nis::flow::mask::Masks;
 use nis::flow::Density;
 use nis::integrands::{self, Builtin, SUITE};
+use nis::integrate::multichannel::by_default;
 use nis::integrate::unweight::{SampleFormat, SampleWriter};
 use nis::integrate::{
     disagreements, nis::NisConfig, nis::NisIntegrator, IntegrationResult, Integrator, Method,
@@ -240,11 +241,12 @@ pub fn run_method(
             rank_checksums: None,
         });
     }
-    // One road for every method, with or without channels: an `Integrator`.
+    // One road for every method, with or without channels: an `Integrator`. Without --channels
+    // or --signs, NIS splits a scalar integrand that changes sign (multichannel::by_default).
     let mut integ = if args.channel.multichannel() {
         args.channel.integrator(f, method, args.settings()?)?
     } else {
-        nis::integrate::integrator(method, f.dim, &args.settings()?)?
+        by_default(method, f.dim, &args.settings()?)?
     };
     integ.set_comm(comm.clone());
     integ.set_progress(Some(Box::new(progress)));

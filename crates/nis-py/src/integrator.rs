@@ -6,9 +6,9 @@ use std::sync::{Arc, Mutex};
 
 use nis::channels::ChannelSet;
 use nis::flow::Density;
-use nis::integrate::multichannel::{MultiChannel, MultiChannelConfig, Signs};
+use nis::integrate::multichannel::{by_default, MultiChannel, MultiChannelConfig, Signs};
 use nis::integrate::nis::NisIntegrator;
-use nis::integrate::{integrator, Integrator, Method, Settings, Target};
+use nis::integrate::{Integrator, Method, Settings, Target};
 use nis::loss::Loss;
 use numpy::{PyArray1, PyArray2, PyArrayMethods};
 use pyo3::exceptions::PyValueError;
@@ -41,7 +41,9 @@ use crate::{check_parent, count, dimension, path_of, to_py_err, PointsAndValues}
 ///
 /// Multi-channel: `channels=[nis.Channel(...), ...]` integrates with a sampler of `method` per
 /// channel (and per sign of f when it changes sign: `signs="auto"`, the default, or "split",
-/// "whole"); `signs=` alone splits a single-channel integral by sign. Results then carry
+/// "whole"); `signs=` alone splits a single-channel integral by sign. Without either, NIS splits
+/// a scalar integrand whose first points show both signs (`signs="auto"` is the default), while
+/// VEGAS+ and plain MC keep the whole; vector integrands always do. Results then carry
 /// `channel_weights`, `channel_means`, `channel_sdevs`, `channel_evals` and `signs`; precision
 /// targets work as for one channel; `events(f, n)` draws unweighted events that carry their
 /// channel (NIS), and the other NIS-only methods raise ValueError. `channel_settings` (a dict:
@@ -103,6 +105,13 @@ impl PyIntegrator {
     fn nis(&mut self, what: &str) -> PyResult<&mut NisIntegrator> {
         let integ = self.integrator(what)?;
         let method = integ.method();
+        if method == Method::Nis && integ.as_multichannel().is_some() {
+            return Err(PyValueError::new_err(format!(
+                "{what} is not available: the integrand changed sign, so it was integrated split \
+                 by sign (signs=\"auto\", the default) with a sampler per sign; pass \
+                 signs=\"whole\" to keep one flow"
+            )));
+        }
         integ.as_nis().ok_or_else(|| {
             PyValueError::new_err(format!(
                 "{what} needs a trained flow: method=\"nis\", not {:?}",
@@ -169,7 +178,8 @@ impl PyIntegrator {
                     "channel_settings needs channels or signs (a multi-channel integrator)",
                 ));
             }
-            let integ = integrator(method, dim, &settings).map_err(to_py_err)?;
+            // By default NIS splits a scalar integrand that changes sign (signs="auto").
+            let integ = by_default(method, dim, &settings).map_err(to_py_err)?;
             return PyIntegrator::with(integ, None, threads);
         }
         let mut config = match channel_settings {

@@ -136,7 +136,9 @@ class Integrator:
     ∫ f = Σ_k ∫ α_k f, α_k = a_k g_k/Σ_j a_j g_j, with a sampler of ``method`` per channel;
     the priors adapt between adapting and estimating. ``signs``: "auto" (the default with
     channels: split f into f⁺ and f⁻, a sampler each, when a pilot sees both signs), "split"
-    (always) or "whole" (never); ``signs`` without ``channels`` splits a single-channel
+    (always) or "whole" (never). Without ``channels`` and ``signs``, NIS splits a scalar
+    integrand whose first points show both signs (auto is the default); VEGAS+ and plain MC keep
+    the whole; vector integrands always do. ``signs`` without ``channels`` splits a single-channel
     integral by sign. Such an integrator integrates scalar integrands on a budget
     (``integ(f, evals)``) or to a precision target (``integ(f, rel_err=…)``), its results carry
     ``channel_weights``, ``channel_means``, ``channel_sdevs``, ``channel_evals`` and

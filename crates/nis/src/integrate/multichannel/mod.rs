@@ -18,6 +18,7 @@
 //! before the estimate draws a point, so each part's estimate is unbiased and F's is too
 //! (docs/ESTIMATE.md, "Channels and signs"); its variance is the sum of the parts'.
 
+mod auto;
 mod events;
 mod part;
 mod report;
@@ -34,6 +35,7 @@ use rand_pcg::Pcg64Mcg;
 use serde::{Deserialize, Serialize};
 
 pub use super::result::{ChannelReport, SignReport};
+pub use auto::{by_default, AutoSigns};
 pub use events::ChannelEvents;
 pub use part::Sign;
 
@@ -533,6 +535,14 @@ fn neyman(sd: &[f64]) -> Vec<f64> {
             }
         })
         .collect()
+}
+
+impl MultiChannel {
+    /// The smallest budget of one call with `parts` parts (the pilot aside): one adaptation and
+    /// one estimate each.
+    pub(crate) fn least_budget(parts: u64) -> u64 {
+        2 * parts * MIN_PART_EVALS
+    }
 }
 
 /// Fewest evaluations a part adapts or estimates with.
