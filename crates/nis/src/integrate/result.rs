@@ -134,10 +134,14 @@ impl IntegrationResult {
     }
 }
 
-/// A readable summary, as `vegas`'s `result.summary()`: the final phase's iterations, the result,
-/// and every component of a vector-valued integrand.
+/// A readable summary, as `vegas`'s `result.summary()`: the final phase's iterations (a
+/// multi-channel result: each channel's share and, split by sign, F⁺ and F⁻), the result, and
+/// every component of a vector-valued integrand.
 impl std::fmt::Display for IntegrationResult {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        if let Some(c) = &self.channels {
+            return self.fmt_channels(c, f);
+        }
         writeln!(
             f,
             "{:>5}  {:<8}  {:>24}  {:>10}",
@@ -155,16 +159,70 @@ impl std::fmt::Display for IntegrationResult {
             )?;
         }
         let estimated: u64 = self.iterations.iter().map(|i| i.evals).sum();
+        self.fmt_adapting(estimated, 5, f)?;
+        self.fmt_summary(f)
+    }
+}
+
+impl IntegrationResult {
+    /// The table of a multi-channel result: a row per channel (its share ∫ α_k f of the
+    /// integral, which moves with the weights a_k), F⁺ and F⁻ when split by sign, then the rest.
+    fn fmt_channels(&self, c: &ChannelReport, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        writeln!(
+            f,
+            "{:>7}  {:>8}  {:>24}  {:>10}",
+            "channel", "weight", "share ± std_err", "evals"
+        )?;
+        for k in 0..c.means.len() {
+            writeln!(
+                f,
+                "{k:>7}  {:>8.4}  {:>12.6e} ± {:<9.2e}  {:>10}",
+                c.weights[k], c.means[k], c.std_errs[k], c.evals[k]
+            )?;
+        }
+        if let Some(s) = &c.signs {
+            writeln!(
+                f,
+                "{:>7}  {:>8}  {:>12.6e} ± {:<9.2e}",
+                "f > 0", "", s.positive, s.positive_err
+            )?;
+            writeln!(
+                f,
+                "{:>7}  {:>8}  {:>12.6e} ± {:<9.2e}  ({:.1}% of the events negative)",
+                "f < 0",
+                "",
+                s.negative,
+                s.negative_err,
+                100.0 * s.negative_fraction
+            )?;
+        }
+        self.fmt_adapting(c.evals.iter().sum(), 7, f)?;
+        self.fmt_summary(f)
+    }
+
+    /// The row of the evaluations that only adapted, when there are any (`estimated` made the
+    /// estimate), its first column `first` wide as the table's.
+    fn fmt_adapting(
+        &self,
+        estimated: u64,
+        first: usize,
+        f: &mut std::fmt::Formatter<'_>,
+    ) -> std::fmt::Result {
         if self.n_eval > estimated {
             writeln!(
                 f,
-                "{:>5}  {:<8}  {:>24}  {:>10}",
+                "{:>first$}  {:<8}  {:>24}  {:>10}",
                 "",
                 "adapting",
                 "(not in the estimate)",
                 self.n_eval - estimated
             )?;
         }
+        Ok(())
+    }
+
+    /// The result's line, and what follows it.
+    fn fmt_summary(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         write!(
             f,
             "result {:.8e} ± {:.3e}   χ²/dof {:.2}   k̂ {:.2}   ESS {:.3e}   n_eval {}   \
