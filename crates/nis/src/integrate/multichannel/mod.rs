@@ -70,8 +70,8 @@ pub enum Signs {
 pub struct MultiChannelConfig {
     /// Splitting by sign.
     pub signs: Signs,
-    /// Share of a call's evaluations the parts adapt on (the rest makes the estimate). 0.25
-    /// against 0.4 lowers the variance per evaluation of every method on every example
+    /// Share of a call's evaluations the parts adapt on (the rest makes the estimate); the
+    /// default is the measured best of every method on every example
     /// (docs/results/integration.md, "Channels and signed integrands").
     pub adapt_fraction: f64,
     /// Whether the a-priori weights adapt (Kleiss–Pittau) between adapting and estimating.
@@ -85,19 +85,18 @@ pub struct MultiChannelConfig {
     /// `adapt_fraction` of its `max_evals`, shared).
     pub target_adapt: u64,
     /// NIS: one flow for all parts, conditioned on the part (`shared.rs`), instead of a flow per
-    /// part; ignored by the other methods. On by default: with the parts' χ² loss it has 1.8×
-    /// lower variance per evaluation on phase-space-8d, 1.04× on resonances-100, loses ≤ 7 % on
-    /// resonances-4d and the Dalitz plot, and takes less memory
+    /// part; ignored by the other methods. On by default: with the parts' χ² loss it gains
+    /// most where the channels overlap, loses little elsewhere, and takes less memory
     /// (docs/results/integration.md, "One flow shared by the channels"). A saved one loads as a
     /// flow per part.
     pub shared_flow: bool,
     /// NIS: after the parts adapt, fit a network N that refines the channel weights to
     /// α_k ∝ a_k g_k e^{N_k(x)} (MadNIS's), on fresh points of every part's sampler (counted),
     /// and keep it only when it lowers the estimate's variance on held-out points
-    /// (`weight_net.rs`); ignored by the other methods. On by default: 2.7× lower variance per
-    /// evaluation on resonances-4d, 2.2× on resonances-100, 1.2× on the Dalitz plot; at equal
-    /// time it loses only where a point costs less than the network's pass
-    /// (docs/results/integration.md, "Learned channel weights").
+    /// (`weight_net.rs`); ignored by the other methods. On by default: it lowers the variance
+    /// per evaluation on every multi-channel example; at equal time it loses only where a point
+    /// costs less than the network's pass (docs/results/integration.md, "Learned channel
+    /// weights").
     pub weight_network: bool,
 }
 
