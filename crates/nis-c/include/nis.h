@@ -127,7 +127,8 @@
 typedef struct nis_integrator nis_integrator;
 
 /**
- * A multi-channel integrator (opaque).
+ * The handle of the previous release's `nis_multichannel_*` functions (opaque): an ordinary
+ * integrator made by [`nis_create_with_channels`]. Deprecated: use `nis_integrator`.
  */
 typedef struct nis_multichannel nis_multichannel;
 
@@ -228,6 +229,9 @@ const char *nis_version(void);
  * (default false: the callback is never called from two threads at once), `"train_on"`
  * (`{"component": j}` or `"sum_abs"`), and each method's settings `"nis"`, `"vegas"`,
  * `"uniform"` (partial objects; missing fields keep their defaults). Unknown fields are errors.
+ * As in every front end, NIS splits a scalar integrand whose first points show both signs
+ * (signs auto; `nis_result_signs` then reads F⁺ and F⁻); `nis_create_with_channels` with no
+ * channels and `signs` `"whole"` keeps it whole.
  *
  * # Safety
  * `json` must be a NUL-terminated string; `out` must point to a writable `nis_integrator *`.
@@ -365,10 +369,12 @@ int nis_unweighted(struct nis_integrator *integ,
 int nis_save(struct nis_integrator *integ, const char *path);
 
 /**
- * Creates a multi-channel integrator from the JSON config of `nis_create` (method, dim, seed,
+ * Creates an integrator through channels from the JSON config of `nis_create` (method, dim, seed,
  * the methods' sections; `"components"` must be 1) and `count` channels, and stores it in `*out`
- * (NULL on failure). `signs` is `"auto"` (split f into f > 0 and f < 0 when a pilot sees both),
- * `"split"`, `"whole"`, or NULL for auto. `count` 0 with `channels` NULL integrates without
+ * (NULL on failure): an ordinary `nis_integrator`, run with `nis_integrate` or
+ * `nis_integrate_to` and freed with `nis_free`; [`nis_result_channels`] and
+ * [`nis_result_signs`] read its parts. `signs` is `"auto"` (split f into f > 0 and f < 0 when
+ * a pilot sees both), `"split"`, `"whole"`, or NULL for auto. `count` 0 with `channels` NULL integrates without
  * channels (one identity channel), split by sign; `count` 0 with channels given is an error.
  * A key `"multichannel"` of the config patches the multi-channel settings, e.g.
  * `{"multichannel": {"shared_flow": false, "adapt_fraction": 0.3}}` (NIS with a flow per
@@ -378,6 +384,19 @@ int nis_save(struct nis_integrator *integ, const char *path);
  * `json` and a non-NULL `signs` must be NUL-terminated; `channels` must hold `count` channels
  * whose callbacks and user pointers stay valid while the integrator lives; `out` writable.
  */
+int nis_create_with_channels(const char *json,
+                             const struct nis_channel *channels,
+                             size_t count,
+                             const char *signs,
+                             struct nis_integrator **out);
+
+/**
+ * Deprecated alias of [`nis_create_with_channels`] (kept for one release): the same integrator
+ * behind the previous release's handle, freed with [`nis_multichannel_free`].
+ *
+ * # Safety
+ * As [`nis_create_with_channels`].
+ */
 int nis_multichannel_create(const char *json,
                             const struct nis_channel *channels,
                             size_t count,
@@ -385,7 +404,38 @@ int nis_multichannel_create(const char *json,
                             struct nis_multichannel **out);
 
 /**
- * Frees a multi-channel integrator (NULL is ignored).
+ * Copies the last result's per-channel figures (an integrator made by
+ * [`nis_create_with_channels`]): the weights a_k, each channel's contribution
+ * and its standard error, and its evaluations in the estimate. Any buffer may be NULL; `k` must
+ * equal the number of channels (1 without channels).
+ *
+ * # Safety
+ * `integ` must be live; non-NULL buffers must hold `k` values.
+ */
+int nis_result_channels(const struct nis_integrator *integ,
+                        double *weights,
+                        double *means,
+                        double *std_errs,
+                        uint64_t *evals,
+                        size_t k);
+
+/**
+ * Copies the last result's positive and negative parts, F = F⁺ − F⁻, with their standard errors
+ * and the share of negative weights F⁻/(F⁺ + F⁻) (any pointer may be NULL); `NIS_ERR_NO_RESULT`
+ * when the last result was not split by sign.
+ *
+ * # Safety
+ * `integ` must be live; non-NULL pointers writable.
+ */
+int nis_result_signs(const struct nis_integrator *integ,
+                     double *positive,
+                     double *positive_err,
+                     double *negative,
+                     double *negative_err,
+                     double *negative_fraction);
+
+/**
+ * Frees an integrator made by [`nis_multichannel_create`] (NULL is ignored). Deprecated alias.
  *
  * # Safety
  * `mc` must come from [`nis_multichannel_create`] and not be used afterwards.
@@ -393,12 +443,10 @@ int nis_multichannel_create(const char *json,
 void nis_multichannel_free(struct nis_multichannel *mc);
 
 /**
- * Integrates `f` with `evals` evaluations through the channels (see `nis::integrate::multichannel`)
- * and writes the summary into `*result` (which may be NULL); the channels' and signs' parts are
- * then read with [`nis_multichannel_channels`] and [`nis_multichannel_signs`].
+ * Deprecated alias of [`nis_integrate`].
  *
  * # Safety
- * `mc` must be live; `result` NULL or writable; `f` must honour `nis_integrand_fn`'s contract.
+ * As [`nis_integrate`].
  */
 int nis_multichannel_integrate(struct nis_multichannel *mc,
                                nis_integrand_fn f,
@@ -407,12 +455,10 @@ int nis_multichannel_integrate(struct nis_multichannel *mc,
                                struct nis_result *result);
 
 /**
- * Integrates `f` through the channels until the standard error is at most
- * max(`abs_err`, `rel_err`·|value|) or a limit is reached, with `nis_integrate_to`'s arguments
- * and checks (all before `f` is called); [`nis_multichannel_stop`] then says which ended it.
+ * Deprecated alias of [`nis_integrate_to`].
  *
  * # Safety
- * As [`nis_multichannel_integrate`].
+ * As [`nis_integrate_to`].
  */
 int nis_multichannel_integrate_to(struct nis_multichannel *mc,
                                   nis_integrand_fn f,
@@ -424,7 +470,7 @@ int nis_multichannel_integrate_to(struct nis_multichannel *mc,
                                   struct nis_result *result);
 
 /**
- * Why the last result's run stopped, as [`nis_result_stop`] says for one integrator.
+ * Deprecated alias of [`nis_result_stop`].
  *
  * # Safety
  * `mc` must be a live multi-channel integrator or NULL (then `NIS_STOP_NONE`).
@@ -432,12 +478,10 @@ int nis_multichannel_integrate_to(struct nis_multichannel *mc,
 int nis_multichannel_stop(const struct nis_multichannel *mc);
 
 /**
- * Copies the last result's per-channel figures: the weights a_k, each channel's contribution
- * and its standard error, and its evaluations in the estimate. Any buffer may be NULL; `k` must
- * equal the number of channels (1 without channels).
+ * Deprecated alias of [`nis_result_channels`].
  *
  * # Safety
- * `mc` must be live; non-NULL buffers must hold `k` values.
+ * As [`nis_result_channels`].
  */
 int nis_multichannel_channels(const struct nis_multichannel *mc,
                               double *weights,
@@ -447,12 +491,10 @@ int nis_multichannel_channels(const struct nis_multichannel *mc,
                               size_t k);
 
 /**
- * Copies the last result's positive and negative parts, F = F⁺ − F⁻, with their standard errors
- * and the share of negative weights F⁻/(F⁺ + F⁻) (any pointer may be NULL); `NIS_ERR_NO_RESULT`
- * when the last result was not split by sign.
+ * Deprecated alias of [`nis_result_signs`].
  *
  * # Safety
- * `mc` must be live; non-NULL pointers writable.
+ * As [`nis_result_signs`].
  */
 int nis_multichannel_signs(const struct nis_multichannel *mc,
                            double *positive,
@@ -462,7 +504,7 @@ int nis_multichannel_signs(const struct nis_multichannel *mc,
                            double *negative_fraction);
 
 /**
- * Copies the last result's warnings as `nis_result_warnings` does.
+ * Deprecated alias of [`nis_result_warnings`].
  *
  * # Safety
  * `mc` must be live; `buffer` NULL or writable for `capacity` bytes.

@@ -37,8 +37,9 @@ use std::ffi::{c_char, c_int, c_void, CStr};
 use std::path::PathBuf;
 
 use nis::flow::mixture;
+use nis::integrate::multichannel::by_default;
 use nis::integrate::nis::NisIntegrator;
-use nis::integrate::{integrator, Integrand, IntegrationResult, Integrator};
+use nis::integrate::{Integrand, IntegrationResult, Integrator};
 use rand::SeedableRng;
 use rand_pcg::Pcg64Mcg;
 
@@ -182,6 +183,9 @@ unsafe fn hand_out(out: *mut *mut nis_integrator, integ: nis_integrator) {
 /// (default false: the callback is never called from two threads at once), `"train_on"`
 /// (`{"component": j}` or `"sum_abs"`), and each method's settings `"nis"`, `"vegas"`,
 /// `"uniform"` (partial objects; missing fields keep their defaults). Unknown fields are errors.
+/// As in every front end, NIS splits a scalar integrand whose first points show both signs
+/// (signs auto; `nis_result_signs` then reads F⁺ and F⁻); `nis_create_with_channels` with no
+/// channels and `signs` `"whole"` keeps it whole.
 ///
 /// # Safety
 /// `json` must be a NUL-terminated string; `out` must point to a writable `nis_integrator *`.
@@ -203,7 +207,7 @@ pub unsafe extern "C" fn nis_create(json: *const c_char, out: *mut *mut nis_inte
             ));
         }
         let settings = config.settings()?;
-        let integrator = integrator(config.method, config.dim, &settings)?;
+        let integrator = by_default(config.method, config.dim, &settings)?;
         let seed = settings.seed_of(config.method);
         let integ = nis_integrator {
             integrator,

@@ -692,6 +692,47 @@ fn channels_with_enhancements_through_c_keep_the_integral() {
 }
 
 #[test]
+fn channels_are_an_argument_of_the_ordinary_functions() {
+    // nis_create_with_channels makes a nis_integrator that nis_integrate and nis_result_* take,
+    // with the numbers of the old names (kept as aliases for one release), bit for bit.
+    let channels = channels(None);
+    for method in ["uniform", "vegas", "nis"] {
+        let json = format!(r#"{{"method": "{method}", "dim": 2, "seed": 4}}"#);
+        let (old, status, want) = integrate_peaks(&json, &channels, 100_000);
+        assert_eq!(status, NIS_OK, "{method}: {}", last_error());
+        let json = CString::new(json).unwrap();
+        let mut integ = std::ptr::null_mut();
+        let status = unsafe {
+            nis_create_with_channels(
+                json.as_ptr(),
+                channels.as_ptr(),
+                channels.len(),
+                std::ptr::null(),
+                &mut integ,
+            )
+        };
+        assert_eq!(status, NIS_OK, "{method}: {}", last_error());
+        assert_eq!(unsafe { nis_dim(integ) }, 2);
+        let mut r = nis_result::default();
+        let status =
+            unsafe { nis_integrate(integ, Some(peaks_c), std::ptr::null_mut(), 100_000, &mut r) };
+        assert_eq!(status, NIS_OK, "{method}: {}", last_error());
+        assert_eq!(r.value.to_bits(), want.value.to_bits(), "{method}");
+        assert_eq!(r.std_err.to_bits(), want.std_err.to_bits(), "{method}");
+        let (mut m, mut m_old) = ([0.0; 2], [0.0; 2]);
+        let (null, no_evals) = (std::ptr::null_mut(), std::ptr::null_mut());
+        let status = unsafe { nis_result_channels(integ, null, m.as_mut_ptr(), null, no_evals, 2) };
+        assert_eq!(status, NIS_OK);
+        let status =
+            unsafe { nis_multichannel_channels(old, null, m_old.as_mut_ptr(), null, no_evals, 2) };
+        assert_eq!(status, NIS_OK);
+        assert_eq!(m, m_old, "{method}");
+        unsafe { nis_free(integ) };
+        unsafe { nis_multichannel_free(old) };
+    }
+}
+
+#[test]
 fn channels_through_c_integrate_and_report_each_channel() {
     let exact = peaks_exact();
     let channels = channels(None);

@@ -1,16 +1,13 @@
 //! `nis integrate --channels` and `--signs`: a built-in example through its channels, or any
 //! integrand split by sign, with `nis::integrate::multichannel`.
 
+use std::path::Path;
+
 use nis::channels::{examples, ChannelSet};
-use nis::comm::Comm;
 use nis::integrands::Builtin;
 use nis::integrate::multichannel::{MultiChannel, MultiChannelConfig, Signs};
-use nis::integrate::{IntegrationResult, Method};
-
 use nis::integrate::unweight::{SampleFormat, SampleWriter};
-use nis::integrate::Settings;
-
-use crate::integrate::{IntegrateArgs, SampleArgs};
+use nis::integrate::{IntegrationResult, Integrator, Method, Settings};
 
 type Error = Box<dyn std::error::Error>;
 
@@ -32,42 +29,80 @@ impl SignsArg {
     }
 }
 
-impl IntegrateArgs {
+/// The options of `nis integrate` that route a run through channels or a sign split.
+#[derive(Clone, Debug, clap::Args)]
+pub struct ChannelArgs {
+    /// Integrate through the example's channels (the multi-channel examples of `nis list`): a
+    /// sampler of the method per channel, weights adapted, points allocated by σ.
+    #[arg(long, conflicts_with_all = ["load", "save"])]
+    pub channels: bool,
+    /// Split the integrand by sign (auto: when a pilot sees both signs; split; whole), with a
+    /// sampler per channel and sign; without --channels, through one identity channel. Without
+    /// --signs and --channels, NIS splits a scalar integrand when its first points show both
+    /// signs; VEGAS+ and plain MC keep the whole.
+    #[arg(long, value_enum, conflicts_with_all = ["load", "save"])]
+    pub signs: Option<SignsArg>,
+    /// With --channels or --signs, NIS: a flow for every channel and sign instead of the default
+    /// one flow shared by all, conditioned on the part (docs/results/integration.md, "One flow
+    /// shared by the channels").
+    #[arg(long)]
+    pub flow_per_channel: bool,
+    /// With --channels, NIS: no network refining the channel weights (by default one is fitted
+    /// after the parts adapt, MadNIS's, and kept only when it lowers the variance on held-out
+    /// points).
+    #[arg(long)]
+    pub no_weight_network: bool,
+    /// With --channels: weight the channels by their densities alone, α_k ∝ a_k g_k (the classic
+    /// weights), instead of by the propagators the examples' channels carry as enhancements
+    /// (single-diagram enhancement; docs/guide/02-integrate.md, "Several peaks")
+    #[arg(long)]
+    pub no_enhancement: bool,
+}
+
+impl ChannelArgs {
     /// Whether the run goes through [`MultiChannel`] (`--channels` or `--signs`).
     pub(crate) fn multichannel(&self) -> bool {
         self.channels || self.signs.is_some()
     }
-}
 
-/// One method through the channels of the example `f` (`--channels`), or through one identity
-/// channel (`--signs` alone).
-pub(crate) fn run_multichannel(
-    f: &Builtin,
-    method: Method,
-    args: &IntegrateArgs,
-    comm: &Comm,
-) -> Result<IntegrationResult, Error> {
-    let config = MultiChannelConfig {
-        signs: args.signs.map_or(Signs::Auto, SignsArg::signs),
-        shared_flow: !args.flow_per_channel,
-        weight_network: !args.no_weight_network,
-        ..MultiChannelConfig::default()
-    };
-    let settings = args.settings()?;
-    let mut mc = if args.channels {
-        let mut set = channel_set(&f.name)?;
-        if args.no_enhancement {
-            set = set.without_enhancements();
+    /// An error for an option that needs `--channels` or `--signs` without them.
+    pub(crate) fn check(&self) -> Result<(), Error> {
+        if self.flow_per_channel && !self.multichannel() {
+            return Err("--flow-per-channel needs --channels or --signs".into());
         }
-        MultiChannel::new(set, method, settings, config)?
-    } else {
-        MultiChannel::single(f.dim, method, settings, config)?
-    };
-    mc.set_comm(comm.clone());
-    Ok(match args.target()? {
-        Some(t) => mc.integrate_to(f, &t)?,
-        None => mc.integrate(f, args.evals)?,
-    })
+        if self.no_weight_network && !self.channels {
+            return Err("--no-weight-network needs --channels".into());
+        }
+        if self.no_enhancement && !self.channels {
+            return Err("--no-enhancement needs --channels".into());
+        }
+        Ok(())
+    }
+
+    /// The integrator of `method` through the channels of the example `f` (`--channels`), or
+    /// through one identity channel (`--signs` alone): an [`Integrator`] like any other.
+    pub(crate) fn integrator(
+        &self,
+        f: &Builtin,
+        method: Method,
+        settings: Settings,
+    ) -> Result<Box<dyn Integrator>, Error> {
+        let config = MultiChannelConfig {
+            signs: self.signs.map_or(Signs::Auto, SignsArg::signs),
+            shared_flow: !self.flow_per_channel,
+            weight_network: !self.no_weight_network,
+            ..MultiChannelConfig::default()
+        };
+        Ok(Box::new(if self.channels {
+            let mut set = channel_set(&f.name)?;
+            if self.no_enhancement {
+                set = set.without_enhancements();
+            }
+            MultiChannel::new(set, method, settings, config)?
+        } else {
+            MultiChannel::single(f.dim, method, settings, config)?
+        }))
+    }
 }
 
 /// The channels of the example `name`, or an error that lists the examples.
@@ -81,10 +116,18 @@ fn channel_set(name: &str) -> Result<ChannelSet, Error> {
     Ok(ChannelSet::new(ex.channels)?)
 }
 
-/// `nis sample --channels`: a flow per channel (and sign) integrates the example on `--evals`,
-/// then `--n` events, each with its channel, go to `--out`.
-pub(crate) fn sample_events(args: &SampleArgs) -> Result<(), Error> {
-    let f = nis::integrands::by_name(&args.name, args.dim)?;
+/// What `nis sample --channels` asks for: `n` events after training on `evals` evaluations.
+pub(crate) struct EventsRequest<'a> {
+    pub(crate) seed: u64,
+    pub(crate) evals: u64,
+    pub(crate) n: usize,
+    pub(crate) overweight: f64,
+    pub(crate) out: &'a Path,
+}
+
+/// `nis sample --channels`: a flow per channel (and sign) integrates the example `f` on
+/// `--evals`, then `--n` events, each with its channel, go to `--out`.
+pub(crate) fn sample_events(f: &Builtin, args: &EventsRequest) -> Result<(), Error> {
     let settings = Settings::default().seed(args.seed);
     let mut mc = MultiChannel::new(
         channel_set(&f.name)?,
@@ -92,11 +135,11 @@ pub(crate) fn sample_events(args: &SampleArgs) -> Result<(), Error> {
         settings,
         MultiChannelConfig::default(),
     )?;
-    let r = mc.integrate(&f, args.evals)?;
-    let ev = mc.unweighted(&f, args.n, args.overweight)?;
+    let r = mc.integrate(f, args.evals)?;
+    let ev = mc.unweighted(f, args.n, args.overweight)?;
     let mut out = SampleWriter::create_with_channels(
-        &args.out,
-        SampleFormat::for_path(&args.out),
+        args.out,
+        SampleFormat::for_path(args.out),
         f.dim,
         args.n as u64,
     )?;

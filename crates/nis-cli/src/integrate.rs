@@ -6,10 +6,11 @@ use clap::builder::{PossibleValuesParser, TypedValueParser};
 use indicatif::{ProgressBar, ProgressStyle};
 use nis::comm::Comm;
 
-use crate::channels::{channel_lines, run_multichannel, SignsArg};
+use crate::channels::{channel_lines, sample_events, ChannelArgs, EventsRequest};
 use nis::flow::mask::Masks;
 use nis::flow::Density;
 use nis::integrands::{self, Builtin, SUITE};
+use nis::integrate::multichannel::by_default;
 use nis::integrate::unweight::{SampleFormat, SampleWriter};
 use nis::integrate::{
     disagreements, nis::NisConfig, nis::NisIntegrator, IntegrationResult, Integrator, Method,
@@ -81,29 +82,8 @@ pub struct IntegrateArgs {
     /// Integrate until the standard error is at most this (or --rel-err is met).
     #[arg(long, conflicts_with = "load")]
     pub abs_err: Option<f64>,
-    /// Integrate through the example's channels (the multi-channel examples of `nis list`): a
-    /// sampler of the method per channel, weights adapted, points allocated by σ.
-    #[arg(long, conflicts_with_all = ["load", "save"])]
-    pub channels: bool,
-    /// Split the integrand by sign (auto: when a pilot sees both signs; split; whole), with a
-    /// sampler per channel and sign; without --channels, through one identity channel.
-    #[arg(long, value_enum, conflicts_with_all = ["load", "save"])]
-    pub signs: Option<SignsArg>,
-    /// With --channels or --signs, NIS: a flow for every channel and sign instead of the default
-    /// one flow shared by all, conditioned on the part (docs/results/integration.md, "One flow
-    /// shared by the channels").
-    #[arg(long)]
-    pub flow_per_channel: bool,
-    /// With --channels, NIS: no network refining the channel weights (by default one is fitted
-    /// after the parts adapt, MadNIS's, and kept only when it lowers the variance on held-out
-    /// points).
-    #[arg(long)]
-    pub no_weight_network: bool,
-    /// With --channels: weight the channels by their densities alone, α_k ∝ a_k g_k (the classic
-    /// weights), instead of by the propagators the examples' channels carry as enhancements
-    /// (single-diagram enhancement; docs/guide/02-integrate.md, "Several peaks")
-    #[arg(long)]
-    pub no_enhancement: bool,
+    #[command(flatten)]
+    pub channel: ChannelArgs,
     /// With a target: the most evaluations per method, training included [default: 10^8].
     #[arg(long, conflicts_with = "load")]
     pub max_evals: Option<u64>,
@@ -239,66 +219,49 @@ pub fn run_method(
         ProgressBar::hidden()
     };
     let progress = shows_on(&pb);
-    let mut sums = None;
-    if args.flow_per_channel && !args.multichannel() {
-        return Err("--flow-per-channel needs --channels or --signs".into());
-    }
-    if args.no_weight_network && !args.channels {
-        return Err("--no-weight-network needs --channels".into());
-    }
-    if args.no_enhancement && !args.channels {
-        return Err("--no-enhancement needs --channels".into());
-    }
-    if args.multichannel() {
-        let r = run_multichannel(f, method, args, comm)?;
+    args.channel.check()?;
+    if let (Some(path), Method::Nis) = (&args.load, method) {
+        let mut nis = NisIntegrator::load(path)?;
+        if nis.flow().dim() != f.dim {
+            return Err(format!(
+                "{} holds a {}-dimensional integrator, the integrand has {} dimensions",
+                path.display(),
+                nis.flow().dim(),
+                f.dim
+            )
+            .into());
+        }
+        nis.set_comm(comm.clone());
+        nis.set_seed(args.seed);
+        nis.set_progress(Some(Box::new(progress)));
+        let r = nis.estimate(f, args.evals)?;
         pb.finish_and_clear();
         return Ok(MethodRun {
             result: r,
             rank_checksums: None,
         });
     }
-    let r = match (&args.load, method) {
-        (Some(path), Method::Nis) => {
-            let mut nis = NisIntegrator::load(path)?;
-            if nis.flow().dim() != f.dim {
-                return Err(format!(
-                    "{} holds a {}-dimensional integrator, the integrand has {} dimensions",
-                    path.display(),
-                    nis.flow().dim(),
-                    f.dim
-                )
-                .into());
-            }
-            nis.set_comm(comm.clone());
-            nis.set_seed(args.seed);
-            nis.set_progress(Some(Box::new(progress)));
-            nis.estimate(f, args.evals)?
-        }
-        (None, Method::Nis) => {
-            let mut nis = NisIntegrator::new(f.dim, args.settings()?.nis)?;
-            nis.set_comm(comm.clone());
-            nis.set_progress(Some(Box::new(progress)));
-            let r = match args.target()? {
-                Some(t) => nis.integrate_to(f, &t)?,
-                None => nis.integrate(f, args.evals)?,
-            };
-            sums = rank_checksums(comm, nis.flow().params());
-            // Every rank holds the same flow; one file, written by rank 0 (atomically).
-            if let (Some(path), true) = (&args.save, comm.is_root()) {
-                nis.save(path)?;
-            }
-            r
-        }
-        _ => {
-            let mut integ = nis::integrate::integrator(method, f.dim, &args.settings()?)?;
-            integ.set_comm(comm.clone());
-            integ.set_progress(Some(Box::new(progress)));
-            match args.target()? {
-                Some(t) => integ.integrate_to(f, &t)?,
-                None => integ.integrate(f, args.evals)?,
-            }
-        }
+    // One road for every method, with or without channels: an `Integrator`. Without --channels
+    // or --signs, NIS splits a scalar integrand that changes sign (multichannel::by_default).
+    let mut integ = if args.channel.multichannel() {
+        args.channel.integrator(f, method, args.settings()?)?
+    } else {
+        by_default(method, f.dim, &args.settings()?)?
     };
+    integ.set_comm(comm.clone());
+    integ.set_progress(Some(Box::new(progress)));
+    let r = match args.target()? {
+        Some(t) => integ.integrate_to(f, &t)?,
+        None => integ.integrate(f, args.evals)?,
+    };
+    let mut sums = None;
+    if let Some(nis) = integ.as_nis() {
+        sums = rank_checksums(comm, nis.flow().params());
+        // Every rank holds the same flow; one file, written by rank 0 (atomically).
+        if let (Some(path), true) = (&args.save, comm.is_root()) {
+            nis.save(path)?;
+        }
+    }
     pb.finish_and_clear();
     Ok(MethodRun {
         result: r,
@@ -522,7 +485,15 @@ pub struct SampleArgs {
 /// `nis sample`: trains (or loads) a NIS integrator and writes unweighted points.
 pub fn sample(args: &SampleArgs) -> Result<(), Error> {
     if args.channels {
-        return crate::channels::sample_events(args);
+        let f = integrands::by_name(&args.name, args.dim)?;
+        let request = EventsRequest {
+            seed: args.seed,
+            evals: args.evals,
+            n: args.n,
+            overweight: args.overweight,
+            out: &args.out,
+        };
+        return sample_events(&f, &request);
     }
     let f = integrands::by_name(&args.name, args.dim)?;
     let pb = bar("sample");

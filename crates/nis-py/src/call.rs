@@ -86,7 +86,9 @@ impl<'a> PyIntegrand<'a> {
             [1, k] if *k > 0 => (*k, true),
             s => {
                 return Err(PyValueError::new_err(format!(
-                    "the integrand must return shape (n,) or (n, k) for n points, got {} for n = 1",
+                    "the integrand must return one value per point, shape (n,), or k values per \
+                     point, shape (n, k), for a batch of n points; called on a batch of one \
+                     point it returned shape {}",
                     shape_str(s)
                 )))
             }

@@ -17,7 +17,7 @@ use rand::SeedableRng;
 use rand_pcg::Pcg64Mcg;
 
 use crate::call::{run, with_integrand, Call};
-use crate::{check_parent, count, path_of, rows, to_py_err, PointsAndValues};
+use crate::{check_parent, count, dimension, path_of, rows, to_py_err, PointsAndValues};
 
 /// A normalizing flow on [0, 1]^dim with a uniform latent: a stack of coupling layers
 /// (`coupling` "pq" piecewise-quadratic, "pl" piecewise-linear, "rq" rational-quadratic,
@@ -110,7 +110,7 @@ impl PyFlow {
     ) -> PyResult<PyFlow> {
         let seed = count("seed", seed)? as u64;
         let config = FlowConfig {
-            dim: count("dim", dim)?,
+            dim: dimension("dim", dim)?,
             transform: transform(coupling, bins)?,
             couplings: layers.map(|l| count("layers", l)).transpose()?.unwrap_or(0),
             hidden_layers: count("hidden_layers", hidden_layers)?,

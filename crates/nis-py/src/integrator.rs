@@ -6,9 +6,9 @@ use std::sync::{Arc, Mutex};
 
 use nis::channels::ChannelSet;
 use nis::flow::Density;
-use nis::integrate::multichannel::{MultiChannel, MultiChannelConfig, Signs};
+use nis::integrate::multichannel::{by_default, MultiChannel, MultiChannelConfig, Signs};
 use nis::integrate::nis::NisIntegrator;
-use nis::integrate::{integrator, Integrator, Method, Settings, Target};
+use nis::integrate::{Integrator, Method, Settings, Target};
 use nis::loss::Loss;
 use numpy::{PyArray1, PyArray2, PyArrayMethods};
 use pyo3::exceptions::PyValueError;
@@ -20,7 +20,7 @@ use crate::channel::{PyChannel, Raised};
 use crate::flow::PyFlow;
 use crate::result::PyIntegrationResult;
 use crate::settings::{json_of, keywords};
-use crate::{check_parent, count, path_of, to_py_err, PointsAndValues};
+use crate::{check_parent, count, dimension, path_of, to_py_err, PointsAndValues};
 
 /// A Monte Carlo integrator over [0, 1]^dim that owns its adapted state, like
 /// `vegas.Integrator`.
@@ -41,7 +41,9 @@ use crate::{check_parent, count, path_of, to_py_err, PointsAndValues};
 ///
 /// Multi-channel: `channels=[nis.Channel(...), ...]` integrates with a sampler of `method` per
 /// channel (and per sign of f when it changes sign: `signs="auto"`, the default, or "split",
-/// "whole"); `signs=` alone splits a single-channel integral by sign. Results then carry
+/// "whole"); `signs=` alone splits a single-channel integral by sign. Without either, NIS splits
+/// a scalar integrand whose first points show both signs (`signs="auto"` is the default), while
+/// VEGAS+ and plain MC keep the whole; vector integrands always do. Results then carry
 /// `channel_weights`, `channel_means`, `channel_sdevs`, `channel_evals` and `signs`; precision
 /// targets work as for one channel; `events(f, n)` draws unweighted events that carry their
 /// channel (NIS), and the other NIS-only methods raise ValueError. `channel_settings` (a dict:
@@ -54,7 +56,10 @@ use crate::{check_parent, count, path_of, to_py_err, PointsAndValues};
 #[pyclass(module = "nis", name = "Integrator")]
 pub(crate) struct PyIntegrator {
     // A Mutex only to make the class Sync; methods take `&mut self`, so it is never contended.
-    integrator: Mutex<Engine>,
+    // One integrator whatever it integrates: a method, or channels and/or a sign split.
+    integrator: Mutex<Box<dyn Integrator>>,
+    /// What a multi-channel integrator was made with (None for a single channel).
+    channels: Option<Channels>,
     threads: Option<usize>,
     pool: Option<Arc<rayon::ThreadPool>>,
 }
@@ -66,50 +71,47 @@ type Events<'py> = (
     Bound<'py, PyArray1<u64>>,
 );
 
-/// What integrates: one integrator, or a multi-channel one (channels and/or sign splitting).
-enum Engine {
-    Single(Box<dyn Integrator>),
-    Multi {
-        mc: Box<MultiChannel>,
-        method: Method,
-        /// Channels given (0: `signs` alone, the identity channel).
-        channels: usize,
-        signs: Signs,
-        /// The first exception a Python channel raised in the current call.
-        raised: Arc<Raised>,
-    },
+/// What a multi-channel integrator (channels and/or sign splitting) was made with.
+struct Channels {
+    /// Channels given (0: `signs` alone, the identity channel).
+    count: usize,
+    signs: Signs,
+    /// The first exception a Python channel raised in the current call.
+    raised: Arc<Raised>,
 }
 
 impl PyIntegrator {
     /// What integrates.
-    fn engine(&mut self) -> &mut Engine {
-        self.integrator.get_mut().unwrap_or_else(|p| p.into_inner())
+    fn engine(&mut self) -> &mut dyn Integrator {
+        self.integrator
+            .get_mut()
+            .unwrap_or_else(|p| p.into_inner())
+            .as_mut()
     }
 
     /// The single-channel integrator, for `what` that a multi-channel one does not do.
     fn integrator(&mut self, what: &str) -> PyResult<&mut dyn Integrator> {
-        match self.engine() {
-            Engine::Single(i) => Ok(i.as_mut()),
-            Engine::Multi { .. } => Err(PyValueError::new_err(format!(
+        if self.channels.is_some() {
+            return Err(PyValueError::new_err(format!(
                 "{what} is not available for a multi-channel integrator (one made with channels \
                  or signs): it holds a sampler per channel and sign; use a single-channel \
                  Integrator for it"
-            ))),
+            )));
         }
-    }
-
-    /// The method.
-    fn method_of(&mut self) -> Method {
-        match self.engine() {
-            Engine::Single(i) => i.method(),
-            Engine::Multi { method, .. } => *method,
-        }
+        Ok(self.engine())
     }
 
     /// The integrator as NIS, for `what` that only NIS does.
     fn nis(&mut self, what: &str) -> PyResult<&mut NisIntegrator> {
         let integ = self.integrator(what)?;
         let method = integ.method();
+        if method == Method::Nis && integ.as_multichannel().is_some() {
+            return Err(PyValueError::new_err(format!(
+                "{what} is not available: the integrand changed sign, so it was integrated split \
+                 by sign (signs=\"auto\", the default) with a sampler per sign; pass \
+                 signs=\"whole\" to keep one flow"
+            )));
+        }
         integ.as_nis().ok_or_else(|| {
             PyValueError::new_err(format!(
                 "{what} needs a trained flow: method=\"nis\", not {:?}",
@@ -118,7 +120,11 @@ impl PyIntegrator {
         })
     }
 
-    fn with(integrator: Engine, threads: Option<i64>) -> PyResult<PyIntegrator> {
+    fn with(
+        integrator: Box<dyn Integrator>,
+        channels: Option<Channels>,
+        threads: Option<i64>,
+    ) -> PyResult<PyIntegrator> {
         let threads = threads.map(|t| count("threads", t)).transpose()?;
         let pool = match threads {
             Some(0) => return Err(PyValueError::new_err("threads must be at least 1")),
@@ -132,6 +138,7 @@ impl PyIntegrator {
         };
         Ok(PyIntegrator {
             integrator: Mutex::new(integrator),
+            channels,
             threads,
             pool,
         })
@@ -157,7 +164,7 @@ impl PyIntegrator {
         settings: Option<&Bound<'_, PyDict>>,
     ) -> PyResult<PyIntegrator> {
         let method: Method = method.parse().map_err(to_py_err)?;
-        let dim = count("dim", dim)?;
+        let dim = dimension("dim", dim)?;
         let keywords = keywords(settings)?;
         let settings = Settings::default()
             .with_keywords(
@@ -171,10 +178,9 @@ impl PyIntegrator {
                     "channel_settings needs channels or signs (a multi-channel integrator)",
                 ));
             }
-            return PyIntegrator::with(
-                Engine::Single(integrator(method, dim, &settings).map_err(to_py_err)?),
-                threads,
-            );
+            // By default NIS splits a scalar integrand that changes sign (signs="auto").
+            let integ = by_default(method, dim, &settings).map_err(to_py_err)?;
+            return PyIntegrator::with(integ, None, threads);
         }
         let mut config = match channel_settings {
             None => MultiChannelConfig::default(),
@@ -197,30 +203,20 @@ impl PyIntegrator {
         };
         let raised = Arc::new(Raised::default());
         let signs = config.signs;
-        let (mc, n) = match channels {
-            None => (
-                Box::new(MultiChannel::single(dim, method, settings, config).map_err(to_py_err)?),
-                0,
-            ),
+        let (mc, count) = match channels {
+            None => (MultiChannel::single(dim, method, settings, config), 0),
             Some(list) => {
                 let set = channel_set(py, list, dim, &raised)?;
                 let n = set.len();
-                (
-                    Box::new(MultiChannel::new(set, method, settings, config).map_err(to_py_err)?),
-                    n,
-                )
+                (MultiChannel::new(set, method, settings, config), n)
             }
         };
-        PyIntegrator::with(
-            Engine::Multi {
-                mc,
-                method,
-                channels: n,
-                signs,
-                raised,
-            },
-            threads,
-        )
+        let channels = Channels {
+            count,
+            signs,
+            raised,
+        };
+        PyIntegrator::with(Box::new(mc.map_err(to_py_err)?), Some(channels), threads)
     }
 
     /// Spends `evals` evaluations of `f`: adapts, then estimates ∫ f (the docstring Python
@@ -252,33 +248,22 @@ impl PyIntegrator {
             (_, evals) => count("evals", evals.unwrap_or(1_000_000))? as u64,
         };
         let pool = self.pool.clone();
-        let (mc, raised) = match self.engine() {
-            Engine::Single(integ) => {
-                let integ = integ.as_mut();
-                if let Some(t) = &target {
-                    integ.check_target(t).map_err(to_py_err)?;
-                }
-                return with_integrand(py, f, integ.dim(), |g, vector| {
-                    let r = run(py, pool.as_deref(), g.call, || match &target {
-                        Some(t) => integ.integrate_to(g.f, t),
-                        None => integ.integrate(g.f, evals),
-                    })?;
-                    Ok(PyIntegrationResult::new(r, vector))
-                });
-            }
-            Engine::Multi { mc, raised, .. } => (mc, raised.clone()),
-        };
+        let raised = self.channels.as_ref().map(|c| c.raised.clone());
+        let integ = self.engine();
         if let Some(t) = &target {
-            mc.check_target(t).map_err(to_py_err)?;
+            integ.check_target(t).map_err(to_py_err)?;
         }
-        with_integrand(py, f, mc.dim(), |g, vector| {
-            raised.take();
+        with_integrand(py, f, integ.dim(), |g, vector| {
+            let raised = raised.as_deref();
+            if let Some(r) = raised {
+                r.take();
+            }
             let r = run(py, pool.as_deref(), g.call, || match &target {
-                Some(t) => mc.integrate_to(g.f, t),
-                None => mc.integrate(g.f, evals),
+                Some(t) => integ.integrate_to(g.f, t),
+                None => integ.integrate(g.f, evals),
             });
             // A channel's own exception wins over the library's error it caused.
-            if let (Err(_), Some(e)) = (&r, raised.take()) {
+            if let (Err(_), Some(e)) = (&r, raised.and_then(Raised::take)) {
                 return Err(e);
             }
             Ok(PyIntegrationResult::new(r?, vector))
@@ -393,13 +378,14 @@ impl PyIntegrator {
     ) -> PyResult<Events<'py>> {
         let n = count("n", n)?;
         let pool = self.pool.clone();
-        let Engine::Multi { mc, raised, .. } = self.engine() else {
-            return Err(PyValueError::new_err(
+        let not_multi = || {
+            PyValueError::new_err(
                 "events come from a multi-channel integrator (one made with channels or signs); \
                  use unweighted for a single-channel one",
-            ));
+            )
         };
-        let raised = raised.clone();
+        let raised = self.channels.as_ref().ok_or_else(not_multi)?.raised.clone();
+        let mc = self.engine().as_multichannel().ok_or_else(not_multi)?;
         let dim = mc.dim();
         with_integrand(py, f, dim, |g, _| {
             raised.take();
@@ -434,41 +420,33 @@ impl PyIntegrator {
     fn load(path: &Bound<'_, PyAny>, threads: Option<i64>) -> PyResult<PyIntegrator> {
         let path = path_of(path)?;
         let nis = NisIntegrator::load(&path).map_err(to_py_err)?;
-        PyIntegrator::with(Engine::Single(Box::new(nis)), threads)
+        PyIntegrator::with(Box::new(nis), None, threads)
     }
 
     /// The method: "nis", "vegas" or "uniform".
     #[getter]
     fn method(&mut self) -> &'static str {
-        self.method_of().name()
+        self.engine().method().name()
     }
 
     /// The dimension.
     #[getter]
     fn dim(&mut self) -> usize {
-        match self.engine() {
-            Engine::Single(i) => i.dim(),
-            Engine::Multi { mc, .. } => mc.dim(),
-        }
+        self.engine().dim()
     }
 
     /// The number of channels (None for a single-channel integrator; 1 for `signs` alone).
     #[getter]
-    fn channels(&mut self) -> Option<usize> {
-        match self.engine() {
-            Engine::Single(_) => None,
-            Engine::Multi { channels, .. } => Some((*channels).max(1)),
-        }
+    fn channels(&self) -> Option<usize> {
+        self.channels.as_ref().map(|c| c.count.max(1))
     }
 
     /// The a-priori channel weights the next call starts from (they adapt between calls;
     /// None for a single-channel integrator).
     #[getter]
     fn channel_weights<'py>(&mut self, py: Python<'py>) -> Option<Bound<'py, PyArray1<f64>>> {
-        match self.engine() {
-            Engine::Single(_) => None,
-            Engine::Multi { mc, .. } => Some(PyArray1::from_slice(py, mc.weights())),
-        }
+        let mc = self.engine().as_multichannel()?;
+        Some(PyArray1::from_slice(py, mc.weights()))
     }
 
     /// Threads of its own rayon pool (None: the global pool).
@@ -491,32 +469,27 @@ impl PyIntegrator {
     }
 
     fn __repr__(&mut self) -> String {
-        let integ = match self.engine() {
-            Engine::Single(i) => i.as_mut(),
-            Engine::Multi {
-                mc,
-                method,
-                channels,
-                signs,
-                ..
-            } => {
-                let (dim, method) = (mc.dim(), method.name());
-                let signs = match signs {
-                    Signs::Auto => "auto",
-                    Signs::Split => "split",
-                    Signs::Whole => "whole",
-                };
-                let channels = match channels {
-                    0 => String::new(),
-                    1 => ", channels=[1 channel]".into(),
-                    n => format!(", channels=[{n} channels]"),
-                };
-                return format!(
-                    "nis.Integrator(dim={dim}, method={method:?}{channels}, signs={signs:?})"
-                );
-            }
-        };
+        let (count, signs) = self
+            .channels
+            .as_ref()
+            .map_or((0, None), |c| (c.count, Some(c.signs)));
+        let integ = self.engine();
         let (dim, method) = (integ.dim(), integ.method().name());
+        if let Some(signs) = signs {
+            let signs = match signs {
+                Signs::Auto => "auto",
+                Signs::Split => "split",
+                Signs::Whole => "whole",
+            };
+            let channels = match count {
+                0 => String::new(),
+                1 => ", channels=[1 channel]".into(),
+                n => format!(", channels=[{n} channels]"),
+            };
+            return format!(
+                "nis.Integrator(dim={dim}, method={method:?}{channels}, signs={signs:?})"
+            );
+        }
         match integ.as_nis() {
             Some(n) => format!(
                 "nis.Integrator(dim={dim}, method=\"nis\", coupling={:?}, loss={:?}, seed={})",

@@ -94,6 +94,16 @@ pub(crate) fn count(name: &str, v: i64) -> PyResult<usize> {
         .map_err(|_| PyValueError::new_err(format!("{name} must be non-negative, got {v}")))
 }
 
+/// A dimension: at least 1 (a negative or zero `dim` is a ValueError that says so).
+pub(crate) fn dimension(name: &str, v: i64) -> PyResult<usize> {
+    match usize::try_from(v) {
+        Ok(d) if d >= 1 => Ok(d),
+        _ => Err(PyValueError::new_err(format!(
+            "{name} must be a positive integer (1 or more), got {v}"
+        ))),
+    }
+}
+
 /// A path-like argument as a path.
 pub(crate) fn path_of(obj: &Bound<'_, PyAny>) -> PyResult<std::path::PathBuf> {
     obj.extract::<std::path::PathBuf>()

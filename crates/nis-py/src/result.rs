@@ -158,7 +158,9 @@ impl PyIntegrationResult {
         Some(PyArray1::from_slice(py, &c.weights))
     }
 
-    /// Multi-channel results: each channel's contribution F_k = ∫ α_k f (they sum to `mean`).
+    /// Multi-channel results: each channel's weighted share F_k = ∫ α_k f of the integral (α_k
+    /// the channel weights, which sum to one at every point; they sum to `mean`). Not the
+    /// integral of the peak the channel maps: a channel's share depends on the weights.
     #[getter]
     fn channel_means<'py>(&self, py: Python<'py>) -> Option<Bound<'py, PyArray1<f64>>> {
         let c = self.r.channels.as_ref()?;

@@ -206,6 +206,25 @@ def test_a_plus_minus_pair_is_split_by_sign():
     assert whole.signs is None and within(whole, 0.2)
 
 
+def test_nis_splits_a_sign_changing_integrand_by_default():
+    # f = x₀ − 0.3 again, no signs given: NIS's first points see both signs and the integral is
+    # split; VEGAS+ and a positive integrand keep the whole, the latter bit for bit.
+    def f(x):
+        return x[:, 0] - 0.3
+
+    integ = nis.Integrator(2, seed=4)
+    assert integ.channels is None
+    r = integ(f, evals=100_000)
+    assert r.signs is not None and within(r, 0.2)
+    assert r.n_eval <= 100_000
+    with pytest.raises(ValueError, match="changed sign"):
+        integ.train(f, 1000)
+    assert nis.Integrator(2, "vegas", seed=4)(f, evals=100_000).signs is None
+    g = nis.integrands.gauss(dim=2)
+    r = nis.Integrator(2, seed=5)(g, evals=100_000)
+    assert r.signs is None and r.n_eval == 100_000
+
+
 def test_two_peaks_of_opposite_sign_with_channels():
     def f(x):
         (m1, _), (m2, _) = PEAKS

@@ -36,7 +36,7 @@ impl Loss {
     /// The loss `Auto` stands for: KL for a whole integrand (mode-covering: it finds every peak
     /// more often), χ² for a part of a multi-channel integral (`part`), which the channel's map
     /// has already made nearly flat over its cube, where minimising the variance itself gave
-    /// 1.1–1.6× lower variance per evaluation on every multi-channel and signed example
+    /// lower variance per evaluation on every multi-channel and signed example
     /// (docs/results/integration.md, "One flow shared by the channels"). Other losses unchanged.
     pub fn resolve(self, part: bool) -> Loss {
         match self {

@@ -20,7 +20,7 @@ use std::time::Instant;
 
 use nis::channels::{examples, Channel, ChannelFn, ChannelSet};
 use nis::integrate::multichannel::{MultiChannel, MultiChannelConfig, Signs};
-use nis::integrate::{integrator, Integrand, IntegrationResult, Method, Settings};
+use nis::integrate::{integrator, Integrand, IntegrationResult, Integrator, Method, Settings};
 
 use crate::error::Result;
 use crate::report;

@@ -36,9 +36,9 @@ _integrate = Integrator.__call__
 
 
 def _call(self, f, evals=None, *, rel_err=None, abs_err=None, max_evals=None, max_seconds=None):
-    """Spends ``evals`` evaluations of ``f`` (default 10⁶): adapts on a share of them
-    (continuing from earlier calls), then estimates ∫ f with the rest, the sampler frozen;
-    returns an ``IntegrationResult``.
+    """Spends ``evals`` evaluations of ``f`` (10⁶ when neither ``evals`` nor a target is
+    given): adapts on a share of them (continuing from earlier calls), then estimates ∫ f with
+    the rest, the sampler frozen; returns an ``IntegrationResult``.
 
     With ``rel_err`` and/or ``abs_err`` instead of ``evals`` it integrates until
     ``sdev <= max(abs_err, rel_err * |mean|)`` or a limit is reached: ``max_evals``

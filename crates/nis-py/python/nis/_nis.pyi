@@ -82,7 +82,9 @@ class IntegrationResult:
         None for a single-channel result."""
     @property
     def channel_means(self) -> Optional[npt.NDArray[np.float64]]:
-        """Multi-channel results: each channel's contribution ∫ α_k f (they sum to ``mean``)."""
+        """Multi-channel results: each channel's weighted share ∫ α_k f of the integral (α_k the
+        channel weights, which sum to one at every point; the shares sum to ``mean``). Not the
+        integral of the peak the channel maps: a share depends on the weights."""
     @property
     def channel_sdevs(self) -> Optional[npt.NDArray[np.float64]]:
         """Multi-channel results: the standard errors of ``channel_means``."""
@@ -134,7 +136,9 @@ class Integrator:
     ∫ f = Σ_k ∫ α_k f, α_k = a_k g_k/Σ_j a_j g_j, with a sampler of ``method`` per channel;
     the priors adapt between adapting and estimating. ``signs``: "auto" (the default with
     channels: split f into f⁺ and f⁻, a sampler each, when a pilot sees both signs), "split"
-    (always) or "whole" (never); ``signs`` without ``channels`` splits a single-channel
+    (always) or "whole" (never). Without ``channels`` and ``signs``, NIS splits a scalar
+    integrand whose first points show both signs (auto is the default); VEGAS+ and plain MC keep
+    the whole; vector integrands always do. ``signs`` without ``channels`` splits a single-channel
     integral by sign. Such an integrator integrates scalar integrands on a budget
     (``integ(f, evals)``) or to a precision target (``integ(f, rel_err=…)``), its results carry
     ``channel_weights``, ``channel_means``, ``channel_sdevs``, ``channel_evals`` and
@@ -204,9 +208,9 @@ class Integrator:
         max_evals: Optional[int] = None,
         max_seconds: Optional[float] = None,
     ) -> IntegrationResult:
-        """Spends ``evals`` evaluations of ``f`` (default 10⁶): adapts on a share of them
-        (continuing from earlier calls), then estimates ∫ f with the rest, the sampler frozen;
-        returns an ``IntegrationResult``.
+        """Spends ``evals`` evaluations of ``f`` (10⁶ when neither ``evals`` nor a target is
+        given): adapts on a share of them (continuing from earlier calls), then estimates ∫ f with
+        the rest, the sampler frozen; returns an ``IntegrationResult``.
 
         With ``rel_err`` and/or ``abs_err`` instead of ``evals`` it integrates until
         ``sdev <= max(abs_err, rel_err * |mean|)`` or a limit is reached: ``max_evals``

@@ -5,7 +5,7 @@ use rayon::prelude::*;
 use super::check::{points, same_len};
 use super::Channel;
 use crate::error::Result;
-use crate::integrate::points_per_task;
+use crate::kernels::points_per_task;
 
 /// A channel from closures: `sample(u, x)` writes φ(u) for one point, `density(x)` returns g(x)
 /// at one point. Batches are evaluated in parallel, as closure integrands are.

@@ -121,20 +121,23 @@ impl FlowConfig {
     pub fn validate(&self) -> Result<()> {
         let bad = |m: String| Err(Error::Config(m));
         if self.dim == 0 || self.dim > MAX_DIM {
-            return bad(format!("dimension must be 1..={MAX_DIM}, got {}", self.dim));
+            return bad(format!(
+                "dimension must be between 1 and {MAX_DIM}, got {}",
+                self.dim
+            ));
         }
         if self.couplings > 1024 {
             return bad(format!("too many coupling layers: {}", self.couplings));
         }
         if self.hidden_width == 0 || self.hidden_width > 1 << 16 || self.hidden_layers > 64 {
             return bad(format!(
-                "conditioner needs 1..=65536 hidden units and at most 64 layers, got {} × {}",
+                "conditioner needs between 1 and 65536 hidden units and at most 64 layers, got {} × {}",
                 self.hidden_layers, self.hidden_width
             ));
         }
         if self.blob_bins == 0 || self.blob_bins > 1024 {
             return bad(format!(
-                "one-blob bins must be 1..=1024, got {}",
+                "one-blob bins must be between 1 and 1024, got {}",
                 self.blob_bins
             ));
         }

@@ -2,82 +2,16 @@
 //! (docs/INTEGRANDS.md lists them with the derivations; every value is re-derived in the tests
 //! below and in `correlated`'s).
 
+pub(crate) mod builtin;
 mod correlated;
 mod physics;
 
 use std::f64::consts::PI;
 
+pub use self::builtin::{Builtin, SuiteEntry};
 use crate::channels::examples;
+pub use crate::channels::examples::MULTI_CHANNEL;
 use crate::error::{Error, Result};
-use crate::integrate::Integrand;
-
-/// A point function of the suite.
-type PointFn = Box<dyn Fn(&[f64]) -> f64 + Send + Sync>;
-
-/// A built-in integrand with its exact value.
-pub struct Builtin {
-    /// Name as the CLI knows it.
-    pub name: String,
-    /// The dimension it is defined in.
-    pub dim: usize,
-    /// The exact integral over the unit hypercube.
-    pub exact: f64,
-    /// Uncertainty of `exact` where it is known only numerically (0 if exact).
-    pub exact_err: f64,
-    /// Where the integrand and its value come from.
-    pub source: &'static str,
-    f: PointFn,
-}
-
-impl std::fmt::Debug for Builtin {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        write!(f, "{} (d = {}, exact {})", self.name, self.dim, self.exact)
-    }
-}
-
-impl Builtin {
-    /// A built-in from its point function (the name is set by `by_name`).
-    pub(crate) fn from_fn(
-        dim: usize,
-        exact: f64,
-        exact_err: f64,
-        source: &'static str,
-        f: impl Fn(&[f64]) -> f64 + Send + Sync + 'static,
-    ) -> Builtin {
-        Builtin {
-            name: String::new(),
-            dim,
-            exact,
-            exact_err,
-            source,
-            f: Box::new(f),
-        }
-    }
-
-    /// f(x) at one point.
-    pub fn value(&self, x: &[f64]) -> f64 {
-        (self.f)(x)
-    }
-}
-
-impl Integrand for Builtin {
-    fn dim(&self) -> Option<usize> {
-        Some(self.dim)
-    }
-    fn eval_batch(&self, x: &[f64], dim: usize, out: &mut [f64]) -> Result<()> {
-        (&*self.f).eval_batch(x, dim, out)
-    }
-}
-
-/// One entry of the suite listing: a name, the dimensions it is run in, a description.
-pub struct SuiteEntry {
-    /// Name as `by_name` knows it.
-    pub name: &'static str,
-    /// The dimensions the benchmark runs it in.
-    pub dims: &'static [usize],
-    /// One line for `nis list`.
-    pub description: &'static str,
-}
 
 /// The suite the benchmark runs, with its dimensions; `by_name` also knows [`COSTLY`].
 pub const SUITE: &[SuiteEntry] = &[
@@ -160,37 +94,6 @@ pub const SUITE: &[SuiteEntry] = &[
         name: "ridge",
         dims: &[2, 4, 8],
         description: "a peak on a thin curved ridge x_i = g_i(x₁) (non-separable)",
-    },
-];
-
-/// The multi-channel examples (`nis::channels::examples` gives their channels): `by_name` knows
-/// them and `nis integrate` runs them with any method, but the benchmark suite does not (their
-/// point is the channels, and `gauss-pm`'s exact value is 0).
-pub const MULTI_CHANNEL: &[SuiteEntry] = &[
-    SuiteEntry {
-        name: "gauss-pm",
-        dims: &[2],
-        description: "a positive and a negative Gaussian, exact 0 (MadNIS multi-channel toy)",
-    },
-    SuiteEntry {
-        name: "dalitz",
-        dims: &[2],
-        description: "D → Kππ Dalitz plot, coherent K*(892) in s12 and ρ(770) in s23",
-    },
-    SuiteEntry {
-        name: "resonances-4d",
-        dims: &[4],
-        description: "three narrow Cauchy peaks in x0+x1, x2·x3, x1−x3",
-    },
-    SuiteEntry {
-        name: "phase-space-8d",
-        dims: &[8],
-        description: "massless 1→4 phase space, Z-like pairs in s12·s34 and s14·s23",
-    },
-    SuiteEntry {
-        name: "resonances-100",
-        dims: &[4],
-        description: "100 narrow Cauchy peaks in sums of coordinate pairs (100 channels)",
     },
 ];
 

@@ -6,7 +6,7 @@
 
 use serde::{Deserialize, Serialize};
 
-use super::result::{Iteration, Source};
+use super::iteration::{Iteration, Source};
 
 /// The convergence figures of one result; `None` where a figure is undefined (no training
 /// batches in the estimate, too few iterations or batches).

@@ -7,7 +7,8 @@ use std::time::Instant;
 
 use super::convergence::Convergence;
 use super::diagnostics::WeightTail;
-use super::moments::{bytes_to_f64s, f64s_to_bytes};
+use super::integrand::column;
+use super::moments::{bytes_to_f64s, f64s_to_bytes, Moments, CHUNK};
 use super::result::{ComponentEstimates, IntegrationResult, Iteration, Source};
 use crate::comm::Comm;
 use crate::error::{Error, Result};
@@ -256,7 +257,7 @@ impl Accumulator {
     /// Adds one iteration of i.i.d. weights w_i = f_i/q_i of the final phase (one process).
     #[cfg(test)]
     pub(crate) fn add_weights(&mut self, w: &[f64]) -> Result<()> {
-        let mut m = super::moments::Moments::new(1);
+        let mut m = Moments::new(1);
         m.add(w);
         self.observe(w);
         self.add(m.iteration(Source::Final))
@@ -327,6 +328,31 @@ pub(crate) fn chi2_per_dof(its: &[Iteration], value: f64, own_variances: bool) -
     } else {
         f64::NAN
     }
+}
+
+/// One iteration of `n` i.i.d. weights over all ranks of `comm`, the loop of every method that
+/// draws i.i.d. points: this rank's share drawn by `draw` (m → the `m × k` weights of m new
+/// points) in chunks of at most [`CHUNK`], each chunk's component 0 seen by `acc`'s reliability
+/// figures, and the ranks' moments merged in rank order. An error on any rank stops every rank.
+pub(crate) fn iid_iteration(
+    comm: &Comm,
+    n: u64,
+    k: usize,
+    acc: &mut Accumulator,
+    mut draw: impl FnMut(usize) -> Result<Vec<f64>>,
+) -> Result<Iteration> {
+    let mine = comm.share(n);
+    let mut moments = Moments::new(k);
+    let mut drawn = Ok(());
+    while drawn.is_ok() && moments.n() < mine {
+        let m = (mine - moments.n()).min(CHUNK as u64) as usize;
+        drawn = draw(m).map(|w| {
+            acc.observe(&column(&w, k, 0));
+            moments.add(&w);
+        });
+    }
+    comm.check(drawn)?;
+    Ok(moments.across(comm).iteration(Source::Final))
 }
 
 #[cfg(test)]

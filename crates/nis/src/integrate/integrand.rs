@@ -10,6 +10,7 @@ use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
 use crate::error::{Error, Result};
+pub use crate::kernels::points_per_task;
 
 /// A function to integrate over [0, 1]^d, evaluated in batches; it may return several values per
 /// point ([`Integrand::components`]) and may fail ([`Error::IntegrandFailed`]).
@@ -52,14 +53,6 @@ pub trait Integrand: Sync {
     fn components(&self) -> usize {
         1
     }
-}
-
-/// Points per parallel work item when evaluating a batch of `n` points: 256 for large batches,
-/// and a sixteenth of a smaller one (a training batch of 256 points: 16 items of 16), so that an
-/// expensive integrand keeps every core busy while the flow trains on small batches. Each value
-/// is computed independently, so the split affects speed only, never the values.
-pub fn points_per_task(n: usize) -> usize {
-    n.div_ceil(16).clamp(1, 256)
 }
 
 impl<F: Fn(&[f64]) -> f64 + Sync> Integrand for F {

@@ -16,6 +16,8 @@ mod convergence;
 pub mod diagnostics;
 mod estimate;
 mod integrand;
+mod iteration;
+mod method;
 mod moments;
 pub mod multichannel;
 pub mod nis;
@@ -27,7 +29,6 @@ pub mod unweight;
 pub mod vegas;
 
 use std::path::Path;
-use std::str::FromStr;
 
 use serde::{Deserialize, Serialize};
 
@@ -38,11 +39,12 @@ pub use convergence::{Convergence, ConvergenceWarning, DIVERGENCE_LIMIT, RECALLE
 pub use diagnostics::{Reliability, PARETO_K_LIMIT};
 pub use estimate::Accumulator;
 pub use integrand::{check_dim, evaluate, points_per_task, Integrand, TrainOn, VectorFn};
+pub use method::Method;
 pub use result::{
-    disagreements, ComponentEstimates, IntegrationResult, Iteration, IterationComponents, Source,
-    DISAGREEMENT_SIGMAS,
+    disagreements, ChannelReport, ComponentEstimates, IntegrationResult, Iteration,
+    IterationComponents, SignReport, Source, Stop, DISAGREEMENT_SIGMAS,
 };
-pub use target::{Stop, Target, DEFAULT_MAX_EVALS};
+pub use target::{Target, DEFAULT_MAX_EVALS};
 
 /// Receives progress reports: evaluations done so far in the current call, evaluations planned
 /// for it, and a short status. Closures `FnMut(u64, u64, &str) + Send` are observers.
@@ -139,59 +141,10 @@ pub trait Integrator: Send {
     fn as_nis(&mut self) -> Option<&mut nis::NisIntegrator> {
         None
     }
-}
-
-/// The integration methods, by name for the front ends (`"nis"`, `"vegas"`, `"uniform"`).
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Serialize, Deserialize)]
-#[serde(rename_all = "snake_case")]
-pub enum Method {
-    /// Neural importance sampling: [`nis::NisIntegrator`].
-    Nis,
-    /// VEGAS+: [`vegas::Vegas`].
-    Vegas,
-    /// Plain Monte Carlo with uniform points: [`uniform::PlainMc`].
-    Uniform,
-}
-
-impl Method {
-    /// Every method, in the order front ends list them.
-    pub const ALL: [Method; 3] = [Method::Nis, Method::Vegas, Method::Uniform];
-
-    /// The name `FromStr` reads.
-    pub fn name(self) -> &'static str {
-        match self {
-            Method::Nis => "nis",
-            Method::Vegas => "vegas",
-            Method::Uniform => "uniform",
-        }
-    }
-
-    /// A short label for tables ("vegas+" for VEGAS+).
-    pub fn label(self) -> &'static str {
-        match self {
-            Method::Vegas => "vegas+",
-            m => m.name(),
-        }
-    }
-}
-
-impl std::fmt::Display for Method {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.write_str(self.name())
-    }
-}
-
-impl FromStr for Method {
-    type Err = Error;
-    fn from_str(s: &str) -> Result<Method> {
-        Method::ALL
-            .into_iter()
-            .find(|m| m.name() == s)
-            .ok_or_else(|| {
-                Error::Config(format!(
-                    "unknown integration method {s:?}: expected nis, vegas or uniform"
-                ))
-            })
+    /// This integrator as a multi-channel one, for what only it does (its channel weights,
+    /// events that carry their channel); `None` for the methods on their own.
+    fn as_multichannel(&mut self) -> Option<&mut multichannel::MultiChannel> {
+        None
     }
 }
 

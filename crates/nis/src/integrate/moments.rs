@@ -1,39 +1,12 @@
 //! The mean and covariance of an iteration's i.i.d. weights, added chunk by chunk and merged
-//! over ranks in a fixed order (Chan, Golub and LeVeque 1979), and the iteration they make.
+//! over ranks in a fixed order (Chan, Golub and LeVeque 1979), and the iteration they make
+//! ([`super::estimate::iid_iteration`] is the loop that draws them).
 
-use super::integrand::column;
-use super::result::{Iteration, Source};
-use super::Accumulator;
+use super::iteration::{Iteration, Source};
 use crate::comm::Comm;
-use crate::error::Result;
 
 /// Points drawn and evaluated at once: an iteration's memory, whatever the budget.
 pub(crate) const CHUNK: usize = 1 << 16;
-
-/// One iteration of `n` i.i.d. weights over all ranks of `comm`, the loop of every method that
-/// draws i.i.d. points: this rank's share drawn by `draw` (m → the `m × k` weights of m new
-/// points) in chunks of at most [`CHUNK`], each chunk's component 0 seen by `acc`'s reliability
-/// figures, and the ranks' moments merged in rank order. An error on any rank stops every rank.
-pub(crate) fn iid_iteration(
-    comm: &Comm,
-    n: u64,
-    k: usize,
-    acc: &mut Accumulator,
-    mut draw: impl FnMut(usize) -> Result<Vec<f64>>,
-) -> Result<Iteration> {
-    let mine = comm.share(n);
-    let mut moments = Moments::new(k);
-    let mut drawn = Ok(());
-    while drawn.is_ok() && moments.n() < mine {
-        let m = (mine - moments.n()).min(CHUNK as u64) as usize;
-        drawn = draw(m).map(|w| {
-            acc.observe(&column(&w, k, 0));
-            moments.add(&w);
-        });
-    }
-    comm.check(drawn)?;
-    Ok(moments.across(comm).iteration(Source::Final))
-}
 
 /// The moments of one iteration's i.i.d. weight vectors (`k` components), added chunk by chunk:
 /// each chunk's mean and co-moments by two passes, merged into the running ones with the

@@ -1,10 +1,12 @@
 //! What an integration reports: [`IntegrationResult`], its [`Iteration`]s, and
-//! [`ComponentEstimates`] for vector-valued integrands. [`super::Accumulator`] makes it.
+//! [`ComponentEstimates`] for vector-valued integrands, a multi-channel [`ChannelReport`] and why a
+//! run to a target stopped ([`Stop`]). Imports nothing above the statistics it reports;
+//! [`super::Accumulator`] makes it.
 
 use serde::{Deserialize, Serialize};
 
 use super::convergence::Convergence;
-use super::target::Stop;
+pub use super::iteration::{Iteration, IterationComponents, Source};
 
 /// The outcome of an integration, the same for every method.
 #[derive(Clone, Debug, Default, Serialize, Deserialize)]
@@ -49,7 +51,7 @@ pub struct IntegrationResult {
     pub iterations: Vec<Iteration>,
     /// Every channel's contribution, for a multi-channel integral (`None` otherwise).
     #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub channels: Option<super::multichannel::ChannelReport>,
+    pub channels: Option<ChannelReport>,
     /// Why a run to a precision target stopped (`None` for a run on a budget).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub stop: Option<Stop>,
@@ -61,7 +63,7 @@ pub struct IntegrationResult {
     /// integrating to a target leaves it to VEGAS+ when that gets there sooner with no warning
     /// (`NisConfig::race_vegas`); `None` otherwise.
     #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub answered_by: Option<super::Method>,
+    pub answered_by: Option<super::method::Method>,
     /// Every component's estimate, for integrands with more than one component (`None` for
     /// scalar integrands, whose one component is `value` ± `std_err`; see
     /// [`IntegrationResult::estimates`] for a view that covers both).
@@ -109,9 +111,9 @@ pub fn disagreements(results: &[(&str, &IntegrationResult)], sigmas: f64) -> Vec
 }
 
 impl IntegrationResult {
-    /// Its reliability figures ([`super::Reliability::warning`] gives the k̂ warning they make).
-    pub fn reliability(&self) -> super::Reliability {
-        super::Reliability {
+    /// Its reliability figures ([`super::diagnostics::Reliability::warning`] gives the k̂ warning they make).
+    pub fn reliability(&self) -> super::diagnostics::Reliability {
+        super::diagnostics::Reliability {
             pareto_k: self.pareto_k,
             ess: self.ess,
             var_rel_err: self.var_rel_err,
@@ -132,10 +134,14 @@ impl IntegrationResult {
     }
 }
 
-/// A readable summary, as `vegas`'s `result.summary()`: the final phase's iterations, the result,
-/// and every component of a vector-valued integrand.
+/// A readable summary, as `vegas`'s `result.summary()`: the final phase's iterations (a
+/// multi-channel result: each channel's share and, split by sign, F⁺ and F⁻), the result, and
+/// every component of a vector-valued integrand.
 impl std::fmt::Display for IntegrationResult {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        if let Some(c) = &self.channels {
+            return self.fmt_channels(c, f);
+        }
         writeln!(
             f,
             "{:>5}  {:<8}  {:>24}  {:>10}",
@@ -153,16 +159,70 @@ impl std::fmt::Display for IntegrationResult {
             )?;
         }
         let estimated: u64 = self.iterations.iter().map(|i| i.evals).sum();
+        self.fmt_adapting(estimated, 5, f)?;
+        self.fmt_summary(f)
+    }
+}
+
+impl IntegrationResult {
+    /// The table of a multi-channel result: a row per channel (its share ∫ α_k f of the
+    /// integral, which moves with the weights a_k), F⁺ and F⁻ when split by sign, then the rest.
+    fn fmt_channels(&self, c: &ChannelReport, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        writeln!(
+            f,
+            "{:>7}  {:>8}  {:>24}  {:>10}",
+            "channel", "weight", "share ± std_err", "evals"
+        )?;
+        for k in 0..c.means.len() {
+            writeln!(
+                f,
+                "{k:>7}  {:>8.4}  {:>12.6e} ± {:<9.2e}  {:>10}",
+                c.weights[k], c.means[k], c.std_errs[k], c.evals[k]
+            )?;
+        }
+        if let Some(s) = &c.signs {
+            writeln!(
+                f,
+                "{:>7}  {:>8}  {:>12.6e} ± {:<9.2e}",
+                "f > 0", "", s.positive, s.positive_err
+            )?;
+            writeln!(
+                f,
+                "{:>7}  {:>8}  {:>12.6e} ± {:<9.2e}  ({:.1}% of the events negative)",
+                "f < 0",
+                "",
+                s.negative,
+                s.negative_err,
+                100.0 * s.negative_fraction
+            )?;
+        }
+        self.fmt_adapting(c.evals.iter().sum(), 7, f)?;
+        self.fmt_summary(f)
+    }
+
+    /// The row of the evaluations that only adapted, when there are any (`estimated` made the
+    /// estimate), its first column `first` wide as the table's.
+    fn fmt_adapting(
+        &self,
+        estimated: u64,
+        first: usize,
+        f: &mut std::fmt::Formatter<'_>,
+    ) -> std::fmt::Result {
         if self.n_eval > estimated {
             writeln!(
                 f,
-                "{:>5}  {:<8}  {:>24}  {:>10}",
+                "{:>first$}  {:<8}  {:>24}  {:>10}",
                 "",
                 "adapting",
                 "(not in the estimate)",
                 self.n_eval - estimated
             )?;
         }
+        Ok(())
+    }
+
+    /// The result's line, and what follows it.
+    fn fmt_summary(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         write!(
             f,
             "result {:.8e} ± {:.3e}   χ²/dof {:.2}   k̂ {:.2}   ESS {:.3e}   n_eval {}   \
@@ -204,79 +264,54 @@ pub struct ComponentEstimates {
     pub cov: Vec<f64>,
 }
 
-/// Where an iteration's points came from.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+/// Why a run to a precision target ([`Target`](super::Target)) stopped.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
-pub enum Source {
-    /// The frozen sampler of a final phase (for VEGAS+, an iteration after the warm-up).
-    #[default]
-    Final,
-    /// Training batches that joined the estimate, pooled (NIS's `reuse_training`).
-    Training,
+pub enum Stop {
+    /// The error bar met the target.
+    Target,
+    /// `max_evals` was reached first.
+    MaxEvals,
+    /// `max_seconds` was reached first.
+    MaxSeconds,
 }
 
-impl Source {
-    /// A short name for tables.
-    pub fn label(self) -> &'static str {
+impl Stop {
+    /// The name JSON and the front ends use.
+    pub fn name(self) -> &'static str {
         match self {
-            Source::Final => "final",
-            Source::Training => "training",
+            Stop::Target => "target",
+            Stop::MaxEvals => "max_evals",
+            Stop::MaxSeconds => "max_seconds",
         }
     }
 }
 
-/// One iteration of an estimate: what it adds to the result.
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-pub struct Iteration {
-    /// The iteration's estimate of the integral (component 0).
-    pub estimate: f64,
-    /// The variance of that estimate.
-    pub variance: f64,
-    /// Its evaluations of the integrand, over all ranks.
-    pub evals: u64,
-    /// Where its points came from.
-    #[serde(default)]
-    pub source: Source,
-    /// The largest |w| and Σ|w| of its weights f/q (component 0, over all ranks): the
-    /// unweighting efficiency of the final sampler, and whether its variance is representable.
-    #[serde(default)]
-    pub max_abs_w: f64,
-    #[serde(default)]
-    pub sum_abs_w: f64,
-    /// Every component's mean and the covariance of those means, for integrands of more than
-    /// one component.
+/// Every channel's contribution to a multi-channel estimate.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct ChannelReport {
+    /// The a-priori weights a_k the estimate used (summing to one).
+    pub weights: Vec<f64>,
+    /// Each channel's contribution F_k = ∫ α_k f (F⁺_k − F⁻_k when split by sign).
+    pub means: Vec<f64>,
+    /// Their standard errors.
+    pub std_errs: Vec<f64>,
+    /// The estimate's evaluations in each channel.
+    pub evals: Vec<u64>,
+    /// F⁺ and F⁻ when the integrand was split by sign.
     #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub components: Option<IterationComponents>,
+    pub signs: Option<SignReport>,
 }
 
-/// An iteration's estimates of every component of a vector-valued integrand.
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-pub struct IterationComponents {
-    /// The mean of each of the k components.
-    pub mean: Vec<f64>,
-    /// The k × k covariance of those means, row-major.
-    pub cov: Vec<f64>,
-}
-
-impl Iteration {
-    /// The iteration whose estimates of the k components are `mean` with covariance `cov`
-    /// (`k × k`): component 0 is its estimate; more than one component are kept as such.
-    pub fn new(
-        source: Source,
-        mean: Vec<f64>,
-        cov: Vec<f64>,
-        evals: u64,
-        max_abs_w: f64,
-        sum_abs_w: f64,
-    ) -> Iteration {
-        Iteration {
-            estimate: mean[0],
-            variance: cov[0],
-            evals,
-            source,
-            max_abs_w,
-            sum_abs_w,
-            components: (mean.len() > 1).then_some(IterationComponents { mean, cov }),
-        }
-    }
+/// The positive and negative parts of a signed integral, F = F⁺ − F⁻.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct SignReport {
+    /// F⁺ = ∫ max(f, 0).
+    pub positive: f64,
+    pub positive_err: f64,
+    /// F⁻ = ∫ max(−f, 0).
+    pub negative: f64,
+    pub negative_err: f64,
+    /// F⁻/(F⁺ + F⁻): the share of unweighted events that carry a negative weight.
+    pub negative_fraction: f64,
 }

@@ -277,6 +277,17 @@ fn keyword_path(method: Method, name: &str, value: Value) -> Result<(Vec<String>
     Ok((vec![method.name().to_string(), name.to_string()], value))
 }
 
+impl NisConfig {
+    /// These settings with the JSON object `patch` laid over them by the one reader of settings
+    /// (`integrate::settings`): a field it names is replaced, an object it gives for an object
+    /// (`"flow"`, `"adam"`, `"stratify"`) changes the fields it names and keeps the others of
+    /// `self` (what `nis integrate --nis-config` applies on top of its own options). Not
+    /// checked: building the integrator checks it.
+    pub fn patched(&self, patch: serde_json::Value) -> Result<NisConfig> {
+        overlaid(self, patch)
+    }
+}
+
 /// `current` with the JSON object `patch` laid over it, read back as a `T`; an error names the
 /// path of the first field that the reader refuses on its own.
 pub(crate) fn overlaid<T: Serialize + DeserializeOwned>(current: &T, patch: Value) -> Result<T> {

@@ -17,7 +17,7 @@ use std::time::Instant;
 
 use serde::{Deserialize, Serialize};
 
-use super::result::{IntegrationResult, Iteration};
+use super::result::{IntegrationResult, Iteration, Stop};
 use crate::comm::Comm;
 use crate::error::{Error, Result};
 
@@ -148,29 +148,6 @@ impl Target {
             ));
         }
         Ok(())
-    }
-}
-
-/// Why a run to a [`Target`] stopped.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
-#[serde(rename_all = "snake_case")]
-pub enum Stop {
-    /// The error bar met the target.
-    Target,
-    /// `max_evals` was reached first.
-    MaxEvals,
-    /// `max_seconds` was reached first.
-    MaxSeconds,
-}
-
-impl Stop {
-    /// The name JSON and the front ends use.
-    pub fn name(self) -> &'static str {
-        match self {
-            Stop::Target => "target",
-            Stop::MaxEvals => "max_evals",
-            Stop::MaxSeconds => "max_seconds",
-        }
     }
 }
 

@@ -80,6 +80,14 @@ pub fn in_pool<R: Send>(op: impl FnOnce() -> R + Send) -> R {
     rayon::scope(|_| op())
 }
 
+/// Points per parallel work item when evaluating a batch of `n` points: 256 for large batches,
+/// and a sixteenth of a smaller one (a training batch of 256 points: 16 items of 16), so that an
+/// expensive integrand keeps every core busy while the flow trains on small batches. Each value
+/// is computed independently, so the split affects speed only, never the values.
+pub fn points_per_task(n: usize) -> usize {
+    n.div_ceil(16).clamp(1, 256)
+}
+
 /// Rows per parallel work item of a large batch. Fixed, so results do not depend on the number
 /// of threads.
 pub const CHUNK_ROWS: usize = 512;

@@ -16,7 +16,7 @@
 
 use super::quadrature::integrate;
 use crate::channels::{BreitWigner, Channel, ChannelFn};
-use crate::integrands::Builtin;
+use crate::integrands::builtin::Builtin;
 
 /// Masses (GeV): the D⁺, then particles 1 (K), 2 and 3 (π).
 const MASSES: [f64; 4] = [1.869_66, 0.493_677, 0.139_570_39, 0.139_570_39];

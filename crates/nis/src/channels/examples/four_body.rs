@@ -26,7 +26,7 @@ use std::f64::consts::PI;
 
 use super::quadrature::integrate;
 use crate::channels::{BreitWigner, Channel, ChannelFn};
-use crate::integrands::Builtin;
+use crate::integrands::builtin::Builtin;
 
 /// The Z's mass and width in units of M = 125 GeV (91.1876 and 2.4952 GeV).
 pub(crate) const Z: (f64, f64) = (91.1876 / 125.0, 2.4952 / 125.0);

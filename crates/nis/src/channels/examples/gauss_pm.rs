@@ -10,7 +10,7 @@
 //! the derivative g(y) = b/(1 + y(b − 1))².
 
 use crate::channels::{Channel, ChannelFn};
-use crate::integrands::Builtin;
+use crate::integrands::builtin::Builtin;
 
 /// δ: the peaks' offset from the centre along each axis.
 const OFFSET: f64 = 0.3;

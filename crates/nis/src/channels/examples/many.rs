@@ -9,7 +9,7 @@
 
 use super::resonances::{cauchy, sum_channel, sum_term};
 use crate::channels::Channel;
-use crate::integrands::Builtin;
+use crate::integrands::builtin::Builtin;
 
 /// The number of peaks and channels.
 pub(crate) const PEAKS: usize = 100;

@@ -16,7 +16,7 @@ use std::f64::consts::PI;
 
 use super::quadrature::integrate;
 use crate::channels::{BreitWigner, Channel, ChannelFn};
-use crate::integrands::Builtin;
+use crate::integrands::builtin::Builtin;
 
 /// (centre c, half-width γ) of the peaks in x₀ + x₁, x₂·x₃, x₁ − x₃.
 pub(crate) const PEAKS: [(f64, f64); 3] = [(0.7, 0.01), (0.3, 0.003), (0.2, 0.001)];

@@ -55,7 +55,7 @@ impl MultiChannel {
                 "unweighted events through channels need method nis (a flow per channel)".into(),
             ));
         }
-        let dim = self.dim();
+        let dim = self.set.dim();
         let seed = self.settings.seed_of(self.method) ^ EVENTS_SALT;
         let stream = seed ^ self.event_draws.wrapping_mul(0x9e37_79b9_7f4a_7c15);
         self.event_draws += 1;

@@ -18,6 +18,7 @@
 //! before the estimate draws a point, so each part's estimate is unbiased and F's is too
 //! (docs/ESTIMATE.md, "Channels and signs"); its variance is the sum of the parts'.
 
+mod auto;
 mod events;
 mod part;
 mod report;
@@ -26,21 +27,26 @@ mod shared;
 mod to_target;
 mod weight_net;
 
+use std::path::Path;
 use std::time::Instant;
 
 use rand::SeedableRng;
 use rand_pcg::Pcg64Mcg;
 use serde::{Deserialize, Serialize};
 
+pub use super::result::{ChannelReport, SignReport};
+pub use auto::{by_default, AutoSigns};
 pub use events::ChannelEvents;
 pub use part::Sign;
-pub use report::{ChannelReport, SignReport};
 
 use self::part::{PartIntegrand, Weighting};
 use self::shared::SharedFlow;
 use self::weight_net::WeightNet;
 use super::nis::NisIntegrator;
-use super::{integrator, Integrand, IntegrationResult, Integrator, Method, Settings};
+use super::{
+    integrator, report, Integrand, IntegrationResult, Integrator, Method, Progress, Settings,
+    Target,
+};
 use crate::channels::{ChannelFn, ChannelSet};
 use crate::comm::Comm;
 use crate::error::{Error, Result};
@@ -64,8 +70,8 @@ pub enum Signs {
 pub struct MultiChannelConfig {
     /// Splitting by sign.
     pub signs: Signs,
-    /// Share of a call's evaluations the parts adapt on (the rest makes the estimate). 0.25
-    /// against 0.4 lowers the variance per evaluation of every method on every example
+    /// Share of a call's evaluations the parts adapt on (the rest makes the estimate); the
+    /// default is the measured best of every method on every example
     /// (docs/results/integration.md, "Channels and signed integrands").
     pub adapt_fraction: f64,
     /// Whether the a-priori weights adapt (Kleiss–Pittau) between adapting and estimating.
@@ -79,19 +85,18 @@ pub struct MultiChannelConfig {
     /// `adapt_fraction` of its `max_evals`, shared).
     pub target_adapt: u64,
     /// NIS: one flow for all parts, conditioned on the part (`shared.rs`), instead of a flow per
-    /// part; ignored by the other methods. On by default: with the parts' χ² loss it has 1.8×
-    /// lower variance per evaluation on phase-space-8d, 1.04× on resonances-100, loses ≤ 7 % on
-    /// resonances-4d and the Dalitz plot, and takes less memory
+    /// part; ignored by the other methods. On by default: with the parts' χ² loss it gains
+    /// most where the channels overlap, loses little elsewhere, and takes less memory
     /// (docs/results/integration.md, "One flow shared by the channels"). A saved one loads as a
     /// flow per part.
     pub shared_flow: bool,
     /// NIS: after the parts adapt, fit a network N that refines the channel weights to
     /// α_k ∝ a_k g_k e^{N_k(x)} (MadNIS's), on fresh points of every part's sampler (counted),
     /// and keep it only when it lowers the estimate's variance on held-out points
-    /// (`weight_net.rs`); ignored by the other methods. On by default: 2.7× lower variance per
-    /// evaluation on resonances-4d, 2.2× on resonances-100, 1.2× on the Dalitz plot; at equal
-    /// time it loses only where a point costs less than the network's pass
-    /// (docs/results/integration.md, "Learned channel weights").
+    /// (`weight_net.rs`); ignored by the other methods. On by default: it lowers the variance
+    /// per evaluation on every multi-channel example; at equal time it loses only where a point
+    /// costs less than the network's pass (docs/results/integration.md, "Learned channel
+    /// weights").
     pub weight_network: bool,
 }
 
@@ -165,6 +170,8 @@ pub struct MultiChannel {
     /// The weight network when `config.weight_network` fitted one that it kept.
     net: Option<WeightNet>,
     comm: Comm,
+    /// The observer of progress ([`Integrator::set_progress`]).
+    progress: Option<Box<dyn Progress>>,
     /// Calls of [`MultiChannel::unweighted`] so far: each draws from a stream of its own.
     event_draws: u64,
 }
@@ -192,6 +199,7 @@ impl MultiChannel {
             shared: None,
             net: None,
             comm: Comm::default(),
+            progress: None,
             event_draws: 0,
         })
     }
@@ -220,72 +228,9 @@ impl MultiChannel {
         )
     }
 
-    /// The dimension.
-    pub fn dim(&self) -> usize {
-        self.set.dim()
-    }
-
     /// The a-priori weights a_k the next estimate starts from.
     pub fn weights(&self) -> &[f64] {
         &self.weights
-    }
-
-    /// Runs data-parallel over the ranks of `comm` (see [`Integrator::set_comm`]).
-    pub fn set_comm(&mut self, comm: Comm) {
-        for p in &mut self.parts {
-            if let Some(i) = &mut p.integrator {
-                i.set_comm(comm.clone());
-            }
-        }
-        if let Some(s) = &mut self.shared {
-            s.set_comm(comm.clone());
-        }
-        self.comm = comm;
-    }
-
-    /// Spends `evals` evaluations of `f` (every channel's and sign's, the pilot included):
-    /// adapts, moves the weights, allocates, estimates (module docs).
-    pub fn integrate(&mut self, f: &dyn Integrand, evals: u64) -> Result<IntegrationResult> {
-        let started = Instant::now();
-        let channels = self.set.len();
-        let mut spent = self.prepare(f)?;
-        let parts = self.parts.len() as u64;
-        let least_per_part = 2 * MIN_PART_EVALS;
-        if evals < spent + parts * least_per_part {
-            return Err(Error::Config(format!(
-                "{} parts ({channels} channels{}) need at least {} evaluations, got {evals}",
-                parts,
-                if parts as usize > channels {
-                    ", split by sign"
-                } else {
-                    ""
-                },
-                spent + parts * least_per_part
-            )));
-        }
-        // Adapt: an equal share per part.
-        let adapt =
-            ((evals as f64 * self.config.adapt_fraction) as u64 / parts).max(MIN_PART_EVALS);
-        let (_, adapted, sd) = self.adapt_parts(f, adapt)?;
-        spent += adapted;
-        // Estimate: the rest in proportion to each part's σ per evaluation, with a floor.
-        let rest = evals.saturating_sub(spent);
-        let floor = (rest / (50 * parts)).max(MIN_PART_EVALS);
-        let spare = rest.saturating_sub(floor * parts) as f64;
-        let mut results = Vec::with_capacity(self.parts.len());
-        let w = Weighting {
-            set: &self.set,
-            a: &self.weights,
-            net: self.net.as_ref(),
-        };
-        for (p, share) in self.parts.iter_mut().zip(neyman(&sd)) {
-            let n = floor + (spare * share) as u64;
-            let h = PartIntegrand::new(f, w, p.channel, p.sign);
-            let r = estimate_part(p, &h, n)?;
-            spent += r.n_eval;
-            results.push(r);
-        }
-        Ok(self.combine(&results, spent, started))
     }
 
     /// The parts' `results` summed into one result with its [`ChannelReport`], `spent`
@@ -470,6 +415,105 @@ impl MultiChannel {
     }
 }
 
+/// A multi-channel integral is an [`Integrator`] like the methods it runs per part: front ends
+/// drive it through the trait (a single channel with a sign split is [`MultiChannel::single`]).
+impl Integrator for MultiChannel {
+    fn method(&self) -> Method {
+        self.method
+    }
+
+    /// The dimension of the channels' domain.
+    fn dim(&self) -> usize {
+        self.set.dim()
+    }
+
+    /// Spends `evals` evaluations of `f` (every channel's and sign's, the pilot included):
+    /// adapts, moves the weights, allocates, estimates (module docs).
+    fn integrate(&mut self, f: &dyn Integrand, evals: u64) -> Result<IntegrationResult> {
+        let started = Instant::now();
+        let channels = self.set.len();
+        let mut spent = self.prepare(f)?;
+        let parts = self.parts.len() as u64;
+        let least_per_part = 2 * MIN_PART_EVALS;
+        if evals < spent + parts * least_per_part {
+            return Err(Error::Config(format!(
+                "{} parts ({channels} channels{}) need at least {} evaluations, got {evals}",
+                parts,
+                if parts as usize > channels {
+                    ", split by sign"
+                } else {
+                    ""
+                },
+                spent + parts * least_per_part
+            )));
+        }
+        // Adapt: an equal share per part.
+        let adapt =
+            ((evals as f64 * self.config.adapt_fraction) as u64 / parts).max(MIN_PART_EVALS);
+        let (_, adapted, sd) = self.adapt_parts(f, adapt)?;
+        spent += adapted;
+        report(&mut self.progress, spent, evals, "adapted");
+        // Estimate: the rest in proportion to each part's σ per evaluation, with a floor.
+        let rest = evals.saturating_sub(spent);
+        let floor = (rest / (50 * parts)).max(MIN_PART_EVALS);
+        let spare = rest.saturating_sub(floor * parts) as f64;
+        let mut results = Vec::with_capacity(self.parts.len());
+        let w = Weighting {
+            set: &self.set,
+            a: &self.weights,
+            net: self.net.as_ref(),
+        };
+        for (p, share) in self.parts.iter_mut().zip(neyman(&sd)) {
+            let n = floor + (spare * share) as u64;
+            let h = PartIntegrand::new(f, w, p.channel, p.sign);
+            let r = estimate_part(p, &h, n)?;
+            spent += r.n_eval;
+            results.push(r);
+            report(&mut self.progress, spent, evals, "estimating");
+        }
+        Ok(self.combine(&results, spent, started))
+    }
+
+    fn integrate_to(&mut self, f: &dyn Integrand, target: &Target) -> Result<IntegrationResult> {
+        self.pursue(f, target)
+    }
+
+    /// The error [`Integrator::integrate_to`] would return for `target` before evaluating
+    /// anything: a bad target, or a `max_evals` below the pilot and one adaptation and one
+    /// estimate per part.
+    fn check_target(&self, target: &Target) -> Result<()> {
+        self.check_parts_target(target)
+    }
+
+    /// Reports after the adaptation and after each part's estimate.
+    fn set_progress(&mut self, progress: Option<Box<dyn Progress>>) {
+        self.progress = progress;
+    }
+
+    fn set_comm(&mut self, comm: Comm) {
+        for p in &mut self.parts {
+            if let Some(i) = &mut p.integrator {
+                i.set_comm(comm.clone());
+            }
+        }
+        if let Some(s) = &mut self.shared {
+            s.set_comm(comm.clone());
+        }
+        self.comm = comm;
+    }
+
+    /// Saves the parts' flows and the weights into the directory `path` (made if missing); NIS
+    /// only, after a first call. Each file is written atomically, the manifest last, so a
+    /// directory without it is not a saved integrator; [`MultiChannel::load`] reads it.
+    fn save(&self, path: &Path) -> Result<()> {
+        self.save_parts(path)
+    }
+
+    fn as_multichannel(&mut self) -> Option<&mut MultiChannel> {
+        Some(self)
+    }
+}
+
 /// Each part's standard deviation per evaluation of its estimate, from its adaptation's result.
 fn sd_per_eval(measured: &[IntegrationResult]) -> Vec<f64> {
     measured
@@ -490,6 +534,14 @@ fn neyman(sd: &[f64]) -> Vec<f64> {
             }
         })
         .collect()
+}
+
+impl MultiChannel {
+    /// The smallest budget of one call with `parts` parts (the pilot aside): one adaptation and
+    /// one estimate each.
+    pub(crate) fn least_budget(parts: u64) -> u64 {
+        2 * parts * MIN_PART_EVALS
+    }
 }
 
 /// Fewest evaluations a part adapts or estimates with.

@@ -3,40 +3,9 @@
 
 use std::time::Instant;
 
-use serde::{Deserialize, Serialize};
-
 use super::part::Sign;
 use crate::integrate::diagnostics::WeightTail;
-use crate::integrate::IntegrationResult;
-
-/// Every channel's contribution to a multi-channel estimate.
-#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
-pub struct ChannelReport {
-    /// The a-priori weights a_k the estimate used (summing to one).
-    pub weights: Vec<f64>,
-    /// Each channel's contribution F_k = ∫ α_k f (F⁺_k − F⁻_k when split by sign).
-    pub means: Vec<f64>,
-    /// Their standard errors.
-    pub std_errs: Vec<f64>,
-    /// The estimate's evaluations in each channel.
-    pub evals: Vec<u64>,
-    /// F⁺ and F⁻ when the integrand was split by sign.
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub signs: Option<SignReport>,
-}
-
-/// The positive and negative parts of a signed integral, F = F⁺ − F⁻.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
-pub struct SignReport {
-    /// F⁺ = ∫ max(f, 0).
-    pub positive: f64,
-    pub positive_err: f64,
-    /// F⁻ = ∫ max(−f, 0).
-    pub negative: f64,
-    pub negative_err: f64,
-    /// F⁻/(F⁺ + F⁻): the share of unweighted events that carry a negative weight.
-    pub negative_fraction: f64,
-}
+use crate::integrate::result::{ChannelReport, IntegrationResult, SignReport};
 
 /// Sums the parts' `results` ((channel, sign) each in `index`) into one result.
 pub(super) fn combine(
@@ -72,19 +41,7 @@ pub(super) fn combine(
         let evals: u64 = r.iterations.iter().map(|i| i.evals).sum();
         report.evals[k] += evals;
         estimate_evals += evals;
-        match sign {
-            Sign::Plus => {
-                split = true;
-                signs.positive += r.value;
-                signs.positive_err += v;
-            }
-            Sign::Minus => {
-                split = true;
-                signs.negative += r.value;
-                signs.negative_err += v;
-            }
-            Sign::Both => {}
-        }
+        split |= add_to_signs(&mut signs, sign, r.value, v);
         if r.chi2_per_dof.is_finite() {
             chi2_sum += r.chi2_per_dof * evals as f64;
             chi2_evals += evals as f64;
@@ -95,36 +52,11 @@ pub(super) fn combine(
         if r.unweighting_efficiency > 0.0 {
             trials += r.value.abs() / r.unweighting_efficiency;
         }
-        // A part that is zero wherever it looked is normal here (the negative part of a channel
-        // where f > 0): its warning would only be noise.
-        let zero = r.value == 0.0 && r.std_err == 0.0;
-        if !zero {
-            let label = match sign {
-                Sign::Both => format!("channel {k}"),
-                Sign::Plus => format!("channel {k} (f > 0)"),
-                Sign::Minus => format!("channel {k} (f < 0)"),
-            };
-            // The parts' k̂ is judged on their weights together, below.
-            let own_k = r.reliability().warning();
-            warnings.extend(
-                r.warnings
-                    .iter()
-                    .filter(|w| own_k.as_ref() != Some(*w))
-                    .map(|w| format!("{label}: {w}")),
-            );
-        }
+        warnings.extend(part_warnings(k, sign, r));
     }
     report.std_errs.iter_mut().for_each(|v| *v = v.sqrt());
     if split {
-        signs.positive_err = signs.positive_err.sqrt();
-        signs.negative_err = signs.negative_err.sqrt();
-        let total = signs.positive + signs.negative;
-        signs.negative_fraction = if total > 0.0 {
-            signs.negative / total
-        } else {
-            0.0
-        };
-        report.signs = Some(signs);
+        report.signs = Some(finished(signs));
     }
     let pooled = WeightTail::pooled(&tails);
     if let Some(w) = pooled.warning() {
@@ -154,4 +86,55 @@ pub(super) fn combine(
         channels: Some(report),
         ..IntegrationResult::default()
     }
+}
+
+/// Adds a part's `value` and variance `v` to F⁺ or F⁻ (sums of variances until [`finished`]);
+/// whether the part is one of a sign split.
+fn add_to_signs(signs: &mut SignReport, sign: Sign, value: f64, v: f64) -> bool {
+    match sign {
+        Sign::Plus => {
+            signs.positive += value;
+            signs.positive_err += v;
+        }
+        Sign::Minus => {
+            signs.negative += value;
+            signs.negative_err += v;
+        }
+        Sign::Both => return false,
+    }
+    true
+}
+
+/// F⁺ and F⁻ with their standard errors (from the sums of variances) and the share of negative
+/// weights.
+fn finished(mut signs: SignReport) -> SignReport {
+    signs.positive_err = signs.positive_err.sqrt();
+    signs.negative_err = signs.negative_err.sqrt();
+    let total = signs.positive + signs.negative;
+    signs.negative_fraction = if total > 0.0 {
+        signs.negative / total
+    } else {
+        0.0
+    };
+    signs
+}
+
+/// The warnings of part (channel `k`, `sign`), labelled with it; none for a part that is zero
+/// wherever it looked, which is normal here (the negative part of a channel where f > 0), and
+/// not its own k̂, which is judged on the parts' weights together.
+fn part_warnings(k: usize, sign: Sign, r: &IntegrationResult) -> Vec<String> {
+    if r.value == 0.0 && r.std_err == 0.0 {
+        return Vec::new();
+    }
+    let label = match sign {
+        Sign::Both => format!("channel {k}"),
+        Sign::Plus => format!("channel {k} (f > 0)"),
+        Sign::Minus => format!("channel {k} (f < 0)"),
+    };
+    let own_k = r.reliability().warning();
+    r.warnings
+        .iter()
+        .filter(|w| own_k.as_ref() != Some(*w))
+        .map(|w| format!("{label}: {w}"))
+        .collect()
 }

@@ -42,10 +42,8 @@ fn part_path(dir: &Path, i: usize) -> PathBuf {
 }
 
 impl MultiChannel {
-    /// Saves the parts' flows and the weights into the directory `dir` (made if missing); NIS
-    /// only, after a first [`MultiChannel::integrate`]. Each file is written atomically, the
-    /// manifest last, so a directory without it is not a saved integrator.
-    pub fn save(&self, dir: &Path) -> Result<()> {
+    /// [`Integrator::save`]: the parts' flows and the weights into the directory `dir`.
+    pub(super) fn save_parts(&self, dir: &Path) -> Result<()> {
         if self.method != Method::Nis {
             return Err(Error::Config(format!(
                 "{} keeps no trained state to save",
@@ -69,7 +67,7 @@ impl MultiChannel {
         }
         let manifest = Manifest {
             format: FORMAT.into(),
-            dim: self.dim(),
+            dim: self.set.dim(),
             channels: self.set.len(),
             weight_bits: self.weights.iter().map(|w| w.to_bits()).collect(),
             parts: self.parts_index(),
@@ -81,7 +79,7 @@ impl MultiChannel {
         crate::io::write_atomic(&dir.join(MANIFEST), &json)
     }
 
-    /// Loads what [`MultiChannel::save`] wrote into `dir`, for the channels `set` (the same maps,
+    /// Loads what [`Integrator::save`] wrote into `dir`, for the channels `set` (the same maps,
     /// in the same order): an error naming the file when it is not a saved multi-channel
     /// integrator or its channels' count or dimension differ from `set`'s.
     pub fn load(dir: &Path, set: ChannelSet) -> Result<MultiChannel> {
@@ -143,6 +141,7 @@ impl MultiChannel {
             net: m.weight_net,
             parts,
             comm: Comm::default(),
+            progress: None,
             event_draws: 0,
         })
     }

@@ -601,3 +601,39 @@ fn enhanced_channel_weights_keep_the_integral_and_vanishing_ones_are_an_error() 
         other => panic!("{other:?}"),
     }
 }
+
+#[test]
+fn auto_signs_keeps_an_integrand_of_one_sign_bit_identical_and_splits_one_of_two() {
+    // One sign: the method's own result, bit for bit (the watch only reads the values).
+    let positive = |x: &[f64]| (-(x[0] - 0.4).powi(2) / 0.02).exp() + x[1];
+    let settings = Settings::default().seed(3);
+    for method in Method::ALL {
+        let mut auto = AutoSigns::new(method, 2, settings.clone()).unwrap();
+        let mut plain = integrator(method, 2, &settings).unwrap();
+        let (a, b) = (
+            auto.integrate(&positive, 40_000).unwrap(),
+            plain.integrate(&positive, 40_000).unwrap(),
+        );
+        assert_eq!(
+            (a.value.to_bits(), a.std_err.to_bits(), a.n_eval),
+            (b.value.to_bits(), b.std_err.to_bits(), b.n_eval),
+            "{method}"
+        );
+        assert!(a.channels.is_none() && auto.as_multichannel().is_none());
+    }
+    // Both signs: split, every evaluation counted, the estimate right.
+    let signed = |x: &[f64]| x[0] - 0.25;
+    for method in Method::ALL {
+        let mut auto = AutoSigns::new(method, 2, settings.clone()).unwrap();
+        let r = auto.integrate(&signed, 60_000).unwrap();
+        let signs = r.channels.as_ref().and_then(|c| c.signs);
+        assert!(signs.is_some(), "{method}: not split");
+        assert!(
+            r.n_eval <= 60_000 && r.n_eval > 50_000,
+            "{method}: {}",
+            r.n_eval
+        );
+        assert!((r.value - 0.25).abs() < 5.0 * r.std_err, "{method}: {r:?}");
+        assert!(auto.as_multichannel().is_some());
+    }
+}

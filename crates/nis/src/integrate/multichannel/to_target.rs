@@ -1,9 +1,9 @@
-//! Multi-channel integration to a precision target ([`MultiChannel::integrate_to`]): every part
+//! Multi-channel integration to a precision target ([`Integrator::integrate_to`](crate::integrate::Integrator::integrate_to)): every part
 //! adapts on [`MultiChannelConfig::target_adapt`] evaluations (fewer when a time limit, at the
 //! cost per evaluation a throwaway sampler measures first, cannot pay for them), the a-priori
 //! weights move, and then iterations planned by a [`Pursuit`] make the estimate. Each iteration spreads its
 //! evaluations over the parts in proportion to their σ (fixed from the adaptation, as in
-//! [`MultiChannel::integrate`]) and its share of the estimate is fixed before it is drawn, so the
+//! [`Integrator::integrate`](crate::integrate::Integrator::integrate)) and its share of the estimate is fixed before it is drawn, so the
 //! stopped estimate stays unbiased (docs/ESTIMATE.md, "Precision targets"). Each part's
 //! contribution is the same shares applied to its own estimates.
 
@@ -55,10 +55,9 @@ impl MultiChannel {
         }
     }
 
-    /// The error [`MultiChannel::integrate_to`] would return for `target` before evaluating
-    /// anything: a bad target, or a `max_evals` below the pilot and one adaptation and one
-    /// estimate per part.
-    pub fn check_target(&self, target: &Target) -> Result<()> {
+    /// The error [`Integrator::integrate_to`](crate::integrate::Integrator::integrate_to) would return for `target` (see
+    /// [`Integrator::check_target`](crate::integrate::Integrator::check_target)).
+    pub(super) fn check_parts_target(&self, target: &Target) -> Result<()> {
         let pilot = if self.parts.is_empty() && self.config.signs == super::Signs::Auto {
             (self.config.pilot * self.set.len()) as u64
         } else {
@@ -71,13 +70,13 @@ impl MultiChannel {
     }
 
     /// Integrates until the error bar meets `target` or a limit is hit (module docs); the
-    /// result's `stop` says which, and a limit adds a warning.
-    pub fn integrate_to(
+    /// result's `stop` says which, and a limit adds a warning ([`Integrator::integrate_to`](crate::integrate::Integrator::integrate_to)).
+    pub(super) fn pursue(
         &mut self,
         f: &dyn Integrand,
         target: &Target,
     ) -> Result<IntegrationResult> {
-        self.check_target(target)?;
+        self.check_parts_target(target)?;
         let started = Instant::now();
         let mut spent = self.prepare(f)?;
         let parts = self.parts.len() as u64;
@@ -187,7 +186,7 @@ impl MultiChannel {
             net: None,
         };
         let h = PartIntegrand::new(f, w, p.channel, p.sign);
-        let dim = self.dim();
+        let dim = self.set.dim();
         let batch = self.settings.nis.batch as u64;
         let seed = self.settings.seed_of(self.method) ^ PROBE_SALT;
         // Two rounds, the second timed: the first pays for starting the threads.

@@ -40,10 +40,9 @@ const PARTS_PER_STEP: usize = 8;
 const CHECK_EVERY: usize = 25;
 const PATIENCE: usize = 2;
 const PROGRESS: f64 = 0.005;
-/// The largest correction |N_k(x)| (see [`squash`]). 1 and 2 lowered the variance no further on
-/// resonances-4d and the Dalitz plot, 1.1× on resonances-100, for far heavier tails there (k̂
-/// up to 0.9); 0.25 lost 1.3× on resonances-100 (docs/results/integration.md, "Learned channel
-/// weights").
+/// The largest correction |N_k(x)| (see [`squash`]): larger bounds lowered the variance little
+/// more, for far heavier tails, and smaller ones lost (docs/results/integration.md, "Learned
+/// channel weights").
 const BOUND: f32 = 0.5;
 /// The held-out (Σσ)² must fall by this factor for the network to be kept.
 const MIN_GAIN: f64 = 1.05;
@@ -371,7 +370,7 @@ impl MultiChannel {
         f: &dyn Integrand,
         adapt: u64,
     ) -> Result<(u64, Vec<f64>)> {
-        let (dim, k) = (self.dim(), self.set.len());
+        let (dim, k) = (self.set.dim(), self.set.len());
         let parts = self.parts.len();
         let n = (adapt as usize / 4)
             .clamp(NET_POINTS.0, NET_POINTS.1)

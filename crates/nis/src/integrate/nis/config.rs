@@ -4,7 +4,7 @@ use serde::{Deserialize, Serialize};
 
 use crate::error::{Error, Result};
 use crate::flow::FlowConfig;
-use crate::integrate::TrainOn;
+use crate::integrate::integrand::TrainOn;
 use crate::loss::Loss;
 use crate::nn::AdamConfig;
 use crate::transform::TransformKind;
@@ -16,8 +16,8 @@ pub struct NisConfig {
     /// The flow (its `dim` is set from the integrator's; its `seed` initialises the weights).
     /// By default 2×32 conditioners on a one-blob encoding of 8 bins per input and
     /// piecewise-quadratic couplings of 16 bins: 8 encoding bins rather than 16 gave lower
-    /// variance per evaluation on most of the suite at 3.2·10⁵ and 10⁶ evaluations, in ~10% less
-    /// time (docs/results/integration.md, "One-blob bins"). A partial section in JSON changes the fields
+    /// variance per evaluation on most of the suite, in less time (docs/results/integration.md,
+    /// "One-blob bins"). A partial section in JSON changes the fields
     /// it names and keeps these defaults for the rest.
     #[serde(deserialize_with = "flow_patch")]
     pub flow: FlowConfig,
@@ -25,8 +25,9 @@ pub struct NisConfig {
     /// of a multi-channel integral ([`Loss::resolve`]).
     pub loss: Loss,
     /// Samples per adaptive iteration (one Adam step each). 256 by default: for the same training
-    /// evaluations, four times the steps of 1024-point batches gave 1.2–3.5× lower variance per
-    /// evaluation on the suite's 4- and 8-d integrands (docs/results/integration.md, "Training batch").
+    /// evaluations, four times the steps of 1024-point batches gave lower variance per
+    /// evaluation on the suite's 4- and 8-d integrands (docs/results/integration.md, "Training
+    /// batch").
     /// Many MPI ranks want larger batches (docs/results/scaling.md).
     pub batch: usize,
     /// Adam steps per batch: the first on-policy, the others reuse the batch off-policy (its
@@ -50,9 +51,8 @@ pub struct NisConfig {
     /// which the final phase samples from, as a share of the first training's batches: the
     /// average's decay is β = 1 − 1/(span·batches) (bias-corrected; 0: the last step's
     /// weights). Training samples from, and goes on from, the last step's weights. 0.1 by
-    /// default: at 10⁶ evaluations 9–38% lower variance per evaluation on the nine suite
-    /// integrands measured in 2, 4 and 8 dimensions, level at 10⁵ (docs/results/integration.md,
-    /// "Weight average").
+    /// default: lower variance per evaluation on the suite integrands measured at large budgets,
+    /// level at small ones (docs/results/integration.md, "Weight average").
     pub average_span: f64,
     /// Share λ of uniform points in every batch (the defensive mixture).
     pub uniform_fraction: f64,
@@ -187,15 +187,6 @@ impl Default for NisConfig {
 }
 
 impl NisConfig {
-    /// These settings with the JSON object `patch` laid over them by the one reader of settings
-    /// (`integrate::settings`): a field it names is replaced, an object it gives for an object
-    /// (`"flow"`, `"adam"`, `"stratify"`) changes the fields it names and keeps the others of
-    /// `self` (what `nis integrate --nis-config` applies on top of its own options). Not
-    /// checked: building the integrator checks it.
-    pub fn patched(&self, patch: serde_json::Value) -> Result<NisConfig> {
-        crate::integrate::settings::overlaid(self, patch)
-    }
-
     /// A builder starting from the defaults.
     pub fn builder() -> NisConfigBuilder {
         NisConfigBuilder {

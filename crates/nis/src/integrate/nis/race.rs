@@ -29,14 +29,14 @@ use crate::integrate::{Integrand, IntegrationResult, Integrator, Method, Stop, T
 const RACE_SEED_SALT: u64 = 0x7261_6365;
 
 /// The share of NIS's slowest training time that VEGAS+ runs in any case before its prediction
-/// must beat NIS's: its first iterations adapt the map and predict too long a time (gauss d = 16
-/// at 0.03 s of its 0.7 s: 23 s). What NIS loses where VEGAS+ gives up. VEGAS+ does not start
-/// when its warm-up alone, at the integrand's seconds per point, would take longer (a costly
-/// integrand: camel d = 4 at 100 µs a point lost 17 % to a warm-up of 4·10⁴ points).
+/// must beat NIS's: its first iterations adapt the map and predict far too long a time. What NIS
+/// loses where VEGAS+ gives up. VEGAS+ does not start when its warm-up alone, at the
+/// integrand's seconds per point, would take longer (a costly integrand would lose much of its
+/// time to the warm-up; docs/results/integration.md, "Time to precision").
 const LEAST_SHARE: f64 = 0.2;
 
-/// NIS's time to the target over its training's: its estimate phase comes on top (at 10⁻³ on
-/// camel d = 8 NIS spends 0.4 of its 1.0 s there; on gauss d = 16, 0.3 of 1.7 s).
+/// NIS's time to the target over its training's: its estimate phase comes on top
+/// (docs/results/integration.md, "Time to precision").
 const ESTIMATE_TOO: f64 = 1.5;
 
 /// How a race ended.

@@ -61,7 +61,8 @@
 //! final phase more (at worst everything: the final phase alone), one too poor over-weights
 //! noisier training batches. So where the estimate must guess (the within-hypercube spread from
 //! pairs) it errs towards the final phase; measured on the suite it over-predicts g in 2-d
-//! (where the final phase gains 3–30× and training can add little) and is close in 4–8.
+//! (where the final phase gains most and training can add little) and is close in 4–8
+//! (docs/results/integration.md).
 //!
 //! For display and χ²/dof, consecutive kept batches are pooled into as many groups as the final
 //! phase has iterations (a group's estimate Σ a_b I_b / Σ a_b, its variance Σ a_b² V_b / (Σ a_b)²);

@@ -14,7 +14,7 @@ use crate::error::{Error, Result};
 use crate::flow::mask::{default_layers, Masks};
 use crate::flow::mixture::Record;
 use crate::flow::Density;
-use crate::integrate::moments::iid_iteration;
+use crate::integrate::estimate::iid_iteration;
 use crate::integrate::target::{Prior, Pursuit};
 use crate::integrate::{check_dim, report, Accumulator, Integrand, IntegrationResult, Target};
 

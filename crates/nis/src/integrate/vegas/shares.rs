@@ -21,8 +21,8 @@ pub(super) enum Trend {
 /// unbiased; the shares add up to exactly one (the last takes what is `remaining`).
 ///
 /// The package weighs iterations by their inverse variances, which matters because the map keeps
-/// improving: on gauss-sharp d = 8 the variance falls ×0.75 per iteration, 15-fold over the
-/// result iterations, and equal shares are 6× worse than inverse-variance ones. Here the fall is
+/// improving: on a sharp peak the variance keeps falling over the result iterations, and equal
+/// shares are far worse than inverse-variance ones (docs/results/integration.md). Here the fall is
 /// extrapolated: with ρ the ratio per iteration fitted to the last few (clamped to
 /// [`MAX_FALL`], 1) the `left` iterations are expected to have variances ∝ ρ^m, so inverse-variance
 /// shares of what remains give this one c = 1/Σ_{m<left} ρ^(−m).
@@ -31,9 +31,9 @@ pub(super) enum Trend {
 /// whose variance turns out k times the last ones', it adds up to k/left² of theirs, while one too
 /// small only leaves the others to carry its points. The first result iteration is where that
 /// happens: its share rests on the warm-up alone, whose variances can be noise around no trend
-/// before they start to fall (gauss d = 16: five warm-up variances within a factor 10 of each
-/// other, then a 3000-fold fall over the result iterations; the fitted flat trend gave the first
-/// one 1/15 and σ² 40–100× the inverse-variance optimum on four seeds of seven).
+/// before they start to fall (gauss d = 16: warm-up variances with no trend, then a steep fall
+/// over the result iterations; the fitted flat trend gave the first one too large a share and σ²
+/// far above the inverse-variance optimum on most seeds).
 /// [`Trend::Cautious`] takes the fall one standard error of the slope steeper, so noise reads as
 /// a possible fall; after the first, the result iterations' own variances are in the fit.
 pub(super) fn next_share(remaining: f64, left: usize, history: &[f64], trend: Trend) -> f64 {
