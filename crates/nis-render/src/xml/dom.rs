@@ -307,6 +307,13 @@ pub fn parse_transform(el: &Element) -> Result<Mat4, XmlError> {
                     Some(u) => parse_vector(u, op.line)?,
                     None => Vec3::Y,
                 };
+                let dir = target - origin;
+                if dir.length_squared() == 0.0 || up.cross(dir).length_squared() == 0.0 {
+                    return err(
+                        op.line,
+                        "invalid <lookat>: the target equals the origin, or `up` is parallel to the view direction",
+                    );
+                }
                 look_at(origin, target, up)
             }
             other => {
@@ -337,6 +344,17 @@ mod tests {
         let m = parse_transform(&el).unwrap();
         // Scale first, then translate: (1,0,0) → (2,0,0) → (3,0,0).
         assert!((m.transform_point3(Vec3::X) - Vec3::new(3.0, 0.0, 0.0)).length() < 1e-6);
+    }
+
+    #[test]
+    fn a_degenerate_lookat_is_an_error() {
+        for (target, up) in [("0, 0, 0", "0, 1, 0"), ("0, 2, 0", "0, 1, 0")] {
+            let el = parse(&format!(
+                r#"<transform name="to_world"><lookat origin="0, 0, 0" target="{target}" up="{up}"/></transform>"#
+            ))
+            .unwrap();
+            assert!(parse_transform(&el).unwrap_err().message.contains("lookat"));
+        }
     }
 
     #[test]
