@@ -40,10 +40,12 @@ def srgb_to_linear(c):
 def upgrade(root, base):
     """Mitsuba 0.x names to Mitsuba 3's, other integrators to path, missing meshes out."""
     legacy = int(root.get("version", "3").split(".")[0]) < 2
+    folders = [base] + [base / p.get("value") for p in root.iter("path")]
     for parent in root.iter():
         for e in list(parent):
             f = e.find("string[@name='filename']")
-            if e.tag == "shape" and f is not None and not (base / f.get("value")).exists():
+            if e.tag == "shape" and f is not None and not any(
+                    (d / f.get("value")).exists() for d in folders):
                 parent.remove(e)
     for e in root.iter():
         if legacy:
