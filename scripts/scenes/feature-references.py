@@ -118,6 +118,10 @@ def features():
     add("integrator-direct", integrator='<integrator type="direct"/>')
     add("directional", light=AREA + """
     <emitter type="directional"><vector name="direction" x="-0.4" y="-1" z="-0.3"/><rgb name="irradiance" value="2, 1.8, 1.5"/></emitter>""")
+    add("spot", light=AREA + """
+    <emitter type="spot"><rgb name="intensity" value="6, 5, 4"/><float name="cutoff_angle" value="25"/>
+        <transform name="to_world"><lookat origin="-1, 2, 1" target="0, 0, 0"/></transform>
+    </emitter>""")
     add("disk", light="""<shape type="disk">
         <transform name="to_world"><rotate x="1" angle="90"/><scale value="0.4"/><translate x="0.4" y="2.2" z="0.3"/></transform>
         <emitter type="area"><rgb name="radiance" value="12, 11, 10"/></emitter>

@@ -1,10 +1,10 @@
-//! Light sources: emissive shapes (Mitsuba's one-sided `area` emitter), a constant environment
-//! and distant `directional` lights, with the light-sampling strategy used for next-event
-//! estimation.
+//! Light sources: emissive shapes (Mitsuba's one-sided `area` emitter), a constant or mapped
+//! environment, and delta lights (`directional`, `spot`), with the light-sampling strategy used
+//! for next-event estimation.
 //!
-//! Each kind present (the environment, the area lights, the directional lights) gets an equal
-//! share of the choices; an area light is then chosen with probability proportional to its
-//! power (area × luminance), a directional one to its irradiance's luminance, and a point is
+//! Each kind present (the environment, the area lights, the delta lights) gets an equal share of
+//! the choices; an area light is then chosen with probability proportional to its power
+//! (area × luminance), a delta one to its irradiance's or intensity's luminance, and a point is
 //! chosen uniformly on its surface; densities are converted to solid angle at the shading
 //! point so that they can be combined with BSDF sampling by multiple importance sampling
 //! (Veach 1997, §9.2). Emission is one-sided: only the side the shading normal faces emits.
@@ -82,6 +82,55 @@ pub struct DirectionalLight {
     pub irradiance: Rgb,
 }
 
+/// A point light shining into a cone (Mitsuba `spot`): full intensity within `beam_width` of
+/// its axis, falling linearly in angle to zero at `cutoff_angle`.
+#[derive(Clone, Copy, Debug)]
+pub struct SpotLight {
+    /// Position.
+    pub position: Vec3,
+    /// Unit axis of the cone.
+    pub axis: Vec3,
+    /// Radiant intensity on the axis.
+    pub intensity: Rgb,
+    /// Half-angle of the cone's edge, radians.
+    pub cutoff: f32,
+    /// Half-angle of the full-intensity beam, radians.
+    pub beam_width: f32,
+}
+
+impl SpotLight {
+    /// The fraction of the intensity sent in unit direction `d`.
+    pub fn falloff(&self, d: Vec3) -> f32 {
+        let cos = d.dot(self.axis).clamp(-1.0, 1.0);
+        if cos <= self.cutoff.cos() {
+            0.0
+        } else if cos >= self.beam_width.cos() {
+            1.0
+        } else {
+            (self.cutoff - cos.acos()) / (self.cutoff - self.beam_width)
+        }
+    }
+}
+
+/// A light that no BSDF sample can reach: sampled by next-event estimation only.
+#[derive(Clone, Copy, Debug)]
+pub enum DeltaLight {
+    /// Infinitely far away in one direction.
+    Directional(DirectionalLight),
+    /// A point with a cone.
+    Spot(SpotLight),
+}
+
+impl DeltaLight {
+    /// The light's weight in the choice among delta lights.
+    fn power(&self) -> f32 {
+        match self {
+            DeltaLight::Directional(l) => luminance(l.irradiance),
+            DeltaLight::Spot(l) => luminance(l.intensity),
+        }
+    }
+}
+
 /// All lights of a scene.
 #[derive(Clone, Debug, Default)]
 pub struct Lights {
@@ -91,10 +140,10 @@ pub struct Lights {
     pub environment: Option<Rgb>,
     /// An environment map (Mitsuba `envmap`), in place of a constant environment.
     pub environment_map: Option<Arc<EnvMap>>,
-    /// Distant lights.
-    pub directional: Vec<DirectionalLight>,
+    /// Directional and spot lights.
+    pub delta: Vec<DeltaLight>,
     selection: Option<Distribution1D>,
-    directional_selection: Option<Distribution1D>,
+    delta_selection: Option<Distribution1D>,
 }
 
 impl Lights {
@@ -107,36 +156,29 @@ impl Lights {
     pub fn with_directional(
         area: Vec<AreaLight>,
         environment: Option<Rgb>,
-        directional: Vec<DirectionalLight>,
+        delta: Vec<DeltaLight>,
     ) -> Self {
         let weights: Vec<f32> = area
             .iter()
             .map(|l| l.area * luminance(l.radiance))
             .collect();
         let selection = Distribution1D::new(&weights);
-        let weights: Vec<f32> = directional
-            .iter()
-            .map(|l| luminance(l.irradiance))
-            .collect();
-        let directional_selection = Distribution1D::new(&weights);
+        let weights: Vec<f32> = delta.iter().map(DeltaLight::power).collect();
+        let delta_selection = Distribution1D::new(&weights);
         Lights {
             area,
             environment,
             environment_map: None,
-            directional,
+            delta,
             selection,
-            directional_selection,
+            delta_selection,
         }
     }
 
-    /// Replace the directional lights.
-    pub fn set_directional(&mut self, directional: Vec<DirectionalLight>) {
+    /// Replace the delta (directional and spot) lights.
+    pub fn set_delta(&mut self, delta: Vec<DeltaLight>) {
         let map = self.environment_map.take();
-        *self = Self::with_directional(
-            std::mem::take(&mut self.area),
-            self.environment,
-            directional,
-        );
+        *self = Self::with_directional(std::mem::take(&mut self.area), self.environment, delta);
         self.environment_map = map;
     }
 
@@ -164,7 +206,7 @@ impl Lights {
     fn kinds(&self) -> f32 {
         (u8::from(self.has_environment())
             + u8::from(self.selection.is_some())
-            + u8::from(self.directional_selection.is_some())) as f32
+            + u8::from(self.delta_selection.is_some())) as f32
     }
 
     /// Probability of choosing the environment.
@@ -172,7 +214,7 @@ impl Lights {
         match (
             self.has_environment(),
             self.selection.is_some(),
-            self.directional_selection.is_some(),
+            self.delta_selection.is_some(),
         ) {
             (false, _, _) => 0.0,
             (true, false, false) => 1.0,
@@ -183,7 +225,7 @@ impl Lights {
 
     /// Probability of choosing one of the area lights.
     fn area_probability(&self) -> f32 {
-        if self.directional_selection.is_none() {
+        if self.delta_selection.is_none() {
             1.0 - self.env_probability()
         } else if self.selection.is_some() {
             1.0 / self.kinds()
@@ -194,7 +236,7 @@ impl Lights {
 
     /// Whether there is anything to sample.
     pub fn is_empty(&self) -> bool {
-        self.selection.is_none() && !self.has_environment() && self.directional.is_empty()
+        self.selection.is_none() && !self.has_environment() && self.delta.is_empty()
     }
 
     /// Sample a light as seen from `p`; `None` if it is back-facing or has no lights.
@@ -224,22 +266,38 @@ impl Lights {
         }
         let p_area = self.area_probability();
         if u_select >= p_env + p_area {
-            let selection = self.directional_selection.as_ref()?;
+            let selection = self.delta_selection.as_ref()?;
             let p_dir = 1.0 - p_env - p_area;
             let u = ((u_select - p_env - p_area) / p_dir).min(1.0 - f32::EPSILON);
             let index = selection.sample(u);
-            let light = &self.directional[index];
-            return Some(LightSample {
-                wi: -light.direction,
-                dist: f32::INFINITY,
-                point: Vec3::ZERO,
-                radiance: light.irradiance,
-                pdf: p_dir * selection.pmf(index),
-                delta: true,
-            });
+            let pdf = p_dir * selection.pmf(index);
+            return match self.delta[index] {
+                DeltaLight::Directional(light) => Some(LightSample {
+                    wi: -light.direction,
+                    dist: f32::INFINITY,
+                    point: Vec3::ZERO,
+                    radiance: light.irradiance,
+                    pdf,
+                    delta: true,
+                }),
+                DeltaLight::Spot(light) => {
+                    let to = light.position - p;
+                    let dist2 = to.length_squared();
+                    let dist = dist2.sqrt();
+                    let falloff = light.falloff(-to / dist);
+                    (falloff > 0.0 && dist2 > 0.0).then(|| LightSample {
+                        wi: to / dist,
+                        dist,
+                        point: light.position,
+                        radiance: light.intensity * (falloff / dist2),
+                        pdf,
+                        delta: true,
+                    })
+                }
+            };
         }
         let selection = self.selection.as_ref()?;
-        let u_select = if self.directional_selection.is_none() {
+        let u_select = if self.delta_selection.is_none() {
             (u_select - p_env) / (1.0 - p_env)
         } else {
             (u_select - p_env) / p_area

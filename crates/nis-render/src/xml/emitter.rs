@@ -1,20 +1,28 @@
-//! The scene's own emitters: a `constant` environment or an `envmap`, and `directional` lights (Mitsuba 3's
+//! The scene's own emitters: a `constant` environment or an `envmap`, `directional` and `spot`
+//! lights (Mitsuba 3's
 //! plugins, their parameters and defaults). Area emitters belong to their shape.
 
 use glam::{Mat3, Vec3};
 
 use super::dom::{err, Element};
-use super::props::Props;
+use super::props::{Props, PROPERTY_TAGS};
 use super::{unsupported, LoadResult, Loader};
 use crate::envmap::EnvMap;
 use crate::geometry::Rgb;
-use crate::light::DirectionalLight;
+use crate::light::{DeltaLight, DirectionalLight, SpotLight};
 use crate::spectrum::Role;
 use crate::texture::{Bitmap, FilterMode, WrapMode};
 
 impl Loader {
     pub(super) fn emitter(&mut self, c: &Element) -> LoadResult<()> {
         let kind = c.required("type")?;
+        if let Some(x) = c
+            .children
+            .iter()
+            .find(|x| !PROPERTY_TAGS.contains(&x.name.as_str()))
+        {
+            return unsupported(x, "properties inside an emitter (no textures)");
+        }
         let p = Props::new(c)?;
         match kind {
             "constant" | "envmap" if self.environment.is_some() || self.environment_map.is_some() => {
@@ -59,20 +67,44 @@ impl Loader {
                         .unwrap_err()
                         .into());
                 };
-                self.directional.push(DirectionalLight {
+                self.delta.push(DeltaLight::Directional(DirectionalLight {
                     direction,
                     irradiance,
-                });
+                }));
             }
-            "sunsky" | "sky" | "sun" | "point" | "spot" | "projector" => {
+            "spot" => {
+                let intensity = p.spectrum("intensity", Rgb::ONE, Role::Emission)?;
+                let cutoff = p.float("cutoff_angle", 20.0)?;
+                let beam = p.float("beam_width", cutoff * 0.75)?;
+                if !(cutoff > 0.0 && cutoff <= 180.0 && beam > 0.0 && beam < cutoff) {
+                    return Err(err::<()>(c.line, format!("a spot needs 0 < beam_width ({beam}) < cutoff_angle ({cutoff}) ≤ 180 degrees"))
+                        .unwrap_err()
+                        .into());
+                }
+                // It sits at to_world's origin and shines along its local +z.
+                let to_world = p.transform("to_world")?;
+                let Some(axis) = to_world.transform_vector3(Vec3::Z).try_normalize() else {
+                    return Err(err::<()>(c.line, "a spot's to_world has no direction")
+                        .unwrap_err()
+                        .into());
+                };
+                self.delta.push(DeltaLight::Spot(SpotLight {
+                    position: to_world.transform_point3(Vec3::ZERO),
+                    axis,
+                    intensity,
+                    cutoff: cutoff.to_radians(),
+                    beam_width: beam.to_radians(),
+                }));
+            }
+            "sunsky" | "sky" | "sun" | "point" | "projector" => {
                 return Err(err::<()>(
                     c.line,
-                    format!("the emitter <emitter type=\"{kind}\"> is not supported yet (supported: constant, envmap, directional, area inside a shape)"),
+                    format!("the emitter <emitter type=\"{kind}\"> is not supported yet (supported: constant, envmap, directional, spot, area inside a shape)"),
                 )
                 .unwrap_err()
                 .into())
             }
-            _ => return unsupported(c, "constant, envmap, directional; area inside a shape"),
+            _ => return unsupported(c, "constant, envmap, directional, spot; area inside a shape"),
         }
         p.finish()?;
         Ok(())

@@ -32,7 +32,7 @@ use crate::bsdf::Material;
 use crate::camera::Camera;
 use crate::envmap::EnvMap;
 use crate::geometry::Rgb;
-use crate::light::DirectionalLight;
+use crate::light::DeltaLight;
 use crate::scene::{RenderSettings, Scene};
 use crate::shape::Shape;
 use crate::texture::{Bitmap, Texture};
@@ -167,7 +167,7 @@ struct Loader {
     environment: Option<Rgb>,
     camera: Option<Camera>,
     settings: RenderSettings,
-    directional: Vec<DirectionalLight>,
+    delta: Vec<DeltaLight>,
     environment_map: Option<EnvMap>,
     /// Textures defined at the top with an `id`.
     textures: HashMap<String, Arc<Texture>>,
@@ -267,10 +267,8 @@ impl Loader {
         if let Some(map) = self.environment_map.take() {
             scene.lights.set_environment_map(map);
         }
-        if !self.directional.is_empty() {
-            scene
-                .lights
-                .set_directional(std::mem::take(&mut self.directional));
+        if !self.delta.is_empty() {
+            scene.lights.set_delta(std::mem::take(&mut self.delta));
         }
         Ok(scene)
     }
