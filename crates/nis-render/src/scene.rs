@@ -281,30 +281,34 @@ impl Scene {
                 triangle: h.prim,
             });
         }
+        // The nearest sphere, if nearer than any triangle; its shading data once, at the end.
+        let mut nearest = None;
         for s in &self.spheres {
             if let Some(t) = intersect_sphere(&s.sphere, ray, t_max) {
                 t_max = t;
-                let p = ray.at(t);
-                let n = (p - s.sphere.center) / s.sphere.radius;
-                let n = if s.sphere.inward { -n } else { n };
-                // Mitsuba's sphere coordinates (φ/2π, θ/π), here about the world axes.
-                let d = (p - s.sphere.center) / s.sphere.radius;
-                let phi = d.y.atan2(d.x).rem_euclid(2.0 * std::f32::consts::PI);
-                let uv = Vec2::new(
-                    phi / (2.0 * std::f32::consts::PI),
-                    d.z.clamp(-1.0, 1.0).acos() / std::f32::consts::PI,
-                );
-                best = Some(SurfaceHit {
-                    p,
-                    t,
-                    ng: n,
-                    ns: n,
-                    material: s.material,
-                    light: s.light,
-                    uv,
-                    triangle: NO_TRIANGLE,
-                });
+                nearest = Some((s, t));
             }
+        }
+        if let Some((s, t)) = nearest {
+            let p = ray.at(t);
+            let d = (p - s.sphere.center) / s.sphere.radius;
+            let n = if s.sphere.inward { -d } else { d };
+            // Mitsuba's sphere coordinates (φ/2π, θ/π), here about the world axes.
+            let phi = d.y.atan2(d.x).rem_euclid(2.0 * std::f32::consts::PI);
+            let uv = Vec2::new(
+                phi / (2.0 * std::f32::consts::PI),
+                d.z.clamp(-1.0, 1.0).acos() / std::f32::consts::PI,
+            );
+            best = Some(SurfaceHit {
+                p,
+                t,
+                ng: n,
+                ns: n,
+                material: s.material,
+                light: s.light,
+                uv,
+                triangle: NO_TRIANGLE,
+            });
         }
         best
     }

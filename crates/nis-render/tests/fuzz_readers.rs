@@ -284,6 +284,17 @@ fn xml_absurd_parameters_of_the_built_in_scenes() {
     );
 }
 
+/// A mesh a reader returned is usable: it has triangles, every index names a vertex, and each
+/// per-vertex attribute has one value per vertex.
+fn usable_mesh(mesh: &TriangleMesh) -> Result<(), TestCaseError> {
+    let n = mesh.positions.len();
+    prop_assert!(!mesh.indices.is_empty());
+    prop_assert!(mesh.indices.iter().flatten().all(|&i| (i as usize) < n));
+    prop_assert!(mesh.normals.as_ref().is_none_or(|v| v.len() == n));
+    prop_assert!(mesh.uvs.as_ref().is_none_or(|v| v.len() == n));
+    Ok(())
+}
+
 /// A small valid OBJ: a quad with normals, a triangle and a polygon.
 const OBJ: &str =
     "# fuzz seed\nv 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nv 0.5 0.5 1\nvn 0 0 1\nvt 0 0\n\
@@ -336,13 +347,10 @@ fn obj_meshes_random_and_mutated() {
             || TriangleMesh::load_obj(&path, &glam::Mat4::IDENTITY, false),
             |_| 0,
         )?;
-        if let Ok(mesh) = mesh {
-            let n = mesh.positions.len();
-            prop_assert!(!mesh.indices.is_empty());
-            prop_assert!(mesh.indices.iter().flatten().all(|&i| (i as usize) < n));
-            prop_assert!(mesh.normals.as_ref().is_none_or(|v| v.len() == n));
+        match mesh {
+            Ok(mesh) => usable_mesh(&mesh),
+            Err(_) => Ok(()),
         }
-        Ok(())
     });
     let _ = std::fs::remove_dir_all(&dir);
 }
@@ -377,13 +385,13 @@ fn serialized_meshes_mutated() {
                 || nis_render::serialized::parse(&bytes, index),
                 |_| 0,
             )?;
-            if let Ok(mesh) = mesh {
-                let n = mesh.positions.len();
-                prop_assert!(!mesh.indices.is_empty());
-                prop_assert!(mesh.indices.iter().flatten().all(|&i| (i as usize) < n));
+            if let Ok(mesh) = &mesh {
                 prop_assert!(mesh.positions.iter().all(|p| p.is_finite()));
             }
-            Ok(())
+            match mesh {
+                Ok(mesh) => usable_mesh(&mesh),
+                Err(_) => Ok(()),
+            }
         },
     );
 }
@@ -412,12 +420,10 @@ fn ply_meshes_mutated() {
     fuzz::fuzz("ply", 300, bytes, |tally, bytes| {
         std::fs::write(&path, &bytes).expect("a scratch file");
         let mesh = check(tally, bytes.len(), || nis_render::ply::load(&path), |_| 0)?;
-        if let Ok(mesh) = mesh {
-            let n = mesh.positions.len();
-            prop_assert!(!mesh.indices.is_empty());
-            prop_assert!(mesh.indices.iter().flatten().all(|&i| (i as usize) < n));
+        match mesh {
+            Ok(mesh) => usable_mesh(&mesh),
+            Err(_) => Ok(()),
         }
-        Ok(())
     });
     let _ = std::fs::remove_dir_all(&dir);
 }

@@ -113,6 +113,20 @@ pub struct BsdfSample {
     pub eta: f32,
 }
 
+impl BsdfSample {
+    /// A non-delta sample of `wi` drawn with density `pdf` (`None` where it is zero), its value
+    /// `f()` evaluated only then.
+    pub fn from_density(wi: Vec3, pdf: f32, f: impl FnOnce() -> Rgb) -> Option<BsdfSample> {
+        (pdf > 0.0).then(|| BsdfSample {
+            wi,
+            f: f(),
+            pdf,
+            delta: false,
+            eta: 1.0,
+        })
+    }
+}
+
 /// A surface's BSDF with Mitsuba's `twosided` switch.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Material {
@@ -361,16 +375,8 @@ impl Bsdf {
 
     /// Draw `wi` given `wo`.
     pub fn sample(&self, wo: Vec3, u_lobe: f32, u: Vec2) -> Option<BsdfSample> {
-        let from_density = |wi: Vec3| {
-            let pdf = self.pdf(wo, wi);
-            (pdf > 0.0).then(|| BsdfSample {
-                wi,
-                f: self.f(wo, wi),
-                pdf,
-                delta: false,
-                eta: 1.0,
-            })
-        };
+        let from_density =
+            |wi: Vec3| BsdfSample::from_density(wi, self.pdf(wo, wi), || self.f(wo, wi));
         match *self {
             Bsdf::Diffuse { .. } => {
                 if wo.z <= 0.0 {

@@ -192,14 +192,7 @@ impl Plastic {
         } else {
             square_to_cosine_hemisphere(u)
         };
-        let pdf = self.pdf(wo, wi);
-        (pdf > 0.0).then(|| BsdfSample {
-            wi,
-            f: self.f(wo, wi),
-            pdf,
-            delta: false,
-            eta: 1.0,
-        })
+        BsdfSample::from_density(wi, self.pdf(wo, wi), || self.f(wo, wi))
     }
 }
 
