@@ -6,6 +6,7 @@
 
 use serde::{Deserialize, Serialize};
 
+use super::diagnostics::ADVICE_MORE;
 use super::iteration::{Iteration, Source};
 
 /// The convergence figures of one result; `None` where a figure is undefined (no training
@@ -32,9 +33,25 @@ pub struct Convergence {
     pub final_trend: Option<f64>,
     /// NIS: the largest weight |f|/q the final sampler gives a point its training drew, over the
     /// largest weight of the final phase: far above 1 where the flow dropped a region training
-    /// saw f in (`nis/memory.rs`).
+    /// saw f in, and also where its tails are only thinner than f's (`nis/memory.rs`); a figure,
+    /// not a warning: [`Convergence::missing_mass`] says whether that region matters.
     #[serde(default)]
     pub training_weight_ratio: Option<f64>,
+    /// NIS: ∫|f| over the region where the final sampler's weight exceeds the largest of its
+    /// final phase, estimated from the training points with the densities that drew them, in
+    /// units of the result's standard error: what the estimate could not see.
+    #[serde(default)]
+    pub missing_mass: Option<f64>,
+    /// The standard error of [`Convergence::missing_mass`], in the same units.
+    #[serde(default)]
+    pub missing_mass_err: Option<f64>,
+    /// How many kept training points lie in that region.
+    #[serde(default)]
+    pub recalled_beyond: Option<u64>,
+    /// NIS: the largest weight the final sampler gives a training point over n_final·σ: how
+    /// many standard errors one final draw there would move the estimate.
+    #[serde(default)]
+    pub recalled_shift: Option<f64>,
 }
 
 /// The smallest training batches per quarter for a trend (fewer: `None`).
@@ -101,7 +118,7 @@ impl Convergence {
             training_trend,
             final_over_training,
             final_trend,
-            training_weight_ratio: None,
+            ..Convergence::default()
         }
     }
 }
@@ -136,10 +153,7 @@ pub struct ConvergenceWarning {
 }
 
 impl Convergence {
-    /// The warnings these figures give. The divergence and the recalled training weight warn:
-    /// across the peaked cells of `nis bench coverage` they separate the runs far off without
-    /// another warning from those within their error bars; the others did not
-    /// (docs/results/robustness.md).
+    /// The warnings these figures give: the divergence and the missing mass (see each limit).
     pub fn warnings(&self) -> Vec<ConvergenceWarning> {
         let mut out = Vec::new();
         if let Some(d) = self.divergence.filter(|d| *d > DIVERGENCE_LIMIT) {
@@ -148,37 +162,36 @@ impl Convergence {
                 sentence: format!(
                     "the sampler is far from the integrand's shape (χ² divergence {d:.1}: the \
                      estimate rests on {:.0}% of its points): it may have missed a peak, which \
-                     no error bar shows; use more evaluations, check with a second seed, or use \
-                     channels for a multi-peaked integrand",
+                     no error bar shows; {ADVICE_MORE}",
                     100.0 / (1.0 + d)
                 ),
             });
         }
-        out.extend(self.recalled_warning());
+        out.extend(self.missing_mass_warning());
         out
     }
 
-    /// The warning of [`Convergence::training_weight_ratio`] above [`RECALLED_WEIGHT_LIMIT`]
-    /// (NIS adds it once the final phase is done).
-    pub fn recalled_warning(&self) -> Option<ConvergenceWarning> {
-        let r = self
-            .training_weight_ratio
-            .filter(|r| *r > RECALLED_WEIGHT_LIMIT)?;
+    /// The warning of [`Convergence::missing_mass`] above [`MISSING_MASS_LIMIT`] (NIS adds it
+    /// once the final phase is done).
+    pub fn missing_mass_warning(&self) -> Option<ConvergenceWarning> {
+        let m = self.missing_mass.filter(|m| *m > MISSING_MASS_LIMIT)?;
+        let e = self.missing_mass_err.unwrap_or(f64::NAN);
         Some(ConvergenceWarning {
-            label: "recalled weight",
+            label: "missing mass",
             sentence: format!(
-                "the flow gives far too little density to points where its training saw f (their \
-                 weight f/q is {r:.0}× the estimate's largest): it may have dropped part of the \
-                 integrand, and then the error bar is too small; check with a second seed, train \
-                 longer, or use channels for a multi-peaked integrand"
+                "the training saw f where the final flow samples too rarely to see it: those \
+                 points estimate the integral there at {m:.1} ± {e:.1} times the error bar, \
+                 which the estimate leaves out, so the answer is probably short by about that \
+                 much; {ADVICE_MORE}"
             ),
         })
     }
 }
 
-/// The ratio of [`Convergence::training_weight_ratio`] above which a result warns. Chosen by the
-/// sweep of limits in docs/results/robustness.md (issue-40 section).
-pub const RECALLED_WEIGHT_LIMIT: f64 = 5.0;
+/// The missing mass, in standard errors of the result, above which a result warns: beyond it
+/// the part of ∫|f| that the estimate could not see would move the answer by more than its error
+/// bar. Chosen by the sweep of limits in docs/results/robustness.md (issue-55 section).
+pub const MISSING_MASS_LIMIT: f64 = 1.0;
 
 /// The divergence above which a result warns: its estimate then rests on fewer than a quarter of
 /// its points. Chosen by the sweep of limits in docs/results/robustness.md (issue-40 section).

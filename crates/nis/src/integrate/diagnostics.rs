@@ -30,6 +30,17 @@ use std::collections::BinaryHeap;
 /// 2σ within the binomial band for every method and budget (0.7: VEGAS+ at 2·10⁵ covers 0.865).
 pub const PARETO_K_LIMIT: f64 = 0.5;
 
+/// What a warning tells the user to do, at the end of its sentence: a run may have stopped
+/// short, so more evaluations are the first remedy.
+pub(crate) const ADVICE_MORE: &str = "use more evaluations, check with a second seed, or use \
+     channels for a multi-peaked integrand";
+
+/// What a warning tells the user to do once a run has met its precision target, in place of
+/// [`ADVICE_MORE`]: more evaluations are what the target already decided.
+pub(crate) const ADVICE_MET: &str = "the run met its target, and more evaluations would not show \
+     what it missed: check the answer with a second seed, or use channels for a multi-peaked \
+     integrand";
+
 /// The fewest tail weights k̂ is fitted to; with fewer (n < 25) it is not reported.
 const MIN_TAIL: usize = 5;
 
@@ -130,7 +141,7 @@ impl Reliability {
             format!(
                 "the weights f/q are heavy-tailed (Pareto k̂ = {:.2} > {PARETO_K_LIMIT}, \
                  effective sample size {:.0}): the error bar cannot be trusted and is probably \
-                 too small; adapt longer or use more evaluations",
+                 too small; {ADVICE_MORE}",
                 self.pareto_k, self.ess
             )
         })

@@ -6,7 +6,7 @@
 use std::time::Instant;
 
 use super::convergence::Convergence;
-use super::diagnostics::WeightTail;
+use super::diagnostics::{WeightTail, ADVICE_MORE};
 use super::integrand::column;
 use super::moments::{bytes_to_f64s, f64s_to_bytes, Moments, CHUNK};
 use super::result::{ComponentEstimates, IntegrationResult, Iteration, Source};
@@ -151,7 +151,8 @@ impl Accumulator {
         } else if chi2 > 3.0 && !rounding {
             warnings.push(format!(
                 "χ²/dof = {chi2:.2} between iterations: the weights are heavy-tailed or the \
-                 sampler misses part of the integrand; the error bar may be too small"
+                 sampler misses part of the integrand, and the error bar may be too small; \
+                 {ADVICE_MORE}"
             ));
         }
         if let Some(w) = reliability.warning() {

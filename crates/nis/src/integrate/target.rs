@@ -17,6 +17,7 @@ use std::time::Instant;
 
 use serde::{Deserialize, Serialize};
 
+use super::diagnostics::{ADVICE_MET, ADVICE_MORE};
 use super::result::{IntegrationResult, Iteration, Stop};
 use crate::comm::Comm;
 use crate::error::{Error, Result};
@@ -437,6 +438,9 @@ impl Pursuit {
         let wanted = self.target.error_for(result.value);
         if stop == Stop::Target || result.std_err <= wanted {
             result.stop = Some(Stop::Target);
+            for w in &mut result.warnings {
+                *w = w.replace(ADVICE_MORE, ADVICE_MET);
+            }
             return;
         }
         let limit = match stop {
@@ -542,6 +546,29 @@ mod tests {
         assert_eq!(p.stop(), Some(Stop::MaxEvals));
         assert!(p.evals <= 20_000);
         assert!((p.shares().iter().sum::<f64>() - 1.0).abs() < 1e-12);
+    }
+
+    #[test]
+    fn a_warning_on_a_run_that_met_its_target_does_not_ask_for_more_evaluations() {
+        let warned = |p: &Pursuit| {
+            let mut r = IntegrationResult {
+                value: 1.0,
+                std_err: p.var.sqrt(),
+                warnings: vec![format!("the weights are heavy-tailed; {ADVICE_MORE}")],
+                ..IntegrationResult::default()
+            };
+            p.finish(&mut r);
+            r.warnings
+        };
+        let met = warned(&pursue(Target::rel(1e-2), 1.0, 2_000));
+        assert!(
+            met[0].ends_with(ADVICE_MET) && !met[0].contains(ADVICE_MORE),
+            "{met:?}"
+        );
+        // Stopped by a limit short of the target: more evaluations are the remedy.
+        let short = warned(&pursue(Target::rel(1e-2).max_evals(20_000), 4.0, 5_000));
+        assert!(short[0].ends_with(ADVICE_MORE), "{short:?}");
+        assert!(short[1].contains("was not met"), "{short:?}");
     }
 
     #[test]

@@ -10,8 +10,7 @@ use std::path::{Path, PathBuf};
 
 use nis::integrands::{self, Builtin, SUITE};
 use nis::integrate::{
-    integrator, Convergence, Method, Settings, DIVERGENCE_LIMIT, PARETO_K_LIMIT,
-    RECALLED_WEIGHT_LIMIT,
+    integrator, Convergence, Method, Settings, DIVERGENCE_LIMIT, MISSING_MASS_LIMIT, PARETO_K_LIMIT,
 };
 use nis::loss::Loss;
 use plotters::prelude::*;
@@ -24,7 +23,7 @@ use crate::report;
 
 mod section;
 use section::*;
-pub use section::{band, warning_labels};
+pub use section::{band, converged, warning_labels};
 
 /// A budget and how many seeds run at it.
 #[derive(Clone, Copy, Debug)]
@@ -117,6 +116,9 @@ pub struct Run {
     pub pareto_k: Option<f64>,
     /// Effective sample size.
     pub ess: f64,
+    /// The relative error of the variance estimate (`None` where undefined).
+    #[serde(default)]
+    pub var_rel_err: Option<f64>,
     /// Wall seconds.
     pub seconds: f64,
     /// The sampler's convergence figures.
@@ -259,6 +261,7 @@ pub fn run_cell(f: &Builtin, method: &str, budget: Budget) -> Cell {
                 chi2: r.chi2_per_dof.is_finite().then_some(r.chi2_per_dof),
                 pareto_k: r.pareto_k.is_finite().then_some(r.pareto_k),
                 ess: r.ess,
+                var_rel_err: r.var_rel_err.is_finite().then_some(r.var_rel_err),
                 seconds: r.seconds,
                 convergence: r.convergence,
             }),
@@ -402,6 +405,7 @@ mod tests {
             chi2: Some(1.0),
             pareto_k: k,
             ess: 1.0,
+            var_rel_err: None,
             seconds: 0.0,
             convergence: Convergence::default(),
         }
@@ -440,16 +444,18 @@ mod tests {
         r.convergence.divergence = Some(2.0 * DIVERGENCE_LIMIT);
         assert_eq!(warning_labels(&r, "NIS-KL"), ["χ²", "k̂", "divergence"]);
         assert_eq!(warning_labels(&r, "MC"), ["χ²", "k̂"]);
-        assert!(warned_before(&r));
         let mut quiet = run_of(1.0, 1.0, Some(0.1));
         quiet.convergence.divergence = Some(0.5 * DIVERGENCE_LIMIT);
         assert!(warning_labels(&quiet, "NIS-KL").is_empty());
         quiet.convergence.divergence = Some(2.0 * DIVERGENCE_LIMIT);
-        assert!(!warned_before(&quiet) && warning_labels(&quiet, "VEGAS+") == ["divergence"]);
-        quiet.convergence.training_weight_ratio = Some(2.0 * RECALLED_WEIGHT_LIMIT);
+        assert_eq!(warning_labels(&quiet, "VEGAS+"), ["divergence"]);
+        // A large recalled weight alone is a figure, not a warning; a missing mass is.
+        quiet.convergence.training_weight_ratio = Some(100.0);
+        assert_eq!(warning_labels(&quiet, "NIS-χ²"), ["divergence"]);
+        quiet.convergence.missing_mass = Some(2.0 * MISSING_MASS_LIMIT);
         assert_eq!(
             warning_labels(&quiet, "NIS-χ²"),
-            ["divergence", "recalled weight"]
+            ["divergence", "missing mass"]
         );
     }
 

@@ -1,5 +1,5 @@
-//! The section `nis bench coverage` writes: the coverage tables, which warning caught which
-//! run, the sweep of the divergence limit, the reliability figures' summary and the plot.
+//! The section `nis bench coverage` writes: the coverage tables, each warning's false alarms
+//! and catches cell by cell and pooled, the sweeps of the warnings' limits, and the plot.
 
 use super::*;
 
@@ -55,14 +55,13 @@ pub(super) fn markdown(cells: &[Cell], budgets: &[Budget]) -> String {
         }
         md.push('\n');
     }
-    md.push_str(&diagnostic_summary(cells, budgets));
+    md.push_str(&warning_cells(cells, budgets));
     md.push_str(&warning_summary(cells, budgets));
     md
 }
 
-/// The warnings a run of `method` gives, by label: χ² between iterations and k̂ (the result's
-/// warnings before issue 40), then the convergence figures', which plain MC reports without
-/// warning (a sampler not learned from f).
+/// The warnings a run of `method` gives, by label: χ² between iterations and k̂, then the
+/// convergence figures', which plain MC reports without warning (a sampler not learned from f).
 pub fn warning_labels(r: &Run, method: &str) -> Vec<&'static str> {
     let mut out = Vec::new();
     if r.chi2.is_some_and(|c| c > 3.0) {
@@ -77,88 +76,209 @@ pub fn warning_labels(r: &Run, method: &str) -> Vec<&'static str> {
     out
 }
 
-/// Whether the result warned before the convergence figures (χ² or k̂).
-pub(super) fn warned_before(r: &Run) -> bool {
-    r.chi2.is_some_and(|c| c > 3.0) || r.pareto_k.is_some_and(|k| k > PARETO_K_LIMIT)
+/// The warnings of the table, in its column order.
+pub(super) const WARNINGS: [&str; 4] = ["χ²", "k̂", "divergence", "missing mass"];
+
+/// Whether a cell's sampler has converged at its budget: its runs cover at 2σ within the
+/// binomial band, at most [`CONVERGED_FAR`] of them lie beyond 4σ, and the median run's sampler
+/// is close to |f| with weights of finite variance: median divergence at most
+/// [`DIVERGENCE_LIMIT`] and median k̂ at most [`PARETO_K_LIMIT`]. (Plain MC on a sharp peak may
+/// cover at 2·10⁵, but the uniform density stays far from the peak: it never converges here.)
+pub fn converged(c: &Cell) -> bool {
+    let s = c.stats();
+    let (lo, _) = band(NOMINAL2, s.n);
+    let far = c.runs.iter().filter(|r| c.pull(r).abs() > 4.0).count();
+    let mut d: Vec<f64> = c
+        .runs
+        .iter()
+        .filter_map(|r| r.convergence.divergence)
+        .collect();
+    d.sort_by(f64::total_cmp);
+    let median_d = d.get(d.len() / 2).copied().unwrap_or(f64::NAN);
+    s.n > 0
+        && s.cover2 >= lo
+        && far as f64 <= CONVERGED_FAR * s.n as f64
+        && s.median_k <= PARETO_K_LIMIT
+        && median_d <= DIVERGENCE_LIMIT
 }
 
-/// Before and after the convergence warnings, per budget and method: the runs more than 4σ off
-/// that carry no warning, the 2σ coverage of the runs without one, the share of runs within 2σ
-/// warned anyway, and which warning caught the runs beyond 4σ.
+/// The share of runs beyond 4σ a converged cell may have.
+pub const CONVERGED_FAR: f64 = 0.01;
+
+/// A run beyond 4σ that no warning could have caught: its training points estimate the mass its
+/// estimate missed below [`MISSING_MASS_LIMIT`] error bars (NIS), or it has no training memory.
+fn unreachable(r: &Run) -> bool {
+    r.convergence
+        .missing_mass
+        .is_none_or(|m| m <= MISSING_MASS_LIMIT)
+}
+
+/// Per budget and cell, how each warning sorts the runs: the share of runs within 2σ it flags
+/// (false alarms) and how many runs beyond 4σ it catches; then the runs beyond 4σ left without
+/// a warning, and how many of those are unreachable (no evaluated point shows the missing mass).
+pub(super) fn warning_cells(cells: &[Cell], budgets: &[Budget]) -> String {
+    let mut md = format!(
+        "### Each warning, cell by cell\n\n\
+         Per cell: whether the sampler converged there (2σ coverage within the binomial band, at \
+         most {:.0}% of the runs beyond 4σ, median k̂ ≤ {PARETO_K_LIMIT} and median divergence \
+         ≤ {DIVERGENCE_LIMIT}: a sampler close to |f| with weights of finite variance); of the \
+         runs within 2σ, \
+         the share any warning flags and the share each flags (false alarms: the target is at \
+         most 0.10 where the sampler converged); of the runs beyond 4σ, how many any warning \
+         and each warning catch, how many carry none, and of those how many no point of the run \
+         could have shown (their training points estimate the missed mass below \
+         {MISSING_MASS_LIMIT} error bars, or the method keeps none). Warnings: χ²/dof > 3, \
+         k̂ > {PARETO_K_LIMIT}, divergence > {DIVERGENCE_LIMIT} (not for MC), missing mass > \
+         {MISSING_MASS_LIMIT} error bars (NIS).\n\n",
+        100.0 * CONVERGED_FAR
+    );
+    for &b in budgets {
+        md.push_str(&format!(
+            "#### {} evaluations, {} seeds\n\n\
+             | cell | method | converged | within 2σ | flagged (any) | χ² | k̂ | divergence | missing mass | beyond 4σ | caught (any) | χ² | k̂ | divergence | missing mass | unwarned (unreachable) |\n\
+             |---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|\n",
+            b.evals, b.seeds
+        ));
+        for c in cells.iter().filter(|c| c.evals == b.evals) {
+            let labels: Vec<(f64, Vec<&str>)> = c
+                .runs
+                .iter()
+                .map(|r| (c.pull(r), warning_labels(r, &c.method)))
+                .collect();
+            let within: Vec<&Vec<&str>> = labels
+                .iter()
+                .filter(|(p, _)| p.abs() <= 2.0)
+                .map(|(_, l)| l)
+                .collect();
+            let share = |pred: &dyn Fn(&Vec<&str>) -> bool| {
+                within.iter().filter(|l| pred(l)).count() as f64 / within.len().max(1) as f64
+            };
+            let far: Vec<(&Run, &Vec<&str>)> = c
+                .runs
+                .iter()
+                .zip(&labels)
+                .filter(|(_, (p, _))| p.abs() > 4.0)
+                .map(|(r, (_, l))| (r, l))
+                .collect();
+            let caught =
+                |pred: &dyn Fn(&Vec<&str>) -> bool| far.iter().filter(|(_, l)| pred(l)).count();
+            let unwarned: Vec<&Run> = far
+                .iter()
+                .filter(|(_, l)| l.is_empty())
+                .map(|(r, _)| *r)
+                .collect();
+            let mut row = format!(
+                "| {} d{} | {} | {} | {} | {:.2} |",
+                c.integrand,
+                c.dim,
+                c.method,
+                if converged(c) { "yes" } else { "no" },
+                within.len(),
+                share(&|l| !l.is_empty())
+            );
+            for w in WARNINGS {
+                row.push_str(&format!(" {:.2} |", share(&|l| l.contains(&w))));
+            }
+            row.push_str(&format!(
+                " {} | {} |",
+                far.len(),
+                caught(&|l| !l.is_empty())
+            ));
+            for w in WARNINGS {
+                row.push_str(&format!(" {} |", caught(&|l| l.contains(&w))));
+            }
+            row.push_str(&format!(
+                " {} ({}) |\n",
+                unwarned.len(),
+                unwarned.iter().filter(|r| unreachable(r)).count()
+            ));
+            md.push_str(&row);
+        }
+        md.push('\n');
+    }
+    md
+}
+
+/// Per budget and method, pooled over the cells: each warning's false alarms (the share of runs
+/// within 2σ it flags, over the converged cells and over all) and its recall (the share of runs
+/// beyond 4σ it catches); then the runs without a warning, their 2σ coverage against the band for
+/// their number, and those beyond 4σ.
 pub(super) fn warning_summary(cells: &[Cell], budgets: &[Budget]) -> String {
     let mut md = String::from(
-        "### Which warning caught which run\n\n\
-         Over all cells of a budget and method, before (the warnings of χ²/dof > 3 and k̂ > 0.5) \
-         and after the convergence warnings (`nis::integrate::Convergence`): the runs more than \
-         4σ off without any warning (the goal is none), the 2σ coverage of the runs without a \
-         warning (their number in brackets) against the binomial 95% band for their number, and \
-         the share of the runs within 2σ that warn anyway (false alarms). Then, for the runs \
-         beyond 4σ, how many each warning caught (a run may carry several).\n\n\
-         | budget | method | runs | beyond 4σ | unwarned beyond 4σ (before → after) | unwarned 2σ before | band | unwarned 2σ after | band | warned within 2σ (before → after) | beyond 4σ caught by |\n\
-         |---|---|---|---|---|---|---|---|---|---|---|\n",
+        "### Each warning, pooled\n\n\
+         Over the cells of a budget and method: per warning, the share of the runs within 2σ it \
+         flags in the converged cells and in all, and the share of the runs beyond 4σ it catches \
+         (a run may carry several); then the runs without any warning, their 2σ coverage \
+         against the binomial 95% band for their number, and how many of them lie beyond 4σ \
+         (unreachable ones in brackets).\n\n\
+         | budget | method | converged cells | flags within 2σ, converged: any · χ² · k̂ · divergence · missing mass | flags within 2σ, all | catches beyond 4σ (of n) | unwarned | unwarned 2σ | band | unwarned beyond 4σ |\n\
+         |---|---|---|---|---|---|---|---|---|---|\n",
     );
     for &b in budgets {
         for method in METHODS {
-            let runs = pooled_runs(cells, b, method);
-            if runs.is_empty() {
+            let here: Vec<&Cell> = cells
+                .iter()
+                .filter(|c| c.evals == b.evals && c.method == method)
+                .collect();
+            if here.is_empty() {
                 continue;
             }
-            let after = |r: &Run| !warning_labels(r, method).is_empty();
-            let far: Vec<&Run> = runs
-                .iter()
-                .filter(|(p, _)| p.abs() > 4.0)
-                .map(|(_, r)| *r)
-                .collect();
-            let missed = |warned: &dyn Fn(&Run) -> bool| far.iter().filter(|r| !warned(r)).count();
-            let unwarned = |warned: &dyn Fn(&Run) -> bool| {
-                let kept: Vec<f64> = runs
+            let conv: Vec<&Cell> = here.iter().copied().filter(|c| converged(c)).collect();
+            let runs = |cs: &[&Cell]| -> Vec<(f64, Vec<&str>, bool)> {
+                cs.iter()
+                    .flat_map(|c| {
+                        c.runs
+                            .iter()
+                            .map(|r| (c.pull(r), warning_labels(r, method), unreachable(r)))
+                    })
+                    .collect()
+            };
+            let (all, in_conv) = (runs(&here), runs(&conv));
+            let shares = |rs: &[(f64, Vec<&str>, bool)], near: bool| -> String {
+                let pick: Vec<&Vec<&str>> = rs
                     .iter()
-                    .filter(|(_, r)| !warned(r))
-                    .map(|(p, _)| *p)
+                    .filter(|(p, _, _)| if near { p.abs() <= 2.0 } else { p.abs() > 4.0 })
+                    .map(|(_, l, _)| l)
                     .collect();
-                let cover = kept.iter().filter(|p| p.abs() <= 2.0).count() as f64
-                    / kept.len().max(1) as f64;
-                let (lo, hi) = band(NOMINAL2, kept.len());
-                format!("{cover:.3} ({}) | {lo:.3}–{:.3}", kept.len(), hi.min(1.0))
-            };
-            let within: Vec<&Run> = runs
-                .iter()
-                .filter(|(p, _)| p.abs() <= 2.0)
-                .map(|(_, r)| *r)
-                .collect();
-            let false_alarms = |warned: &dyn Fn(&Run) -> bool| {
-                within.iter().filter(|r| warned(r)).count() as f64 / within.len().max(1) as f64
-            };
-            let mut caught: Vec<(&str, usize)> = Vec::new();
-            for r in &far {
-                for l in warning_labels(r, method) {
-                    match caught.iter_mut().find(|(k, _)| *k == l) {
-                        Some((_, n)) => *n += 1,
-                        None => caught.push((l, 1)),
-                    }
+                if pick.is_empty() {
+                    return "–".into();
                 }
-            }
-            let caught = caught
-                .iter()
-                .map(|(l, n)| format!("{l} {n}"))
-                .collect::<Vec<_>>()
-                .join(", ");
-            md.push_str(&format!(
-                "| {} | {method} | {} | {} | {} → {} | {} | {} | {:.2} → {:.2} | {} |\n",
-                b.evals,
-                runs.len(),
-                far.len(),
-                missed(&warned_before),
-                missed(&after),
-                unwarned(&warned_before),
-                unwarned(&after),
-                false_alarms(&warned_before),
-                false_alarms(&after),
-                if caught.is_empty() {
-                    "–".into()
+                let n = pick.len() as f64;
+                let mut out = vec![format!(
+                    "{:.2}",
+                    pick.iter().filter(|l| !l.is_empty()).count() as f64 / n
+                )];
+                out.extend(WARNINGS.iter().map(|w| {
+                    format!(
+                        "{:.2}",
+                        pick.iter().filter(|l| l.contains(w)).count() as f64 / n
+                    )
+                }));
+                let joined = out.join(" · ");
+                if near {
+                    joined
                 } else {
-                    caught
-                },
+                    format!("{joined} ({})", pick.len())
+                }
+            };
+            let quiet: Vec<&(f64, Vec<&str>, bool)> =
+                all.iter().filter(|(_, l, _)| l.is_empty()).collect();
+            let cover = quiet.iter().filter(|(p, _, _)| p.abs() <= 2.0).count() as f64
+                / quiet.len().max(1) as f64;
+            let (lo, hi) = band(NOMINAL2, quiet.len());
+            let quiet_far = quiet.iter().filter(|(p, _, _)| p.abs() > 4.0).count();
+            let quiet_far_unreachable =
+                quiet.iter().filter(|(p, _, u)| p.abs() > 4.0 && *u).count();
+            md.push_str(&format!(
+                "| {} | {method} | {} of {} | {} | {} | {} | {} | {cover:.3} | {lo:.3}–{:.3} | {quiet_far} ({quiet_far_unreachable}) |\n",
+                b.evals,
+                conv.len(),
+                here.len(),
+                shares(&in_conv, true),
+                shares(&all, true),
+                shares(&all, false),
+                quiet.len(),
+                hi.min(1.0),
             ));
         }
     }
@@ -169,7 +289,7 @@ pub(super) fn warning_summary(cells: &[Cell], budgets: &[Budget]) -> String {
     md
 }
 
-/// A convergence figure whose limit a sweep chooses: its name, the limit results warn at, the
+/// A warning's figure whose limit a sweep chooses: its name, the limit results warn at, the
 /// limits tried, the figure of a run, and its warning's label (the run's other warnings count as
 /// they are).
 pub(super) struct Sweep {
@@ -180,32 +300,40 @@ pub(super) struct Sweep {
     pub(super) label: &'static str,
 }
 
-/// The sweeps of the two convergence warnings.
-pub(super) const SWEEPS: [Sweep; 2] = [
+/// The sweeps of the limits.
+pub(super) const SWEEPS: [Sweep; 3] = [
+    Sweep {
+        name: "k̂",
+        limit: PARETO_K_LIMIT,
+        limits: &[0.5, 0.6, 0.7, 0.8, 1.0],
+        figure: |r| r.pareto_k,
+        label: "k̂",
+    },
     Sweep {
         name: "the divergence n/ESS − 1",
         limit: DIVERGENCE_LIMIT,
-        limits: &[1.0, 2.0, 3.0, 5.0, 10.0, 30.0],
+        limits: &[1.0, 3.0, 10.0, 30.0, 100.0],
         figure: |r| r.convergence.divergence,
         label: "divergence",
     },
     Sweep {
-        name: "the recalled weight (the largest weight the final sampler gives a training point \
-               over the estimate's largest)",
-        limit: RECALLED_WEIGHT_LIMIT,
-        limits: &[2.0, 3.0, 5.0, 10.0, 30.0, 100.0],
-        figure: |r| r.convergence.training_weight_ratio,
-        label: "recalled weight",
+        name: "the missing mass (in error bars)",
+        limit: MISSING_MASS_LIMIT,
+        limits: &[0.25, 0.5, 1.0, 2.0, 4.0],
+        figure: |r| r.convergence.missing_mass,
+        label: "missing mass",
     },
 ];
 
 /// The limits of `sweep` tried: the runs beyond 4σ left without a warning, the 2σ coverage of
-/// the runs without one, and the share of runs within 2σ warned, per limit.
+/// the runs without one, the share of runs within 2σ warned (all cells), and the share of runs
+/// within 2σ warned in the converged cells, per limit.
 pub(super) fn limit_sweep(cells: &[Cell], budgets: &[Budget], sweep: &Sweep) -> String {
     let mut md = format!(
         "How the limit on {} was chosen (results warn above {}): per limit, together with the \
          other warnings, the runs beyond 4σ left without a warning / the 2σ coverage of the \
-         runs without one (band) / the share of runs within 2σ warned.\n\n| budget | method |",
+         runs without one (lower end of the band) / the share of runs within 2σ warned, in all \
+         cells and in the converged ones.\n\n| budget | method |",
         sweep.name, sweep.limit
     );
     for l in sweep.limits {
@@ -218,91 +346,46 @@ pub(super) fn limit_sweep(cells: &[Cell], budgets: &[Budget], sweep: &Sweep) -> 
     for &b in budgets {
         for method in METHODS {
             let others = |r: &Run| warning_labels(r, method).iter().any(|l| *l != sweep.label);
-            let runs = pooled_runs(cells, b, method);
-            if runs.is_empty() {
+            let here: Vec<&Cell> = cells
+                .iter()
+                .filter(|c| c.evals == b.evals && c.method == method)
+                .collect();
+            if here.is_empty() || (sweep.label != "k̂" && method == "MC") {
                 continue;
             }
             md.push_str(&format!("| {} | {method} |", b.evals));
             for &l in sweep.limits {
                 let warned = |r: &Run| others(r) || (sweep.figure)(r).is_some_and(|v| v > l);
-                let missed = runs
-                    .iter()
-                    .filter(|(p, r)| p.abs() > 4.0 && !warned(r))
-                    .count();
-                let kept: Vec<f64> = runs
-                    .iter()
-                    .filter(|(_, r)| !warned(r))
-                    .map(|(p, _)| *p)
-                    .collect();
-                let cover = kept.iter().filter(|p| p.abs() <= 2.0).count() as f64
-                    / kept.len().max(1) as f64;
-                let (lo, _) = band(NOMINAL2, kept.len());
-                let within: Vec<&Run> = runs
-                    .iter()
-                    .filter(|(p, _)| p.abs() <= 2.0)
-                    .map(|(_, r)| *r)
-                    .collect();
-                let alarms =
-                    within.iter().filter(|r| warned(r)).count() as f64 / within.len().max(1) as f64;
-                md.push_str(&format!(" {missed} / {cover:.3} ({lo:.3}) / {alarms:.2} |"));
+                let (mut missed, mut kept, mut kept_in) = (0, 0usize, 0usize);
+                let (mut near, mut near_warned, mut near_conv, mut near_conv_warned) = (0, 0, 0, 0);
+                for c in &here {
+                    let conv = converged(c);
+                    for r in &c.runs {
+                        let p = c.pull(r).abs();
+                        let w = warned(r);
+                        missed += (p > 4.0 && !w) as usize;
+                        kept += !w as usize;
+                        kept_in += (!w && p <= 2.0) as usize;
+                        if p <= 2.0 {
+                            near += 1;
+                            near_warned += w as usize;
+                            near_conv += conv as usize;
+                            near_conv_warned += (w && conv) as usize;
+                        }
+                    }
+                }
+                let cover = kept_in as f64 / kept.max(1) as f64;
+                let (lo, _) = band(NOMINAL2, kept);
+                let alarms = near_warned as f64 / near.max(1) as f64;
+                let alarms_conv = near_conv_warned as f64 / near_conv.max(1) as f64;
+                md.push_str(&format!(
+                    " {missed} / {cover:.3} ({lo:.3}) / {alarms:.2} / {alarms_conv:.2} |"
+                ));
             }
             md.push('\n');
         }
     }
     md.push('\n');
-    md
-}
-
-/// How the k̂ flag sorts the runs, per budget and method, at the limit and two lower thresholds.
-pub(super) fn diagnostic_summary(cells: &[Cell], budgets: &[Budget]) -> String {
-    let mut md = format!(
-        "### The reliability flag\n\n\
-         Over all cells of a budget and method, for the limit k̂ > {PARETO_K_LIMIT} that results \
-         warn at and for PSIS's 0.7: the runs more than 4σ off and how many of them are flagged, \
-         the fraction of all runs flagged (the price: false alarms where the error bar was \
-         fine), and the 2σ coverage of the runs left unflagged, against the binomial 95% band \
-         for their number.\n\n\
-         | budget | method | runs | beyond 4σ | flagged ({PARETO_K_LIMIT}) | flagged (0.7) | all flagged ({PARETO_K_LIMIT}) | all flagged (0.7) | unflagged 2σ ({PARETO_K_LIMIT}) | band | unflagged 2σ (0.7) | band |\n\
-         |---|---|---|---|---|---|---|---|---|---|---|---|\n",
-    );
-    for &b in budgets {
-        for method in METHODS {
-            let runs = pooled_runs(cells, b, method);
-            if runs.is_empty() {
-                continue;
-            }
-            let flagged_at = |r: &Run, t: f64| r.pareto_k.is_some_and(|k| k > t);
-            let far: Vec<&(f64, &Run)> = runs.iter().filter(|(p, _)| p.abs() > 4.0).collect();
-            let caught = |t: f64| far.iter().filter(|(_, r)| flagged_at(r, t)).count();
-            let share = |t: f64| {
-                runs.iter().filter(|(_, r)| flagged_at(r, t)).count() as f64 / runs.len() as f64
-            };
-            // 2σ coverage of the unflagged runs, and the band for their number.
-            let unflagged = |t: f64| {
-                let kept: Vec<f64> = runs
-                    .iter()
-                    .filter(|(_, r)| !flagged_at(r, t))
-                    .map(|(p, _)| *p)
-                    .collect();
-                let cover = kept.iter().filter(|p| p.abs() <= 2.0).count() as f64
-                    / kept.len().max(1) as f64;
-                let (lo, hi) = band(NOMINAL2, kept.len());
-                format!("{cover:.3} | {lo:.3}–{:.3}", hi.min(1.0))
-            };
-            md.push_str(&format!(
-                "| {} | {method} | {} | {} | {} | {} | {:.2} | {:.2} | {} | {} |\n",
-                b.evals,
-                runs.len(),
-                far.len(),
-                caught(PARETO_K_LIMIT),
-                caught(0.7),
-                share(PARETO_K_LIMIT),
-                share(0.7),
-                unflagged(PARETO_K_LIMIT),
-                unflagged(0.7),
-            ));
-        }
-    }
     md
 }
 
@@ -382,13 +465,4 @@ pub(super) fn plot(cells: &[Cell], budgets: &[Budget]) -> Result<image::RgbImage
         root.present().map_err(figure_error)?;
     }
     image::RgbImage::from_raw(W, H, buffer).ok_or_else(|| figure_error("plot buffer size"))
-}
-
-/// Every run of `method` at budget `b` over all cells, with its pull.
-fn pooled_runs<'a>(cells: &'a [Cell], b: Budget, method: &str) -> Vec<(f64, &'a Run)> {
-    cells
-        .iter()
-        .filter(|c| c.evals == b.evals && c.method == method)
-        .flat_map(|c| c.runs.iter().map(move |r| (c.pull(r), r)))
-        .collect()
 }

@@ -4,6 +4,7 @@
 use std::time::Instant;
 
 use super::part::Sign;
+use crate::integrate::convergence::Convergence;
 use crate::integrate::diagnostics::WeightTail;
 use crate::integrate::result::{ChannelReport, IntegrationResult, SignReport};
 
@@ -32,6 +33,7 @@ pub(super) fn combine(
     // Every part's weights scaled by 1/n: each its point's share of the sum F.
     let mut tails = Vec::with_capacity(results.len());
     let mut trials = 0.0;
+    let mut missing = Missing::default();
     for (&(k, sign), r) in index.iter().zip(results) {
         let v = r.std_err * r.std_err;
         value += sign.factor() * r.value;
@@ -53,6 +55,7 @@ pub(super) fn combine(
             trials += r.value.abs() / r.unweighting_efficiency;
         }
         warnings.extend(part_warnings(k, sign, r));
+        missing.add(r);
     }
     report.std_errs.iter_mut().for_each(|v| *v = v.sqrt());
     if split {
@@ -63,6 +66,10 @@ pub(super) fn combine(
         warnings.push(format!("the channels' weights together: {w}"));
     }
     let abs_total: f64 = results.iter().map(|r| r.value.abs()).sum();
+    let convergence = missing.convergence(var.sqrt());
+    if let Some(w) = convergence.missing_mass_warning() {
+        warnings.push(format!("the channels together: {}", w.sentence));
+    }
     IntegrationResult {
         value,
         std_err: var.sqrt(),
@@ -83,8 +90,48 @@ pub(super) fn combine(
         var_rel_err: f64::NAN,
         seconds: started.elapsed().as_secs_f64(),
         warnings,
+        convergence,
         channels: Some(report),
         ..IntegrationResult::default()
+    }
+}
+
+/// The parts' missing masses ([`Convergence::missing_mass`]) summed, each in absolute units,
+/// so that the sum is judged against the combined error bar the user sees.
+#[derive(Default)]
+struct Missing {
+    mass: f64,
+    var: f64,
+    beyond: u64,
+    largest_shift: f64,
+    seen: bool,
+}
+
+impl Missing {
+    fn add(&mut self, r: &IntegrationResult) {
+        let c = &r.convergence;
+        if let Some(m) = c.missing_mass {
+            self.seen = true;
+            self.mass += m * r.std_err;
+            self.var += (c.missing_mass_err.unwrap_or(0.0) * r.std_err).powi(2);
+            self.beyond += c.recalled_beyond.unwrap_or(0);
+            self.largest_shift = self
+                .largest_shift
+                .max(c.recalled_shift.unwrap_or(0.0) * r.std_err);
+        }
+    }
+
+    fn convergence(&self, std_err: f64) -> Convergence {
+        if !self.seen || std_err <= 0.0 || !std_err.is_finite() {
+            return Convergence::default();
+        }
+        Convergence {
+            missing_mass: Some(self.mass / std_err),
+            missing_mass_err: Some(self.var.sqrt() / std_err),
+            recalled_beyond: Some(self.beyond),
+            recalled_shift: Some(self.largest_shift / std_err),
+            ..Convergence::default()
+        }
     }
 }
 
@@ -121,7 +168,7 @@ fn finished(mut signs: SignReport) -> SignReport {
 
 /// The warnings of part (channel `k`, `sign`), labelled with it; none for a part that is zero
 /// wherever it looked, which is normal here (the negative part of a channel where f > 0), and
-/// not its own k̂, which is judged on the parts' weights together.
+/// neither its own k̂ nor its missing mass, which are judged on the parts together.
 fn part_warnings(k: usize, sign: Sign, r: &IntegrationResult) -> Vec<String> {
     if r.value == 0.0 && r.std_err == 0.0 {
         return Vec::new();
@@ -132,9 +179,10 @@ fn part_warnings(k: usize, sign: Sign, r: &IntegrationResult) -> Vec<String> {
         Sign::Minus => format!("channel {k} (f < 0)"),
     };
     let own_k = r.reliability().warning();
+    let own_mass = r.convergence.missing_mass_warning().map(|w| w.sentence);
     r.warnings
         .iter()
-        .filter(|w| own_k.as_ref() != Some(*w))
+        .filter(|w| own_k.as_ref() != Some(*w) && own_mass.as_ref() != Some(*w))
         .map(|w| format!("{label}: {w}"))
         .collect()
 }

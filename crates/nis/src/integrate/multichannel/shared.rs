@@ -199,7 +199,13 @@ impl SharedFlow {
             for (p, &m) in counts.iter().enumerate() {
                 let rows = start..start + m;
                 let x = &samples.x[start * dim..(start + m) * dim];
-                self.memories[p].observe(x, &hx[rows.clone()], 1, &mut self.memory_rng);
+                self.memories[p].observe(
+                    x,
+                    &samples.log_q[rows.clone()],
+                    &hx[rows.clone()],
+                    1,
+                    &mut self.memory_rng,
+                );
                 sums[2 * p] = rows.map(|i| hx[i].abs() * (-samples.log_q[i]).exp()).sum();
                 sums[2 * p + 1] = m as f64;
                 start += m;

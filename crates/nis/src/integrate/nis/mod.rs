@@ -216,23 +216,40 @@ impl NisIntegrator {
         Ok(result)
     }
 
-    /// Sets `result`'s [`Convergence::training_weight_ratio`](super::Convergence) (the largest
-    /// weight the frozen sampler gives a point of the latest training, over the largest weight
-    /// of the estimate's final phase) and its warning.
+    /// Sets `result`'s recalled figures ([`Convergence::training_weight_ratio`], the mass
+    /// beyond and the shift: what the frozen sampler makes of the points of the latest
+    /// training, against the estimate's final phase) and their warning.
+    ///
+    /// [`Convergence::training_weight_ratio`]: super::Convergence::training_weight_ratio
     fn recall_training(&mut self, result: &mut IntegrationResult) -> Result<()> {
-        let largest_final = result
-            .iterations
-            .iter()
-            .filter(|i| i.source == super::Source::Final)
-            .fold(0.0f64, |m, i| m.max(i.max_abs_w));
+        let finals = || {
+            result
+                .iterations
+                .iter()
+                .filter(|i| i.source == super::Source::Final)
+        };
+        let largest_final = finals().fold(0.0f64, |m, i| m.max(i.max_abs_w));
+        let final_evals: u64 = finals().map(|i| i.evals).sum();
         if largest_final == 0.0 {
             return Ok(());
         }
-        let recalled = self.memory.largest_weight(&self.sampler, &self.comm)?;
-        result.convergence.training_weight_ratio = recalled.map(|w| w / largest_final);
-        result
-            .warnings
-            .extend(result.convergence.recalled_warning().map(|w| w.sentence));
+        let recall = self
+            .memory
+            .recall(&self.sampler, largest_final, &self.comm)?;
+        let (c, sigma) = (&mut result.convergence, result.std_err);
+        c.training_weight_ratio = recall.largest.map(|w| w / largest_final);
+        c.recalled_beyond = Some(recall.beyond);
+        if sigma > 0.0 && sigma.is_finite() && final_evals > 0 {
+            c.recalled_shift = recall.largest.map(|w| w / (final_evals as f64 * sigma));
+            c.missing_mass = Some(recall.mass / sigma);
+            c.missing_mass_err = Some(recall.mass_err / sigma);
+        }
+        result.warnings.extend(
+            result
+                .convergence
+                .missing_mass_warning()
+                .map(|w| w.sentence),
+        );
         Ok(())
     }
 

@@ -128,7 +128,8 @@ impl NisIntegrator {
                 .comm
                 .check(drawn.and_then(|(b, x64)| Ok((b, evaluate(f, &x64, dim)?))))?;
             let drawn_in = started.elapsed().as_secs_f64();
-            self.memory.observe(&b.x, &fx, k, &mut self.streams.memory);
+            self.memory
+                .observe(&b.x, &b.log_q_mix, &fx, k, &mut self.streams.memory);
             if let Some(p) = pieces.as_deref_mut() {
                 let z = latent_rng.map_or_else(Vec::new, |mut rng| {
                     crate::flow::uniform_latents(b.density_part.len() * dim, &mut rng)
