@@ -39,8 +39,9 @@ pub struct BenchCoverageArgs {
     /// Only this integrand.
     #[arg(long)]
     only: Option<String>,
-    /// The peaked cells of issue 40 (camel-sharp, gauss-sharp, gauss-diagonal, peaks, ridge in
-    /// d = 4, 6 and 8) instead of the default cells, into a section of their own.
+    /// The peaked cells (camel-sharp, gauss-sharp, gauss-diagonal, peaks, ridge in d = 4, 6 and
+    /// 8, and the signed pair gauss-pm in d = 2) instead of the default cells, into a section of
+    /// their own.
     #[arg(long)]
     peaked: bool,
     /// Seeds per cell instead of each budget's own.

@@ -167,8 +167,33 @@ impl Convergence {
                 ),
             });
         }
-        out.extend(self.missing_mass_warning());
+        out.extend(self.recalled_warnings());
         out
+    }
+
+    /// The warnings of the training points the final sampler is judged by: the missing mass
+    /// and the hole (NIS adds them once the final phase is done).
+    pub fn recalled_warnings(&self) -> Vec<ConvergenceWarning> {
+        let mut out: Vec<ConvergenceWarning> = self.missing_mass_warning().into_iter().collect();
+        if out.is_empty() {
+            out.extend(self.hole_warning());
+        }
+        out
+    }
+
+    /// The warning of [`Convergence::recalled_shift`] above [`HOLE_LIMIT`].
+    pub fn hole_warning(&self) -> Option<ConvergenceWarning> {
+        let s = self.recalled_shift.filter(|s| *s > HOLE_LIMIT)?;
+        Some(ConvergenceWarning {
+            label: "hole",
+            sentence: format!(
+                "the final flow has a hole where its training saw f: at a point training \
+                 evaluated, its density is so low that one draw there would move the estimate by \
+                 {s:.0} error bars. The training points there carry little of ∫|f| (they may \
+                 be the flanks of a peak the flow dropped), so how much the estimate misses is \
+                 unknown, and no error bar shows it; {ADVICE_MORE}"
+            ),
+        })
     }
 
     /// The warning of [`Convergence::missing_mass`] above [`MISSING_MASS_LIMIT`] (NIS adds it
@@ -192,6 +217,14 @@ impl Convergence {
 /// the part of ∫|f| that the estimate could not see would move the answer by more than its error
 /// bar. Chosen by the sweep of limits in docs/results/robustness.md (issue-55 section).
 pub const MISSING_MASS_LIMIT: f64 = 1.0;
+
+/// The shift ([`Convergence::recalled_shift`], in error bars) above which a result warns of a
+/// hole. Under an honest error bar σ, the region where one draw moves the estimate by s error
+/// bars holds at most σ/s of ∫|f| (Cauchy–Schwarz on the weights' second moment), so a point
+/// there is no evidence of missing mass by itself; a hole this deep is rare in converged flows
+/// and common where a peak was dropped. Chosen by the sweep of limits in
+/// docs/results/robustness.md (issue-55 section).
+pub const HOLE_LIMIT: f64 = 100.0;
 
 /// The divergence above which a result warns: its estimate then rests on fewer than a quarter of
 /// its points. Chosen by the sweep of limits in docs/results/robustness.md (issue-40 section).
@@ -240,6 +273,24 @@ mod tests {
             (None, None, None)
         );
         assert!(c.max_weight_share.is_some() && c.final_trend.is_some());
+    }
+
+    #[test]
+    fn the_missing_mass_warns_above_its_limit_and_a_hole_only_without_it() {
+        let labels = |c: &Convergence| c.warnings().iter().map(|w| w.label).collect::<Vec<_>>();
+        let mut c = Convergence {
+            missing_mass: Some(0.5 * MISSING_MASS_LIMIT),
+            missing_mass_err: Some(0.1),
+            recalled_shift: Some(0.5 * HOLE_LIMIT),
+            ..Convergence::default()
+        };
+        assert!(labels(&c).is_empty());
+        c.recalled_shift = Some(2.0 * HOLE_LIMIT);
+        assert_eq!(labels(&c), ["hole"]);
+        c.missing_mass = Some(2.0 * MISSING_MASS_LIMIT);
+        assert_eq!(labels(&c), ["missing mass"]);
+        let w = c.missing_mass_warning().unwrap().sentence;
+        assert!(w.contains("2.0 ± 0.1 times the error bar"), "{w}");
     }
 
     /// The divergence of the uniform density from a Gaussian exp(−|x − ½|²/α²) on [0, 1]^d

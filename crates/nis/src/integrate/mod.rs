@@ -35,7 +35,9 @@ use serde::{Deserialize, Serialize};
 use crate::comm::Comm;
 use crate::error::{Error, Result};
 
-pub use convergence::{Convergence, ConvergenceWarning, DIVERGENCE_LIMIT, MISSING_MASS_LIMIT};
+pub use convergence::{
+    Convergence, ConvergenceWarning, DIVERGENCE_LIMIT, HOLE_LIMIT, MISSING_MASS_LIMIT,
+};
 pub use diagnostics::{Reliability, PARETO_K_LIMIT};
 pub use estimate::Accumulator;
 pub use integrand::{check_dim, evaluate, points_per_task, Integrand, TrainOn, VectorFn};

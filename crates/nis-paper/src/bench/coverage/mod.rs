@@ -10,7 +10,8 @@ use std::path::{Path, PathBuf};
 
 use nis::integrands::{self, Builtin, SUITE};
 use nis::integrate::{
-    integrator, Convergence, Method, Settings, DIVERGENCE_LIMIT, MISSING_MASS_LIMIT, PARETO_K_LIMIT,
+    integrator, Convergence, Method, Settings, DIVERGENCE_LIMIT, HOLE_LIMIT, MISSING_MASS_LIMIT,
+    PARETO_K_LIMIT,
 };
 use nis::loss::Loss;
 use plotters::prelude::*;
@@ -61,7 +62,8 @@ pub const DEFAULT_CELLS: &[(&str, usize)] = &[
     ("ridge", 4),
 ];
 
-/// The peaked cells of issue 40, where small budgets leave the sampler unconverged (`--peaked`).
+/// The peaked cells of issue 40, where small budgets leave the sampler unconverged, and a signed
+/// pair of peaks that NIS splits by sign (`--peaked`).
 pub const PEAKED_CELLS: &[(&str, usize)] = &[
     ("camel-sharp", 4),
     ("camel-sharp", 6),
@@ -78,6 +80,7 @@ pub const PEAKED_CELLS: &[(&str, usize)] = &[
     ("ridge", 4),
     ("ridge", 6),
     ("ridge", 8),
+    ("gauss-pm", 2),
 ];
 
 /// The methods, as the table names them.
@@ -453,10 +456,14 @@ mod tests {
         quiet.convergence.training_weight_ratio = Some(100.0);
         assert_eq!(warning_labels(&quiet, "NIS-χ²"), ["divergence"]);
         quiet.convergence.missing_mass = Some(2.0 * MISSING_MASS_LIMIT);
+        quiet.convergence.recalled_shift = Some(2.0 * HOLE_LIMIT);
         assert_eq!(
             warning_labels(&quiet, "NIS-χ²"),
             ["divergence", "missing mass"]
         );
+        // A hole warns only where the mass does not.
+        quiet.convergence.missing_mass = Some(0.5 * MISSING_MASS_LIMIT);
+        assert_eq!(warning_labels(&quiet, "NIS-χ²"), ["divergence", "hole"]);
     }
 
     #[test]

@@ -77,7 +77,7 @@ pub fn warning_labels(r: &Run, method: &str) -> Vec<&'static str> {
 }
 
 /// The warnings of the table, in its column order.
-pub(super) const WARNINGS: [&str; 4] = ["χ²", "k̂", "divergence", "missing mass"];
+pub(super) const WARNINGS: [&str; 5] = ["χ²", "k̂", "divergence", "missing mass", "hole"];
 
 /// Whether a cell's sampler has converged at its budget: its runs cover at 2σ within the
 /// binomial band, at most [`CONVERGED_FAR`] of them lie beyond 4σ, and the median run's sampler
@@ -129,14 +129,16 @@ pub(super) fn warning_cells(cells: &[Cell], budgets: &[Budget]) -> String {
          could have shown (their training points estimate the missed mass below \
          {MISSING_MASS_LIMIT} error bars, or the method keeps none). Warnings: χ²/dof > 3, \
          k̂ > {PARETO_K_LIMIT}, divergence > {DIVERGENCE_LIMIT} (not for MC), missing mass > \
-         {MISSING_MASS_LIMIT} error bars (NIS).\n\n",
+         {MISSING_MASS_LIMIT} error bars (NIS), hole: one draw at a training point would move \
+         the estimate by more than {HOLE_LIMIT} error bars (NIS, when the mass does not \
+         warn).\n\n",
         100.0 * CONVERGED_FAR
     );
     for &b in budgets {
         md.push_str(&format!(
             "#### {} evaluations, {} seeds\n\n\
-             | cell | method | converged | within 2σ | flagged (any) | χ² | k̂ | divergence | missing mass | beyond 4σ | caught (any) | χ² | k̂ | divergence | missing mass | unwarned (unreachable) |\n\
-             |---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|\n",
+             | cell | method | converged | within 2σ | flagged (any) | χ² | k̂ | divergence | missing mass | hole | beyond 4σ | caught (any) | χ² | k̂ | divergence | missing mass | hole | unwarned (unreachable) |\n\
+             |---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|\n",
             b.evals, b.seeds
         ));
         for c in cells.iter().filter(|c| c.evals == b.evals) {
@@ -211,7 +213,7 @@ pub(super) fn warning_summary(cells: &[Cell], budgets: &[Budget]) -> String {
          (a run may carry several); then the runs without any warning, their 2σ coverage \
          against the binomial 95% band for their number, and how many of them lie beyond 4σ \
          (unreachable ones in brackets).\n\n\
-         | budget | method | converged cells | flags within 2σ, converged: any · χ² · k̂ · divergence · missing mass | flags within 2σ, all | catches beyond 4σ (of n) | unwarned | unwarned 2σ | band | unwarned beyond 4σ |\n\
+         | budget | method | converged cells | flags within 2σ, converged: any · χ² · k̂ · divergence · missing mass · hole | flags within 2σ, all | catches beyond 4σ (of n) | unwarned | unwarned 2σ | band | unwarned beyond 4σ |\n\
          |---|---|---|---|---|---|---|---|---|---|\n",
     );
     for &b in budgets {
@@ -301,7 +303,7 @@ pub(super) struct Sweep {
 }
 
 /// The sweeps of the limits.
-pub(super) const SWEEPS: [Sweep; 3] = [
+pub(super) const SWEEPS: [Sweep; 4] = [
     Sweep {
         name: "k̂",
         limit: PARETO_K_LIMIT,
@@ -322,6 +324,13 @@ pub(super) const SWEEPS: [Sweep; 3] = [
         limits: &[0.25, 0.5, 1.0, 2.0, 4.0],
         figure: |r| r.convergence.missing_mass,
         label: "missing mass",
+    },
+    Sweep {
+        name: "the hole (the shift one draw at a training point would give, in error bars)",
+        limit: HOLE_LIMIT,
+        limits: &[10.0, 30.0, 100.0, 300.0, 1000.0],
+        figure: |r| r.convergence.recalled_shift,
+        label: "hole",
     },
 ];
 

@@ -67,7 +67,7 @@ pub(super) fn combine(
     }
     let abs_total: f64 = results.iter().map(|r| r.value.abs()).sum();
     let convergence = missing.convergence(var.sqrt());
-    if let Some(w) = convergence.missing_mass_warning() {
+    for w in convergence.recalled_warnings() {
         warnings.push(format!("the channels together: {}", w.sentence));
     }
     IntegrationResult {
@@ -168,7 +168,7 @@ fn finished(mut signs: SignReport) -> SignReport {
 
 /// The warnings of part (channel `k`, `sign`), labelled with it; none for a part that is zero
 /// wherever it looked, which is normal here (the negative part of a channel where f > 0), and
-/// neither its own k̂ nor its missing mass, which are judged on the parts together.
+/// neither its own k̂ nor its missing mass or hole, which are judged on the parts together.
 fn part_warnings(k: usize, sign: Sign, r: &IntegrationResult) -> Vec<String> {
     if r.value == 0.0 && r.std_err == 0.0 {
         return Vec::new();
@@ -179,10 +179,15 @@ fn part_warnings(k: usize, sign: Sign, r: &IntegrationResult) -> Vec<String> {
         Sign::Minus => format!("channel {k} (f < 0)"),
     };
     let own_k = r.reliability().warning();
-    let own_mass = r.convergence.missing_mass_warning().map(|w| w.sentence);
+    let own: Vec<String> = r
+        .convergence
+        .recalled_warnings()
+        .into_iter()
+        .map(|w| w.sentence)
+        .collect();
     r.warnings
         .iter()
-        .filter(|w| own_k.as_ref() != Some(*w) && own_mass.as_ref() != Some(*w))
+        .filter(|w| own_k.as_ref() != Some(*w) && !own.contains(w))
         .map(|w| format!("{label}: {w}"))
         .collect()
 }
