@@ -14,7 +14,7 @@ pub(super) const NOMINAL2: f64 = 0.954_499_736_103_641_6;
 
 pub(super) fn markdown(cells: &[Cell], budgets: &[Budget]) -> String {
     let mut md = String::from(
-        "`nis bench coverage` (the default cells; `--peaked` the peaked ones of issue 40; \
+        "`nis bench coverage` (the default cells; `--peaked` the peaked ones and a signed pair; \
          `--full` the whole suite). Per cell: the \
          fraction of seeds whose 1σ and 2σ intervals cover the exact value (nominal 0.683 and \
          0.954), the mean and the worst pull (value − exact)/σ, the mean χ²/dof between the \
