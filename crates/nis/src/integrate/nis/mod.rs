@@ -244,12 +244,10 @@ impl NisIntegrator {
             c.missing_mass = Some(recall.mass / sigma);
             c.missing_mass_err = Some(recall.mass_err / sigma);
         }
-        result.warnings.extend(
-            result
-                .convergence
-                .missing_mass_warning()
-                .map(|w| w.sentence),
-        );
+        let recalled = result.convergence.recalled_warnings();
+        result
+            .warnings
+            .extend(recalled.into_iter().map(|w| w.sentence));
         Ok(())
     }
 

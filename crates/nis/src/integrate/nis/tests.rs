@@ -2,7 +2,7 @@
 //! final flow dropped.
 
 use super::*;
-use crate::integrate::MISSING_MASS_LIMIT;
+use crate::integrate::{HOLE_LIMIT, MISSING_MASS_LIMIT};
 use crate::TransformKind;
 
 /// A narrow Gaussian bump (std 0.03) at (c, c), of integral about 1.
