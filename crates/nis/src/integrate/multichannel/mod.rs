@@ -456,15 +456,17 @@ impl Integrator for MultiChannel {
         // Estimate: the rest in proportion to each part's σ per evaluation, with a floor.
         let rest = evals.saturating_sub(spent);
         let floor = (rest / (50 * parts)).max(MIN_PART_EVALS);
-        let spare = rest.saturating_sub(floor * parts) as f64;
         let mut results = Vec::with_capacity(self.parts.len());
         let w = Weighting {
             set: &self.set,
             a: &self.weights,
             net: self.net.as_ref(),
         };
-        for (p, share) in self.parts.iter_mut().zip(neyman(&sd)) {
-            let n = floor + (spare * share) as u64;
+        for (p, n) in self
+            .parts
+            .iter_mut()
+            .zip(allocate(rest, floor, &neyman(&sd)))
+        {
             let h = PartIntegrand::new(f, w, p.channel, p.sign);
             let r = estimate_part(p, &h, n)?;
             spent += r.n_eval;
@@ -534,6 +536,28 @@ fn neyman(sd: &[f64]) -> Vec<f64> {
             }
         })
         .collect()
+}
+
+/// `total` evaluations in whole numbers by `shares` (summing to one), each part at least `floor`:
+/// `floor` plus its share of the rest rounded down, and the units the rounding left to the parts
+/// with the largest remainders, so that they add up to `total` (to more when the floors do).
+fn allocate(total: u64, floor: u64, shares: &[f64]) -> Vec<u64> {
+    let spare = total.saturating_sub(floor * shares.len() as u64);
+    let exact: Vec<f64> = shares.iter().map(|s| spare as f64 * s).collect();
+    let mut n: Vec<u64> = exact.iter().map(|e| *e as u64).collect();
+    let mut left = spare.saturating_sub(n.iter().sum());
+    let mut by_remainder: Vec<usize> = (0..n.len()).collect();
+    by_remainder.sort_by(|&i, &j| (exact[j] - n[j] as f64).total_cmp(&(exact[i] - n[i] as f64)));
+    while left > 0 && !n.is_empty() {
+        for &i in &by_remainder {
+            if left == 0 {
+                break;
+            }
+            n[i] += 1;
+            left -= 1;
+        }
+    }
+    n.iter().map(|n| floor + n).collect()
 }
 
 impl MultiChannel {
