@@ -522,8 +522,8 @@ fn a_weight_network_keeps_estimates_unbiased_lowers_the_variance_and_is_saved() 
         );
     }
     assert!(covered >= 16, "{covered} of 20 within 2σ");
-    // Lower variance per evaluation, every evaluation counted (2.6× over seeds 1–3 at 10⁶,
-    // docs/results/integration.md; each seed's σ² is within ~20 % at this budget).
+    // Lower variance per evaluation, every evaluation counted (docs/results/integration.md,
+    // "Learned channel weights"; each seed's σ² is within ~20 % at this budget).
     let rel_var = |r: &IntegrationResult| r.std_err.powi(2) * r.n_eval as f64 / r.value.powi(2);
     let (mut plain, mut net) = (0.0, 0.0);
     for seed in 1..=4 {
