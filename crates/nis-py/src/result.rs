@@ -82,7 +82,9 @@ impl PyIntegrationResult {
         self.r.n_eval
     }
 
-    /// Var(f/q)/F² per evaluation of the final phase (1/n_eff per point; smaller is better).
+    /// Var(f/q)/F² per evaluation of the estimate: n·sdev²/mean², n the evaluations that make the
+    /// estimate (`iterations`' or `channel_evals`' sum; not those that only trained or adapted
+    /// the sampler); smaller is better.
     #[getter]
     fn rel_var_per_eval(&self) -> f64 {
         self.r.rel_var_per_eval

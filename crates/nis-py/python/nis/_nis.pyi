@@ -44,7 +44,9 @@ class IntegrationResult:
         """All evaluations of the integrand in the call, training included."""
     @property
     def rel_var_per_eval(self) -> float:
-        """Var(f/q)/F² per evaluation of the final phase."""
+        """Var(f/q)/F² per evaluation of the estimate: n·sdev²/mean², n the evaluations that make
+        the estimate (``iterations``' or ``channel_evals``' sum; not those that only trained or
+        adapted the sampler); smaller is better."""
     @property
     def unweighting_efficiency(self) -> float:
         """mean(|w|)/max(|w|) of the final phase's weights."""
