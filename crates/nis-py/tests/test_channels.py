@@ -194,8 +194,11 @@ def test_a_plus_minus_pair_is_split_by_sign():
     r = integ(f, evals=200_000)
     s = r.signs
     assert s is not None and set(s) == {
-        "positive", "positive_sdev", "negative", "negative_sdev", "negative_fraction"
+        "positive", "positive_sdev", "negative", "negative_sdev", "negative_fraction",
+        "positive_evals", "negative_evals",
     }
+    assert s["positive_evals"] > 0 and s["negative_evals"] > 0
+    assert s["positive_evals"] + s["negative_evals"] == r.channel_evals.sum()
     assert within(r, 0.2)
     assert abs(s["positive"] - 0.245) < 4 * s["positive_sdev"]
     assert abs(s["negative"] - 0.045) < 4 * s["negative_sdev"]

@@ -97,7 +97,8 @@ class IntegrationResult:
     def signs(self) -> Optional[Dict[str, float]]:
         """When the integrand was split by sign: ``positive`` (∫ max(f, 0)), ``positive_sdev``,
         ``negative`` (∫ max(−f, 0)), ``negative_sdev``, ``negative_fraction``
-        (negative/(positive + negative)); None otherwise."""
+        (negative/(positive + negative)), and the estimate's evaluations of each sign's parts,
+        ``positive_evals`` and ``negative_evals``; None otherwise."""
     def summary(self) -> str:
         """The readable summary, ``str(r)``."""
 

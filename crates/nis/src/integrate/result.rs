@@ -170,7 +170,7 @@ impl std::fmt::Display for IntegrationResult {
 impl IntegrationResult {
     /// The table of a multi-channel result: a row per channel (its share ∫ α_k f of the
     /// integral, which moves with the weights a_k, and the evaluations of its parts' estimates),
-    /// F⁺ and F⁻ when split by sign, then the rest.
+    /// F⁺ and F⁻ when split by sign (the same evaluations, by sign), then the rest.
     fn fmt_channels(&self, c: &ChannelReport, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         writeln!(
             f,
@@ -187,16 +187,17 @@ impl IntegrationResult {
         if let Some(s) = &c.signs {
             writeln!(
                 f,
-                "{:>7}  {:>8}  {:>12.6e} ± {:.2e}",
-                "f > 0", "", s.positive, s.positive_err
+                "{:>7}  {:>8}  {:>12.6e} ± {:<9.2e}  {:>10}",
+                "f > 0", "", s.positive, s.positive_err, s.positive_evals
             )?;
             writeln!(
                 f,
-                "{:>7}  {:>8}  {:>12.6e} ± {:<9.2e}  ({:.1}% of the events negative)",
+                "{:>7}  {:>8}  {:>12.6e} ± {:<9.2e}  {:>10}  ({:.1}% of the events negative)",
                 "f < 0",
                 "",
                 s.negative,
                 s.negative_err,
+                s.negative_evals,
                 100.0 * s.negative_fraction
             )?;
         }
@@ -321,4 +322,10 @@ pub struct SignReport {
     pub negative_err: f64,
     /// F⁻/(F⁺ + F⁻): the share of unweighted events that carry a negative weight.
     pub negative_fraction: f64,
+    /// The estimate's evaluations of the f > 0 parts (every channel's).
+    #[serde(default)]
+    pub positive_evals: u64,
+    /// The estimate's evaluations of the f < 0 parts.
+    #[serde(default)]
+    pub negative_evals: u64,
 }

@@ -647,7 +647,12 @@ fn a_budget_is_spent_to_the_evaluation() {
         for evals in [200_000, 333_333] {
             let mut auto = AutoSigns::new(method, 2, Settings::default().seed(1)).unwrap();
             let r = auto.integrate(&signed, evals).unwrap();
-            assert!(r.channels.as_ref().is_some_and(|c| c.signs.is_some()));
+            let c = r.channels.as_ref().unwrap();
+            let s = c.signs.unwrap();
+            assert_eq!(
+                s.positive_evals + s.negative_evals,
+                c.evals.iter().sum::<u64>()
+            );
             assert_eq!(r.n_eval, evals, "{method}, split by sign");
             let config = MultiChannelConfig::default();
             let (r, _) = integrate("resonances-4d", method, evals, 2, config);
