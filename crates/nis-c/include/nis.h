@@ -162,7 +162,8 @@ typedef struct nis_result {
    */
   uint64_t n_eval;
   /**
-   * Var(f/q)/F² per evaluation of the final phase.
+   * Var(f/q)/F² per evaluation of the estimate: n·std_err²/value², n the evaluations that make
+   * the estimate (not those that only trained or adapted the sampler).
    */
   double rel_var_per_eval;
   /**

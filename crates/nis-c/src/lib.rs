@@ -106,7 +106,8 @@ pub struct nis_result {
     pub chi2_per_dof: f64,
     /// All evaluations of the integrand in this call, training included.
     pub n_eval: u64,
-    /// Var(f/q)/F² per evaluation of the final phase.
+    /// Var(f/q)/F² per evaluation of the estimate: n·std_err²/value², n the evaluations that make
+    /// the estimate (not those that only trained or adapted the sampler).
     pub rel_var_per_eval: f64,
     /// Unweighting efficiency mean(|w|)/max(|w|) of the final phase's weights.
     pub unweighting_efficiency: f64,

@@ -287,6 +287,17 @@ pub fn row(label: &str, r: &IntegrationResult, exact: f64) -> String {
 
 pub const HEADER: &str = "method            value ± std_err          pull  rel.var/eval  χ²/dof     k̂    n_eval  unw.eff  seconds";
 
+/// How to read the table, printed under it.
+pub const LEGEND: &str = "\
+pull: (value − exact)/std_err; beyond ±3 the error bar is too small.
+rel.var/eval: n·std_err²/value², n the evaluations that make the estimate (not those that only
+  trained or adapted the sampler): the sampler's quality, lower is better; the error of n such
+  evaluations is |value|·√(rel.var/eval / n).
+χ²/dof near 1 and k̂ below 0.5: the error bar can be trusted (above, a warning says why not).
+unw.eff: mean|w|/max|w|, the share of points kept as unweighted events.
+n_eval, seconds: the whole run, training included. NIS pays where the integrand is peaked or
+  correlated and a point costs more than the flow's pass (docs/results/integration.md).";
+
 /// `nis integrate`: every rank of `comm` runs it; rank 0 alone prints.
 pub fn run(args: &IntegrateArgs, comm: &Comm) -> Result<(), Error> {
     let f = integrands::by_name(&args.name, args.dim)?;
@@ -354,6 +365,9 @@ pub fn run(args: &IntegrateArgs, comm: &Comm) -> Result<(), Error> {
             }
         }
         results.push((m, r));
+    }
+    if !args.json && root {
+        println!("{LEGEND}");
     }
     let labelled: Vec<(&str, &IntegrationResult)> =
         results.iter().map(|(m, r)| (m.label(), r)).collect();

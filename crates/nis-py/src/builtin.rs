@@ -7,7 +7,7 @@ use nis::integrate::Integrand;
 use numpy::PyArray1;
 use pyo3::prelude::*;
 
-use crate::{count, rows, to_py_err};
+use crate::{dimension, rows, to_py_err};
 
 /// A built-in integrand of the suite with its exact integral over the unit hypercube.
 ///
@@ -26,7 +26,7 @@ impl PyBuiltin {
     #[new]
     #[pyo3(signature = (name, dim = None))]
     fn new(name: &str, dim: Option<i64>) -> PyResult<PyBuiltin> {
-        let dim = dim.map(|d| count("dim", d)).transpose()?;
+        let dim = dim.map(|d| dimension("dim", d)).transpose()?;
         Ok(PyBuiltin {
             inner: integrands::by_name(name, dim).map_err(to_py_err)?,
         })

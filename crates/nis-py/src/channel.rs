@@ -17,7 +17,7 @@ use numpy::{PyArray1, PyArrayDyn, PyArrayMethods, PyUntypedArrayMethods};
 use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
 
-use crate::{count, rows, shape_str, to_py_err};
+use crate::{dimension, rows, shape_str, to_py_err};
 
 /// The first exception a Python channel raised during a call.
 #[derive(Default)]
@@ -181,10 +181,7 @@ impl PyChannel {
                 "a channel's prior must be finite and > 0, got {prior}"
             )));
         }
-        let dim = dim.map(|d| count("dim", d)).transpose()?;
-        if dim == Some(0) {
-            return Err(PyValueError::new_err("a channel's dim must be at least 1"));
-        }
+        let dim = dim.map(|d| dimension("dim", d)).transpose()?;
         Ok(PyChannel {
             source: Source::Python {
                 sample: sample.clone().unbind(),

@@ -82,7 +82,9 @@ impl PyIntegrationResult {
         self.r.n_eval
     }
 
-    /// Var(f/q)/F² per evaluation of the final phase (1/n_eff per point; smaller is better).
+    /// Var(f/q)/F² per evaluation of the estimate: n·sdev²/mean², n the evaluations that make the
+    /// estimate (`iterations`' or `channel_evals`' sum; not those that only trained or adapted
+    /// the sampler); smaller is better.
     #[getter]
     fn rel_var_per_eval(&self) -> f64 {
         self.r.rel_var_per_eval
@@ -182,8 +184,9 @@ impl PyIntegrationResult {
     }
 
     /// When the integrand was split by sign: a dict with `positive` (F⁺ = ∫ max(f, 0)),
-    /// `positive_sdev`, `negative` (F⁻ = ∫ max(−f, 0)), `negative_sdev` and
-    /// `negative_fraction` (F⁻/(F⁺ + F⁻)); None otherwise.
+    /// `positive_sdev`, `negative` (F⁻ = ∫ max(−f, 0)), `negative_sdev`, `negative_fraction`
+    /// (F⁻/(F⁺ + F⁻)) and the estimate's evaluations of each sign's parts, `positive_evals`
+    /// and `negative_evals`; None otherwise.
     #[getter]
     fn signs<'py>(&self, py: Python<'py>) -> PyResult<Option<Bound<'py, PyDict>>> {
         let Some(s) = self.r.channels.as_ref().and_then(|c| c.signs) else {
@@ -195,6 +198,8 @@ impl PyIntegrationResult {
         d.set_item("negative", s.negative)?;
         d.set_item("negative_sdev", s.negative_err)?;
         d.set_item("negative_fraction", s.negative_fraction)?;
+        d.set_item("positive_evals", s.positive_evals)?;
+        d.set_item("negative_evals", s.negative_evals)?;
         Ok(Some(d))
     }
 

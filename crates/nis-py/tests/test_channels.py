@@ -194,8 +194,11 @@ def test_a_plus_minus_pair_is_split_by_sign():
     r = integ(f, evals=200_000)
     s = r.signs
     assert s is not None and set(s) == {
-        "positive", "positive_sdev", "negative", "negative_sdev", "negative_fraction"
+        "positive", "positive_sdev", "negative", "negative_sdev", "negative_fraction",
+        "positive_evals", "negative_evals",
     }
+    assert s["positive_evals"] > 0 and s["negative_evals"] > 0
+    assert s["positive_evals"] + s["negative_evals"] == r.channel_evals.sum()
     assert within(r, 0.2)
     assert abs(s["positive"] - 0.245) < 4 * s["positive_sdev"]
     assert abs(s["negative"] - 0.045) < 4 * s["negative_sdev"]
@@ -216,7 +219,7 @@ def test_nis_splits_a_sign_changing_integrand_by_default():
     assert integ.channels is None
     r = integ(f, evals=100_000)
     assert r.signs is not None and within(r, 0.2)
-    assert r.n_eval <= 100_000
+    assert r.n_eval == 100_000  # every evaluation asked for, split or not
     with pytest.raises(ValueError, match="changed sign"):
         integ.train(f, 1000)
     assert nis.Integrator(2, "vegas", seed=4)(f, evals=100_000).signs is None
@@ -331,6 +334,8 @@ def test_a_bad_channel_raises_value_error_naming_it_at_the_first_batch(sample, d
         (lambda: nis.Channel(good, flat, prior=-1.0), "prior"),
         (lambda: nis.Channel(good, flat, prior=float("nan")), "prior"),
         (lambda: nis.Channel(good, 3), "callable"),
+        (lambda: nis.Channel(good, flat, dim=0), r"dim must be a positive integer \(1 or more\)"),
+        (lambda: nis.Channel(good, flat, dim=-1), r"dim must be a positive integer \(1 or more\)"),
         (lambda: nis.Integrator(2, channels=[good_channel(), nis.Channel(good, flat, dim=3)]),
          "channel 1 has dimension 3"),
         (lambda: nis.Integrator(2, channels=nis.integrands.channels("resonances-4d")),

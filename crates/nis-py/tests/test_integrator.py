@@ -152,8 +152,12 @@ def test_bad_settings_raise_value_error(kwargs):
 
 
 def test_bad_arguments_raise_value_error(gauss):
-    with pytest.raises(ValueError):
-        nis.Integrator(0)
+    # A dimension below 1 says what is allowed, in words, whether 0 or negative.
+    for dim in (0, -1):
+        with pytest.raises(ValueError, match=r"dim must be a positive integer \(1 or more\)"):
+            nis.Integrator(dim)
+        with pytest.raises(ValueError, match=r"dim must be a positive integer \(1 or more\)"):
+            nis.integrands.gauss(dim=dim)
     integ = nis.Integrator(2, seed=0)
     with pytest.raises(ValueError):
         integ(gauss, evals=-5)

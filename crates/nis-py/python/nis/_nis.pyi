@@ -44,7 +44,9 @@ class IntegrationResult:
         """All evaluations of the integrand in the call, training included."""
     @property
     def rel_var_per_eval(self) -> float:
-        """Var(f/q)/F² per evaluation of the final phase."""
+        """Var(f/q)/F² per evaluation of the estimate: n·sdev²/mean², n the evaluations that make
+        the estimate (``iterations``' or ``channel_evals``' sum; not those that only trained or
+        adapted the sampler); smaller is better."""
     @property
     def unweighting_efficiency(self) -> float:
         """mean(|w|)/max(|w|) of the final phase's weights."""
@@ -95,7 +97,8 @@ class IntegrationResult:
     def signs(self) -> Optional[Dict[str, float]]:
         """When the integrand was split by sign: ``positive`` (∫ max(f, 0)), ``positive_sdev``,
         ``negative`` (∫ max(−f, 0)), ``negative_sdev``, ``negative_fraction``
-        (negative/(positive + negative)); None otherwise."""
+        (negative/(positive + negative)), and the estimate's evaluations of each sign's parts,
+        ``positive_evals`` and ``negative_evals``; None otherwise."""
     def summary(self) -> str:
         """The readable summary, ``str(r)``."""
 

@@ -21,7 +21,10 @@ pub struct IntegrationResult {
     /// All evaluations of the integrand, training included.
     pub n_eval: u64,
     /// Var(f/q)/F² per evaluation of the estimate: n·std_err²/value², n the evaluations that make
-    /// it (the final phase's, and the kept training batches' for NIS with training reused).
+    /// it (the final phase's, and the kept training batches' for NIS with training reused; a
+    /// multi-channel integral's parts' estimates), never those that only adapted the sampler (a
+    /// sign pilot, a part's adaptation, a weight network's fit): the evaluations of the printed
+    /// table's rows, `n_eval` less its "adapting" row. One definition for every method.
     pub rel_var_per_eval: f64,
     /// Unweighting efficiency mean(|w|)/max(|w|) of the final phase's weights.
     pub unweighting_efficiency: f64,
@@ -160,13 +163,14 @@ impl std::fmt::Display for IntegrationResult {
         }
         let estimated: u64 = self.iterations.iter().map(|i| i.evals).sum();
         self.fmt_adapting(estimated, 5, f)?;
-        self.fmt_summary(f)
+        self.fmt_summary(estimated, f)
     }
 }
 
 impl IntegrationResult {
     /// The table of a multi-channel result: a row per channel (its share ∫ α_k f of the
-    /// integral, which moves with the weights a_k), F⁺ and F⁻ when split by sign, then the rest.
+    /// integral, which moves with the weights a_k, and the evaluations of its parts' estimates),
+    /// F⁺ and F⁻ when split by sign (the same evaluations, by sign), then the rest.
     fn fmt_channels(&self, c: &ChannelReport, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         writeln!(
             f,
@@ -183,21 +187,23 @@ impl IntegrationResult {
         if let Some(s) = &c.signs {
             writeln!(
                 f,
-                "{:>7}  {:>8}  {:>12.6e} ± {:<9.2e}",
-                "f > 0", "", s.positive, s.positive_err
+                "{:>7}  {:>8}  {:>12.6e} ± {:<9.2e}  {:>10}",
+                "f > 0", "", s.positive, s.positive_err, s.positive_evals
             )?;
             writeln!(
                 f,
-                "{:>7}  {:>8}  {:>12.6e} ± {:<9.2e}  ({:.1}% of the events negative)",
+                "{:>7}  {:>8}  {:>12.6e} ± {:<9.2e}  {:>10}  ({:.1}% of the events negative)",
                 "f < 0",
                 "",
                 s.negative,
                 s.negative_err,
+                s.negative_evals,
                 100.0 * s.negative_fraction
             )?;
         }
-        self.fmt_adapting(c.evals.iter().sum(), 7, f)?;
-        self.fmt_summary(f)
+        let estimated = c.evals.iter().sum();
+        self.fmt_adapting(estimated, 7, f)?;
+        self.fmt_summary(estimated, f)
     }
 
     /// The row of the evaluations that only adapted, when there are any (`estimated` made the
@@ -221,12 +227,13 @@ impl IntegrationResult {
         Ok(())
     }
 
-    /// The result's line, and what follows it.
-    fn fmt_summary(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+    /// The result's line, and what follows it; `estimated` evaluations made the estimate (the
+    /// n of its variance per evaluation, which the line names).
+    fn fmt_summary(&self, estimated: u64, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         write!(
             f,
             "result {:.8e} ± {:.3e}   χ²/dof {:.2}   k̂ {:.2}   ESS {:.3e}   n_eval {}   \
-             rel.var/eval {:.3e}   unw.eff {:.4}   {:.2} s",
+             rel.var/eval {:.3e} (of the {} in the estimate)   unw.eff {:.4}   {:.2} s",
             self.value,
             self.std_err,
             self.chi2_per_dof,
@@ -234,6 +241,7 @@ impl IntegrationResult {
             self.ess,
             self.n_eval,
             self.rel_var_per_eval,
+            estimated,
             self.unweighting_efficiency,
             self.seconds
         )?;
@@ -314,4 +322,10 @@ pub struct SignReport {
     pub negative_err: f64,
     /// F⁻/(F⁺ + F⁻): the share of unweighted events that carry a negative weight.
     pub negative_fraction: f64,
+    /// The estimate's evaluations of the f > 0 parts (every channel's).
+    #[serde(default)]
+    pub positive_evals: u64,
+    /// The estimate's evaluations of the f < 0 parts.
+    #[serde(default)]
+    pub negative_evals: u64,
 }

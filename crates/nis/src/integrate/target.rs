@@ -11,7 +11,8 @@
 //! targets"). The plan aims at 0.95 of the target so that a round usually meets it; a round that
 //! does not (its variance was underestimated, or a heavy-tailed weight spent its whole variance)
 //! is extended, diluted by new evaluations as a pooled mean would be: the one step whose share
-//! depends on the round's own error, measured to bias heavy-tailed weights by a tenth of σ.
+//! depends on the round's own error (its bias on heavy-tailed weights is measured in
+//! docs/ESTIMATE.md, "Precision targets").
 
 use std::time::Instant;
 

@@ -18,7 +18,10 @@
 //! before the estimate draws a point, so each part's estimate is unbiased and F's is too
 //! (docs/ESTIMATE.md, "Channels and signs"); its variance is the sum of the parts'.
 
+mod adapt;
+mod allocation;
 mod auto;
+mod config;
 mod events;
 mod part;
 mod report;
@@ -32,13 +35,14 @@ use std::time::Instant;
 
 use rand::SeedableRng;
 use rand_pcg::Pcg64Mcg;
-use serde::{Deserialize, Serialize};
 
 pub use super::result::{ChannelReport, SignReport};
 pub use auto::{by_default, AutoSigns};
+pub use config::{MultiChannelConfig, Signs};
 pub use events::ChannelEvents;
 pub use part::Sign;
 
+use self::allocation::{allocate, neyman};
 use self::part::{PartIntegrand, Weighting};
 use self::shared::SharedFlow;
 use self::weight_net::WeightNet;
@@ -50,88 +54,6 @@ use super::{
 use crate::channels::{ChannelFn, ChannelSet};
 use crate::comm::Comm;
 use crate::error::{Error, Result};
-
-/// Whether the integrand is split by sign.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
-#[serde(rename_all = "snake_case")]
-pub enum Signs {
-    /// Split when the pilot sees both signs.
-    #[default]
-    Auto,
-    /// Always split into f⁺ and f⁻.
-    Split,
-    /// Never split (a sampler per channel learns |h_k|).
-    Whole,
-}
-
-/// Settings of [`MultiChannel`] (the method's own settings are [`Settings`]).
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-#[serde(default, deny_unknown_fields)]
-pub struct MultiChannelConfig {
-    /// Splitting by sign.
-    pub signs: Signs,
-    /// Share of a call's evaluations the parts adapt on (the rest makes the estimate); the
-    /// default is the measured best of every method on every example
-    /// (docs/results/integration.md, "Channels and signed integrands").
-    pub adapt_fraction: f64,
-    /// Whether the a-priori weights adapt (Kleiss–Pittau) between adapting and estimating.
-    pub adapt_weights: bool,
-    /// Smallest a-priori weight a channel keeps, as a fraction of 1/K (channel dropping leaves
-    /// it this much).
-    pub weight_floor: f64,
-    /// Uniform points per channel of the pilot that decides the sign split.
-    pub pilot: usize,
-    /// Evaluations every part adapts on in a run to a precision target (at most
-    /// `adapt_fraction` of its `max_evals`, shared).
-    pub target_adapt: u64,
-    /// NIS: one flow for all parts, conditioned on the part (`shared.rs`), instead of a flow per
-    /// part; ignored by the other methods. On by default: with the parts' χ² loss it gains
-    /// most where the channels overlap, loses little elsewhere, and takes less memory
-    /// (docs/results/integration.md, "One flow shared by the channels"). A saved one loads as a
-    /// flow per part.
-    pub shared_flow: bool,
-    /// NIS: after the parts adapt, fit a network N that refines the channel weights to
-    /// α_k ∝ a_k g_k e^{N_k(x)} (MadNIS's), on fresh points of every part's sampler (counted),
-    /// and keep it only when it lowers the estimate's variance on held-out points
-    /// (`weight_net.rs`); ignored by the other methods. On by default: it lowers the variance
-    /// per evaluation on every multi-channel example; at equal time it loses only where a point
-    /// costs less than the network's pass (docs/results/integration.md, "Learned channel
-    /// weights").
-    pub weight_network: bool,
-}
-
-impl Default for MultiChannelConfig {
-    fn default() -> Self {
-        MultiChannelConfig {
-            signs: Signs::Auto,
-            adapt_fraction: 0.25,
-            adapt_weights: true,
-            weight_floor: 0.01,
-            pilot: 1000,
-            target_adapt: 100_000,
-            shared_flow: true,
-            weight_network: true,
-        }
-    }
-}
-
-impl MultiChannelConfig {
-    fn validate(&self) -> Result<()> {
-        let ok = self.adapt_fraction > 0.0
-            && self.adapt_fraction < 1.0
-            && self.weight_floor > 0.0
-            && self.weight_floor <= 1.0
-            && self.pilot >= 2
-            && self.target_adapt >= MIN_PART_EVALS;
-        if ok {
-            return Ok(());
-        }
-        Err(Error::Config(format!(
-            "multi-channel settings: adapt_fraction must be in (0, 1), weight_floor in (0, 1], \
-             pilot at least 2 and target_adapt at least {MIN_PART_EVALS}: {self:?}"
-        )))
-    }
-}
 
 /// One part: channel, sign and its integrator (with a shared flow: the flow at the part's
 /// context, from the first adaptation on).
@@ -265,61 +187,6 @@ impl MultiChannel {
         Ok(0)
     }
 
-    /// Adapts every part on `adapt` evaluations, then the weights (Kleiss–Pittau), then fits the
-    /// weight network when asked: each part's result (its σ and integral), the evaluations
-    /// spent, and each part's σ per evaluation under the weights the estimate will use.
-    fn adapt_parts(
-        &mut self,
-        f: &dyn Integrand,
-        adapt: u64,
-    ) -> Result<(Vec<IntegrationResult>, u64, Vec<f64>)> {
-        let mut measured = Vec::with_capacity(self.parts.len());
-        let mut spent = 0;
-        // The parts adapt to Kleiss–Pittau's α; a network is refitted after them.
-        self.net = None;
-        let index = self.parts_index();
-        let w = Weighting {
-            set: &self.set,
-            a: &self.weights,
-            net: None,
-        };
-        if let Some(shared) = &mut self.shared {
-            // The flow trains on every part's share at once; then each part gets the flow at
-            // its context as an integrator of its own, and is measured with it.
-            let train = adapt * 4 / 5;
-            let (set, a, dim) = (&self.set, &self.weights, self.set.dim());
-            let h =
-                |counts: &[usize], u: &[f64]| part::eval_blocks(f, set, a, &index, counts, u, dim);
-            spent += shared.train(&h, train * index.len() as u64)?;
-            let base = self.settings.seed_of(self.method);
-            for (i, p) in self.parts.iter_mut().enumerate() {
-                let mut nis = shared.part(i, part_seed(base, i as u64))?;
-                let h = PartIntegrand::new(f, w, p.channel, p.sign);
-                let r = nis.estimate(&h, adapt - train)?;
-                spent += r.n_eval;
-                measured.push(r);
-                p.integrator = Some(Box::new(nis));
-            }
-        } else {
-            for p in self.parts.iter_mut() {
-                let h = PartIntegrand::new(f, w, p.channel, p.sign);
-                let r = adapt_part(p.sampler()?, &h, adapt)?;
-                spent += r.n_eval;
-                measured.push(r);
-            }
-        }
-        if self.config.adapt_weights && self.set.len() > 1 {
-            self.weights = self.adapted_weights(&measured);
-        }
-        let mut sd = sd_per_eval(&measured);
-        if self.config.weight_network && self.method == Method::Nis && self.set.len() > 1 {
-            let (fitted, sigmas) = self.fit_weight_net(f, adapt)?;
-            spent += fitted;
-            sd = sigmas;
-        }
-        Ok((measured, spent, sd))
-    }
-
     /// (channel, sign) of every part, in order.
     fn parts_index(&self) -> Vec<(usize, Sign)> {
         self.parts.iter().map(|p| (p.channel, p.sign)).collect()
@@ -389,30 +256,6 @@ impl MultiChannel {
         }
         Ok(spent)
     }
-
-    /// a_k ∝ a_k·√W_k, W_k = Σ over channel k's parts of their weights' second moment
-    /// (σ² per evaluation + F²) over a_k², normalised, each at least `weight_floor`/K.
-    fn adapted_weights(&self, measured: &[IntegrationResult]) -> Vec<f64> {
-        let k = self.set.len();
-        let mut w = vec![0.0; k];
-        for (p, r) in self.parts.iter().zip(measured) {
-            let n: u64 = r.iterations.iter().map(|i| i.evals).sum();
-            let second = r.std_err * r.std_err * n as f64 + r.value * r.value;
-            w[p.channel] += second;
-        }
-        let mut a: Vec<f64> = self
-            .weights
-            .iter()
-            .zip(&w)
-            .map(|(a, w)| a * (w / (a * a)).sqrt())
-            .collect();
-        normalise_with_floor(&mut a, self.config.weight_floor / k as f64);
-        if a.iter().all(|v| v.is_finite()) {
-            a
-        } else {
-            self.weights.clone()
-        }
-    }
 }
 
 /// A multi-channel integral is an [`Integrator`] like the methods it runs per part: front ends
@@ -456,15 +299,17 @@ impl Integrator for MultiChannel {
         // Estimate: the rest in proportion to each part's σ per evaluation, with a floor.
         let rest = evals.saturating_sub(spent);
         let floor = (rest / (50 * parts)).max(MIN_PART_EVALS);
-        let spare = rest.saturating_sub(floor * parts) as f64;
         let mut results = Vec::with_capacity(self.parts.len());
         let w = Weighting {
             set: &self.set,
             a: &self.weights,
             net: self.net.as_ref(),
         };
-        for (p, share) in self.parts.iter_mut().zip(neyman(&sd)) {
-            let n = floor + (spare * share) as u64;
+        for (p, n) in self
+            .parts
+            .iter_mut()
+            .zip(allocate(rest, floor, &neyman(&sd)))
+        {
             let h = PartIntegrand::new(f, w, p.channel, p.sign);
             let r = estimate_part(p, &h, n)?;
             spent += r.n_eval;
@@ -514,28 +359,6 @@ impl Integrator for MultiChannel {
     }
 }
 
-/// Each part's standard deviation per evaluation of its estimate, from its adaptation's result.
-fn sd_per_eval(measured: &[IntegrationResult]) -> Vec<f64> {
-    measured
-        .iter()
-        .map(|r| r.std_err * (r.iterations.iter().map(|i| i.evals).sum::<u64>() as f64).sqrt())
-        .collect()
-}
-
-/// Neyman's allocation: each part's share of the points, σ_p/Σσ (equal shares when every σ is 0).
-fn neyman(sd: &[f64]) -> Vec<f64> {
-    let total: f64 = sd.iter().sum();
-    sd.iter()
-        .map(|s| {
-            if total > 0.0 {
-                s / total
-            } else {
-                1.0 / sd.len() as f64
-            }
-        })
-        .collect()
-}
-
 impl MultiChannel {
     /// The smallest budget of one call with `parts` parts (the pilot aside): one adaptation and
     /// one estimate each.
@@ -555,37 +378,6 @@ fn part_seed(seed: u64, index: u64) -> u64 {
     z = (z ^ (z >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
     z = (z ^ (z >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
     z ^ (z >> 31)
-}
-
-/// Normalises `a` to sum to one with every entry at least `floor` (the entries below it are
-/// raised to it, the others share the rest in proportion).
-fn normalise_with_floor(a: &mut [f64], floor: f64) {
-    let total: f64 = a.iter().sum();
-    a.iter_mut().for_each(|v| *v /= total);
-    for _ in 0..a.len() {
-        let low = a.iter().filter(|v| **v < floor).count();
-        if low == 0 {
-            break;
-        }
-        let high: f64 = a.iter().filter(|v| **v >= floor).sum();
-        let left = 1.0 - floor * low as f64;
-        a.iter_mut().for_each(|v| {
-            *v = if *v < floor { floor } else { *v * left / high };
-        });
-    }
-}
-
-/// Adapts a part on `n` evaluations and measures it: NIS trains on most of them and estimates
-/// with the rest; the others integrate (VEGAS+ adapts while it does).
-fn adapt_part(integ: &mut dyn Integrator, h: &dyn Integrand, n: u64) -> Result<IntegrationResult> {
-    if let Some(nis) = integ.as_nis() {
-        let train = n * 4 / 5;
-        nis.train(h, train)?;
-        let mut r = nis.estimate(h, n - train)?;
-        r.n_eval += train;
-        return Ok(r);
-    }
-    integ.integrate(h, n)
 }
 
 /// The estimate of part `p` from `n` evaluations: NIS's frozen flow alone, the others'

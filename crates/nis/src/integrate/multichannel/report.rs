@@ -43,7 +43,7 @@ pub(super) fn combine(
         let evals: u64 = r.iterations.iter().map(|i| i.evals).sum();
         report.evals[k] += evals;
         estimate_evals += evals;
-        split |= add_to_signs(&mut signs, sign, r.value, v);
+        split |= add_to_signs(&mut signs, sign, r.value, v, evals);
         if r.chi2_per_dof.is_finite() {
             chi2_sum += r.chi2_per_dof * evals as f64;
             chi2_evals += evals as f64;
@@ -135,17 +135,19 @@ impl Missing {
     }
 }
 
-/// Adds a part's `value` and variance `v` to F⁺ or F⁻ (sums of variances until [`finished`]);
-/// whether the part is one of a sign split.
-fn add_to_signs(signs: &mut SignReport, sign: Sign, value: f64, v: f64) -> bool {
+/// Adds a part's `value`, variance `v` and `evals` to F⁺ or F⁻ (sums of variances until
+/// [`finished`]); whether the part is one of a sign split.
+fn add_to_signs(signs: &mut SignReport, sign: Sign, value: f64, v: f64, evals: u64) -> bool {
     match sign {
         Sign::Plus => {
             signs.positive += value;
             signs.positive_err += v;
+            signs.positive_evals += evals;
         }
         Sign::Minus => {
             signs.negative += value;
             signs.negative_err += v;
+            signs.negative_evals += evals;
         }
         Sign::Both => return false,
     }

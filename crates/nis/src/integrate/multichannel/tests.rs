@@ -522,8 +522,8 @@ fn a_weight_network_keeps_estimates_unbiased_lowers_the_variance_and_is_saved() 
         );
     }
     assert!(covered >= 16, "{covered} of 20 within 2σ");
-    // Lower variance per evaluation, every evaluation counted (2.6× over seeds 1–3 at 10⁶,
-    // docs/results/integration.md; each seed's σ² is within ~20 % at this budget).
+    // Lower variance per evaluation, every evaluation counted (docs/results/integration.md,
+    // "Learned channel weights"; each seed's σ² is within ~20 % at this budget).
     let rel_var = |r: &IntegrationResult| r.std_err.powi(2) * r.n_eval as f64 / r.value.powi(2);
     let (mut plain, mut net) = (0.0, 0.0);
     for seed in 1..=4 {
@@ -636,4 +636,41 @@ fn auto_signs_keeps_an_integrand_of_one_sign_bit_identical_and_splits_one_of_two
         assert!((r.value - 0.25).abs() < 5.0 * r.std_err, "{method}: {r:?}");
         assert!(auto.as_multichannel().is_some());
     }
+}
+
+#[test]
+fn a_budget_is_spent_to_the_evaluation() {
+    // The parts' shares of the estimate are whole numbers that add up to what is left: the
+    // result's n_eval is the budget asked, split by sign or through channels.
+    let signed = |x: &[f64]| (-(x[0] - 0.3).powi(2) / 0.01).exp() - 0.5 * x[1];
+    for method in Method::ALL {
+        for evals in [200_000, 333_333] {
+            let mut auto = AutoSigns::new(method, 2, Settings::default().seed(1)).unwrap();
+            let r = auto.integrate(&signed, evals).unwrap();
+            let c = r.channels.as_ref().unwrap();
+            let s = c.signs.unwrap();
+            assert_eq!(
+                s.positive_evals + s.negative_evals,
+                c.evals.iter().sum::<u64>()
+            );
+            assert_eq!(r.n_eval, evals, "{method}, split by sign");
+            let config = MultiChannelConfig::default();
+            let (r, _) = integrate("resonances-4d", method, evals, 2, config);
+            assert_eq!(r.n_eval, evals, "{method}, through channels");
+        }
+    }
+}
+
+#[test]
+fn an_allocation_adds_up_and_rounds_to_the_largest_remainders() {
+    assert_eq!(allocate(10, 1, &[0.5, 0.25, 0.25]), vec![4, 3, 3]);
+    assert_eq!(allocate(1000, 100, &[1.0 / 3.0; 3]), vec![334, 333, 333]);
+    // Floors above the total: every part gets its floor.
+    assert_eq!(allocate(5, 3, &[0.9, 0.1]), vec![3, 3]);
+    // Shares that sum to a little less than one still spend the total.
+    let shares = [0.1 + 0.2, 0.7 - 1e-12];
+    assert_eq!(
+        allocate(1_000_001, 2000, &shares).iter().sum::<u64>(),
+        1_000_001
+    );
 }

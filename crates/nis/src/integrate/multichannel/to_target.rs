@@ -125,7 +125,7 @@ impl MultiChannel {
             let Some(step) = pursuit.next(prior, least, chunk, elapsed)? else {
                 break;
             };
-            let spare = step.evals.saturating_sub(least) as f64;
+            let counts = super::allocate(step.evals, MIN_PART_EVALS, &shares);
             let spent_before = spent;
             let (mut estimate, mut variance, mut evals) = (0.0, 0.0, 0u64);
             let (mut max_abs_w, mut sum_abs_w) = (0.0f64, 0.0);
@@ -134,8 +134,7 @@ impl MultiChannel {
                 a: &self.weights,
                 net: self.net.as_ref(),
             };
-            for (i, p) in self.parts.iter_mut().enumerate() {
-                let n = MIN_PART_EVALS + (spare * shares[i]) as u64;
+            for (i, (p, &n)) in self.parts.iter_mut().zip(&counts).enumerate() {
                 let h = PartIntegrand::new(f, w, p.channel, p.sign);
                 let r = estimate_part(p, &h, n)?;
                 spent += r.n_eval;

@@ -25,6 +25,25 @@ fn a_flow_that_dropped_a_region_training_saw_warns() {
         c.missing_mass_warning().is_none() && r.warnings.is_empty(),
         "{r:?}"
     );
+    // A point where training saw a large f but drew it with a far larger density: it carries
+    // no mass, yet the flow (which never learned it) gives it a weight that one draw would turn
+    // into a shift of thousands of error bars: a hole, not a missing mass.
+    nis.memory.observe(
+        &[0.75, 0.75],
+        &[1e12f64.ln()],
+        &[1e6],
+        1,
+        &mut nis.streams.memory,
+    );
+    let r = nis.estimate(&one, 20_000).unwrap();
+    let c = r.convergence;
+    assert!(c.missing_mass.unwrap() < MISSING_MASS_LIMIT, "{c:?}");
+    assert!(c.recalled_shift.unwrap() > HOLE_LIMIT, "{c:?}");
+    assert!(
+        r.warnings.len() == 1 && r.warnings[0].contains("has a hole"),
+        "{:?}",
+        r.warnings
+    );
     // As if an earlier stage of training, uniform, had also drawn 20,000 points over a second
     // bump at (0.75, 0.75) of integral 1, which the flow then dropped (in 2-d the defensive
     // share would find it again in the estimate, so the estimate here is of the first bump
