@@ -11,8 +11,9 @@ use super::config::NisConfig;
 use super::reuse::{ReplayBuffer, TrainingPieces};
 use super::training_length::{BatchReport, TrainingLength};
 use super::{draw, NisIntegrator};
+use crate::comm::Comm;
 use crate::error::{Error, Result};
-use crate::flow::mixture::Record;
+use crate::flow::mixture::{MixtureBatch, Record};
 use crate::flow::Density;
 use crate::integrate::moments::Moments;
 use crate::integrate::{check_dim, evaluate, report, Integrand};
@@ -149,60 +150,62 @@ impl NisIntegrator {
             };
             self.trained_evals += batch as u64;
             done += batch as u64;
-            let n_f = b.density_part.len();
-            // Skip the step when the flow's share saw nothing: there is no direction to learn.
-            let flow = &mut self.sampler.density;
-            if self.comm.any(target[..n_f].iter().any(|v| *v != 0.0)) {
-                self.learner
-                    .step_on_policy(flow, &b.density_part, &target[..n_f])?;
-                for _ in 1..self.config.steps_per_batch {
-                    self.learner.step(
-                        flow,
-                        &b.density_part.x,
-                        None,
-                        &target[..n_f],
-                        &b.density_part.log_q,
-                    )?;
-                }
-            }
-            // Earlier batches replayed off-policy (their points keep the density that drew them).
-            for _ in 0..self.config.replay_steps {
-                if let Some(r) = replay.next() {
-                    self.learner.step(flow, &r.x, None, &r.target, &r.log_q)?;
-                }
-            }
-            if let Some(a) = &mut self.average {
-                a.add(&[self.sampler.density.params()]);
-            }
-            if self.comm.any(target[..n_f].iter().any(|v| *v != 0.0)) {
-                replay.push(
-                    b.density_part.x,
-                    target[..n_f].to_vec(),
-                    b.density_part.log_q,
-                );
-            }
+            self.learn_from(b, &target, &mut replay)?;
             report(&mut self.progress, done, evals, "nis: training");
             if let (Some(rule), Some(m)) = (length.as_deref_mut(), moments) {
-                // Times as the slowest rank saw them, so every rank decides alike.
-                let mut t = [
+                let times = [
                     drawn_in,
                     started.elapsed().as_secs_f64(),
                     drawn_in - sampled_in,
                 ];
-                self.comm.max_f64(&mut t);
-                let (mean, cov) = m.mean_and_cov_of_mean();
-                let go_on = rule.go_on(BatchReport {
-                    var_per_eval: cov[0] * m.n() as f64,
-                    estimate: mean[0],
-                    seconds_per_eval: t[0] / batch as f64,
-                    integrand_seconds_per_eval: t[2] / batch as f64,
-                    seconds: t[1],
-                    tempered_ess,
-                });
-                if !go_on {
+                if !rule.go_on(batch_report(&m, times, batch, tempered_ess, &self.comm)) {
                     break;
                 }
             }
+        }
+        Ok(())
+    }
+
+    /// The learning of one batch `b` with training values `target`: the on-policy step (and
+    /// `steps_per_batch` − 1 more on the same points), the replayed batches off-policy, the
+    /// weights' average; then `b`'s flow share joins `replay`. A batch whose flow share saw
+    /// nothing on any rank teaches nothing and is skipped.
+    fn learn_from(
+        &mut self,
+        b: MixtureBatch,
+        target: &[f64],
+        replay: &mut ReplayBuffer,
+    ) -> Result<()> {
+        let n_f = b.density_part.len();
+        let flow = &mut self.sampler.density;
+        if self.comm.any(target[..n_f].iter().any(|v| *v != 0.0)) {
+            self.learner
+                .step_on_policy(flow, &b.density_part, &target[..n_f])?;
+            for _ in 1..self.config.steps_per_batch {
+                self.learner.step(
+                    flow,
+                    &b.density_part.x,
+                    None,
+                    &target[..n_f],
+                    &b.density_part.log_q,
+                )?;
+            }
+        }
+        // Earlier batches replayed off-policy (their points keep the density that drew them).
+        for _ in 0..self.config.replay_steps {
+            if let Some(r) = replay.next() {
+                self.learner.step(flow, &r.x, None, &r.target, &r.log_q)?;
+            }
+        }
+        if let Some(a) = &mut self.average {
+            a.add(&[self.sampler.density.params()]);
+        }
+        if self.comm.any(target[..n_f].iter().any(|v| *v != 0.0)) {
+            replay.push(
+                b.density_part.x,
+                target[..n_f].to_vec(),
+                b.density_part.log_q,
+            );
         }
         Ok(())
     }
@@ -217,6 +220,28 @@ impl NisIntegrator {
         self.average = schedule(&self.config, &mut self.learner, adam_steps, steps, params)?;
         self.scheduled = true;
         Ok(())
+    }
+}
+
+/// What the training-length rule reads of a batch of `batch` points: the moments `m` of its
+/// weights over all ranks, and `times` (drawn, done, in the integrand) in seconds since it
+/// started, taken as the slowest rank saw them so that every rank decides alike.
+fn batch_report(
+    m: &Moments,
+    mut times: [f64; 3],
+    batch: usize,
+    tempered_ess: f64,
+    comm: &Comm,
+) -> BatchReport {
+    comm.max_f64(&mut times);
+    let (mean, cov) = m.mean_and_cov_of_mean();
+    BatchReport {
+        var_per_eval: cov[0] * m.n() as f64,
+        estimate: mean[0],
+        seconds_per_eval: times[0] / batch as f64,
+        integrand_seconds_per_eval: times[2] / batch as f64,
+        seconds: times[1],
+        tempered_ess,
     }
 }
 
