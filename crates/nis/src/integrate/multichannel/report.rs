@@ -67,8 +67,13 @@ pub(super) fn combine(
     }
     let abs_total: f64 = results.iter().map(|r| r.value.abs()).sum();
     let convergence = missing.convergence(var.sqrt());
-    for w in convergence.recalled_warnings() {
-        warnings.push(format!("the channels together: {}", w.sentence));
+    // Through several channels the parts' training points read a missing mass of 1–4 error
+    // bars on most Dalitz runs whose pulls are honest (docs/results/robustness.md, "Coverage
+    // through channels"): not understood yet, so there the figures are reported, not warned.
+    if channels == 1 {
+        for w in convergence.recalled_warnings() {
+            warnings.push(format!("the channels together: {}", w.sentence));
+        }
     }
     IntegrationResult {
         value,
