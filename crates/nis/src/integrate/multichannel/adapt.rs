@@ -3,7 +3,7 @@
 //! (kept above the floor) and, for NIS, the weight network is fitted (module docs of
 //! [`super`]).
 
-use super::part::{self, PartIntegrand, Weighting};
+use super::part::{self, weight_ratio, PartIntegrand, Weighting};
 use super::{part_seed, MultiChannel};
 use crate::error::Result;
 use crate::integrate::{Integrand, IntegrationResult, Integrator, Method};
@@ -21,6 +21,7 @@ impl MultiChannel {
         let mut spent = 0;
         // The parts adapt to Kleiss–Pittau's α; a network is refitted after them.
         self.net = None;
+        let before = self.weights.clone();
         let index = self.parts_index();
         let w = Weighting {
             set: &self.set,
@@ -61,7 +62,34 @@ impl MultiChannel {
             spent += fitted;
             sd = sigmas;
         }
+        self.rescale_memories(&before)?;
         Ok((measured, spent, sd))
+    }
+
+    /// The parts trained on h_k under the weights `before` (no network); their estimates use
+    /// the adapted weights and network, so each NIS part's training points are rescaled to the
+    /// h_k the estimate integrates, for its missing-mass check (`nis/memory.rs`).
+    fn rescale_memories(&mut self, before: &[f64]) -> Result<()> {
+        let dim = self.set.dim();
+        let old = Weighting {
+            set: &self.set,
+            a: before,
+            net: None,
+        };
+        let new = Weighting {
+            set: &self.set,
+            a: &self.weights,
+            net: self.net.as_ref(),
+        };
+        for p in self.parts.iter_mut() {
+            let k = p.channel;
+            if let Some(nis) = p.integrator.as_mut().and_then(|i| i.as_nis()) {
+                let memory = nis.training_memory_mut();
+                let factors = weight_ratio(old, new, k, memory.points(), dim)?;
+                memory.rescale(&factors);
+            }
+        }
+        Ok(())
     }
 
     /// a_k ∝ a_k·√W_k, W_k = Σ over channel k's parts of their weights' second moment

@@ -143,6 +143,30 @@ pub(super) fn eval_blocks(
     Ok(out)
 }
 
+/// h_k under `after` over h_k under `before` (α_k's ratio, f cancels) at the points `u` of
+/// channel `k` (`dim` each, in its unit cube); 0 where `before` gives no weight.
+pub(super) fn weight_ratio(
+    before: Weighting,
+    after: Weighting,
+    k: usize,
+    u: &[f32],
+    dim: usize,
+) -> Result<Vec<f64>> {
+    let u: Vec<f64> = u.iter().map(|&v| v as f64).collect();
+    let n = u.len() / dim;
+    let mut x = vec![0.0; u.len()];
+    before.set.sample(k, &u, &mut x)?;
+    let ones = vec![1.0; n];
+    let (mut old, mut new) = (vec![0.0; n], vec![0.0; n]);
+    values(before, &[(k, Sign::Both)], &[n], &x, &ones, dim, &mut old)?;
+    values(after, &[(k, Sign::Both)], &[n], &x, &ones, dim, &mut new)?;
+    Ok(old
+        .iter()
+        .zip(&new)
+        .map(|(o, n)| if *o > 0.0 { n / o } else { 0.0 })
+        .collect())
+}
+
 /// h = a_k·f/Σ_j a_j g_j (or its part of one sign) at the mapped points `x` with values `fx`,
 /// in the blocks of [`eval_blocks`], into `out`; with a network N, a_j e^{N_j(x)} for a_j.
 #[allow(clippy::too_many_arguments)]

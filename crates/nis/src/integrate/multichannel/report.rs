@@ -67,14 +67,8 @@ pub(super) fn combine(
     }
     let abs_total: f64 = results.iter().map(|r| r.value.abs()).sum();
     let convergence = missing.convergence(var.sqrt());
-    // Through several channels the parts' training points keep |h_k| under the channel weights
-    // of their training, which the adaptation then moves: their mass is of another integrand
-    // (docs/results/robustness.md, "Coverage through channels"), so the figures are reported,
-    // not warned, until the memory is rescaled to the final weights.
-    if channels == 1 {
-        for w in convergence.recalled_warnings() {
-            warnings.push(format!("the channels together: {}", w.sentence));
-        }
+    for w in convergence.recalled_warnings() {
+        warnings.push(format!("the channels together: {}", w.sentence));
     }
     IntegrationResult {
         value,

@@ -115,6 +115,22 @@ impl TrainingMemory {
         }
     }
 
+    /// The kept points (row-major, `dim` each).
+    pub(crate) fn points(&self) -> &[f32] {
+        &self.x
+    }
+
+    /// Multiplies each kept point's |f| by its entry of `factors` (one per kept point): the
+    /// integrand changed since training by a known factor (a multi-channel part whose channel
+    /// weights moved after its training).
+    pub(crate) fn rescale(&mut self, factors: &[f64]) {
+        debug_assert_eq!(factors.len(), self.f.len());
+        for (f, s) in self.f.iter_mut().zip(factors) {
+            *f *= s;
+        }
+        self.recalled = None;
+    }
+
     /// What the kept points say about `sampler` ([`Recall`]) over all ranks of `comm`, the
     /// region being where its weight |f|/q_mix exceeds `threshold`; the weights are computed
     /// once per training, as `sampler` is frozen until the next.

@@ -150,6 +150,12 @@ impl NisIntegrator {
         self.memory = memory;
     }
 
+    /// The points of the flow's latest training, to rescale when the integrand they were
+    /// evaluated for changes (`memory.rs`).
+    pub(crate) fn training_memory_mut(&mut self) -> &mut TrainingMemory {
+        &mut self.memory
+    }
+
     /// The final phase alone: the flow frozen, `evals` evaluations in `final_iterations`
     /// iterations. For a trained or loaded integrator; the result counts only these evaluations.
     pub fn estimate(&mut self, f: &dyn Integrand, evals: u64) -> Result<IntegrationResult> {
