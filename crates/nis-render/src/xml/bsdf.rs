@@ -4,6 +4,8 @@
 //! BSDFs take Beckmann (Mitsuba's default) or GGX microfacets; conductors an `eta`/`k` pair or
 //! a named `material` (`Au`, `Cu`, …, `bsdf::conductors`).
 
+use std::sync::Arc;
+
 use super::dom::{err, Element, XmlError};
 use super::props::{ior, Props, PROPERTY_TAGS};
 use super::{unsupported, LoadResult, Loader};
@@ -11,6 +13,7 @@ use crate::bsdf::{conductors, Bsdf, Material, Microfacet, MicrofacetKind, Plasti
 use crate::bump::Bump;
 use crate::geometry::{luminance, Rgb};
 use crate::spectrum::Role;
+use crate::texture::Texture;
 
 /// The BSDF plugins the reader knows, for error messages.
 const SUPPORTED: &str = "diffuse, conductor, roughconductor, dielectric, roughdielectric, \
@@ -73,35 +76,22 @@ impl Loader {
             return unsupported(c, "properties and textures inside this bsdf");
         }
         let p = Props::new(el)?;
-        let mut slots = Vec::new();
-        let mut used = Vec::new();
-        // A textured colour: its mean stands for it where one value is needed (lobe choice).
-        let mut colour = |p: &Props, name: &'static str, slot: Slot, default: Rgb| match textures
-            .iter()
-            .find(|(n, _)| n == name)
-        {
-            Some((_, t)) => {
-                slots.push((slot, t.clone()));
-                used.push(name);
-                Ok::<_, XmlError>(t.mean())
-            }
-            None => p.rgb(name, default),
+        let mut c = Colours {
+            p: &p,
+            textures: &textures,
+            slots: Vec::new(),
+            used: Vec::new(),
         };
         let bsdf = match kind {
             "diffuse" => Bsdf::Diffuse {
-                reflectance: colour(&p, "reflectance", Slot::Reflectance, Rgb::splat(0.5))?,
+                reflectance: c.get("reflectance", Slot::Reflectance, Rgb::splat(0.5))?,
             },
             "conductor" => {
                 let (eta, k) = conductor(&p, el)?;
                 Bsdf::Conductor {
                     eta,
                     k,
-                    specular_reflectance: colour(
-                        &p,
-                        "specular_reflectance",
-                        Slot::SpecularReflectance,
-                        Rgb::ONE,
-                    )?,
+                    specular_reflectance: c.specular_reflectance()?,
                 }
             }
             "roughconductor" => {
@@ -110,59 +100,24 @@ impl Loader {
                     dist: microfacet(&p, el)?,
                     eta,
                     k,
-                    specular_reflectance: colour(
-                        &p,
-                        "specular_reflectance",
-                        Slot::SpecularReflectance,
-                        Rgb::ONE,
-                    )?,
+                    specular_reflectance: c.specular_reflectance()?,
                 }
             }
             "dielectric" => Bsdf::Dielectric {
                 eta: dielectric_eta(&p, "bk7")?,
-                specular_reflectance: colour(
-                    &p,
-                    "specular_reflectance",
-                    Slot::SpecularReflectance,
-                    Rgb::ONE,
-                )?,
-                specular_transmittance: colour(
-                    &p,
-                    "specular_transmittance",
-                    Slot::SpecularTransmittance,
-                    Rgb::ONE,
-                )?,
+                specular_reflectance: c.specular_reflectance()?,
+                specular_transmittance: c.specular_transmittance()?,
             },
             "thindielectric" => Bsdf::ThinDielectric {
                 eta: dielectric_eta(&p, "bk7")?,
-                specular_reflectance: colour(
-                    &p,
-                    "specular_reflectance",
-                    Slot::SpecularReflectance,
-                    Rgb::ONE,
-                )?,
-                specular_transmittance: colour(
-                    &p,
-                    "specular_transmittance",
-                    Slot::SpecularTransmittance,
-                    Rgb::ONE,
-                )?,
+                specular_reflectance: c.specular_reflectance()?,
+                specular_transmittance: c.specular_transmittance()?,
             },
             "roughdielectric" => Bsdf::RoughDielectric {
                 dist: microfacet(&p, el)?,
                 eta: dielectric_eta(&p, "bk7")?,
-                specular_reflectance: colour(
-                    &p,
-                    "specular_reflectance",
-                    Slot::SpecularReflectance,
-                    Rgb::ONE,
-                )?,
-                specular_transmittance: colour(
-                    &p,
-                    "specular_transmittance",
-                    Slot::SpecularTransmittance,
-                    Rgb::ONE,
-                )?,
+                specular_reflectance: c.specular_reflectance()?,
+                specular_transmittance: c.specular_transmittance()?,
             },
             "plastic" | "roughplastic" => {
                 let eta = dielectric_eta(&p, "polypropylene")?;
@@ -181,18 +136,8 @@ impl Loader {
                 };
                 Bsdf::Plastic(Box::new(Plastic::new(
                     eta,
-                    colour(
-                        &p,
-                        "diffuse_reflectance",
-                        Slot::Reflectance,
-                        Rgb::splat(0.5),
-                    )?,
-                    colour(
-                        &p,
-                        "specular_reflectance",
-                        Slot::SpecularReflectance,
-                        Rgb::ONE,
-                    )?,
+                    c.get("diffuse_reflectance", Slot::Reflectance, Rgb::splat(0.5))?,
+                    c.specular_reflectance()?,
                     p.boolean("nonlinear", false)?,
                     rough,
                 )))
@@ -202,6 +147,7 @@ impl Loader {
             }
         };
         p.finish()?;
+        let Colours { slots, used, .. } = c;
         if let Some((name, _)) = textures.iter().find(|(n, _)| !used.contains(&n.as_str())) {
             return Err(err::<()>(
                 el.line,
@@ -393,4 +339,40 @@ fn dielectric_eta(p: &Props, default_int: &str) -> Result<f32, XmlError> {
         return err(p.line(), "indices of refraction must be positive");
     }
     Ok(int / ext)
+}
+
+/// The colours of one BSDF, each a value or one of its named textures; a textured colour's mean
+/// stands for it where one value is needed (the choice of a lobe).
+struct Colours<'a> {
+    p: &'a Props<'a>,
+    textures: &'a [(String, Arc<Texture>)],
+    /// The textures used, by the slot they fill.
+    slots: Vec<(Slot, Arc<Texture>)>,
+    /// The names of the textures used.
+    used: Vec<&'static str>,
+}
+
+impl Colours<'_> {
+    fn get(&mut self, name: &'static str, slot: Slot, default: Rgb) -> Result<Rgb, XmlError> {
+        match self.textures.iter().find(|(n, _)| n == name) {
+            Some((_, t)) => {
+                self.slots.push((slot, t.clone()));
+                self.used.push(name);
+                Ok(t.mean())
+            }
+            None => self.p.rgb(name, default),
+        }
+    }
+
+    fn specular_reflectance(&mut self) -> Result<Rgb, XmlError> {
+        self.get("specular_reflectance", Slot::SpecularReflectance, Rgb::ONE)
+    }
+
+    fn specular_transmittance(&mut self) -> Result<Rgb, XmlError> {
+        self.get(
+            "specular_transmittance",
+            Slot::SpecularTransmittance,
+            Rgb::ONE,
+        )
+    }
 }

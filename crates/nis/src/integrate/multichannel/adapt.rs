@@ -70,6 +70,9 @@ impl MultiChannel {
     /// the adapted weights and network, so each NIS part's training points are rescaled to the
     /// h_k the estimate integrates, for its missing-mass check (`nis/memory.rs`).
     fn rescale_memories(&mut self, before: &[f64]) -> Result<()> {
+        if before == self.weights.as_slice() && self.net.is_none() {
+            return Ok(());
+        }
         let dim = self.set.dim();
         let old = Weighting {
             set: &self.set,

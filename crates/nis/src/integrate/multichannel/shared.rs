@@ -17,6 +17,7 @@
 use rand::SeedableRng;
 use rand_pcg::Pcg64Mcg;
 
+use super::allocation::allocate;
 use crate::comm::Comm;
 use crate::error::Result;
 use crate::flow::{Density, Flow, FlowConfig};
@@ -101,7 +102,7 @@ impl SharedFlow {
 
     /// Points per part of a batch of `batch` (over all ranks): half of them equally, half in
     /// proportion to the running ∫|h_p| (all equally while none is known), each at least one,
-    /// by largest remainders. The equal half keeps a part that no point has found yet sampled,
+    /// by largest remainders (`allocation::allocate`). The equal half keeps a part that no point has found yet sampled,
     /// so that it can be found.
     fn batch_counts(&self, batch: usize) -> Vec<usize> {
         let p = self.parts;
@@ -117,22 +118,10 @@ impl SharedFlow {
                 }
             })
             .collect();
-        let spare = batch.saturating_sub(p) as f64;
-        let mut counts: Vec<usize> = share.iter().map(|s| 1 + (s * spare) as usize).collect();
-        let mut left = batch.saturating_sub(counts.iter().sum());
-        let mut order: Vec<usize> = (0..p).collect();
-        order.sort_by(|&a, &b| {
-            let frac = |i: usize| share[i] * spare - (share[i] * spare).floor();
-            frac(b).total_cmp(&frac(a))
-        });
-        for &i in order.iter().cycle().take(p.max(left)) {
-            if left == 0 {
-                break;
-            }
-            counts[i] += 1;
-            left -= 1;
-        }
-        counts
+        allocate(batch as u64, 1, &share)
+            .into_iter()
+            .map(|n| n as usize)
+            .collect()
     }
 
     /// Trains on `evals` evaluations of the parts, in whole batches of NIS's batch size (or two
