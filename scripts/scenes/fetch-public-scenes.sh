@@ -9,9 +9,14 @@
 #       see each folder's LICENSE.txt)
 #   data/scenes/mitsuba-data/docs/scenes                                  Mitsuba 3's own
 #       documentation scenes (BSD-3-Clause, like Mitsuba)
+#   data/scenes/ppg-lab/scenes/{cornell-box,veach-ajar,veach-bidir,veach-mis,torus}
+#       Bitterli's Mitsuba scenes (CC0, see each LICENSE.txt) and the practical-path-guiding
+#       torus, in Mitsuba 3 form, from a guiding lab's repository (its code GPL-3, not used;
+#       the snapshot lacks veach-ajar's three teapots: --drop-missing-meshes)
 #
 # Then, e.g.:
 #   nis render data/scenes/practical-path-guiding/scenes/spaceship/spaceship.xml --spp 64
+#   nis bench guiding --scene data/scenes/ppg-lab/scenes/veach-bidir/scene.xml --seeds 3
 #   target/mitsuba-venv/bin/python scripts/scenes/compare-scenes.py data/scenes/mitsuba-data/docs/scenes/*.xml
 #
 # Needs git and sha256sum.
@@ -22,6 +27,7 @@ cd "$(dirname "$0")/../.."
 REPOS=(
   "practical-path-guiding|https://github.com/Tom94/practical-path-guiding|effbd1934a87bd7c471bb6981eea758fc4b72854"
   "mitsuba-data|https://github.com/mitsuba-renderer/mitsuba-data|01100fa9b0b154492061a92404f26dcd7b784dbb"
+  "ppg-lab|https://github.com/takkasila/practical_path_guiding_lab|c4b6605b3c78dccaa5721275d96ef6cd30c0630c"
 )
 CHECKS=(
   "practical-path-guiding f29ece69d068191097766fcef98335eb71c394c577c1bf86363f9bafc28ad8c7 scenes/cbox/cbox.xml"
@@ -29,6 +35,11 @@ CHECKS=(
   "practical-path-guiding 2bb537ad751d659a633256d36aebdaccb3d84158eef3c5e52e6a11ab64b52807 scenes/spaceship/spaceship.xml"
   "mitsuba-data aef4e298979a55d8df0102ae080a78de9f7ade793ad4cc9920849a9693660d85 docs/scenes/include/matpreview.xml"
   "mitsuba-data eda853c45dfbe5811baa4a4b0b2b9189fab01cd166a061d5bbba5b22099b0c11 docs/scenes/bsdf_roughplastic_beckmann.xml"
+  "ppg-lab 4c6ca8210ebf54757b29ca4d5da851fa0cba37201a26fea8de5e5d76ab658b9c scenes/cornell-box/scene.xml"
+  "ppg-lab 463902168a287fe0d01aa3abbe2d1e61fb6847ea68b143caf1477f757a083e44 scenes/veach-ajar/scene.xml"
+  "ppg-lab fbec3e990fd2529a55109a0abd4aba62b85299abeccf61100e00729ebf4d3f34 scenes/veach-bidir/scene.xml"
+  "ppg-lab 5d8588d174d4468c3b4e3bcd5b1df486d775a9d082d97fb8da2ff4da886d2d09 scenes/veach-mis/scene.xml"
+  "ppg-lab 31ab87422d663de98e0e652d10d145bab7f27fae327217318120f0fca7dde1ce scenes/torus/scene.xml"
 )
 
 mkdir -p data/scenes

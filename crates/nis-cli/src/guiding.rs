@@ -14,14 +14,15 @@ use nis_render::scene::Scene;
 
 use crate::render::GUIDES;
 
-/// Compare the guiding methods on built-in scenes against a path-traced reference.
+/// Compare the guiding methods on built-in scenes or scene files against a reference.
 #[derive(Debug, clap::Args)]
 #[command(after_help = "\
 Examples:
   nis bench guiding --scene two-rooms-door --spp 64 --res 128
+  nis bench guiding --scene data/scenes/ppg-lab/scenes/veach-bidir/scene.xml --res 128 --seeds 3
   nis bench guiding --scene cornell-box --res 32 --spp 16 --reference-spp 1024 --equal-time-spp 64 --curve-points 3")]
 pub struct BenchGuidingArgs {
-    /// Built-in scenes to render (repeat; default: all four).
+    /// Built-in scene names or Mitsuba scene files (repeat; default: the four built-in ones).
     #[arg(long)]
     pub scene: Vec<String>,
 
@@ -29,7 +30,7 @@ pub struct BenchGuidingArgs {
     #[arg(long, default_value_t = 64)]
     pub spp: u32,
 
-    /// Image side in pixels.
+    /// Longer side of the image in pixels (a scene file keeps its film's aspect ratio).
     #[arg(long, default_value_t = 128)]
     pub res: u32,
 
@@ -60,9 +61,18 @@ pub struct BenchGuidingArgs {
     #[arg(long, value_parser = GUIDES)]
     pub method: Vec<String>,
 
-    /// Random seed of the renders (the reference uses another).
+    /// Random seed of the first run (the reference uses another).
     #[arg(long, default_value_t = 0)]
     pub seed: u64,
+
+    /// Runs per scene and method, with seeds --seed, --seed + 1, …; the table gives the mean
+    /// and the range.
+    #[arg(long, default_value_t = 1)]
+    pub seeds: u32,
+
+    /// Leave out a scene file's shapes whose mesh files are missing (with a warning).
+    #[arg(long)]
+    pub drop_missing_meshes: bool,
 
     /// Folder for the renders, error maps and the cached references.
     #[arg(long, default_value = "out/guiding")]
@@ -101,6 +111,8 @@ pub fn run_bench(args: &BenchGuidingArgs) -> Result<(), Box<dyn std::error::Erro
         target_mape: args.target_mape,
         methods: args.method.clone(),
         seed: args.seed,
+        seeds: args.seeds,
+        drop_missing_meshes: args.drop_missing_meshes,
         out: args.out.clone(),
         docs: args.docs.clone(),
         img: args.img.clone(),

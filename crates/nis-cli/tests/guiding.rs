@@ -72,6 +72,82 @@ fn bench_guiding_writes_a_table_a_montage_and_a_cached_reference() {
 }
 
 #[test]
+fn bench_guiding_reads_a_scene_file_over_seeds_and_prefers_a_mitsuba_reference() {
+    let dir = scratch("file");
+    let xml = dir.join("box/scene.xml");
+    std::fs::create_dir_all(xml.parent().unwrap()).unwrap();
+    let o = nis(&["render", "cornell-box", "--export-xml", xml.to_str().unwrap()]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let (docs, out, img) = (dir.join("R.md"), dir.join("out"), dir.join("img"));
+    let args = [
+        "bench",
+        "guiding",
+        "--scene",
+        xml.to_str().unwrap(),
+        "--method",
+        "none",
+        "--method",
+        "nis-kl",
+        "--spp",
+        "4",
+        "--res",
+        "8",
+        "--reference-spp",
+        "16",
+        "--seconds",
+        "0.1",
+        "--curve-points",
+        "1",
+        "--seeds",
+        "2",
+        "--docs",
+        docs.to_str().unwrap(),
+        "--img",
+        img.to_str().unwrap(),
+        "--out",
+        out.to_str().unwrap(),
+    ];
+    let o = nis(&args);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let md = std::fs::read_to_string(&docs).unwrap();
+    // Named by its folder; two seeds give a range in every error cell.
+    assert!(md.contains("| box | nis-kl | "), "{md}");
+    assert!(md.contains("reference nis path tracing, 16 spp"), "{md}");
+    assert!(md.contains("--seeds 2"), "{md}");
+    assert!(md.contains("far off"), "{md}");
+    for seed in [0, 1] {
+        assert!(out.join(format!("box-none-4spp-seed{seed}.exr")).is_file());
+    }
+    // A Mitsuba reference beside it is preferred, and one of another size refused.
+    let ours = out.join("reference/box-8-16spp.exr");
+    let theirs = out.join("reference/box-8-16spp-mitsuba.exr");
+    std::fs::copy(&ours, &theirs).unwrap();
+    let o = nis(&args);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let md = std::fs::read_to_string(&docs).unwrap();
+    assert!(md.contains("reference Mitsuba 3, 16 spp"), "{md}");
+    let o = nis(&[
+        "render",
+        "cornell-box",
+        "--res",
+        "4",
+        "--spp",
+        "1",
+        "--out",
+        theirs.to_str().unwrap(),
+    ]);
+    assert!(o.status.success());
+    let o = nis(&args);
+    assert!(!o.status.success());
+    assert!(
+        String::from_utf8_lossy(&o.stderr).contains("is 4×4, the renders 8×8"),
+        "{}",
+        String::from_utf8_lossy(&o.stderr)
+    );
+    std::fs::remove_dir_all(&dir).ok();
+}
+
+#[test]
 fn bench_guiding_rejects_an_empty_curve() {
     let dir = scratch("curve");
     let o = nis(&[

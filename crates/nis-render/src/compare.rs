@@ -14,6 +14,11 @@ use crate::Error;
 /// The ε of MAPE and relMSE.
 pub const METRIC_EPSILON: f64 = 0.01;
 
+/// A pixel is far off when its relative error (channel mean) exceeds this: more than five
+/// times the reference. A pixel can fall short by at most 1, so only fireflies are far off;
+/// relMSE, which they rule, swings with their number from seed to seed.
+pub const FAR_OFF_ERROR: f64 = 4.0;
+
 /// Errors of an image against a reference.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct ImageErrors {
@@ -21,6 +26,8 @@ pub struct ImageErrors {
     pub mape: f64,
     /// Relative mean squared error.
     pub relmse: f64,
+    /// Share of pixels whose relative error exceeds [`FAR_OFF_ERROR`] (fireflies).
+    pub far_off: f64,
     /// Mean of the test image.
     pub mean: f64,
     /// Mean of the reference image.
@@ -40,19 +47,24 @@ fn check_sizes(a: &Image, b: &Image) -> Result<(), Error> {
 /// MAPE and relMSE of `image` against `reference`.
 pub fn compare(image: &Image, reference: &Image) -> Result<ImageErrors, Error> {
     check_sizes(image, reference)?;
-    let (mut mape, mut relmse) = (0.0f64, 0.0f64);
+    let (mut mape, mut relmse, mut far_off) = (0.0f64, 0.0f64, 0usize);
     for (a, b) in image.pixels.iter().zip(&reference.pixels) {
+        let mut pixel = 0.0;
         for c in 0..3 {
             let (a, b) = (f64::from(a[c]), f64::from(b[c]));
             let d = a - b;
-            mape += d.abs() / (b.abs() + METRIC_EPSILON);
+            pixel += d.abs() / (b.abs() + METRIC_EPSILON);
             relmse += d * d / (b * b + METRIC_EPSILON);
         }
+        mape += pixel;
+        far_off += usize::from(pixel / 3.0 > FAR_OFF_ERROR);
     }
-    let n = 3.0 * image.pixels.len().max(1) as f64;
+    let pixels = image.pixels.len().max(1) as f64;
+    let n = 3.0 * pixels;
     Ok(ImageErrors {
         mape: mape / n,
         relmse: relmse / n,
+        far_off: far_off as f64 / pixels,
         mean: image.mean(),
         reference_mean: reference.mean(),
     })
@@ -118,8 +130,13 @@ mod tests {
         let expect_relmse = 0.5 * (0.01 / 1.01);
         assert!((e.mape - expect_mape).abs() < 1e-6, "{}", e.mape);
         assert!((e.relmse - expect_relmse).abs() < 1e-6);
+        assert_eq!(e.far_off, 0.0);
         assert!(compare(&a, &Image::new(1, 1)).is_err());
         let map = error_map(&a, &b, 1.0).unwrap();
         assert_eq!(map.pixels[1], false_colour(0.0));
+        // A firefly: six times the reference (error 5 / 1.01 > 4) in one pixel of two; an
+        // error of at most 4 is not far off.
+        a.pixels = vec![Vec3::splat(6.0), Vec3::splat(2.0 * (1.0 + 4.0))];
+        assert_eq!(compare(&a, &b).unwrap().far_off, 0.5);
     }
 }

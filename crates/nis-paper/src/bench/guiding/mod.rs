@@ -1,25 +1,32 @@
-//! `nis bench guiding`: every path-guiding method against a high-sample path-traced reference,
-//! at equal samples per pixel and at equal time, as in the paper's Figure 5: MAPE and relMSE,
-//! montages of central crops with error maps, a table in `docs/results/guiding.md`.
+//! `nis bench guiding`: every path-guiding method against a high-sample reference, at equal
+//! samples per pixel and at equal time, as in the paper's Figure 5: MAPE, relMSE and the share
+//! of fireflies over several seeds, montages of central crops with error maps, a table in
+//! `docs/results/guiding.md`.
 //!
-//! Equal time is one wall-clock budget `T` per scene for every method: the time unguided path
-//! tracing takes for [`Settings::equal_time_spp`] samples per pixel (or `--seconds`). Each
-//! method also renders at `T/2`, `T/4`, …, so its error-vs-time curve (MAPE against the wall
-//! seconds it took, a PNG plot) shows where one method overtakes another, and the table gives
-//! the time each method needs to reach one MAPE (interpolated on its curve).
+//! Scenes are built-in names or scene files (the guiding literature's scenes, read as
+//! published). The reference is a Mitsuba 3 render when one is cached beside the renders
+//! (`scripts/scenes/guiding-references.py` writes it), else our own path tracing at high spp.
+//!
+//! Equal time is one wall-clock budget `T` per scene and seed for every method: the time
+//! unguided path tracing takes for [`Settings::equal_time_spp`] samples per pixel (or
+//! `--seconds`). Each method also renders at `T/2`, `T/4`, …, so its error-vs-time curve (MAPE
+//! against the wall seconds it took, a PNG plot) shows where one method overtakes another, and
+//! the table gives the time each method needs to reach one MAPE (interpolated on its curve).
 
-use std::path::PathBuf;
+mod table;
 
-use nis_render::compare::{compare, error_map, ImageErrors};
+use std::path::{Path, PathBuf};
+
+use nis_render::compare::{compare, ImageErrors};
 use nis_render::film::Image;
-use nis_render::geometry::Rgb;
 use nis_render::guiding::factory::GuideSpec;
 use nis_render::path_tracer::{PathTracer, Strategy};
 use nis_render::render::{Budget, RenderOptions, RenderOutput, Schedule};
 use nis_render::scene::Scene;
+use nis_render::xml::LoadOptions;
 
 use crate::error::{Error, Result};
-use crate::image::figure::{error_time, png_bytes, ErrorTimePanel};
+use crate::image::figure::{error_time, png_bytes};
 use crate::report::{self, create_dir};
 
 /// Salt of the reference renders' seed: the reference must not share its random streams with
@@ -29,11 +36,11 @@ pub const REFERENCE_SEED_SALT: u64 = 0x0005_eed0_f4ef;
 /// Settings of the comparison.
 #[derive(Clone, Debug)]
 pub struct Settings {
-    /// Built-in scenes to render (empty: all).
+    /// Built-in scene names or scene files to render (empty: every built-in scene).
     pub scenes: Vec<String>,
     /// Samples per pixel of every method at equal samples (training included).
     pub spp: u32,
-    /// Image side in pixels.
+    /// Longer side of the image in pixels (a scene file keeps its film's aspect ratio).
     pub res: u32,
     /// Samples per pixel of the cached path-traced reference.
     pub reference_spp: u32,
@@ -49,8 +56,13 @@ pub struct Settings {
     pub target_mape: Option<f64>,
     /// Methods by [`GuideSpec`] name (empty: all).
     pub methods: Vec<String>,
-    /// Seed of the renders (the reference salts it with [`REFERENCE_SEED_SALT`]).
+    /// Seed of the first run (the reference salts it with [`REFERENCE_SEED_SALT`]).
     pub seed: u64,
+    /// Runs per scene and method, with seeds `seed`, `seed + 1`, ….
+    pub seeds: u32,
+    /// Leave out the shapes of a scene file whose meshes are missing (a public snapshot that
+    /// lacks some), as the Mitsuba reference script does.
+    pub drop_missing_meshes: bool,
     /// Folder for renders, error maps and cached references.
     pub out: PathBuf,
     /// Markdown file the table goes to (section "guiding").
@@ -74,6 +86,18 @@ struct Run {
     method: String,
     errors: ImageErrors,
     output: RenderOutput,
+}
+
+/// One seed's renders of one scene.
+struct SeedRuns {
+    /// Every method at equal samples per pixel.
+    equal_spp: Vec<Run>,
+    /// The equal-time budget in seconds.
+    seconds: f64,
+    /// Every method at the equal-time budget.
+    equal_time: Vec<Run>,
+    /// Every method's error-vs-time curve.
+    curves: Vec<Curve>,
 }
 
 /// Most budgets on an error-vs-time curve.
@@ -124,22 +148,90 @@ pub fn time_to_reach(curve: &[(f64, f64)], target: f64) -> Option<Reach> {
     Some(Reach::After(points.last().expect("not empty").0))
 }
 
-/// The cached reference of `name`, rendered when missing.
+/// The image size whose longer side is `res`, at the film's aspect ratio (rounded half up,
+/// as `scripts/scenes/guiding-references.py` does).
+pub fn fit_resolution(width: u32, height: u32, res: u32) -> (u32, u32) {
+    let scaled =
+        |a: u32, b: u32| ((f64::from(a) * f64::from(res) / f64::from(b)).round() as u32).max(1);
+    if width >= height {
+        (res, scaled(height, width))
+    } else {
+        (scaled(width, height), res)
+    }
+}
+
+/// A scene file's name in the tables: its file name without extension, or its folder's name
+/// for a file called `scene.xml` (the layout of Bitterli's scenes).
+pub fn scene_name(path: &Path) -> String {
+    let stem = path.file_stem().map(|s| s.to_string_lossy().into_owned());
+    match stem.as_deref() {
+        Some("scene") | None => path
+            .parent()
+            .and_then(Path::file_name)
+            .map_or_else(|| "scene".into(), |s| s.to_string_lossy().into_owned()),
+        Some(s) => s.to_string(),
+    }
+}
+
+/// A scene of the comparison: its name and the scene at the bench's resolution.
+fn load(entry: &str, args: &Settings) -> Result<(String, Scene)> {
+    let path = Path::new(entry);
+    if path.is_file() {
+        let options = LoadOptions {
+            drop_missing_meshes: args.drop_missing_meshes,
+            progress: None,
+        };
+        let mut scene = nis_render::xml::load_scene_with(path, &[], &options)?;
+        let (w, h) = fit_resolution(scene.camera.width(), scene.camera.height(), args.res);
+        scene.camera.set_resolution(w, h);
+        Ok((scene_name(path), scene))
+    } else {
+        let params = [("res".to_string(), args.res.to_string())];
+        Ok((
+            entry.to_string(),
+            nis_render::scenes::load_with(entry, &params)?,
+        ))
+    }
+}
+
+/// The reference of `name` and where it comes from: a cached Mitsuba 3 render if there is
+/// one, else our cached path-traced one, rendered when missing.
 fn reference(
     name: &str,
     scene: &Scene,
     path_tracer: &PathTracer,
     args: &Settings,
     io: &mut Io<'_>,
-) -> Result<Image> {
-    let path = args
-        .out
-        .join("reference")
-        .join(format!("{name}-{}-{}spp.exr", args.res, args.reference_spp));
-    if path.is_file() {
-        (io.log)(&format!("{name}: reference {}", path.display()));
-        return Ok(Image::read_exr(&path)?);
+) -> Result<(Image, String)> {
+    let dir = args.out.join("reference");
+    let stem = format!("{name}-{}-{}spp", args.res, args.reference_spp);
+    let size = (scene.camera.width(), scene.camera.height());
+    let mitsuba = dir.join(format!("{stem}-mitsuba.exr"));
+    let cached = [
+        (mitsuba, format!("Mitsuba 3, {} spp", args.reference_spp)),
+        (
+            dir.join(format!("{stem}.exr")),
+            format!("nis path tracing, {} spp", args.reference_spp),
+        ),
+    ];
+    for (path, source) in cached {
+        if path.is_file() {
+            let image = Image::read_exr(&path)?;
+            if (image.width, image.height) != size {
+                return Err(Error::Config(format!(
+                    "the reference {} is {}×{}, the renders {}×{}",
+                    path.display(),
+                    image.width,
+                    image.height,
+                    size.0,
+                    size.1
+                )));
+            }
+            (io.log)(&format!("{name}: reference {} ({source})", path.display()));
+            return Ok((image, source));
+        }
     }
+    let path = dir.join(format!("{stem}.exr"));
     let options = RenderOptions {
         path_tracer: *path_tracer,
         budget: Budget::Samples(args.reference_spp),
@@ -148,53 +240,17 @@ fn reference(
     };
     let label = format!("{name}: reference, {} spp", args.reference_spp);
     let out = (io.render)(scene, &options, &GuideSpec::None, &label)?;
-    create_dir(path.parent().expect("has a parent"))?;
+    create_dir(&dir)?;
     out.image.write(&path)?;
     (io.log)(&format!(
         "{name}: reference in {:.1} s -> {}",
         out.seconds,
         path.display()
     ));
-    Ok(out.image)
-}
-
-/// Crops of the renders in a row over crops of their error maps in a row below, with the
-/// reference at the left: the central quarter of the image (half its width and height), as
-/// the paper's Figure 5 shows crops. The renders share one exposure that brings the
-/// reference's mean to 0.25, so dark scenes show.
-fn montage(reference: &Image, runs: &[Run]) -> Result<Image> {
-    let (cw, ch) = (reference.width.div_ceil(2), reference.height.div_ceil(2));
-    let (x0, y0) = ((reference.width - cw) / 2, (reference.height - ch) / 2);
-    let exposure = if reference.mean() > 0.0 {
-        (0.25 / reference.mean()) as f32
-    } else {
-        1.0
-    };
-    let cols = runs.len() as u32 + 1;
-    let mut m = Image {
-        width: cw * cols,
-        height: 2 * ch,
-        pixels: vec![Rgb::ZERO; (cw * cols * 2 * ch) as usize],
-    };
-    let mut put = |col: u32, row: u32, img: &Image, scale: f32| {
-        for y in 0..ch {
-            for x in 0..cw {
-                m.pixels[((row * ch + y) * cw * cols + col * cw + x) as usize] =
-                    img.get(x0 + x, y0 + y) * scale;
-            }
-        }
-    };
-    put(0, 0, reference, exposure);
-    for (i, r) in runs.iter().enumerate() {
-        put(i as u32 + 1, 0, &r.output.image, exposure);
-        put(
-            i as u32 + 1,
-            1,
-            &error_map(&r.output.image, reference, 1.0)?,
-            1.0,
-        );
-    }
-    Ok(m)
+    Ok((
+        out.image,
+        format!("nis path tracing, {} spp", args.reference_spp),
+    ))
 }
 
 /// Runs the comparison: `io.render` renders one scene with one guide (the caller shows its
@@ -202,7 +258,7 @@ fn montage(reference: &Image, runs: &[Run]) -> Result<Image> {
 /// montages into `args.img` and the section "guiding" of `args.docs`; returns its Markdown.
 pub fn run(args: &Settings, io: &mut Io<'_>) -> Result<String> {
     check(args)?;
-    let scenes: Vec<String> = if args.scenes.is_empty() {
+    let entries: Vec<String> = if args.scenes.is_empty() {
         nis_render::scenes::names().map(String::from).collect()
     } else {
         args.scenes.clone()
@@ -212,63 +268,77 @@ pub fn run(args: &Settings, io: &mut Io<'_>) -> Result<String> {
     } else {
         args.methods.clone()
     };
-    let specs = methods
-        .iter()
-        .map(|m| GuideSpec::parse(m, None, args.seed))
-        .collect::<std::result::Result<Vec<_>, _>>()?;
-    let methods: Vec<(String, GuideSpec)> = methods.into_iter().zip(specs).collect();
+    for m in &methods {
+        GuideSpec::parse(m, None, args.seed)?;
+    }
     create_dir(&args.out)?;
     create_dir(&args.img)?;
-    let mut table = String::from(
-        "| scene | method | MAPE | relMSE | seconds | equal time (s) | spp | MAPE | relMSE | seconds to MAPE |\n|---|---|---|---|---|---|---|---|---|---|\n",
-    );
-    let mut figures = String::new();
-    let mut panels: Vec<ErrorTimePanel> = Vec::new();
-    for name in &scenes {
-        let params = [("res".to_string(), args.res.to_string())];
-        let scene = nis_render::scenes::load_with(name, &params)?;
+    let mut results = Vec::new();
+    for entry in &entries {
+        let (name, scene) = load(entry, args)?;
+        if results.iter().any(|r: &table::SceneResult| r.name == name) {
+            return Err(Error::Config(format!(
+                "two scenes are called '{name}': their references would collide"
+            )));
+        }
+        for w in &scene.warnings {
+            (io.log)(&format!("{name}: {w}"));
+        }
         let path_tracer = PathTracer::from_scene(&scene, Strategy::Mis);
-        let reference = reference(name, &scene, &path_tracer, args, io)?;
-        let bench = SceneBench {
-            name,
-            scene: &scene,
-            reference: &reference,
-            path_tracer,
-            args,
-        };
-        let equal_spp = bench.equal_samples(&methods, io)?;
-        let (seconds, equal_time, curves) = bench.equal_time(&methods, io)?;
-        table.push_str(&table_rows(
-            name,
-            seconds,
-            args.target_mape,
-            &equal_spp,
-            &equal_time,
-            &curves,
-        ));
-        panels.push((name.clone(), seconds, curves));
+        let (reference, source) = reference(&name, &scene, &path_tracer, args, io)?;
+        let mut seeds = Vec::new();
+        for k in 0..u64::from(args.seeds) {
+            let bench = SceneBench {
+                name: &name,
+                scene: &scene,
+                reference: &reference,
+                path_tracer,
+                args,
+                seed: args.seed + k,
+            };
+            let specs = methods
+                .iter()
+                .map(|m| Ok((m.clone(), GuideSpec::parse(m, None, bench.seed)?)))
+                .collect::<Result<Vec<_>>>()?;
+            let equal_spp = bench.equal_samples(&specs, io)?;
+            let (seconds, equal_time, curves) = bench.equal_time(&specs, io)?;
+            seeds.push(SeedRuns {
+                equal_spp,
+                seconds,
+                equal_time,
+                curves,
+            });
+        }
         let file = format!("guiding-{name}.png");
-        montage(&reference, &equal_spp)?.write(&args.img.join(&file))?;
-        let names: Vec<&str> = methods.iter().map(|(m, _)| m.as_str()).collect();
-        figures.push_str(&format!(
-            "**{name}** (central crops: reference, then {} at equal spp, all at one exposure; their relative error maps below, 0 to 1 in false colour):\n\n![{name}]({}/{file})\n\n",
-            names.join(", "),
-            report::relative_to(&args.docs, &args.img)
-        ));
+        table::montage(&reference, &seeds[0].equal_spp)?.write(&args.img.join(&file))?;
+        results.push(table::SceneResult {
+            name,
+            size: (scene.camera.width(), scene.camera.height()),
+            reference: source,
+            montage: file,
+            seeds,
+        });
     }
     let plot = "guiding-error-time.png";
+    let panels: Vec<_> = results.iter().map(table::SceneResult::panel).collect();
     let figure = error_time("MAPE against wall-clock time", &panels)?;
     report::write_file(&args.img.join(plot), &png_bytes(&figure)?)?;
-    let body = section(args, &table, plot, &figures);
+    let body = table::section(args, &methods, &results, plot);
     report::write_section(&args.docs, "guiding", "Path guiding", &body)?;
     Ok(body)
 }
 
 /// An error for settings that cannot make a comparison.
 fn check(args: &Settings) -> Result<()> {
-    if args.spp == 0 || args.res == 0 || args.reference_spp == 0 || args.equal_time_spp == 0 {
+    if args.spp == 0
+        || args.res == 0
+        || args.reference_spp == 0
+        || args.equal_time_spp == 0
+        || args.seeds == 0
+    {
         return Err(Error::Config(
-            "samples per pixel, resolution, reference and equal-time samples must be positive"
+            "samples per pixel, resolution, reference and equal-time samples and seeds must be \
+             positive"
                 .into(),
         ));
     }
@@ -291,13 +361,14 @@ fn check(args: &Settings) -> Result<()> {
     Ok(())
 }
 
-/// One scene's renders: its reference and the renders' settings.
+/// One scene's renders with one seed: its reference and the renders' settings.
 struct SceneBench<'a> {
     name: &'a str,
     scene: &'a Scene,
     reference: &'a Image,
     path_tracer: PathTracer,
     args: &'a Settings,
+    seed: u64,
 }
 
 /// An error-vs-time curve: a method and its (seconds, MAPE) points.
@@ -308,9 +379,29 @@ impl SceneBench<'_> {
         RenderOptions {
             path_tracer: self.path_tracer,
             budget,
-            seed: self.args.seed,
+            seed: self.seed,
             schedule: Schedule::Plain,
         }
+    }
+
+    fn log(
+        &self,
+        io: &mut Io<'_>,
+        method: &str,
+        output: &RenderOutput,
+        errors: &ImageErrors,
+        tail: &str,
+    ) {
+        (io.log)(&format!(
+            "{:>16} {method:>8} seed {} {:>4} spp  MAPE {:.4}  relMSE {:.4}  far off {:.2}‰  {:.2} s{tail}",
+            self.name,
+            self.seed,
+            output.spp,
+            errors.mape,
+            errors.relmse,
+            1e3 * errors.far_off,
+            output.seconds
+        ));
     }
 
     /// Every method at the same samples per pixel; the renders are written to `args.out`.
@@ -318,19 +409,15 @@ impl SceneBench<'_> {
         let (name, args) = (self.name, self.args);
         let mut runs = Vec::new();
         for (method, spec) in methods {
-            let label = format!("{name}: {method}, {} spp", args.spp);
+            let label = format!("{name}: {method}, {} spp, seed {}", args.spp, self.seed);
             let options = self.options(Budget::Samples(args.spp));
             let output = (io.render)(self.scene, &options, spec, &label)?;
             let errors = compare(&output.image, self.reference)?;
-            (io.log)(&format!(
-                "{name:>16} {method:>8} {:>4} spp  MAPE {:.4}  relMSE {:.4}  {:.2} s",
-                output.spp, errors.mape, errors.relmse, output.seconds
-            ));
-            output.image.write(
-                &args
-                    .out
-                    .join(format!("{name}-{method}-{}spp.exr", args.spp)),
-            )?;
+            self.log(io, method, &output, &errors, "");
+            output.image.write(&args.out.join(format!(
+                "{name}-{method}-{}spp-seed{}.exr",
+                args.spp, self.seed
+            )))?;
             runs.push(Run {
                 method: method.clone(),
                 errors,
@@ -354,7 +441,10 @@ impl SceneBench<'_> {
         let seconds = match args.seconds {
             Some(s) => s,
             None => {
-                let label = format!("{name}: none, {} spp (budget)", args.equal_time_spp);
+                let label = format!(
+                    "{name}: none, {} spp (budget), seed {}",
+                    args.equal_time_spp, self.seed
+                );
                 let options = self.options(Budget::Samples(args.equal_time_spp));
                 let output = (io.render)(self.scene, &options, &GuideSpec::None, &label)?;
                 let s = output.seconds;
@@ -378,16 +468,19 @@ impl SceneBench<'_> {
                 let output = match reuse {
                     Some(o) => o,
                     None => {
-                        let label = format!("{name}: {method}, {budget:.2} s");
+                        let label = format!("{name}: {method}, {budget:.2} s, seed {}", self.seed);
                         let options = self.options(Budget::Seconds(budget));
                         (io.render)(self.scene, &options, spec, &label)?
                     }
                 };
                 let errors = compare(&output.image, self.reference)?;
-                (io.log)(&format!(
-                    "{name:>16} {method:>8} {:>4} spp  MAPE {:.4}  relMSE {:.4}  {:.2} s (budget {budget:.2} s)",
-                    output.spp, errors.mape, errors.relmse, output.seconds
-                ));
+                self.log(
+                    io,
+                    method,
+                    &output,
+                    &errors,
+                    &format!(" (budget {budget:.2} s)"),
+                );
                 curve.push((output.seconds, errors.mape));
                 last = Some((output, errors));
             }
@@ -403,92 +496,24 @@ impl SceneBench<'_> {
     }
 }
 
-/// The table's rows of one scene: every method at equal samples and at equal time (best per
-/// column in bold), and the seconds each needs to reach the target MAPE (`target_mape`, or path
-/// tracing's at the budget, or the best method's without it).
-fn table_rows(
-    name: &str,
-    seconds: f64,
-    target_mape: Option<f64>,
-    equal_spp: &[Run],
-    equal_time: &[Run],
-    curves: &[Curve],
-) -> String {
-    let best = |runs: &[Run], key: fn(&ImageErrors) -> f64| {
-        runs.iter()
-            .map(|r| key(&r.errors))
-            .fold(f64::INFINITY, f64::min)
-    };
-    let bold = |v: f64, best: f64| {
-        if v == best {
-            format!("**{v:.4}**")
-        } else {
-            format!("{v:.4}")
-        }
-    };
-    // Path tracing's MAPE at the budget, or the best method's when it did not run.
-    let target = target_mape.unwrap_or_else(|| {
-        equal_time
-            .iter()
-            .find(|r| r.method == "none")
-            .map_or_else(|| best(equal_time, |e| e.mape), |r| r.errors.mape)
-    });
-    let (b1, b2) = (best(equal_spp, |e| e.mape), best(equal_spp, |e| e.relmse));
-    let (b3, b4) = (best(equal_time, |e| e.mape), best(equal_time, |e| e.relmse));
-    let mut rows = String::new();
-    for ((a, t), (_, curve)) in equal_spp.iter().zip(equal_time).zip(curves) {
-        let reach = time_to_reach(curve, target).map_or_else(|| "–".into(), |r| r.to_string());
-        rows.push_str(&format!(
-            "| {name} | {} | {} | {} | {:.1} | {seconds:.1} | {} | {} | {} | {target:.4} in {reach} |\n",
-            a.method,
-            bold(a.errors.mape, b1),
-            bold(a.errors.relmse, b2),
-            a.output.seconds,
-            t.output.spp,
-            bold(t.errors.mape, b3),
-            bold(t.errors.relmse, b4),
-        ));
-    }
-    rows
-}
-
-/// The section's text: how the comparison is run, the table, the error-vs-time plot `plot` and
-/// the montages `figures`.
-fn section(args: &Settings, table: &str, plot: &str, figures: &str) -> String {
-    let budget = match args.seconds {
-        Some(s) => format!("{s} s (`--seconds`)"),
-        None => format!(
-            "the time unguided path tracing takes for {} spp",
-            args.equal_time_spp
-        ),
-    };
-    format!(
-        "Reproduce: `nis bench guiding --spp {spp} --res {res} --reference-spp {rspp} \
-         --equal-time-spp {etspp} --curve-points {points}`. \
-         Every method renders {res}×{res} pixels with {spp} samples per pixel in total \
-         (guided methods spend up to half of them on training passes of 1, 2, 4, … spp, and \
-         the passes are combined by inverse variance). At equal time every method gets one \
-         wall-clock budget per scene, {budget}, and also half, a quarter, … of it \
-         ({points} budgets): the curves below plot MAPE against the seconds each render took, \
-         and the last column gives the seconds each method needs to reach the MAPE shown \
-         (path tracing's at the budget, or the best method's without it, unless `--target-mape` \
-         is given; interpolated on the \
-         curve as a power law, `≤` / `>` when reached at its first point / not within it). \
-         Errors are against a path-traced reference of {rspp} spp (other seed). MAPE and \
-         relMSE with ε = 0.01; best per column in bold.\n\n{table}\n\
-         ![MAPE against wall-clock time]({img}/{plot})\n\n{figures}",
-        spp = args.spp,
-        res = args.res,
-        rspp = args.reference_spp,
-        etspp = args.equal_time_spp,
-        points = args.curve_points,
-        img = report::relative_to(&args.docs, &args.img),
-    )
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_scene_file_keeps_its_aspect_and_is_named_by_its_folder_when_called_scene() {
+        assert_eq!(fit_resolution(1280, 720, 128), (128, 72));
+        assert_eq!(fit_resolution(1024, 768, 100), (100, 75));
+        assert_eq!(fit_resolution(720, 1280, 64), (36, 64));
+        assert_eq!(fit_resolution(512, 512, 96), (96, 96));
+        // 3 × 128 / 1000 = 0.384: never an empty image.
+        assert_eq!(fit_resolution(1000, 3, 128), (128, 1));
+        assert_eq!(
+            scene_name(Path::new("a/veach-bidir/scene.xml")),
+            "veach-bidir"
+        );
+        assert_eq!(scene_name(Path::new("a/kitchen/kitchen.xml")), "kitchen");
+    }
 
     #[test]
     fn time_to_reach_interpolates_a_power_law_between_the_crossing_points() {
