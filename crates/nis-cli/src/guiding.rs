@@ -78,7 +78,7 @@ pub struct BenchGuidingArgs {
     #[arg(long, default_value = "out/guiding")]
     pub out: PathBuf,
 
-    /// Markdown file the table goes to.
+    /// Markdown file the table goes to (its own section for scene files).
     #[arg(long, default_value = "docs/results/guiding.md")]
     pub docs: PathBuf,
 

@@ -76,7 +76,12 @@ fn bench_guiding_reads_a_scene_file_over_seeds_and_prefers_a_mitsuba_reference()
     let dir = scratch("file");
     let xml = dir.join("box/scene.xml");
     std::fs::create_dir_all(xml.parent().unwrap()).unwrap();
-    let o = nis(&["render", "cornell-box", "--export-xml", xml.to_str().unwrap()]);
+    let o = nis(&[
+        "render",
+        "cornell-box",
+        "--export-xml",
+        xml.to_str().unwrap(),
+    ]);
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     let (docs, out, img) = (dir.join("R.md"), dir.join("out"), dir.join("img"));
     let args = [
@@ -115,6 +120,8 @@ fn bench_guiding_reads_a_scene_file_over_seeds_and_prefers_a_mitsuba_reference()
     assert!(md.contains("reference nis path tracing, 16 spp"), "{md}");
     assert!(md.contains("--seeds 2"), "{md}");
     assert!(md.contains("far off"), "{md}");
+    assert!(md.contains("## Path guiding on published scenes"), "{md}");
+    assert!(img.join("guiding-scenes-box.png").is_file());
     for seed in [0, 1] {
         assert!(out.join(format!("box-none-4spp-seed{seed}.exr")).is_file());
     }

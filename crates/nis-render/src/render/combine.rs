@@ -3,6 +3,15 @@
 //! (Müller 2019, "Practical Path Guiding in Production", §3): every pass is an unbiased image
 //! whatever its guide had learned, so any fixed weights keep the result unbiased, and weights
 //! estimated from whole images are near-constant, so the training passes are not wasted.
+//!
+//! A pass's own estimate can fall far below its true variance when its few samples missed the
+//! rare paths that carry most of it (a small, bright light seen in a glossy plate): on
+//! Bitterli's `veach-mis` a 2-spp pass estimated 1/100 of the others' variance per sample,
+//! took 78% of the weight and left the image 21% dark. As the guide learns, the variance per
+//! sample can only fall from pass to pass in expectation, so the estimates per sample are
+//! fitted by the closest non-increasing sequence (isotonic regression, weighted by the passes'
+//! samples) before they are inverted: a pass that claims less noise than the passes after it is
+//! pooled with them.
 
 use crate::film::Image;
 use crate::geometry::{luminance, Rgb};
@@ -65,14 +74,47 @@ impl PassSums {
     }
 }
 
-/// The passes of a guided render combined with weights inversely proportional to their
-/// image-averaged variance (see the module documentation). One-sample passes (no variance
+/// The closest non-increasing sequence to `values` in the least squares weighted by `weights`
+/// (the pool-adjacent-violators algorithm): each run of values that rises is replaced by its
+/// weighted mean.
+pub fn non_increasing_fit(values: &[f64], weights: &[f64]) -> Vec<f64> {
+    // Blocks of (weighted mean, total weight, length), kept non-increasing.
+    let mut blocks: Vec<(f64, f64, usize)> = Vec::with_capacity(values.len());
+    for (&v, &w) in values.iter().zip(weights) {
+        let mut block = (v, w, 1);
+        while let Some(&(m, pw, n)) = blocks.last() {
+            if m >= block.0 {
+                break;
+            }
+            blocks.pop();
+            let total = pw + block.1;
+            block = ((m * pw + block.0 * block.1) / total, total, n + block.2);
+        }
+        blocks.push(block);
+    }
+    blocks
+        .into_iter()
+        .flat_map(|(m, _, n)| std::iter::repeat_n(m, n))
+        .collect()
+}
+
+/// The passes of a guided render, in the order they were rendered, combined with weights
+/// inversely proportional to their image-averaged variance, its estimates per sample fitted
+/// non-increasing first (see the module documentation). One-sample passes (no variance
 /// estimate) are left out; when some pass has no noise at all (e.g. a black image), the passes
 /// are pooled by sample count instead.
 pub fn combine(width: u32, height: u32, passes: &[PassSums]) -> Image {
-    let estimates: Vec<(f64, &PassSums)> = passes
+    let raw: Vec<(f64, &PassSums)> = passes
         .iter()
         .filter_map(|p| p.variance().map(|v| (v, p)))
+        .collect();
+    let spp: Vec<f64> = raw.iter().map(|(_, p)| f64::from(p.spp)).collect();
+    let per_sample: Vec<f64> = raw.iter().zip(&spp).map(|((v, _), n)| v * n).collect();
+    let fitted = non_increasing_fit(&per_sample, &spp);
+    let estimates: Vec<(f64, &PassSums)> = raw
+        .iter()
+        .zip(fitted.iter().zip(&spp))
+        .map(|((_, p), (s, n))| (s / n, *p))
         .collect();
     let pool = |weights: Vec<(f64, &PassSums)>| {
         let total: f64 = weights.iter().map(|w| w.0).sum();
@@ -140,10 +182,16 @@ mod tests {
         let v = pass(4, 1.0, 0.3).variance().unwrap();
         assert!((v - 0.09 / 3.0).abs() < 1e-6, "{v}");
         assert_eq!(pass(1, 1.0, 0.0).variance(), None);
-        // Variances 0.09/3 = 0.03 and 0.36/3 = 0.12: weights 0.8 and 0.2.
-        let img = combine(2, 2, &[pass(4, 1.0, 0.3), pass(4, 2.0, 0.6)]);
+        // Variances 0.12 then 0.09/3 = 0.03 (falling, as a guide learns): weights 0.2 and 0.8.
+        let img = combine(2, 2, &[pass(4, 2.0, 0.6), pass(4, 1.0, 0.3)]);
         for p in &img.pixels {
             assert!((p.x - 1.2).abs() < 1e-5, "{p:?}");
+        }
+        // A pass that claims less noise than the one after it is pooled with it: equal
+        // variances per sample, weights by sample count.
+        let img = combine(2, 2, &[pass(4, 1.0, 0.3), pass(4, 2.0, 0.6)]);
+        for p in &img.pixels {
+            assert!((p.x - 1.5).abs() < 1e-5, "{p:?}");
         }
         // A one-sample pass has no variance estimate and is left out.
         let one = PassSums {
@@ -163,5 +211,35 @@ mod tests {
         assert!(img.pixels.iter().all(|p| p.x == 0.0));
         let img = combine(2, 2, &[pass(2, 1.0, 0.0), pass(6, 3.0, 0.0)]);
         assert!((img.pixels[0].x - 2.5).abs() < 1e-6, "{:?}", img.pixels[0]);
+    }
+
+    #[test]
+    fn the_fit_pools_rising_runs_and_keeps_a_falling_sequence() {
+        assert_eq!(
+            non_increasing_fit(&[5.0, 3.0, 1.0], &[1.0; 3]),
+            [5.0, 3.0, 1.0]
+        );
+        assert_eq!(non_increasing_fit(&[1.0, 3.0], &[1.0, 1.0]), [2.0, 2.0]);
+        // A rise that reaches back over a pooled block: (1·2 + 3·4)/4 = 3.5 ≥ … ≥ the rest.
+        let f = non_increasing_fit(&[2.0, 1.0, 3.0, 4.0, 0.5], &[1.0, 1.0, 1.0, 1.0, 2.0]);
+        assert_eq!(f, [2.5, 2.5, 2.5, 2.5, 0.5]);
+        assert!(non_increasing_fit(&[], &[]).is_empty());
+    }
+
+    #[test]
+    fn an_early_pass_that_missed_the_rare_paths_does_not_rule_the_image() {
+        // veach-mis, seed 0, PPG: per-sample variance estimates of passes of 2, 4, 8, 16, 33 spp.
+        // The 2-spp pass saw none of the fireflies; raw inverse variance gave it 78% of the
+        // weight, the fit gives it about 2%.
+        let spp = [2.0, 4.0, 8.0, 16.0, 33.0];
+        let raw = [3.1, 794.5, 249.9, 339.5, 346.5];
+        let fitted = non_increasing_fit(&raw, &spp);
+        let weight = |s: &[f64]| {
+            let w: Vec<f64> = s.iter().zip(&spp).map(|(v, n)| n / v).collect();
+            w[0] / w.iter().sum::<f64>()
+        };
+        assert!(weight(&raw) > 0.75, "{}", weight(&raw));
+        assert!(weight(&fitted) < 0.03, "{}", weight(&fitted));
+        assert!(fitted.windows(2).all(|w| w[0] >= w[1]), "{fitted:?}");
     }
 }

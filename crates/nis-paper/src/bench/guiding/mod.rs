@@ -65,7 +65,7 @@ pub struct Settings {
     pub drop_missing_meshes: bool,
     /// Folder for renders, error maps and cached references.
     pub out: PathBuf,
-    /// Markdown file the table goes to (section "guiding").
+    /// Markdown file the table goes to (section "guiding", or "guiding-scenes" with scene files).
     pub docs: PathBuf,
     /// Folder for the montages linked from `docs`.
     pub img: PathBuf,
@@ -255,7 +255,8 @@ fn reference(
 
 /// Runs the comparison: `io.render` renders one scene with one guide (the caller shows its
 /// progress), `io.log` sees a line per render. Writes renders and references into `args.out`,
-/// montages into `args.img` and the section "guiding" of `args.docs`; returns its Markdown.
+/// montages into `args.img` and the section "guiding" of `args.docs` ("guiding-scenes" when
+/// a scene is a file); returns its Markdown.
 pub fn run(args: &Settings, io: &mut Io<'_>) -> Result<String> {
     check(args)?;
     let entries: Vec<String> = if args.scenes.is_empty() {
@@ -273,6 +274,12 @@ pub fn run(args: &Settings, io: &mut Io<'_>) -> Result<String> {
     }
     create_dir(&args.out)?;
     create_dir(&args.img)?;
+    // Published scenes get a section (and figure names) of their own beside the built-in ones.
+    let (key, title) = if entries.iter().any(|e| Path::new(e).is_file()) {
+        ("guiding-scenes", "Path guiding on published scenes")
+    } else {
+        ("guiding", "Path guiding")
+    };
     let mut results = Vec::new();
     for entry in &entries {
         let (name, scene) = load(entry, args)?;
@@ -309,7 +316,7 @@ pub fn run(args: &Settings, io: &mut Io<'_>) -> Result<String> {
                 curves,
             });
         }
-        let file = format!("guiding-{name}.png");
+        let file = format!("{key}-{name}.png");
         table::montage(&reference, &seeds[0].equal_spp)?.write(&args.img.join(&file))?;
         results.push(table::SceneResult {
             name,
@@ -319,12 +326,12 @@ pub fn run(args: &Settings, io: &mut Io<'_>) -> Result<String> {
             seeds,
         });
     }
-    let plot = "guiding-error-time.png";
+    let plot = format!("{key}-error-time.png");
     let panels: Vec<_> = results.iter().map(table::SceneResult::panel).collect();
     let figure = error_time("MAPE against wall-clock time", &panels)?;
-    report::write_file(&args.img.join(plot), &png_bytes(&figure)?)?;
-    let body = table::section(args, &methods, &results, plot);
-    report::write_section(&args.docs, "guiding", "Path guiding", &body)?;
+    report::write_file(&args.img.join(&plot), &png_bytes(&figure)?)?;
+    let body = table::section(args, &methods, &results, &plot);
+    report::write_section(&args.docs, key, title, &body)?;
     Ok(body)
 }
 
