@@ -3,9 +3,10 @@
 their image means: the check that a published scene reads as Mitsuba reads it.
 
 Mitsuba 3 refuses some files as published (a Mitsuba 0.4 `<lookAt>`, a guiding paper's
-integrator plugin): those are handed to it upgraded the way nis reads them (camelCase names to
-snake_case, `lookAt`, `srgb` colours, other integrators as `path`), which says the same thing in
-Mitsuba 3's words. Shapes whose mesh files are missing are left out for both renderers.
+integrator plugin, a Mitsuba 0.5 `sunsky`): those are handed to it upgraded the way nis reads
+them (camelCase names to snake_case, `lookAt`, `srgb` colours, other integrators as `path`, a
+0.5 sunsky's frame, scales and sun radius as `upgrade_sunsky` says), which says the same thing
+in Mitsuba 3's words. Shapes whose mesh files are missing are left out for both renderers.
 
     python3 -m venv target/mitsuba-venv && target/mitsuba-venv/bin/pip install mitsuba==3.9.1 numpy
     cargo build --release -p nis-cli
@@ -35,6 +36,51 @@ def snake(name):
 
 def srgb_to_linear(c):
     return c / 12.92 if c <= 0.04045 else ((c + 0.055) / 1.055) ** 2.4
+
+
+# Mitsuba 0.5's apparent diameter of the sun, degrees.
+SUN_DIAMETER_0_5 = 0.5358
+# Mitsuba 3's z-up sky frame onto Mitsuba 0.5's y-up one, row by row (a reflection: 0.5 puts the
+# sun of zenith angle t and azimuth p at (sin p sin t, cos t, -cos p sin t), Mitsuba 3 at
+# (-cos p sin t, -sin p sin t, cos t)).
+SKY_FRAME_0_5 = "0 -1 0 0 0 0 1 0 1 0 0 0 0 0 0 1"
+
+
+def upgrade_sunsky(e):
+    """A Mitsuba 0.5 sunsky (names already snake_case) as nis reads it
+    (crates/nis-render/src/xml/upgrade.rs): its frame before its to_world, `scale` as the
+    default of sun_scale and sky_scale, sun_radius_scale r as sun_aperture r * 0.5358 degrees,
+    0.5's albedo default 0.15, `resolution` dropped."""
+    def take(name):
+        c = e.find(f"*[@name='{name}']")
+        if c is not None:
+            e.remove(c)
+            return float(c.get("value"))
+        return None
+
+    def has(name):
+        return e.find(f"*[@name='{name}']") is not None
+
+    def add(name, value):
+        ET.SubElement(e, "float", name=name, value=repr(value))
+
+    scale = take("scale")
+    if scale is not None:
+        for name in ("sun_scale", "sky_scale"):
+            if not has(name):
+                add(name, scale)
+    radius = take("sun_radius_scale")
+    if radius is not None:
+        add("sun_aperture", radius * SUN_DIAMETER_0_5)
+    if take("stretch") not in (None, 1.0):
+        raise ValueError("a sunsky's stretch has no Mitsuba 3 equivalent")
+    take("resolution")
+    if not has("albedo"):
+        add("albedo", 0.15)
+    t = e.find("transform[@name='to_world']")
+    if t is None:
+        t = ET.SubElement(e, "transform", name="to_world")
+    t.insert(0, ET.Element("matrix", value=SKY_FRAME_0_5))
 
 
 def upgrade(root, base):
@@ -72,6 +118,10 @@ def upgrade(root, base):
                 e.remove(c)
             e.extend(keep)
             e.set("type", "path")
+    if legacy:
+        for e in root.iter("emitter"):
+            if e.get("type") == "sunsky":
+                upgrade_sunsky(e)
     root.set("version", "3.0.0")
 
 

@@ -165,6 +165,20 @@ def features():
         <float name="scale" value="1.5"/>
         <transform name="to_world"><rotate y="1" angle="70"/></transform>
     </emitter>""", sphere='<bsdf type="roughconductor"><string name="material" value="Al"/><float name="alpha" value="0.1"/></bsdf>')
+    # Mitsuba 3's sky is z-up: to_world turns it onto this y-up world.
+    add("sunsky", light="""<emitter type="sunsky">
+        <integer name="year" value="2021"/><integer name="month" value="4"/><integer name="day" value="20"/>
+        <float name="hour" value="10.5"/><float name="latitude" value="48.1"/><float name="longitude" value="11.6"/>
+        <float name="timezone" value="2"/><float name="turbidity" value="4"/><rgb name="albedo" value="0.2, 0.3, 0.4"/>
+        <float name="sun_aperture" value="2"/>
+        <transform name="to_world"><rotate x="1" angle="-90"/><rotate y="1" angle="30"/></transform>
+    </emitter>""", sphere='<bsdf type="roughconductor"><string name="material" value="Al"/><float name="alpha" value="0.25"/></bsdf>')
+    add("sunsky-complex", light="""<emitter type="sunsky">
+        <vector name="sun_direction" x="-0.5" y="0.6" z="0.4"/><boolean name="complex_sun" value="true"/>
+        <float name="sun_aperture" value="3"/><float name="sun_scale" value="0.8"/><float name="sky_scale" value="0.5"/>
+        <float name="turbidity" value="6.5"/><float name="albedo" value="0.5"/>
+        <transform name="to_world"><rotate x="1" angle="-90"/></transform>
+    </emitter>""")
     legacy = scene("legacy-0.5", version="0.5.0",
                    sphere='<bsdf type="roughconductor"><float name="alpha" value="0.2"/><string name="material" value="Cu"/>'
                           '<float name="extEta" value="1.0"/></bsdf>',

@@ -16,7 +16,7 @@ use std::sync::Arc;
 use glam::{Mat3, Vec2, Vec3};
 
 use crate::geometry::{luminance, Rgb};
-use crate::sampling::Distribution1D;
+use crate::sampling::{sample_within, Distribution1D};
 use crate::texture::{Bitmap, WrapMode};
 
 /// A sampled direction of the map.
@@ -147,15 +147,6 @@ impl EnvMap {
             pdf,
         })
     }
-}
-
-/// A bin drawn for `u`, and where `u` fell within it, in `[0, 1)`.
-fn sample_within(d: &Distribution1D, u: f32) -> (usize, f32) {
-    let i = d.sample(u);
-    let lo = if i == 0 { 0.0 } else { d.cdf_at(i - 1) };
-    let p = d.pmf(i);
-    let f = if p > 0.0 { (u - lo) / p } else { 0.5 };
-    (i, f.clamp(0.0, 1.0 - f32::EPSILON))
 }
 
 #[cfg(test)]

@@ -45,6 +45,7 @@ pub mod scenes;
 pub mod serialized;
 pub mod shape;
 pub mod spectrum;
+pub mod sunsky;
 pub mod texture;
 pub mod xml;
 
@@ -89,6 +90,25 @@ pub enum Error {
         /// The image file.
         path: String,
         /// Reason.
+        message: String,
+    },
+    /// The `sunsky` emitter's tables (Mitsuba's `sunsky_datasets.bin` and `sampling_data.bin`)
+    /// are in none of the places looked in.
+    #[error(
+        "the sunsky emitter needs Mitsuba's tables sunsky_datasets.bin and sampling_data.bin, \
+         found in none of: {searched}; fetch them with scripts/scenes/fetch-public-scenes.sh \
+         (into data/scenes/mitsuba-data/sunsky/output/) or name their folder in NIS_SUNSKY_DATA"
+    )]
+    MissingSunskyData {
+        /// The folders looked in.
+        searched: String,
+    },
+    /// A `sunsky` table file is not what Mitsuba writes.
+    #[error("sunsky table {path}: {message}")]
+    SunskyData {
+        /// The file.
+        path: String,
+        /// What is wrong.
         message: String,
     },
     /// Invalid input that is not tied to a file.

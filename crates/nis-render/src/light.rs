@@ -1,5 +1,5 @@
 //! Light sources: emissive shapes (Mitsuba's one-sided `area` emitter), a constant or mapped
-//! environment, and delta lights (`directional`, `spot`), with the light-sampling strategy used
+//! environment or Mitsuba's sun and sky, and delta lights (`directional`, `spot`), with the light-sampling strategy used
 //! for next-event estimation.
 //!
 //! Each kind present (the environment, the area lights, the delta lights) gets an equal share of
@@ -15,9 +15,45 @@ use std::sync::Arc;
 
 use glam::{Vec2, Vec3};
 
-use crate::envmap::EnvMap;
+use crate::envmap::{EnvMap, EnvSample};
 use crate::geometry::{luminance, Rgb};
 use crate::sampling::{square_to_triangle, square_to_uniform_sphere, Distribution1D};
+use crate::sunsky::SunSky;
+
+/// An environment whose radiance varies with direction, importance-sampled.
+#[derive(Debug)]
+pub enum EnvironmentLight {
+    /// An image (Mitsuba `envmap`).
+    Map(EnvMap),
+    /// The sun and sky (Mitsuba `sunsky`).
+    SunSky(Box<SunSky>),
+}
+
+impl EnvironmentLight {
+    /// Radiance arriving from world direction `dir` (pointing away from the scene).
+    pub fn eval(&self, dir: Vec3) -> Rgb {
+        match self {
+            EnvironmentLight::Map(m) => m.eval(dir),
+            EnvironmentLight::SunSky(s) => s.eval(dir),
+        }
+    }
+
+    /// Solid-angle density of [`EnvironmentLight::sample`] for world direction `dir`.
+    pub fn pdf(&self, dir: Vec3) -> f32 {
+        match self {
+            EnvironmentLight::Map(m) => m.pdf(dir),
+            EnvironmentLight::SunSky(s) => s.pdf(dir),
+        }
+    }
+
+    /// Draw a direction from two uniform numbers.
+    pub fn sample(&self, u: Vec2) -> Option<EnvSample> {
+        match self {
+            EnvironmentLight::Map(m) => m.sample(u),
+            EnvironmentLight::SunSky(s) => s.sample(u),
+        }
+    }
+}
 
 /// The primitive an area light covers.
 #[derive(Clone, Copy, Debug)]
@@ -138,8 +174,9 @@ pub struct Lights {
     pub area: Vec<AreaLight>,
     /// Constant environment radiance (Mitsuba `constant` emitter).
     pub environment: Option<Rgb>,
-    /// An environment map (Mitsuba `envmap`), in place of a constant environment.
-    pub environment_map: Option<Arc<EnvMap>>,
+    /// An environment map (Mitsuba `envmap`) or the sun and sky (`sunsky`), in place of a
+    /// constant environment.
+    pub environment_map: Option<Arc<EnvironmentLight>>,
     /// Directional and spot lights.
     pub delta: Vec<DeltaLight>,
     selection: Option<Distribution1D>,
@@ -184,7 +221,13 @@ impl Lights {
 
     /// Light the scene by an environment map instead of a constant environment.
     pub fn set_environment_map(&mut self, map: EnvMap) {
-        self.environment_map = Some(Arc::new(map));
+        self.set_environment_light(EnvironmentLight::Map(map));
+    }
+
+    /// Light the scene by an environment map or the sun and sky instead of a constant
+    /// environment.
+    pub fn set_environment_light(&mut self, light: EnvironmentLight) {
+        self.environment_map = Some(Arc::new(light));
         self.environment = None;
     }
 

@@ -119,6 +119,16 @@ impl Distribution1D {
     }
 }
 
+/// A bin of `d` drawn for the uniform number `u`, and where `u` fell within it, in `[0, 1)`
+/// (so that one number picks the bin and the position inside it).
+pub fn sample_within(d: &Distribution1D, u: f32) -> (usize, f32) {
+    let i = d.sample(u);
+    let lo = if i == 0 { 0.0 } else { d.cdf_at(i - 1) };
+    let p = d.pmf(i);
+    let f = if p > 0.0 { (u - lo) / p } else { 0.5 };
+    (i, f.clamp(0.0, 1.0 - f32::EPSILON))
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

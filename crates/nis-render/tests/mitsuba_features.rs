@@ -33,10 +33,16 @@ fn features_dir() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/scenes/features")
 }
 
-/// The means of the scene at `path` over [`REGIONS`], and their standard errors.
-fn our_means(path: &Path) -> Vec<(f64, f64)> {
-    let scene = nis_render::xml::load_scene(path, &[])
-        .unwrap_or_else(|e| panic!("{}: {e}", path.display()));
+/// The means of the scene at `path` over [`REGIONS`], and their standard errors; `None` (with
+/// the reason printed) for a `sunsky` scene when Mitsuba's sun-and-sky tables are not fetched.
+fn our_means(path: &Path) -> Option<Vec<(f64, f64)>> {
+    let scene = match nis_render::xml::load_scene(path, &[]) {
+        Err(e @ nis_render::Error::MissingSunskyData { .. }) => {
+            eprintln!("{}: skipped: {e}", path.display());
+            return None;
+        }
+        r => r.unwrap_or_else(|e| panic!("{}: {e}", path.display())),
+    };
     let images: Vec<_> = [1u64, 2]
         .iter()
         .map(|&seed| {
@@ -58,7 +64,7 @@ fn our_means(path: &Path) -> Vec<(f64, f64)> {
         (0, w / 2, h / 2, h),
         (w / 2, w, h / 2, h),
     ];
-    regions
+    let means = regions
         .iter()
         .map(|&(x0, x1, y0, y1)| {
             let (mut sum, mut ss, mut n) = (0.0f64, 0.0f64, 0.0f64);
@@ -76,7 +82,8 @@ fn our_means(path: &Path) -> Vec<(f64, f64)> {
             // the two renders has half of it.
             (sum / n, (ss / 2.0 / (n * n) / 2.0).sqrt())
         })
-        .collect()
+        .collect();
+    Some(means)
 }
 
 fn references() -> serde_json::Map<String, serde_json::Value> {
@@ -96,7 +103,9 @@ fn every_feature_scene_matches_mitsuba_within_its_noise() {
         let quads = r["quadrants"].as_array().unwrap();
         let errs = r["quadrant_std_errs"].as_array().unwrap();
         want.extend(quads.iter().zip(errs).map(|(m, e)| (number(m), number(e))));
-        let got = our_means(&features_dir().join(format!("{name}.xml")));
+        let Some(got) = our_means(&features_dir().join(format!("{name}.xml"))) else {
+            continue;
+        };
         for (region, (&(g, se), &(m, mse))) in REGIONS.iter().zip(got.iter().zip(&want)) {
             let allowed = Z * (se * se + mse * mse).sqrt() + MODEL_TOLERANCE * m;
             let line = format!(

@@ -1,6 +1,6 @@
-//! The scene's own emitters: a `constant` environment or an `envmap`, `directional` and `spot`
-//! lights (Mitsuba 3's
-//! plugins, their parameters and defaults). Area emitters belong to their shape.
+//! The scene's own emitters: a `constant` environment, an `envmap` or a `sunsky`
+//! (`sunsky.rs`), `directional` and `spot` lights (Mitsuba 3's plugins, their parameters and
+//! defaults). Area emitters belong to their shape.
 
 use glam::{Mat3, Vec3};
 
@@ -9,7 +9,7 @@ use super::props::{Props, PROPERTY_TAGS};
 use super::{unsupported, LoadResult, Loader};
 use crate::envmap::EnvMap;
 use crate::geometry::Rgb;
-use crate::light::{DeltaLight, DirectionalLight, SpotLight};
+use crate::light::{DeltaLight, DirectionalLight, EnvironmentLight, SpotLight};
 use crate::spectrum::Role;
 use crate::texture::{Bitmap, FilterMode, WrapMode};
 
@@ -25,8 +25,8 @@ impl Loader {
         }
         let p = Props::new(c)?;
         match kind {
-            "constant" | "envmap" if self.environment.is_some() || self.environment_map.is_some() => {
-                return Err(err::<()>(c.line, "only one environment emitter (constant or envmap) is supported")
+            "constant" | "envmap" | "sunsky" if self.environment.is_some() || self.environment_map.is_some() => {
+                return Err(err::<()>(c.line, "only one environment emitter (constant, envmap or sunsky) is supported")
                     .unwrap_err()
                     .into());
             }
@@ -49,7 +49,7 @@ impl Loader {
                 let image = Bitmap::load(&path, raw, FilterMode::Bilinear, WrapMode::Repeat)
                     .map_err(|e| err::<()>(c.line, e.to_string()).unwrap_err())?;
                 match EnvMap::new(image, scale, to_world) {
-                    Some(map) => self.environment_map = Some(map),
+                    Some(map) => self.environment_map = Some(EnvironmentLight::Map(map)),
                     None => self
                         .warnings
                         .push((c.line, format!("the environment map {file} is black"))),
@@ -96,15 +96,16 @@ impl Loader {
                     beam_width: beam.to_radians(),
                 }));
             }
-            "sunsky" | "sky" | "sun" | "point" | "projector" => {
+            "sunsky" => self.sunsky(c, &p)?,
+            "sky" | "sun" | "point" | "projector" => {
                 return Err(err::<()>(
                     c.line,
-                    format!("the emitter <emitter type=\"{kind}\"> is not supported yet (supported: constant, envmap, directional, spot, area inside a shape)"),
+                    format!("the emitter <emitter type=\"{kind}\"> is not supported yet (supported: constant, envmap, sunsky, directional, spot, area inside a shape)"),
                 )
                 .unwrap_err()
                 .into())
             }
-            _ => return unsupported(c, "constant, envmap, directional, spot; area inside a shape"),
+            _ => return unsupported(c, "constant, envmap, sunsky, directional, spot; area inside a shape"),
         }
         p.finish()?;
         Ok(())

@@ -15,11 +15,13 @@ pub const MAX_INCLUDE_DEPTH: usize = 16;
 
 /// Replace every `<include>` among `root`'s children by the children of the file it names and
 /// collect the `<path>` folders (resolved against `base_dir`, the including file's folder),
-/// appending them to `paths`.
+/// appending them to `paths`; an included legacy file's upgrade warnings go to `warnings` with
+/// the include's line.
 pub fn expand(
     root: &mut Element,
     base_dir: &Path,
     paths: &mut Vec<PathBuf>,
+    warnings: &mut Vec<(usize, String)>,
     depth: usize,
 ) -> Result<(), XmlError> {
     let children = std::mem::take(&mut root.children);
@@ -57,10 +59,12 @@ pub fn expand(
                     );
                 }
                 if upgrade::is_legacy(&included)? {
-                    upgrade::upgrade(&mut included)?;
+                    let mut notes = Vec::new();
+                    upgrade::upgrade(&mut included, &mut notes)?;
+                    warnings.extend(notes.into_iter().map(|(_, m)| (c.line, m)));
                 }
                 let dir = file.parent().map(Path::to_path_buf).unwrap_or_default();
-                expand(&mut included, &dir, paths, depth + 1)?;
+                expand(&mut included, &dir, paths, warnings, depth + 1)?;
                 // Errors inside name the include's line: the element tree keeps one file's
                 // lines.
                 for mut e in included.children {

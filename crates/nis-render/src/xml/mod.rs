@@ -11,7 +11,8 @@
 //! `direct` as `path` with `max_depth = 2`.
 //!
 //! One file per kind of element: `sensor.rs` (camera, film, filter, sampler), `bsdf.rs`,
-//! `emitter.rs` (the scene's own emitters; area emitters are read with their shape),
+//! `emitter.rs` (the scene's own emitters, `sunsky.rs` for the sun and sky; area emitters are
+//! read with their shape),
 //! `texture.rs`, `shape.rs`; `include.rs` splices `<include>`d files in first.
 
 mod bsdf;
@@ -21,6 +22,7 @@ mod include;
 mod props;
 mod sensor;
 mod shape;
+mod sunsky;
 mod texture;
 mod upgrade;
 
@@ -30,9 +32,8 @@ use std::sync::Arc;
 
 use crate::bsdf::Material;
 use crate::camera::Camera;
-use crate::envmap::EnvMap;
 use crate::geometry::Rgb;
-use crate::light::DeltaLight;
+use crate::light::{DeltaLight, EnvironmentLight};
 use crate::scene::{RenderSettings, Scene};
 use crate::shape::Shape;
 use crate::texture::{Bitmap, Texture};
@@ -99,11 +100,19 @@ fn load(
         }));
     }
     let legacy = upgrade::is_legacy(&root).map_err(to_error)?;
+    let mut upgrade_warnings = Vec::new();
     if legacy {
-        upgrade::upgrade(&mut root).map_err(to_error)?;
+        upgrade::upgrade(&mut root, &mut upgrade_warnings).map_err(to_error)?;
     }
     let mut search_paths = Vec::new();
-    include::expand(&mut root, base_dir, &mut search_paths, 0).map_err(to_error)?;
+    include::expand(
+        &mut root,
+        base_dir,
+        &mut search_paths,
+        &mut upgrade_warnings,
+        0,
+    )
+    .map_err(to_error)?;
     include::inline_references(&mut root);
     let mut values: HashMap<String, String> = params.iter().cloned().collect();
     for d in root.children.iter().filter(|c| c.name == "default") {
@@ -122,6 +131,7 @@ fn load(
         options: LoaderOptions {
             drop_missing_meshes: options.drop_missing_meshes,
         },
+        warnings: upgrade_warnings,
         ..Default::default()
     };
     let mut scene = loader.scene(&root, options.progress).map_err(|e| match e {
@@ -168,7 +178,7 @@ struct Loader {
     camera: Option<Camera>,
     settings: RenderSettings,
     delta: Vec<DeltaLight>,
-    environment_map: Option<EnvMap>,
+    environment_map: Option<EnvironmentLight>,
     /// Textures defined at the top with an `id`.
     textures: HashMap<String, Arc<Texture>>,
     /// Images read so far.
@@ -265,7 +275,7 @@ impl Loader {
         )
         .map_err(LoadError::Other)?;
         if let Some(map) = self.environment_map.take() {
-            scene.lights.set_environment_map(map);
+            scene.lights.set_environment_light(map);
         }
         if !self.delta.is_empty() {
             scene.lights.set_delta(std::mem::take(&mut self.delta));

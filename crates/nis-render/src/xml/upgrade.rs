@@ -2,7 +2,8 @@
 //! Mitsuba 3 applies to files older than 2.0 (its `parser.cpp`, `upgrade_from_v1`: camelCase
 //! property names become snake_case, a diffuse BSDF's `diffuse_reflectance` its `reflectance`,
 //! `uoffset`/`uscale`… a `to_uv` transform), and what it leaves out: `<lookAt>` (0.4's
-//! spelling of `<lookat>`) and `<srgb>` colours (gamma-encoded, decoded to linear `<rgb>`).
+//! spelling of `<lookat>`), `<srgb>` colours (gamma-encoded, decoded to linear `<rgb>`) and
+//! the `sunsky` emitter, which Mitsuba 3 redefined (see [`upgrade_sunsky`]).
 
 use super::dom::{err, parse_vector, Element, XmlError};
 use crate::spectrum::srgb_to_linear;
@@ -41,8 +42,9 @@ pub fn camel_to_snake(name: &str) -> String {
     out
 }
 
-/// Rewrite a legacy scene tree in place into Mitsuba 3's names.
-pub fn upgrade(el: &mut Element) -> Result<(), XmlError> {
+/// Rewrite a legacy scene tree in place into Mitsuba 3's names; what it reads differently from
+/// the file's own renderer goes to `warnings` with its line.
+pub fn upgrade(el: &mut Element, warnings: &mut Vec<(usize, String)>) -> Result<(), XmlError> {
     if el.name == "lookAt" {
         el.name = "lookat".into();
     }
@@ -66,7 +68,7 @@ pub fn upgrade(el: &mut Element) -> Result<(), XmlError> {
     let diffuse = el.name == "bsdf" && el.attr("type") == Some("diffuse");
     let mut uv: [Option<String>; 4] = Default::default();
     for c in &mut el.children {
-        upgrade(c)?;
+        upgrade(c, warnings)?;
         if diffuse && c.attr("name") == Some("diffuse_reflectance") {
             c.attrs
                 .iter_mut()
@@ -81,6 +83,9 @@ pub fn upgrade(el: &mut Element) -> Result<(), XmlError> {
                 uv[i] = Some(c.required("value")?.to_string());
             }
         }
+    }
+    if el.name == "emitter" && el.attr("type") == Some("sunsky") {
+        upgrade_sunsky(el, warnings)?;
     }
     if uv.iter().any(Option::is_some) {
         let line = el.line;
@@ -109,6 +114,114 @@ pub fn upgrade(el: &mut Element) -> Result<(), XmlError> {
             line,
         });
     }
+    Ok(())
+}
+
+/// Mitsuba 0.5's apparent diameter of the sun, degrees (its `SUN_APP_RADIUS`).
+const SUN_DIAMETER_0_5: f32 = 0.5358;
+
+/// Mitsuba 3 → Mitsuba 0.5 sky frames, row by row: 0.5's sky has y up and puts the sun of
+/// zenith angle θ and azimuth φ at `(sin φ sin θ, cos θ, −cos φ sin θ)`, Mitsuba 3's has z up
+/// and puts it at `(−cos φ sin θ, −sin φ sin θ, cos θ)`; this map (a reflection) takes the
+/// second onto the first, so that the date, time and place put the sun where 0.5 put it.
+pub const SKY_FRAME_0_5: &str = "0 -1 0 0 0 0 1 0 1 0 0 0 0 0 0 1";
+
+/// A Mitsuba 0.5 `sunsky` (names already snake_case) in Mitsuba 3's terms, as closely as they
+/// say it: its y-up frame by [`SKY_FRAME_0_5`] before its `to_world`; `scale` as the default
+/// of both `sun_scale` and `sky_scale` (as 0.5 reads it); `sun_radius_scale` r, which keeps the
+/// sun's power, as `sun_aperture` = r · 0.5358°, which keeps it too; 0.5's ground albedo
+/// default, 0.15; `resolution` (the size of the image 0.5 rasterised the sky into) dropped.
+/// The radiance is Mitsuba 3's model (Hosek–Wilkie sky and sun from its tables), not 0.5's.
+fn upgrade_sunsky(el: &mut Element, warnings: &mut Vec<(usize, String)>) -> Result<(), XmlError> {
+    let line = el.line;
+    let take = |el: &mut Element, name: &str| -> Result<Option<f32>, XmlError> {
+        let Some(i) = el
+            .children
+            .iter()
+            .position(|c| c.attr("name") == Some(name))
+        else {
+            return Ok(None);
+        };
+        let c = el.children.remove(i);
+        super::dom::parse_float(c.required("value")?, c.line).map(Some)
+    };
+    let has = |el: &Element, name: &str| el.children.iter().any(|c| c.attr("name") == Some(name));
+    let float = |name: &str, value: f32| Element {
+        name: "float".into(),
+        attrs: vec![
+            ("name".into(), name.into()),
+            ("value".into(), value.to_string()),
+        ],
+        children: Vec::new(),
+        line,
+    };
+    let mut notes = vec!["its y-up frame turned onto Mitsuba 3's z-up sky".to_string()];
+    if let Some(s) = take(el, "scale")? {
+        for name in ["sun_scale", "sky_scale"] {
+            if !has(el, name) {
+                el.children.push(float(name, s));
+            }
+        }
+        notes.push(format!("scale {s} as sun_scale and sky_scale"));
+    }
+    if let Some(r) = take(el, "sun_radius_scale")? {
+        if r.is_nan() || r <= 0.0 {
+            return err(
+                line,
+                format!("sunRadiusScale = {r} (a sun without a disk) has no Mitsuba 3 sunsky equivalent"),
+            );
+        }
+        if has(el, "sun_aperture") {
+            return err(
+                line,
+                "a sunsky takes sunRadiusScale or sun_aperture, not both",
+            );
+        }
+        let aperture = r * SUN_DIAMETER_0_5;
+        el.children.push(float("sun_aperture", aperture));
+        notes.push(format!(
+            "sunRadiusScale {r} as sun_aperture {aperture}° (both keep the sun's power)"
+        ));
+    }
+    if let Some(s) = take(el, "stretch")? {
+        if s != 1.0 {
+            return err(line, format!("a sunsky's stretch = {s} (the sky below the horizon) has no Mitsuba 3 equivalent"));
+        }
+    }
+    if take(el, "resolution")?.is_some() {
+        notes.push("resolution ignored (the sky is evaluated, not rasterised)".into());
+    }
+    if !has(el, "albedo") {
+        el.children.push(float("albedo", 0.15));
+        notes.push("0.5's default albedo 0.15".into());
+    }
+    let frame = Element {
+        name: "matrix".into(),
+        attrs: vec![("value".into(), SKY_FRAME_0_5.into())],
+        children: Vec::new(),
+        line,
+    };
+    match el
+        .children
+        .iter_mut()
+        .find(|c| c.name == "transform" && c.attr("name") == Some("to_world"))
+    {
+        Some(t) => t.children.insert(0, frame),
+        None => el.children.push(Element {
+            name: "transform".into(),
+            attrs: vec![("name".into(), "to_world".into())],
+            children: vec![frame],
+            line,
+        }),
+    }
+    warnings.push((
+        line,
+        format!(
+            "Mitsuba 0.5 sunsky read in Mitsuba 3's terms: {}; its radiance is Mitsuba 3's \
+             model (Hosek-Wilkie sky and sun from Mitsuba 3's tables), not 0.5's",
+            notes.join(", ")
+        ),
+    ));
     Ok(())
 }
 
@@ -143,7 +256,7 @@ mod tests {
         )
         .unwrap();
         assert!(is_legacy(&root).unwrap());
-        upgrade(&mut root).unwrap();
+        upgrade(&mut root, &mut Vec::new()).unwrap();
         assert_eq!(root.children[0].attr("name"), Some("fooBar"));
         let rgb = &root.children[1].children[0];
         assert_eq!(
@@ -164,5 +277,54 @@ mod tests {
         assert_eq!(tex.children[0].attr("name"), Some("to_uv"));
         assert_eq!(root.children[3].attr("name"), Some("to_world"));
         assert_eq!(root.children[3].children[0].name, "lookat");
+    }
+
+    #[test]
+    fn a_0_5_sunsky_is_said_in_mitsuba_3_terms() {
+        let mut root = super::super::dom::parse(
+            r#"<scene version="0.5.0"><emitter type="sunsky">
+                 <transform name="toWorld"><rotate y="1" angle="90"/></transform>
+                 <float name="sunRadiusScale" value="4"/><float name="scale" value="50"/>
+                 <float name="skyScale" value="2"/><integer name="resolution" value="512"/>
+               </emitter></scene>"#,
+        )
+        .unwrap();
+        let mut warnings = Vec::new();
+        upgrade(&mut root, &mut warnings).unwrap();
+        let e = &root.children[0];
+        let value = |name: &str| {
+            e.children
+                .iter()
+                .find(|c| c.attr("name") == Some(name))
+                .and_then(|c| c.attr("value"))
+                .map(str::to_string)
+        };
+        assert_eq!(value("sun_scale").as_deref(), Some("50"));
+        assert_eq!(value("sky_scale").as_deref(), Some("2"));
+        assert_eq!(value("sun_aperture").as_deref(), Some("2.1432"));
+        assert_eq!(value("albedo").as_deref(), Some("0.15"));
+        assert_eq!(
+            (
+                value("scale"),
+                value("resolution"),
+                value("sun_radius_scale")
+            ),
+            (None, None, None)
+        );
+        let t = e.children.iter().find(|c| c.name == "transform").unwrap();
+        assert_eq!(t.children[0].attr("value"), Some(SKY_FRAME_0_5));
+        assert_eq!(t.children[1].name, "rotate");
+        assert_eq!(warnings.len(), 1);
+        assert!(warnings[0].1.contains("sunRadiusScale 4"), "{:?}", warnings);
+        for bad in [
+            r#"<float name="sunRadiusScale" value="0"/>"#,
+            r#"<float name="stretch" value="1.5"/>"#,
+        ] {
+            let mut root = super::super::dom::parse(&format!(
+                r#"<scene version="0.5.0"><emitter type="sunsky">{bad}</emitter></scene>"#
+            ))
+            .unwrap();
+            assert!(upgrade(&mut root, &mut Vec::new()).is_err(), "{bad}");
+        }
     }
 }
