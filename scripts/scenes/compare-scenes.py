@@ -4,9 +4,9 @@ their image means: the check that a published scene reads as Mitsuba reads it.
 
 Mitsuba 3 refuses some files as published (a Mitsuba 0.4 `<lookAt>`, a guiding paper's
 integrator plugin, a Mitsuba 0.5 `sunsky`): those are handed to it upgraded the way nis reads
-them (camelCase names to snake_case, `lookAt`, `srgb` colours, other integrators as `path`, a
-0.5 sunsky's frame, scales and sun radius as `upgrade_sunsky` says), which says the same thing
-in Mitsuba 3's words. Shapes whose mesh files are missing are left out for both renderers.
+them (camelCase names to snake_case, `lookAt`, `srgb` colours, other integrators as `path`,
+0.x's mipmapped bitmap filters as bilinear and its bitmap `gamma`, a 0.5 sunsky's frame, scales and sun radius as
+`upgrade_sunsky` says), which says the same thing in Mitsuba 3's words. Shapes whose mesh files are missing are left out for both renderers.
 
     python3 -m venv target/mitsuba-venv && target/mitsuba-venv/bin/pip install mitsuba==3.9.1 numpy
     cargo build --release -p nis-cli
@@ -119,9 +119,19 @@ def upgrade(root, base):
             e.extend(keep)
             e.set("type", "path")
     if legacy:
-        for e in root.iter("emitter"):
-            if e.get("type") == "sunsky":
+        for e in root.iter():
+            if e.tag == "emitter" and e.get("type") == "sunsky":
                 upgrade_sunsky(e)
+            if e.tag == "texture" and e.get("type") == "bitmap":
+                # Mitsuba 0.x's mipmapped filters, read as bilinear (nis: xml/texture.rs).
+                for c in e.findall("string[@name='filter_type']"):
+                    if c.get("value") in ("ewa", "trilinear"):
+                        c.set("value", "bilinear")
+                # 0.x's gamma: 1 is linear (Mitsuba 3's raw), anything else sRGB.
+                for c in e.findall("float[@name='gamma']"):
+                    e.remove(c)
+                    if float(c.get("value")) == 1.0:
+                        ET.SubElement(e, "boolean", name="raw", value="true")
     root.set("version", "3.0.0")
 
 

@@ -9,6 +9,8 @@
 #       see each folder's LICENSE.txt)
 #   data/scenes/mitsuba-data/docs/scenes                                  Mitsuba 3's own
 #       documentation scenes (BSD-3-Clause, like Mitsuba)
+#   data/scenes/mitsuba-data/sunsky/output/{sunsky_datasets,sampling_data}.bin  Mitsuba 3's
+#       sun-and-sky tables (BSD-3-Clause), which the `sunsky` emitter reads (e.g. the kitchen's)
 #   data/scenes/ppg-lab/scenes/{cornell-box,veach-ajar,veach-bidir,veach-mis,torus}
 #       Bitterli's Mitsuba scenes (CC0, see each LICENSE.txt) and the practical-path-guiding
 #       torus, in Mitsuba 3 form, from a guiding lab's repository (its code GPL-3, not used;
@@ -35,6 +37,8 @@ CHECKS=(
   "practical-path-guiding 2bb537ad751d659a633256d36aebdaccb3d84158eef3c5e52e6a11ab64b52807 scenes/spaceship/spaceship.xml"
   "mitsuba-data aef4e298979a55d8df0102ae080a78de9f7ade793ad4cc9920849a9693660d85 docs/scenes/include/matpreview.xml"
   "mitsuba-data eda853c45dfbe5811baa4a4b0b2b9189fab01cd166a061d5bbba5b22099b0c11 docs/scenes/bsdf_roughplastic_beckmann.xml"
+  "mitsuba-data f110fa54ebcaf5f764da3a20bb4aafeeffd28111fcd0986f50a2489c12b294c7 sunsky/output/sunsky_datasets.bin"
+  "mitsuba-data fd62a05e1f3b2fe29e4072b077ba4046b8fc0dbe1f0cbf848fc2a0594d21fbb1 sunsky/output/sampling_data.bin"
   "ppg-lab 4c6ca8210ebf54757b29ca4d5da851fa0cba37201a26fea8de5e5d76ab658b9c scenes/cornell-box/scene.xml"
   "ppg-lab 463902168a287fe0d01aa3abbe2d1e61fb6847ea68b143caf1477f757a083e44 scenes/veach-ajar/scene.xml"
   "ppg-lab fbec3e990fd2529a55109a0abd4aba62b85299abeccf61100e00729ebf4d3f34 scenes/veach-bidir/scene.xml"

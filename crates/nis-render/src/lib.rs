@@ -3,7 +3,8 @@
 //!
 //! The layout follows pbrt-v4, one concept per module: [`geometry`] and [`sampling`] (shared
 //! math), [`shape`] and [`bvh`] (geometry and its acceleration structure), [`camera`],
-//! [`bsdf`] (materials), [`light`], [`scene`], [`path_tracer`] (path tracing with NEE + MIS),
+//! [`bsdf`] (materials), [`light`] (with [`envmap`] and [`sunsky`], the environments),
+//! [`scene`], [`path_tracer`] (path tracing with NEE + MIS),
 //! [`render`] (the parallel, deterministic render loop, its training schedule and the combination
 //! of passes), [`guiding`] (the interface that path guiding methods implement, and the methods), [`film`] and [`compare`] (images and error metrics), [`xml`]
 //! (Mitsuba 3 scenes) and [`scenes`] (the built-in test scenes, themselves Mitsuba XML).
