@@ -120,7 +120,10 @@ fn bench_guiding_reads_a_scene_file_over_seeds_and_prefers_a_mitsuba_reference()
     assert!(md.contains("reference nis path tracing, 16 spp"), "{md}");
     assert!(md.contains("--seeds 2"), "{md}");
     assert!(md.contains("far off"), "{md}");
-    assert!(md.contains("## Path guiding on published scenes: the table"), "{md}");
+    assert!(
+        md.contains("## Path guiding on published scenes: the table"),
+        "{md}"
+    );
     assert!(img.join("guiding-scenes-box.png").is_file());
     for seed in [0, 1] {
         assert!(out.join(format!("box-none-4spp-seed{seed}.exr")).is_file());

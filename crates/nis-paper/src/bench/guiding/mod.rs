@@ -276,7 +276,10 @@ pub fn run(args: &Settings, io: &mut Io<'_>) -> Result<String> {
     create_dir(&args.img)?;
     // Published scenes get a section (and figure names) of their own beside the built-in ones.
     let (key, title) = if entries.iter().any(|e| Path::new(e).is_file()) {
-        ("guiding-scenes", "Path guiding on published scenes: the table")
+        (
+            "guiding-scenes",
+            "Path guiding on published scenes: the table",
+        )
     } else {
         ("guiding", "Path guiding")
     };
