@@ -56,6 +56,14 @@ fn errors_name_the_unsupported_element_and_its_line() {
     .unwrap_err()
     .to_string();
     assert!(e.contains("nope"), "{e}");
+    // Mitsuba 0.x's bitmap gamma other than sRGB (−1) or linear (1) has no reading; the
+    // power is checked before the file is looked for.
+    let e = load(&format!(
+        "<scene>{SENSOR}<texture type=\"bitmap\" id=\"t\">\n<string name=\"filename\" value=\"x.png\"/><float name=\"gamma\" value=\"2.2\"/></texture></scene>"
+    ))
+    .unwrap_err()
+    .to_string();
+    assert!(e.contains("gamma 2.2") && e.contains("raw"), "{e}");
 }
 
 #[test]

@@ -72,8 +72,20 @@ impl Loader {
                         .into())
                     }
                 };
-                // Mitsuba 0.x's `gamma` (−1: sRGB, 1: linear), Mitsuba 3's `raw`.
+                // Mitsuba 0.x's `gamma` (−1: sRGB, 1: linear), Mitsuba 3's `raw`; any other
+                // power has no Mitsuba 3 reading.
                 let gamma = p.float("gamma", -1.0)?;
+                if gamma != -1.0 && gamma != 1.0 {
+                    return Err(err::<()>(
+                        el.line,
+                        format!(
+                            "bitmap gamma {gamma} is not supported: -1 (sRGB) or 1 (linear, \
+                             Mitsuba 3's raw)"
+                        ),
+                    )
+                    .unwrap_err()
+                    .into());
+                }
                 let raw = p.boolean("raw", false)? || gamma == 1.0;
                 let path = self.resolve(file);
                 let key = (path.clone(), raw, filter, wrap);
