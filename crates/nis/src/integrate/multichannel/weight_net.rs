@@ -235,6 +235,83 @@ pub(super) struct Fit {
     pub(super) sigmas: Vec<f64>,
 }
 
+/// Each part's points split at random into a training half and a held-out half. Each part's
+/// points are dropped once split: they are n × K numbers (a_j g_j), the fit's memory with many
+/// channels.
+fn split_halves(
+    points: Vec<PartPoints>,
+    rng: &mut Pcg64Mcg,
+    dim: usize,
+    k: usize,
+) -> (Vec<PartPoints>, Vec<PartPoints>) {
+    let (mut train, mut held) = (Vec::new(), Vec::new());
+    for p in points {
+        let m = p.len();
+        let order = sample(rng, m, m).into_vec();
+        train.push(p.rows(&order[..m / 2], dim, k));
+        held.push(p.rows(&order[m / 2..], dim, k));
+    }
+    (train, held)
+}
+
+/// One step's points: at most [`PARTS_PER_STEP`] parts, of each at most [`MINIBATCH`] rows.
+fn minibatch(train: &[PartPoints], rng: &mut Pcg64Mcg, dim: usize, k: usize) -> Vec<PartPoints> {
+    let chosen = if train.len() > PARTS_PER_STEP {
+        sample(rng, train.len(), PARTS_PER_STEP).into_vec()
+    } else {
+        (0..train.len()).collect()
+    };
+    chosen
+        .iter()
+        .map(|&i| &train[i])
+        .map(|p| {
+            let rows: Vec<usize> = if p.len() <= MINIBATCH {
+                (0..p.len()).collect()
+            } else {
+                sample(rng, p.len(), MINIBATCH).into_vec()
+            };
+            p.rows(&rows, dim, k)
+        })
+        .collect()
+}
+
+/// The parts' points as the network's f32 inputs.
+fn inputs(parts: &[PartPoints]) -> Vec<Vec<f32>> {
+    parts
+        .iter()
+        .map(|p| p.x.iter().map(|v| *v as f32).collect())
+        .collect()
+}
+
+/// ∂(Σ_p σ_p)/∂θ on `batch` into `grad` (`one`: scratch of the same length).
+fn sigma_gradient(
+    mlp: &Mlp,
+    params: &[f32],
+    batch: &[PartPoints],
+    k: usize,
+    grad: &mut [f32],
+    one: &mut [f32],
+) {
+    let forward: Vec<_> = inputs(batch)
+        .iter()
+        .map(|x| mlp.forward_batch(params, x))
+        .collect();
+    let n: Vec<Vec<f32>> = forward
+        .iter()
+        .map(|f| f.outputs().map(|r| squash(*r).0).collect())
+        .collect();
+    let mut g = Vec::new();
+    sigmas(batch, Some(&n), k, Some(&mut g));
+    grad.iter_mut().for_each(|v| *v = 0.0);
+    for (f, gp) in forward.iter().zip(g.iter_mut()) {
+        gp.iter_mut()
+            .zip(f.outputs())
+            .for_each(|(g, r)| *g *= squash(*r).1);
+        mlp.backward_batch(params, f, gp, one);
+        grad.iter_mut().zip(one.iter()).for_each(|(t, o)| *t += o);
+    }
+}
+
 /// Fits N to `points` (module docs), seeded by `seed`, in steps whose rows together stay within
 /// `max_rows` (beyond the first step).
 pub(super) fn fit(
@@ -245,15 +322,7 @@ pub(super) fn fit(
     max_rows: usize,
 ) -> Result<Fit> {
     let mut rng = Pcg64Mcg::seed_from_u64(seed);
-    let (mut train, mut held) = (Vec::new(), Vec::new());
-    // Each part's points are dropped once split: they are n × K numbers (a_j g_j), the fit's
-    // memory with many channels.
-    for p in points {
-        let m = p.len();
-        let order = sample(&mut rng, m, m).into_vec();
-        train.push(p.rows(&order[..m / 2], dim, k));
-        held.push(p.rows(&order[m / 2..], dim, k));
-    }
+    let (train, held) = split_halves(points, &mut rng, dim, k);
     let base = sigmas(&held, None, k, None);
     let base_total: f64 = base.iter().sum();
     let dims = vec![dim, WIDTH, WIDTH, k];
@@ -267,12 +336,6 @@ pub(super) fn fit(
         },
         params.len(),
     )?;
-    let inputs = |parts: &[PartPoints]| -> Vec<Vec<f32>> {
-        parts
-            .iter()
-            .map(|p| p.x.iter().map(|v| *v as f32).collect())
-            .collect()
-    };
     let held_x = inputs(&held);
     let held_sigmas = |params: &[f32]| {
         let n: Vec<Vec<f32>> = held_x
@@ -292,41 +355,8 @@ pub(super) fn fit(
     let mut one = vec![0.0f32; params.len()];
     let mut fitted_rows = 0;
     for step in 1..=STEPS {
-        let chosen = if train.len() > PARTS_PER_STEP {
-            sample(&mut rng, train.len(), PARTS_PER_STEP).into_vec()
-        } else {
-            (0..train.len()).collect()
-        };
-        let batch: Vec<PartPoints> = chosen
-            .iter()
-            .map(|&i| &train[i])
-            .map(|p| {
-                let rows: Vec<usize> = if p.len() <= MINIBATCH {
-                    (0..p.len()).collect()
-                } else {
-                    sample(&mut rng, p.len(), MINIBATCH).into_vec()
-                };
-                p.rows(&rows, dim, k)
-            })
-            .collect();
-        let forward: Vec<_> = inputs(&batch)
-            .iter()
-            .map(|x| mlp.forward_batch(&params, x))
-            .collect();
-        let n: Vec<Vec<f32>> = forward
-            .iter()
-            .map(|f| f.outputs().map(|r| squash(*r).0).collect())
-            .collect();
-        let mut g = Vec::new();
-        sigmas(&batch, Some(&n), k, Some(&mut g));
-        grad.iter_mut().for_each(|v| *v = 0.0);
-        for (f, gp) in forward.iter().zip(g.iter_mut()) {
-            gp.iter_mut()
-                .zip(f.outputs())
-                .for_each(|(g, r)| *g *= squash(*r).1);
-            mlp.backward_batch(&params, f, gp, &mut one);
-            grad.iter_mut().zip(&one).for_each(|(t, o)| *t += o);
-        }
+        let batch = minibatch(&train, &mut rng, dim, k);
+        sigma_gradient(&mlp, &params, &batch, k, &mut grad, &mut one);
         adam.step(&mut params, &grad)?;
         fitted_rows += batch.iter().map(PartPoints::len).sum::<usize>();
         let last = fitted_rows >= max_rows;
@@ -346,8 +376,7 @@ pub(super) fn fit(
             }
         }
     }
-    // Kept when it lowers the variance enough and leaves the held-out weights' tail no heavier
-    // than the limit the results warn at (or than without it, if that was heavier).
+    // Kept when it lowers the held-out variance (Σσ)² by at least the factor MIN_GAIN.
     let kept = best_fit.filter(|_| (base_total / best).powi(2) >= MIN_GAIN);
     Ok(match kept {
         Some((params, sigmas)) => Fit {
