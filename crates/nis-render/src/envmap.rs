@@ -16,7 +16,7 @@ use std::sync::Arc;
 use glam::{Mat3, Vec2, Vec3};
 
 use crate::geometry::{luminance, Rgb};
-use crate::sampling::{sample_within, Distribution1D};
+use crate::sampling::Distribution2D;
 use crate::texture::{Bitmap, WrapMode};
 
 /// A sampled direction of the map.
@@ -37,8 +37,7 @@ pub struct EnvMap {
     scale: f32,
     to_world: Mat3,
     to_local: Mat3,
-    rows: Distribution1D,
-    columns: Vec<Option<Distribution1D>>,
+    cells: Distribution2D,
 }
 
 impl EnvMap {
@@ -47,8 +46,7 @@ impl EnvMap {
     pub fn new(image: Bitmap, scale: f32, to_world: Mat3) -> Option<EnvMap> {
         let image = image.with_wrap_v(WrapMode::Clamp);
         let (w, h) = image.size();
-        let mut row_weights = Vec::with_capacity(h);
-        let mut columns = Vec::with_capacity(h);
+        let mut rows = Vec::with_capacity(h);
         let lum: Vec<f32> = (0..h)
             .flat_map(|y| (0..w).map(move |x| (x, y)))
             .map(|(x, y)| luminance(image.texel_at(x, y)).max(0.0))
@@ -71,17 +69,15 @@ impl EnvMap {
                     m * sin
                 })
                 .collect();
-            row_weights.push(weights.iter().map(|&v| f64::from(v)).sum::<f64>() as f32);
-            columns.push(Distribution1D::new(&weights));
+            rows.push(weights);
         }
-        let rows = Distribution1D::new(&row_weights)?;
+        let cells = Distribution2D::new(&rows)?;
         Some(EnvMap {
             image: Arc::new(image),
             scale,
             to_world,
             to_local: to_world.inverse(),
-            rows,
-            columns,
+            cells,
         })
     }
 
@@ -116,23 +112,18 @@ impl EnvMap {
         let u = uv.x - uv.x.floor();
         let x = ((u * w as f32) as usize).min(w - 1);
         let y = ((uv.y * h as f32) as usize).min(h - 1);
-        let Some(column) = &self.columns[y] else {
-            return 0.0;
-        };
         let sin = (uv.y * PI).sin();
         if sin <= 0.0 {
             return 0.0;
         }
-        self.rows.pmf(y) * column.pmf(x) * (w * h) as f32 / (2.0 * PI * PI * sin)
+        self.cells.pmf(y, x) * (w * h) as f32 / (2.0 * PI * PI * sin)
     }
 
     /// Draw a direction from two uniform numbers.
     pub fn sample(&self, u: Vec2) -> Option<EnvSample> {
         let (w, h) = self.image.size();
-        let (y, fy) = sample_within(&self.rows, u.y);
-        let column = self.columns[y].as_ref()?;
-        let (x, fx) = sample_within(column, u.x);
-        let uv = Vec2::new((x as f32 + fx) / w as f32, (y as f32 + fy) / h as f32);
+        let (y, x, f) = self.cells.sample(u)?;
+        let uv = Vec2::new((x as f32 + f.x) / w as f32, (y as f32 + f.y) / h as f32);
         let (sin_t, cos_t) = (uv.y * PI).sin_cos();
         let (sin_p, cos_p) = (uv.x * 2.0 * PI).sin_cos();
         if sin_t <= 0.0 {
@@ -140,7 +131,7 @@ impl EnvMap {
         }
         let local = Vec3::new(sin_p * sin_t, cos_t, -cos_p * sin_t);
         let wi = (self.to_world * local).normalize();
-        let pdf = self.rows.pmf(y) * column.pmf(x) * (w * h) as f32 / (2.0 * PI * PI * sin_t);
+        let pdf = self.cells.pmf(y, x) * (w * h) as f32 / (2.0 * PI * PI * sin_t);
         Some(EnvSample {
             wi,
             radiance: self.lookup(uv),

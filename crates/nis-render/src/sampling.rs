@@ -119,6 +119,44 @@ impl Distribution1D {
     }
 }
 
+/// A discrete distribution over the cells of a grid with probabilities proportional to given
+/// weights: a row by its sum, then a column within it (the marginal and conditional tables of an
+/// environment map, Pharr et al., *PBR* 4th ed., §A.5.3). A row of zero weight is never drawn.
+#[derive(Clone, Debug)]
+pub struct Distribution2D {
+    rows: Distribution1D,
+    columns: Vec<Option<Distribution1D>>,
+}
+
+impl Distribution2D {
+    /// Build from the non-negative weights of each row; `None` if they sum to zero.
+    pub fn new(rows: &[Vec<f32>]) -> Option<Self> {
+        let sums: Vec<f32> = rows
+            .iter()
+            .map(|r| r.iter().map(|&v| f64::from(v)).sum::<f64>() as f32)
+            .collect();
+        Some(Self {
+            rows: Distribution1D::new(&sums)?,
+            columns: rows.iter().map(|r| Distribution1D::new(r)).collect(),
+        })
+    }
+
+    /// The cell `(row, column)` drawn for the uniform numbers `u` (`u.y` picks the row, `u.x`
+    /// the column) and where they fell within it, in `[0, 1)²` (x, y).
+    pub fn sample(&self, u: Vec2) -> Option<(usize, usize, Vec2)> {
+        let (row, fy) = sample_within(&self.rows, u.y);
+        let (column, fx) = sample_within(self.columns[row].as_ref()?, u.x);
+        Some((row, column, Vec2::new(fx, fy)))
+    }
+
+    /// Probability of the cell `(row, column)`.
+    pub fn pmf(&self, row: usize, column: usize) -> f32 {
+        self.columns[row]
+            .as_ref()
+            .map_or(0.0, |c| self.rows.pmf(row) * c.pmf(column))
+    }
+}
+
 /// A bin of `d` drawn for the uniform number `u`, and where `u` fell within it, in `[0, 1)`
 /// (so that one number picks the bin and the position inside it).
 pub fn sample_within(d: &Distribution1D, u: f32) -> (usize, f32) {
@@ -151,5 +189,27 @@ mod tests {
             let w = square_to_cosine_hemisphere(u);
             assert!((w.length() - 1.0).abs() < 1e-4 && w.z >= 0.0);
         }
+    }
+
+    #[test]
+    fn a_grid_draws_cells_by_weight_and_never_a_row_of_none() {
+        let d = Distribution2D::new(&[vec![1.0, 3.0], vec![0.0, 0.0], vec![2.0, 2.0]]).unwrap();
+        let pmf = [
+            d.pmf(0, 0),
+            d.pmf(0, 1),
+            d.pmf(1, 0),
+            d.pmf(2, 0),
+            d.pmf(2, 1),
+        ];
+        for (p, w) in pmf.iter().zip([1.0, 3.0, 0.0, 2.0, 2.0]) {
+            assert!((p - w / 8.0).abs() < 1e-6, "{pmf:?}");
+        }
+        for k in 0..64 {
+            let u = Vec2::new((k % 8) as f32 / 8.0 + 0.01, (k / 8) as f32 / 8.0 + 0.01);
+            let (row, column, f) = d.sample(u).unwrap();
+            assert!(row != 1 && d.pmf(row, column) > 0.0, "{u}");
+            assert!((0.0..1.0).contains(&f.x) && (0.0..1.0).contains(&f.y));
+        }
+        assert!(Distribution2D::new(&[vec![0.0]]).is_none());
     }
 }

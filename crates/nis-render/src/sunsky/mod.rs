@@ -311,7 +311,7 @@ impl SunSky {
             (d.normalize(), true)
         } else {
             let ux = ((u.x - self.p_sun) / (1.0 - self.p_sun)).min(1.0);
-            let d = self.table.as_ref()?.sample(Vec2::new(ux, u.y));
+            let d = self.table.as_ref()?.sample(Vec2::new(ux, u.y))?;
             (d, self.in_sun(d))
         };
         if d.z < 0.0 {

@@ -10,7 +10,7 @@ use std::f32::consts::{FRAC_PI_2, PI, TAU};
 
 use glam::{Vec2, Vec3};
 
-use crate::sampling::{sample_within, Distribution1D};
+use crate::sampling::Distribution2D;
 
 /// Cells in azimuth.
 const COLUMNS: usize = 512;
@@ -22,8 +22,7 @@ const FLOOR: f64 = 1e-3;
 /// The sky's sampling table.
 #[derive(Clone, Debug)]
 pub struct HemisphereTable {
-    rows: Distribution1D,
-    columns: Vec<Distribution1D>,
+    cells: Distribution2D,
     /// `cos θ` at the rows' edges, from 1 (zenith) down to 0 (horizon).
     cos_edges: Vec<f32>,
     /// Solid angle of a cell of each row.
@@ -86,23 +85,22 @@ impl HemisphereTable {
         if !(mean > 0.0 && mean.is_finite()) {
             return None;
         }
-        let mut total = 0.0f64;
-        let mut row_weights = Vec::with_capacity(ROWS);
-        let mut columns = Vec::with_capacity(ROWS);
-        for (j, row) in weights.iter().enumerate() {
-            let omega = f64::from(cell_solid_angle[j]);
-            let w: Vec<f32> = row
-                .iter()
-                .map(|&m| ((m + FLOOR * mean) * omega) as f32)
-                .collect();
-            let sum: f64 = w.iter().map(|&v| f64::from(v)).sum();
-            total += sum;
-            row_weights.push(sum as f32);
-            columns.push(Distribution1D::new(&w)?);
-        }
+        // The floor gives every row weight, so every cell can be drawn.
+        let rows: Vec<Vec<f32>> = weights
+            .iter()
+            .zip(&cell_solid_angle)
+            .map(|(row, &omega)| {
+                row.iter()
+                    .map(|&m| ((m + FLOOR * mean) * f64::from(omega)) as f32)
+                    .collect()
+            })
+            .collect();
+        let total = rows
+            .iter()
+            .map(|r| r.iter().map(|&v| f64::from(v)).sum::<f64>())
+            .sum();
         Some(HemisphereTable {
-            rows: Distribution1D::new(&row_weights)?,
-            columns,
+            cells: Distribution2D::new(&rows)?,
             cos_edges,
             cell_solid_angle,
             total,
@@ -114,13 +112,13 @@ impl HemisphereTable {
         self.total
     }
 
-    /// A local direction drawn from two uniform numbers.
-    pub fn sample(&self, u: Vec2) -> Vec3 {
-        let (j, fy) = sample_within(&self.rows, u.y);
-        let (i, fx) = sample_within(&self.columns[j], u.x);
-        let z = self.cos_edges[j] + fy * (self.cos_edges[j + 1] - self.cos_edges[j]);
-        let phi = -PI + (i as f32 + fx) * (TAU / COLUMNS as f32);
-        direction(z, phi)
+    /// A local direction drawn from two uniform numbers (`None` only for a row of no weight,
+    /// which the floor rules out).
+    pub fn sample(&self, u: Vec2) -> Option<Vec3> {
+        let (j, i, f) = self.cells.sample(u)?;
+        let z = self.cos_edges[j] + f.y * (self.cos_edges[j + 1] - self.cos_edges[j]);
+        let phi = -PI + (i as f32 + f.x) * (TAU / COLUMNS as f32);
+        Some(direction(z, phi))
     }
 
     /// Solid-angle density of [`HemisphereTable::sample`] at unit local direction `d`.
@@ -132,6 +130,6 @@ impl HemisphereTable {
         let j = ((theta / (FRAC_PI_2 / ROWS as f32)) as usize).min(ROWS - 1);
         let phi = d.y.atan2(d.x);
         let i = (((phi + PI) / (TAU / COLUMNS as f32)) as usize).min(COLUMNS - 1);
-        self.rows.pmf(j) * self.columns[j].pmf(i) / self.cell_solid_angle[j]
+        self.cells.pmf(j, i) / self.cell_solid_angle[j]
     }
 }

@@ -206,13 +206,16 @@ fn reference(
     let dir = args.out.join("reference");
     let stem = format!("{name}-{}-{}spp", args.res, args.reference_spp);
     let size = (scene.camera.width(), scene.camera.height());
-    let mitsuba = dir.join(format!("{stem}-mitsuba.exr"));
+    let (path, ours) = (
+        dir.join(format!("{stem}.exr")),
+        format!("nis path tracing, {} spp", args.reference_spp),
+    );
     let cached = [
-        (mitsuba, format!("Mitsuba 3, {} spp", args.reference_spp)),
         (
-            dir.join(format!("{stem}.exr")),
-            format!("nis path tracing, {} spp", args.reference_spp),
+            dir.join(format!("{stem}-mitsuba.exr")),
+            format!("Mitsuba 3, {} spp", args.reference_spp),
         ),
+        (path.clone(), ours.clone()),
     ];
     for (path, source) in cached {
         if path.is_file() {
@@ -231,7 +234,6 @@ fn reference(
             return Ok((image, source));
         }
     }
-    let path = dir.join(format!("{stem}.exr"));
     let options = RenderOptions {
         path_tracer: *path_tracer,
         budget: Budget::Samples(args.reference_spp),
@@ -247,10 +249,7 @@ fn reference(
         out.seconds,
         path.display()
     ));
-    Ok((
-        out.image,
-        format!("nis path tracing, {} spp", args.reference_spp),
-    ))
+    Ok((out.image, ours))
 }
 
 /// Runs the comparison: `io.render` renders one scene with one guide (the caller shows its
