@@ -12,6 +12,7 @@
 //! unbiased mean of i.i.d. (or stratified) weights, and its error bar is the honest standard
 //! error of that mean. The final phase is split into iterations whose spread gives χ²/dof.
 
+mod adaptive_strata;
 mod convergence;
 pub mod diagnostics;
 mod estimate;
@@ -21,6 +22,7 @@ mod method;
 mod moments;
 pub mod multichannel;
 pub mod nis;
+mod race;
 mod result;
 pub mod settings;
 mod target;
@@ -204,4 +206,15 @@ pub fn integrator(method: Method, dim: usize, settings: &Settings) -> Result<Box
         Method::Vegas => Box::new(vegas::Vegas::new(dim, settings.vegas.clone())?),
         Method::Uniform => Box::new(uniform::PlainMc::new(dim, settings.uniform.clone())?),
     })
+}
+
+/// The rival a learning method races to a target (`race.rs`): VEGAS+ with its defaults but
+/// `seed` and `train_on`.
+pub(crate) fn rival(dim: usize, seed: u64, train_on: TrainOn) -> Result<Box<dyn race::Rival>> {
+    let config = vegas::VegasConfig {
+        seed,
+        train_on,
+        ..vegas::VegasConfig::default()
+    };
+    Ok(Box::new(vegas::Vegas::new(dim, config)?))
 }

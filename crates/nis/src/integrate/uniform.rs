@@ -7,10 +7,10 @@ use rand_pcg::Pcg64Mcg;
 use serde::{Deserialize, Serialize};
 
 use super::estimate::iid_iteration;
-use super::target::{Prior, Pursuit, AIM};
+use super::target::{drive, Prior, Pursuit, Step, Stepper};
 use super::{
     check_budget, check_dim, evaluate, report, Accumulator, Integrand, IntegrationResult,
-    Integrator, Method, Progress, Target,
+    Integrator, Iteration, Method, Progress, Target,
 };
 use crate::comm::Comm;
 use crate::error::{Error, Result};
@@ -164,8 +164,7 @@ impl PlainMc {
             let n = (evals * (it as u64 + 1) / iterations as u64 - done).max(1);
             let rng = &mut self.rng;
             let iteration = iid_iteration(&self.comm, n, k, &mut acc, |m| {
-                let x: Vec<f64> = (0..m * dim).map(|_| rng.random::<f64>()).collect();
-                evaluate(f, &x, dim)
+                at_uniform_points(f, dim, m, rng)
             })?;
             acc.add(iteration)?;
             done += n;
@@ -182,49 +181,88 @@ impl PlainMc {
         let k = f.components();
         self.check_target(target)?;
         let started = Instant::now();
-        let rng = &mut self.rng;
-        let mut draw = |m: usize| {
-            let x: Vec<f64> = (0..m * dim).map(|_| rng.random::<f64>()).collect();
-            evaluate(f, &x, dim)
-        };
         let mut pilot_acc = Accumulator::for_fixed_sampler(PILOT);
-        let pilot = iid_iteration(&self.comm, PILOT, k, &mut pilot_acc, &mut draw)?;
+        let pilot = iid_iteration(&self.comm, PILOT, k, &mut pilot_acc, |m| {
+            at_uniform_points(f, dim, m, &mut self.rng)
+        })?;
         let mut pursuit = Pursuit::new(*target, started, PILOT);
         let mut prior = Prior {
             var_per_eval: pilot.variance * PILOT as f64,
             estimate: pilot.estimate,
             seconds_per_eval: pursuit.elapsed(&self.comm) / PILOT as f64,
         };
-        let wanted = target.error_for(prior.estimate);
-        let predicted = if wanted > 0.0 {
-            (prior.var_per_eval / (AIM * wanted).powi(2)).min(target.max_evals as f64)
-        } else {
-            target.max_evals as f64
-        };
-        let chunk = (predicted / self.config.iterations as f64) as u64;
+        let predicted = prior.evals_to(target, target.max_evals as f64);
         let mut acc = Accumulator::for_fixed_sampler(predicted as u64);
         acc.set_frozen_sampler();
-        let mut done = 0;
-        loop {
-            let elapsed = pursuit.elapsed(&self.comm);
-            prior.seconds_per_eval = elapsed / (PILOT + done) as f64;
-            let Some(step) = pursuit.next(prior, 2, chunk, elapsed)? else {
-                break;
-            };
-            let iteration = iid_iteration(&self.comm, step.evals, k, &mut acc, &mut draw)?;
-            done += iteration.evals;
-            pursuit.record(step, &iteration);
-            acc.add(iteration)?;
-            report(
-                &mut self.progress,
-                PILOT + done,
-                PILOT + (predicted as u64).max(done),
-                "uniform: to the target",
-            );
-        }
+        let mut steps = Steps {
+            f,
+            dim,
+            rng: &mut self.rng,
+            comm: &self.comm,
+            acc,
+            progress: &mut self.progress,
+            chunk: (predicted / self.config.iterations as f64) as u64,
+            predicted: predicted as u64,
+            done: 0,
+        };
+        drive(&mut pursuit, &mut prior, &self.comm, &mut steps)?;
+        let (mut acc, done) = (steps.acc, steps.done);
         acc.reduce_tail(&self.comm);
         let mut result = acc.finish(Some(pursuit.shares()), PILOT + done, started);
         pursuit.finish(&mut result);
         Ok(result)
+    }
+}
+
+/// f at `m` uniform points in [0, 1]^dim.
+fn at_uniform_points(
+    f: &dyn Integrand,
+    dim: usize,
+    m: usize,
+    rng: &mut Pcg64Mcg,
+) -> Result<Vec<f64>> {
+    let x: Vec<f64> = (0..m * dim).map(|_| rng.random::<f64>()).collect();
+    evaluate(f, &x, dim)
+}
+
+/// Plain MC's iterations of a run to a target, after the pilot.
+struct Steps<'a> {
+    f: &'a dyn Integrand,
+    dim: usize,
+    rng: &'a mut Pcg64Mcg,
+    comm: &'a Comm,
+    acc: Accumulator,
+    progress: &'a mut Option<Box<dyn Progress>>,
+    /// Evaluations per iteration (the predicted need over the configured iterations).
+    chunk: u64,
+    predicted: u64,
+    done: u64,
+}
+
+impl Stepper for Steps<'_> {
+    fn size(&mut self, _: &Pursuit, prior: &mut Prior, elapsed: f64) -> (u64, u64) {
+        prior.seconds_per_eval = elapsed / (PILOT + self.done) as f64;
+        (2, self.chunk)
+    }
+
+    fn draw(&mut self, step: Step, _: &mut Pursuit, _: &mut Prior) -> Result<Iteration> {
+        let (f, dim, rng) = (self.f, self.dim, &mut *self.rng);
+        let k = f.components();
+        let iteration = iid_iteration(self.comm, step.evals, k, &mut self.acc, |m| {
+            at_uniform_points(f, dim, m, rng)
+        })?;
+        self.done += iteration.evals;
+        Ok(iteration)
+    }
+
+    fn keep(&mut self, iteration: Iteration) -> Result<()> {
+        self.acc.add(iteration)?;
+        report(
+            self.progress,
+            PILOT + self.done,
+            PILOT + self.predicted.max(self.done),
+            "uniform: to the target",
+        );
+        Ok(())
     }
 }

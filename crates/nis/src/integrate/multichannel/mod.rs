@@ -374,7 +374,7 @@ const PILOT_SALT: u64 = 0x7069_6c6f;
 
 /// A seed per part, decorrelated from the base seed by a SplitMix64 step.
 fn part_seed(seed: u64, index: u64) -> u64 {
-    let mut z = seed ^ (index + 1).wrapping_mul(0x9e37_79b9_7f4a_7c15);
+    let mut z = seed ^ index.wrapping_add(1).wrapping_mul(0x9e37_79b9_7f4a_7c15);
     z = (z ^ (z >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
     z = (z ^ (z >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
     z ^ (z >> 31)

@@ -13,11 +13,12 @@ use rand::SeedableRng;
 use rand_pcg::Pcg64Mcg;
 
 use super::part::{self, PartIntegrand, Weighting};
-use super::{estimate_part, MultiChannel, MIN_PART_EVALS};
+use super::{estimate_part, MultiChannel, Part, MIN_PART_EVALS};
+use crate::comm::Comm;
 use crate::error::{Error, Result};
 use crate::integrate::estimate::chi2_per_dof;
 use crate::integrate::nis::NisIntegrator;
-use crate::integrate::target::{Prior, Pursuit, AIM};
+use crate::integrate::target::{drive, Prior, Pursuit, Step, Stepper, AIM};
 use crate::integrate::{Integrand, IntegrationResult, Iteration, Method, Source, Target};
 
 /// The estimate's iterations a plan aims at (later ones grow at most ×2 each).
@@ -112,53 +113,31 @@ impl MultiChannel {
             seconds_per_eval: pursuit.elapsed(&self.comm) / spent.max(1) as f64,
         };
         let least = parts * MIN_PART_EVALS;
-        let mut chunk = least;
-        let mut sums = vec![PartSum::default(); self.parts.len()];
-        let mut combined: Vec<Iteration> = Vec::new();
-        loop {
-            let wanted = target.error_for(pursuit.estimate().unwrap_or(prior.estimate));
-            if wanted > 0.0 {
-                let need = prior.var_per_eval / (AIM * wanted).powi(2) / RESULT_ITERATIONS;
-                chunk = (need as u64).clamp(least, (2 * chunk).max(least));
-            }
-            let elapsed = pursuit.elapsed(&self.comm);
-            let Some(step) = pursuit.next(prior, least, chunk, elapsed)? else {
-                break;
-            };
-            let counts = super::allocate(step.evals, MIN_PART_EVALS, &shares);
-            let spent_before = spent;
-            let (mut estimate, mut variance, mut evals) = (0.0, 0.0, 0u64);
-            let (mut max_abs_w, mut sum_abs_w) = (0.0f64, 0.0);
-            let w = Weighting {
+        let mut steps = Steps {
+            f,
+            target,
+            w: Weighting {
                 set: &self.set,
                 a: &self.weights,
                 net: self.net.as_ref(),
-            };
-            for (i, (p, &n)) in self.parts.iter_mut().zip(&counts).enumerate() {
-                let h = PartIntegrand::new(f, w, p.channel, p.sign);
-                let r = estimate_part(p, &h, n)?;
-                spent += r.n_eval;
-                evals += r.iterations.iter().map(|i| i.evals).sum::<u64>();
-                estimate += signs[i] * r.value;
-                variance += r.std_err * r.std_err;
-                max_abs_w = max_abs_w.max(r.iterations.iter().fold(0.0, |m, i| m.max(i.max_abs_w)));
-                sum_abs_w += r.iterations.iter().map(|i| i.sum_abs_w).sum::<f64>();
-                sums[i].add(r);
-            }
-            let iteration = Iteration::new(
-                Source::Final,
-                vec![estimate],
-                vec![variance],
-                evals,
-                max_abs_w,
-                sum_abs_w,
-            );
-            // VEGAS+ parts warm up in every call: those evaluations count against max_evals.
-            pursuit.spend(spent - spent_before - evals);
-            pursuit.record(step, &iteration);
-            combined.push(iteration);
-            prior.seconds_per_eval = pursuit.elapsed(&self.comm) / spent as f64;
-        }
+            },
+            parts: &mut self.parts,
+            comm: &self.comm,
+            shares,
+            signs,
+            sums: vec![PartSum::default(); parts as usize],
+            combined: Vec::new(),
+            least,
+            chunk: least,
+            spent,
+        };
+        drive(&mut pursuit, &mut prior, &self.comm, &mut steps)?;
+        let Steps {
+            sums,
+            combined,
+            spent,
+            ..
+        } = steps;
         // The shares as the run ended (an extension rescales the earlier ones).
         let shares = pursuit.shares();
         let results: Vec<IntegrationResult> = sums.into_iter().map(|s| s.finish(shares)).collect();
@@ -208,6 +187,73 @@ impl MultiChannel {
             }
         }
         Ok((self.comm.max(seconds) / batch as f64, 2 * batch))
+    }
+}
+
+/// The estimate's iterations: each spreads its evaluations over the parts by their σ.
+struct Steps<'a> {
+    f: &'a dyn Integrand,
+    target: &'a Target,
+    w: Weighting<'a>,
+    parts: &'a mut [Part],
+    comm: &'a Comm,
+    /// Each part's share of an iteration's evaluations (Neyman's), and its sign's factor.
+    shares: Vec<f64>,
+    signs: Vec<f64>,
+    sums: Vec<PartSum>,
+    /// The iterations of the combined estimate.
+    combined: Vec<Iteration>,
+    least: u64,
+    chunk: u64,
+    /// Evaluations of the whole run so far.
+    spent: u64,
+}
+
+impl Stepper for Steps<'_> {
+    /// Iterations grow at most ×2 each towards a tenth of the predicted need.
+    fn size(&mut self, pursuit: &Pursuit, prior: &mut Prior, _: f64) -> (u64, u64) {
+        let wanted = self
+            .target
+            .error_for(pursuit.estimate().unwrap_or(prior.estimate));
+        if wanted > 0.0 {
+            let need = prior.var_per_eval / (AIM * wanted).powi(2) / RESULT_ITERATIONS;
+            self.chunk = (need as u64).clamp(self.least, (2 * self.chunk).max(self.least));
+        }
+        (self.least, self.chunk)
+    }
+
+    fn draw(&mut self, step: Step, pursuit: &mut Pursuit, prior: &mut Prior) -> Result<Iteration> {
+        let counts = super::allocate(step.evals, MIN_PART_EVALS, &self.shares);
+        let spent_before = self.spent;
+        let (mut estimate, mut variance, mut evals) = (0.0, 0.0, 0u64);
+        let (mut max_abs_w, mut sum_abs_w) = (0.0f64, 0.0);
+        for (i, (p, &n)) in self.parts.iter_mut().zip(&counts).enumerate() {
+            let h = PartIntegrand::new(self.f, self.w, p.channel, p.sign);
+            let r = estimate_part(p, &h, n)?;
+            self.spent += r.n_eval;
+            evals += r.iterations.iter().map(|i| i.evals).sum::<u64>();
+            estimate += self.signs[i] * r.value;
+            variance += r.std_err * r.std_err;
+            max_abs_w = max_abs_w.max(r.iterations.iter().fold(0.0, |m, i| m.max(i.max_abs_w)));
+            sum_abs_w += r.iterations.iter().map(|i| i.sum_abs_w).sum::<f64>();
+            self.sums[i].add(r);
+        }
+        // VEGAS+ parts warm up in every call: those evaluations count against max_evals.
+        pursuit.spend(self.spent - spent_before - evals);
+        prior.seconds_per_eval = pursuit.elapsed(self.comm) / self.spent as f64;
+        Ok(Iteration::new(
+            Source::Final,
+            vec![estimate],
+            vec![variance],
+            evals,
+            max_abs_w,
+            sum_abs_w,
+        ))
+    }
+
+    fn keep(&mut self, iteration: Iteration) -> Result<()> {
+        self.combined.push(iteration);
+        Ok(())
     }
 }
 

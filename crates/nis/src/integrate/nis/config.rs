@@ -91,7 +91,7 @@ pub struct NisConfig {
     /// NIS's training would end, and its result is the answer when it meets the target with no
     /// warning (`IntegrationResult::answered_by`; the flow then stays barely trained). Cheap,
     /// nearly separable integrands then take VEGAS+'s time instead of a flow's training
-    /// (`integrate/nis/race.rs`). No effect on budgets or on a trained flow.
+    /// (`integrate/race.rs`). No effect on budgets or on a trained flow.
     pub race_vegas: bool,
 }
 

@@ -40,7 +40,6 @@ pub(crate) use training::{anneal_beta, schedule};
 mod config;
 mod memory;
 mod post_stratified;
-mod race;
 mod reuse;
 mod stratified_latent;
 mod to_target;

@@ -3,7 +3,7 @@
 //! sampled as VEGAS+ samples its y-space (Lepage 2021, Sec. 3): cut into hypercubes h of volume
 //! V_h, n_h points uniform in each, the estimate Σ_h V_h·mean_h with variance
 //! Σ_h V_h²·Var_h/n_h, and the n_h of the next iteration allocated by the measured variances
-//! ([`crate::integrate::vegas::adaptive_strata`], damped by β).
+//! ([`crate::integrate::adaptive_strata`], damped by β).
 //!
 //! The defensive mixture q_mix = λ·uniform + (1 − λ)·q is kept as a sum of two integrals,
 //! ∫ f = ∫ (1 − λ)·f/q_mix · q dx + ∫ λ·f/q_mix dx (the two weights add up to one wherever
@@ -31,8 +31,8 @@ use crate::comm::Comm;
 use crate::error::Result;
 use crate::flow::mixture::DefensiveMixture;
 use crate::flow::{Bijection, Density, Flow};
+use crate::integrate::adaptive_strata::Strata;
 use crate::integrate::moments::{Moments, CHUNK};
-use crate::integrate::vegas::adaptive_strata::Strata;
 use crate::integrate::{evaluate, Iteration, Source, TrainOn};
 
 /// A final phase's layout, made once before training (whose kept batches predict it) and then
@@ -257,7 +257,7 @@ fn plan(dim: usize, per_iter: u64, lambda: f64, settings: Stratify) -> Strata {
     let (_, n_q) = split(per_iter, lambda);
     // Planning from fewer points gives fewer hypercubes: the even quarter fills max_cubes.
     let cap = (settings.max_cubes as f64 * settings.min_per_cube as f64
-        / (1.0 - crate::integrate::vegas::adaptive_strata::ADAPTIVE_SHARE))
+        / (1.0 - crate::integrate::adaptive_strata::ADAPTIVE_SHARE))
         .min(usize::MAX as f64) as usize;
     Strata::plan(dim, (n_q as usize).min(cap), settings.min_per_cube)
 }

@@ -6,23 +6,34 @@
 
 use std::time::Instant;
 
-use super::race::Raced;
+use rand_pcg::Pcg64Mcg;
+
 use super::stratified_latent::{FinalPlan, LatentStrata};
 use super::training_length::{anneal_batches, TrainingLength, SETTLE_BATCHES};
 use super::{draw, weights, NisIntegrator};
+use crate::comm::Comm;
 use crate::error::{Error, Result};
 use crate::flow::mask::{default_layers, Masks};
-use crate::flow::mixture::Record;
-use crate::flow::Density;
+use crate::flow::mixture::{DefensiveMixture, Record};
+use crate::flow::{Density, Flow};
 use crate::integrate::estimate::iid_iteration;
-use crate::integrate::target::{Prior, Pursuit};
-use crate::integrate::{check_dim, report, Accumulator, Integrand, IntegrationResult, Target};
+use crate::integrate::race::{race, Pace, Raced, RACE_SEED_SALT};
+use crate::integrate::target::{drive, Prior, Pursuit, Step, Stepper};
+use crate::integrate::{
+    check_dim, report, Accumulator, Integrand, IntegrationResult, Iteration, Progress, Target,
+};
 
 /// Training batches at most when integrating to a target (or twice the annealing's and the
 /// settling's): the learning rate decays over them, and the rule usually stops well before.
 const HORIZON_BATCHES: usize = 1000;
 
 impl NisIntegrator {
+    /// Whether a run to a target races VEGAS+ (`integrate/race.rs`,
+    /// [`super::NisConfig::race_vegas`], an untrained flow).
+    fn races(&self) -> bool {
+        self.config.race_vegas && self.trained_evals == 0
+    }
+
     /// Whether a run to a target probes for a smooth integrand to switch to the codes
     /// ([`super::NisConfig::auto_masks`]): an untrained flow of binary masks, where the codes
     /// have fewer layers, annealed (the probe reads the tempered weights' ESS, 1 at β = 1).
@@ -70,41 +81,62 @@ impl NisIntegrator {
         target.check("nis", least_train + least_final)
     }
 
-    /// [`crate::integrate::Integrator::integrate_to`] for NIS.
+    /// [`crate::integrate::Integrator::integrate_to`] for NIS: training whose length the rule
+    /// decides ([`NisIntegrator::train_to`]), unless VEGAS+ wins its race, then the final phase.
     pub(super) fn run_to(
         &mut self,
         f: &dyn Integrand,
         target: &Target,
     ) -> Result<IntegrationResult> {
         let started = Instant::now();
-        let dim = self.flow().dim();
-        check_dim(f, dim)?;
+        check_dim(f, self.flow().dim())?;
         self.config.train_on.check(f.components())?;
         self.check_target_plan(target)?;
-        let batch = self.config.batch as u64;
-        let iters = self.config.final_iterations as u64;
-        let least_final = FinalPlan::new(&self.config, dim, 0).least * iters;
-        let share = self.config.train_fraction;
-        if let Some(seconds) = target.max_seconds {
-            // One batch of the flow alone, from a copy of the stream: a limit below it can be
-            // refused before the integrand is called.
-            let t = Instant::now();
-            draw(
-                &self.sampler,
-                batch as usize,
-                &mut self.streams.train.clone(),
-                Record::Nothing,
-            )?;
-            // Every rank decides alike: on the slowest rank's time.
-            let one = self.comm.max(t.elapsed().as_secs_f64());
-            if seconds * share < one {
-                return Err(Error::Config(format!(
-                    "precision target: max_seconds = {seconds} leaves {:.2e} s to train, less \
-                     than one batch of the flow takes ({one:.2e} s) before any evaluation",
-                    seconds * share
-                )));
-            }
+        match self.train_to(f, target, started)? {
+            Trained::Answered(result) => Ok(*result),
+            Trained::Spent { evals, length } => self.final_to(f, target, started, evals, &length),
         }
+    }
+
+    /// An error before any evaluation when `max_seconds` cannot pay for one batch of the flow
+    /// within the training's share of it (timed on a copy of the training stream).
+    fn check_seconds(&self, target: &Target) -> Result<()> {
+        let Some(seconds) = target.max_seconds else {
+            return Ok(());
+        };
+        let share = self.config.train_fraction;
+        let t = Instant::now();
+        draw(
+            &self.sampler,
+            self.config.batch,
+            &mut self.streams.train.clone(),
+            Record::Nothing,
+        )?;
+        // Every rank decides alike: on the slowest rank's time.
+        let one = self.comm.max(t.elapsed().as_secs_f64());
+        if seconds * share < one {
+            return Err(Error::Config(format!(
+                "precision target: max_seconds = {seconds} leaves {:.2e} s to train, less \
+                 than one batch of the flow takes ({one:.2e} s) before any evaluation",
+                seconds * share
+            )));
+        }
+        Ok(())
+    }
+
+    /// Trains for as long as the rule of [`TrainingLength`] says it pays, within
+    /// `train_fraction` of the limits; races VEGAS+ and probes for the codes' masks after the
+    /// first batches when those strategies are on.
+    fn train_to(
+        &mut self,
+        f: &dyn Integrand,
+        target: &Target,
+        started: Instant,
+    ) -> Result<Trained> {
+        self.check_seconds(target)?;
+        let dim = self.flow().dim();
+        let batch = self.config.batch as u64;
+        let share = self.config.train_fraction;
         // Training batches within `share` of `evals`.
         let batches_in = |evals: u64| ((evals as f64 * share) as u64 / batch) as usize;
         let max_batches = batches_in(target.max_evals);
@@ -136,9 +168,16 @@ impl NisIntegrator {
         let mut spent = 0;
         if length.paused() {
             if races {
-                let nis_evals = self.trained_evals - before;
-                match self.race(f, target, started, nis_evals, &length)? {
-                    Raced::Won(result) => return Ok(*result),
+                let pace = Pace {
+                    rival_seconds: length.slow_seconds_left(),
+                    integrand_seconds_per_eval: length.integrand_seconds_per_eval(),
+                    evals: self.trained_evals - before,
+                };
+                let seed = self.config.seed ^ RACE_SEED_SALT;
+                let mut rival = crate::integrate::rival(dim, seed, self.config.train_on)?;
+                let (comm, progress) = (&self.comm, &mut self.progress);
+                match race(&mut *rival, f, target, started, pace, comm, progress)? {
+                    Raced::Won(result) => return Ok(Trained::Answered(result)),
                     Raced::Lost { evals } => spent += evals,
                 }
             }
@@ -159,7 +198,26 @@ impl NisIntegrator {
                 self.train_keeping_for(f, left, None, Some(&mut length))?;
             }
         }
-        let trained = self.trained_evals - before + spent;
+        Ok(Trained::Spent {
+            evals: self.trained_evals - before + spent,
+            length: Box::new(length),
+        })
+    }
+
+    /// The final phase after `trained` evaluations of training that `length` measured: its
+    /// layout (the latent grid) for the size the training predicts, then iterations planned by
+    /// a [`Pursuit`] until the target or a limit.
+    fn final_to(
+        &mut self,
+        f: &dyn Integrand,
+        target: &Target,
+        started: Instant,
+        trained: u64,
+        length: &TrainingLength,
+    ) -> Result<IntegrationResult> {
+        let dim = self.flow().dim();
+        let iters = self.config.final_iterations as u64;
+        let least_final = FinalPlan::new(&self.config, dim, 0).least * iters;
         let (var_per_eval, estimate, seconds_per_eval) =
             length.latest().expect("at least one batch trained");
         let mut prior = Prior {
@@ -167,9 +225,8 @@ impl NisIntegrator {
             estimate,
             seconds_per_eval,
         };
-        // The final phase's layout (its latent grid) for the size the training predicts, within
-        // the evaluations and the seconds left (its least iteration is half a planned one, so
-        // a plan the time cannot pay for would overrun max_seconds by that much).
+        // The size within the evaluations and the seconds left (its least iteration is half a
+        // planned one, so a plan the time cannot pay for would overrun max_seconds by that much).
         let mut room = target.max_evals.saturating_sub(trained) as f64;
         if let Some(limit) = target.max_seconds {
             let elapsed = self.comm.max(started.elapsed().as_secs_f64());
@@ -178,53 +235,104 @@ impl NisIntegrator {
         let predicted = prior.evals_to(target, room);
         let plan = FinalPlan::new(&self.config, dim, (predicted as u64).max(least_final));
         let chunk = plan.evals / iters;
-        let least = plan.least.max(chunk / 2);
         let k = f.components();
         let lambda = self.sampler.lambda();
         let train_on = self.config.train_on;
-        let mut latent = plan
-            .latent
-            .map(|(strata, s)| LatentStrata::new(strata, s, lambda, k, train_on));
         let mut acc = Accumulator::new(plan.evals);
         acc.set_frozen_sampler();
         acc.set_training_variances(length.variances());
         let mut pursuit = Pursuit::new(*target, started, trained);
-        let (mut seconds, mut done) = (0.0, 0u64);
-        loop {
-            let elapsed = pursuit.elapsed(&self.comm);
-            let Some(step) = pursuit.next(prior, least, chunk, elapsed)? else {
-                break;
-            };
-            let t = Instant::now();
-            let rng = &mut self.streams.estimate;
-            let iteration = match latent.as_mut() {
-                Some(latent) => {
-                    let observe = &mut |w: &[f64]| acc.observe(w);
-                    latent.iteration(&self.sampler, f, step.evals, rng, &self.comm, observe)?
-                }
-                None => {
-                    let sampler = &self.sampler;
-                    iid_iteration(&self.comm, step.evals, k, &mut acc, |m| {
-                        weights(sampler, f, m, rng).map(|(_, w)| w)
-                    })?
-                }
-            };
-            seconds += self.comm.max(t.elapsed().as_secs_f64());
-            done += iteration.evals;
-            prior.seconds_per_eval = seconds / done as f64;
-            pursuit.record(step, &iteration);
-            acc.add(iteration)?;
-            report(
-                &mut self.progress,
-                trained + done,
-                trained + plan.evals.max(done),
-                "nis: estimating to the target",
-            );
-        }
+        let mut steps = FinalSteps {
+            f,
+            sampler: &self.sampler,
+            rng: &mut self.streams.estimate,
+            comm: &self.comm,
+            progress: &mut self.progress,
+            latent: plan
+                .latent
+                .map(|(strata, s)| LatentStrata::new(strata, s, lambda, k, train_on)),
+            acc,
+            least: plan.least.max(chunk / 2),
+            chunk,
+            trained,
+            planned: plan.evals,
+            seconds: 0.0,
+            done: 0,
+        };
+        drive(&mut pursuit, &mut prior, &self.comm, &mut steps)?;
+        let (mut acc, done) = (steps.acc, steps.done);
         acc.reduce_tail(&self.comm);
         let mut result = acc.finish(Some(pursuit.shares()), trained + done, started);
         self.recall_training(&mut result)?;
         pursuit.finish(&mut result);
         Ok(result)
+    }
+}
+
+/// How the training of a run to a target ended.
+enum Trained {
+    /// VEGAS+ won the race: its result is the answer.
+    Answered(Box<IntegrationResult>),
+    /// The final phase follows: the evaluations spent so far (those not used included) and
+    /// what the training measured.
+    Spent {
+        evals: u64,
+        length: Box<TrainingLength>,
+    },
+}
+
+/// The final phase's iterations: the frozen sampler's weights, stratified in the latent space
+/// when the plan has a grid.
+struct FinalSteps<'a> {
+    f: &'a dyn Integrand,
+    sampler: &'a DefensiveMixture<Flow>,
+    rng: &'a mut Pcg64Mcg,
+    comm: &'a Comm,
+    progress: &'a mut Option<Box<dyn Progress>>,
+    latent: Option<LatentStrata>,
+    acc: Accumulator,
+    least: u64,
+    chunk: u64,
+    /// Evaluations of the training, and those the plan predicted for the final phase.
+    trained: u64,
+    planned: u64,
+    /// Seconds and evaluations of the final phase so far.
+    seconds: f64,
+    done: u64,
+}
+
+impl Stepper for FinalSteps<'_> {
+    fn size(&mut self, _: &Pursuit, _: &mut Prior, _: f64) -> (u64, u64) {
+        (self.least, self.chunk)
+    }
+
+    fn draw(&mut self, step: Step, _: &mut Pursuit, prior: &mut Prior) -> Result<Iteration> {
+        let t = Instant::now();
+        let (f, sampler, rng, comm) = (self.f, self.sampler, &mut *self.rng, self.comm);
+        let acc = &mut self.acc;
+        let iteration = match self.latent.as_mut() {
+            Some(latent) => {
+                let observe = &mut |w: &[f64]| acc.observe(w);
+                latent.iteration(sampler, f, step.evals, rng, comm, observe)?
+            }
+            None => iid_iteration(comm, step.evals, f.components(), acc, |m| {
+                weights(sampler, f, m, rng).map(|(_, w)| w)
+            })?,
+        };
+        self.seconds += comm.max(t.elapsed().as_secs_f64());
+        self.done += iteration.evals;
+        prior.seconds_per_eval = self.seconds / self.done as f64;
+        Ok(iteration)
+    }
+
+    fn keep(&mut self, iteration: Iteration) -> Result<()> {
+        self.acc.add(iteration)?;
+        report(
+            self.progress,
+            self.trained + self.done,
+            self.trained + self.planned.max(self.done),
+            "nis: estimating to the target",
+        );
+        Ok(())
     }
 }

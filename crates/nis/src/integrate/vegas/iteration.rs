@@ -5,10 +5,10 @@
 use rand::Rng;
 use rand_pcg::Pcg64Mcg;
 
-use super::adaptive_strata::Strata;
 use super::map::Map;
 use crate::comm::Comm;
 use crate::error::Result;
+use crate::integrate::adaptive_strata::Strata;
 use crate::integrate::{evaluate, Integrand, Iteration, IterationComponents, Source, TrainOn};
 
 /// What one iteration measures, the same for every iteration of a call.

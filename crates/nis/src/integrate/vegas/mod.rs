@@ -15,13 +15,10 @@
 //! iterations of a still-improving map, so the result iterations here get shares fixed before
 //! their points are drawn, from the trend of the earlier variances ([`next_share`]).
 
-pub(crate) mod adaptive_strata;
 mod iteration;
 mod map;
 mod shares;
 mod to_target;
-
-pub(crate) use to_target::{Pursued, Race};
 
 use std::time::Instant;
 
@@ -29,6 +26,7 @@ use rand::SeedableRng;
 use rand_pcg::Pcg64Mcg;
 use serde::{Deserialize, Serialize};
 
+use super::adaptive_strata::Strata;
 use super::{
     check_budget, check_dim, report, Accumulator, Integrand, IntegrationResult, Integrator, Method,
     Progress, Target, TrainOn,
@@ -36,7 +34,6 @@ use super::{
 use crate::comm::Comm;
 use crate::error::{Error, Result};
 use crate::kernels::in_pool;
-use adaptive_strata::Strata;
 use iteration::Measure;
 use map::Map;
 use shares::{next_share, Trend};
@@ -211,11 +208,6 @@ impl Vegas {
     /// Its settings.
     pub fn config(&self) -> &VegasConfig {
         &self.config
-    }
-
-    /// Takes back the progress display given by `set_progress`.
-    pub(crate) fn take_progress(&mut self) -> Option<Box<dyn Progress>> {
-        self.progress.take()
     }
 
     fn plan(&self, evals: u64) -> Plan {

@@ -1,157 +1,13 @@
-//! Integrating to a requested precision: a [`Target`] error (Cuba's `epsrel`/`epsabs`, met when
-//! the error bar is below max(abs_err, rel_err·|I|)) under limits on evaluations and wall time,
-//! for every method ([`super::Integrator::integrate_to`]).
-//!
-//! A stopping rule that watches the running error is a sequential test: stopping as soon as the
-//! error looks small favours runs whose mean and variance were both low by chance. Here the
-//! estimate is Σ a_i·I_i over the iterations of a frozen (or, for VEGAS+, still adapting) sampler
-//! with every share a_i fixed *before* iteration i draws its points, from the iterations before it
-//! ([`Pursuit`]): the error is then a sum of martingale differences whatever the stopping rule,
-//! and the estimate is unbiased, as for the reused training batches (docs/ESTIMATE.md, "Precision
-//! targets"). The plan aims at 0.95 of the target so that a round usually meets it; a round that
-//! does not (its variance was underestimated, or a heavy-tailed weight spent its whole variance)
-//! is extended, diluted by new evaluations as a pooled mean would be: the one step whose share
-//! depends on the round's own error (its bias on heavy-tailed weights is measured in
-//! docs/ESTIMATE.md, "Precision targets").
+//! The iterations of one run to a [`Target`]: each planned from those before it, its share of
+//! the estimate fixed before it is drawn (the module docs of [`super`]).
 
 use std::time::Instant;
 
-use serde::{Deserialize, Serialize};
-
-use super::diagnostics::{ADVICE_MET, ADVICE_MORE};
-use super::result::{IntegrationResult, Iteration, Stop};
+use super::{Target, AIM};
 use crate::comm::Comm;
 use crate::error::{Error, Result};
-
-/// Evaluations a target may spend when no `max_evals` is given.
-pub const DEFAULT_MAX_EVALS: u64 = 100_000_000;
-
-/// The plan aims at this fraction of the target error, so that a round usually meets it.
-pub(crate) const AIM: f64 = 0.95;
-
-/// A precision to integrate to, and the limits of the attempt.
-///
-/// ```
-/// use nis::integrate::{uniform::{PlainMc, PlainMcConfig}, Integrator, Target};
-/// let mut integ = PlainMc::new(2, PlainMcConfig::default())?;
-/// let r = integ.integrate_to(&|x: &[f64]| x[0] * x[1], &Target::rel(1e-2))?;
-/// assert!(r.std_err <= 1e-2 * r.value.abs());
-/// # Ok::<(), nis::Error>(())
-/// ```
-#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
-#[serde(default, deny_unknown_fields)]
-pub struct Target {
-    /// Relative error to reach: std_err ≤ rel_err·|value|.
-    pub rel_err: Option<f64>,
-    /// Absolute error to reach: std_err ≤ abs_err (either one met is enough, as in Cuba).
-    pub abs_err: Option<f64>,
-    /// The most evaluations to spend, training included.
-    pub max_evals: u64,
-    /// The most wall-clock seconds to spend (training included); `None`: no limit.
-    pub max_seconds: Option<f64>,
-}
-
-impl Default for Target {
-    fn default() -> Self {
-        Target {
-            rel_err: None,
-            abs_err: None,
-            max_evals: DEFAULT_MAX_EVALS,
-            max_seconds: None,
-        }
-    }
-}
-
-impl Target {
-    /// A relative error, within [`DEFAULT_MAX_EVALS`].
-    pub fn rel(rel_err: f64) -> Target {
-        Target {
-            rel_err: Some(rel_err),
-            ..Target::default()
-        }
-    }
-
-    /// An absolute error, within [`DEFAULT_MAX_EVALS`].
-    pub fn abs(abs_err: f64) -> Target {
-        Target {
-            abs_err: Some(abs_err),
-            ..Target::default()
-        }
-    }
-
-    /// Sets [`Target::max_evals`].
-    pub fn max_evals(mut self, max_evals: u64) -> Target {
-        self.max_evals = max_evals;
-        self
-    }
-
-    /// Sets [`Target::max_seconds`].
-    pub fn max_seconds(mut self, seconds: f64) -> Target {
-        self.max_seconds = Some(seconds);
-        self
-    }
-
-    /// The target the front ends' options describe: `None` when neither error is given (a run on
-    /// a budget), an error when a limit is given without an error to reach. `max_evals` defaults
-    /// to [`DEFAULT_MAX_EVALS`]. Not checked: [`Target::check`] does that, before a run.
-    pub fn from_options(
-        rel_err: Option<f64>,
-        abs_err: Option<f64>,
-        max_evals: Option<u64>,
-        max_seconds: Option<f64>,
-    ) -> Result<Option<Target>> {
-        if rel_err.is_none() && abs_err.is_none() {
-            if max_evals.is_some() || max_seconds.is_some() {
-                return Err(Error::Config(
-                    "precision target: max_evals and max_seconds limit a run to a target; give \
-                     rel_err or abs_err too (or evals for a fixed budget)"
-                        .into(),
-                ));
-            }
-            return Ok(None);
-        }
-        Ok(Some(Target {
-            rel_err,
-            abs_err,
-            max_evals: max_evals.unwrap_or(DEFAULT_MAX_EVALS),
-            max_seconds,
-        }))
-    }
-
-    /// The error bar that meets the target for an estimate `value`: max(abs_err, rel_err·|value|).
-    pub fn error_for(&self, value: f64) -> f64 {
-        let rel = self.rel_err.map_or(0.0, |r| r * value.abs());
-        rel.max(self.abs_err.unwrap_or(0.0))
-    }
-
-    /// An error, before anything is evaluated, when the target cannot be met or its limits
-    /// contradict each other; `least` is the fewest evaluations `method` needs for one estimate.
-    pub fn check(&self, method: &str, least: u64) -> Result<()> {
-        let bad = |why: String| Err(Error::Config(format!("precision target: {why}")));
-        if self.rel_err.is_none() && self.abs_err.is_none() {
-            return bad("give rel_err, abs_err or both".into());
-        }
-        for (name, v) in [("rel_err", self.rel_err), ("abs_err", self.abs_err)] {
-            if let Some(v) = v {
-                if !(v.is_finite() && v > 0.0) {
-                    return bad(format!("{name} must be a positive number, got {v}"));
-                }
-            }
-        }
-        if let Some(s) = self.max_seconds {
-            if !(s.is_finite() && s > 0.0) {
-                return bad(format!("max_seconds must be a positive number, got {s}"));
-            }
-        }
-        if self.max_evals < least {
-            return bad(format!(
-                "max_evals = {} is below the {least} evaluations {method} needs for one estimate",
-                self.max_evals
-            ));
-        }
-        Ok(())
-    }
-}
+use crate::integrate::diagnostics::{ADVICE_MET, ADVICE_MORE};
+use crate::integrate::result::{IntegrationResult, Iteration, Stop};
 
 /// The next iteration a [`Pursuit`] asks for: its evaluations and its share of the estimate.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -210,6 +66,15 @@ pub(crate) struct Pursuit {
     adapting: bool,
 }
 
+/// What the limits leave for the next iteration.
+#[derive(Clone, Copy)]
+struct Room {
+    /// Evaluations the evaluations and seconds left pay for.
+    affordable: f64,
+    /// The limit that runs out first.
+    bound_by: Stop,
+}
+
 impl Pursuit {
     /// A run to `target` started at `started`, `spent_before` evaluations already spent.
     pub(crate) fn new(target: Target, started: Instant, spent_before: u64) -> Pursuit {
@@ -261,17 +126,31 @@ impl Pursuit {
         comm.max(self.started.elapsed().as_secs_f64())
     }
 
-    /// Evaluations still allowed, and seconds (∞ without a time limit), at `elapsed`.
-    fn left(&self, elapsed: f64) -> (u64, f64) {
+    /// What the limits leave at `elapsed` for a sampler of `seconds_per_eval`.
+    fn room(&self, elapsed: f64, seconds_per_eval: f64) -> Room {
         let evals = self
             .target
             .max_evals
-            .saturating_sub(self.spent_before + self.evals);
+            .saturating_sub(self.spent_before + self.evals) as f64;
         let seconds = self
             .target
             .max_seconds
             .map_or(f64::INFINITY, |s| s - elapsed);
-        (evals, seconds)
+        let seconds_per_eval = seconds_per_eval.max(0.0);
+        let affordable = if seconds_per_eval > 0.0 {
+            evals.min(seconds / seconds_per_eval)
+        } else {
+            evals
+        };
+        let bound_by = if evals <= seconds / seconds_per_eval.max(f64::MIN_POSITIVE) {
+            Stop::MaxEvals
+        } else {
+            Stop::MaxSeconds
+        };
+        Room {
+            affordable,
+            bound_by,
+        }
     }
 
     /// The next iteration, of at least `least` and preferably `chunk` evaluations, or `None`
@@ -303,29 +182,11 @@ impl Pursuit {
             ));
         }
         let aim = (AIM * wanted).powi(2);
-        let (evals_left, seconds_left) = self.left(elapsed);
-        let seconds_per_eval = prior.seconds_per_eval.max(0.0);
-        let affordable = if seconds_per_eval > 0.0 {
-            (evals_left as f64).min(seconds_left / seconds_per_eval)
-        } else {
-            evals_left as f64
-        };
-        let bound_by = || {
-            if (evals_left as f64) <= seconds_left / seconds_per_eval.max(f64::MIN_POSITIVE) {
-                Stop::MaxEvals
-            } else {
-                Stop::MaxSeconds
-            }
-        };
+        let room = self.room(elapsed, prior.seconds_per_eval);
         if self.remaining > 0.0 && self.round_evals > 0 && self.var >= aim {
             // The iterations so far already spend the whole variance allowed (one of them was
-            // far noisier than planned): no share left can bring it down, so the round ends
-            // here, its shares normalised to one, and the extension below dilutes it.
-            let kept = 1.0 - self.remaining;
-            self.shares.iter_mut().for_each(|a| *a /= kept);
-            self.weighted /= kept;
-            self.var /= kept * kept;
-            self.remaining = 0.0;
+            // far noisier than planned): no share left can bring it down.
+            self.close_round();
         }
         if self.remaining <= 0.0 {
             // A round is over: met, or extended, or out of evaluations or time.
@@ -333,49 +194,68 @@ impl Pursuit {
                 self.stop = Some(Stop::Target);
                 return Ok(None);
             }
-            if affordable < least as f64 {
-                self.stop = Some(bound_by());
+            if room.affordable < least as f64 {
+                self.stop = Some(room.bound_by);
                 return Ok(None);
             }
-            // The extension: M more evaluations and their share b = M/(N + M), the rounds so far
-            // (N evaluations, variance v) keeping 1 − b, as a mean pooled by evaluations would;
-            // M the fewest with (1 − b)²·v + b²·V/M at the aim (found by bisection on ln M).
-            let (v, n) = (self.var, self.evals as f64);
-            let combined = |m: f64| {
-                let b = m / (n + m);
-                (1.0 - b).powi(2) * v + b * b * var_per_eval / m
-            };
-            let (mut lo, mut hi) = (least as f64, affordable.max(least as f64));
-            if combined(hi) <= aim {
-                for _ in 0..60 {
-                    let mid = (lo * hi).sqrt();
-                    if combined(mid) <= aim {
-                        hi = mid;
-                    } else {
-                        lo = mid;
-                    }
+            self.extend(aim, var_per_eval, least, room.affordable);
+        }
+        Ok(Some(self.step(aim, var_per_eval, least, chunk, room)))
+    }
+
+    /// Ends the current round early, its shares normalised to one, for an extension to dilute.
+    fn close_round(&mut self) {
+        let kept = 1.0 - self.remaining;
+        self.shares.iter_mut().for_each(|a| *a /= kept);
+        self.weighted /= kept;
+        self.var /= kept * kept;
+        self.remaining = 0.0;
+    }
+
+    /// Starts an extension: M more evaluations and their share b = M/(N + M), the rounds so far
+    /// (N evaluations, variance v) keeping 1 − b, as a mean pooled by evaluations would; M the
+    /// fewest with (1 − b)²·v + b²·V/M at `aim` (found by bisection on ln M), at most
+    /// `affordable`.
+    fn extend(&mut self, aim: f64, var_per_eval: f64, least: u64, affordable: f64) {
+        let (v, n) = (self.var, self.evals as f64);
+        let combined = |m: f64| {
+            let b = m / (n + m);
+            (1.0 - b).powi(2) * v + b * b * var_per_eval / m
+        };
+        let (mut lo, mut hi) = (least as f64, affordable.max(least as f64));
+        if combined(hi) <= aim {
+            for _ in 0..60 {
+                let mid = (lo * hi).sqrt();
+                if combined(mid) <= aim {
+                    hi = mid;
+                } else {
+                    lo = mid;
                 }
             }
-            let more = hi.ceil();
-            let b = more / (n + more);
-            self.shares.iter_mut().for_each(|a| *a *= 1.0 - b);
-            self.weighted *= 1.0 - b;
-            self.var *= (1.0 - b).powi(2);
-            self.remaining = b;
-            self.extensions += 1;
-            self.round_plan = more;
-            self.round_evals = 0;
         }
+        let more = hi.ceil();
+        let b = more / (n + more);
+        self.shares.iter_mut().for_each(|a| *a *= 1.0 - b);
+        self.weighted *= 1.0 - b;
+        self.var *= (1.0 - b).powi(2);
+        self.remaining = b;
+        self.extensions += 1;
+        self.round_plan = more;
+        self.round_evals = 0;
+    }
+
+    /// The next iteration of the current round: the evaluations that bring Σ a²V/n to `aim`
+    /// when the rest of the share goes to them, drawn in pieces of about `chunk`.
+    fn step(&mut self, aim: f64, var_per_eval: f64, least: u64, chunk: u64, room: Room) -> Step {
         let r = self.remaining;
-        // Evaluations that bring Σ a²V/n to the aim when the rest of the share goes to them; at
-        // most twice the round's smallest plan: a round that an iteration far noisier than planned
-        // (a heavy tail) has set back ends near its plan, and an extension dilutes it, instead
-        // of spreading what is left of its share thinly over many more evaluations.
-        let room = aim - self.var;
+        // At most twice the round's smallest plan: a round that an iteration far noisier than
+        // planned (a heavy tail) has set back ends near its plan, and an extension dilutes it,
+        // instead of spreading what is left of its share thinly over many more evaluations.
+        let left = aim - self.var;
         // No room (an extension that the limits keep short of the aim): the round spends what
         // it was planned with, and the limit then ends the run.
-        let mut needed = if room > 0.0 {
-            (r * r * var_per_eval / room).ceil().max(least as f64)
+        let mut needed = if left > 0.0 {
+            (r * r * var_per_eval / left).ceil().max(least as f64)
         } else {
             (self.round_plan - self.round_evals as f64).max(least as f64)
         };
@@ -384,8 +264,8 @@ impl Pursuit {
             self.round_plan = planned;
         }
         needed = needed.min((2.0 * self.round_plan - self.round_evals as f64).max(least as f64));
-        let (needed, limited) = if needed > affordable {
-            (affordable.max(least as f64), true)
+        let (needed, limited) = if needed > room.affordable {
+            (room.affordable.max(least as f64), true)
         } else {
             (needed, false)
         };
@@ -393,13 +273,13 @@ impl Pursuit {
         let evals = if needed <= 1.5 * chunk { needed } else { chunk };
         let last = evals >= needed;
         if last && limited {
-            self.stop = Some(bound_by());
+            self.stop = Some(room.bound_by);
         }
         let share = if last { r } else { r * evals / needed };
-        Ok(Some(Step {
+        Step {
             evals: evals as u64,
             share,
-        }))
+        }
     }
 
     /// Counts `n` evaluations spent outside the estimate's iterations (a part's own warm-up)
@@ -478,7 +358,7 @@ mod tests {
             let n = step.evals;
             let cov = vec![var / n as f64];
             let it = Iteration::new(
-                super::super::Source::Final,
+                crate::integrate::Source::Final,
                 vec![1.0],
                 cov,
                 n,
@@ -490,36 +370,6 @@ mod tests {
             assert!(steps < 100);
         }
         p
-    }
-
-    #[test]
-    fn bad_targets_are_refused_before_any_evaluation() {
-        let ok = Target::rel(1e-3);
-        assert!(ok.check("nis", 100).is_ok());
-        for t in [
-            Target::default(),
-            Target::rel(0.0),
-            Target::rel(-1e-3),
-            Target::rel(f64::NAN),
-            Target::abs(f64::INFINITY),
-            ok.max_seconds(0.0),
-            ok.max_seconds(f64::NAN),
-            ok.max_evals(99),
-        ] {
-            let e = t.check("nis", 100).unwrap_err().to_string();
-            assert!(e.contains("precision target"), "{e}");
-        }
-    }
-
-    #[test]
-    fn either_error_meets_the_target() {
-        let t = Target {
-            rel_err: Some(1e-2),
-            abs_err: Some(1e-3),
-            ..Target::default()
-        };
-        assert_eq!(t.error_for(1.0), 1e-2);
-        assert_eq!(t.error_for(0.01), 1e-3);
     }
 
     #[test]
