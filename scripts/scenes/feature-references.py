@@ -28,11 +28,7 @@ BASE = """<?xml version="1.0" encoding="utf-8"?>
 <scene version="{version}">
     <default name="spp" value="64"/>
     {integrator}
-    <sensor type="perspective">
-        <float name="fov" value="40"/>
-        <transform name="to_world">
-            <lookat origin="0, 1.6, 3" target="0, 0.4, 0" up="0, 1, 0"/>
-        </transform>
+    {sensor}
         <sampler type="independent">
             <integer name="sample_count" value="$spp"/>
         </sampler>
@@ -66,19 +62,24 @@ FLOOR = """<shape type="rectangle">
 CHECKS = """<texture type="checkerboard" id="checks">
         <transform name="to_uv"><scale x="6" y="6"/></transform>
     </texture>"""
+PERSPECTIVE = """<sensor type="perspective">
+        <float name="fov" value="40"/>
+        <transform name="to_world">
+            <lookat origin="0, 1.6, 3" target="0, 0.4, 0" up="0, 1, 0"/>
+        </transform>"""
 DIFFUSE = '<bsdf type="diffuse"><rgb name="reflectance" value="0.6, 0.55, 0.5"/></bsdf>'
 PATH = '<integrator type="path"><integer name="max_depth" value="8"/></integrator>'
 BOX = '<rfilter type="box"/>'
 
 
 def scene(name, *, floor=DIFFUSE, sphere=DIFFUSE, light=AREA, integrator=PATH, rfilter=BOX,
-          version="3.0.0"):
+          version="3.0.0", sensor=PERSPECTIVE):
     """A feature scene; `floor` is the floor's BSDF, or a whole `<shape>` in its place."""
     if floor.startswith("<shape"):
         floor_shape = floor
     else:
         floor_shape = FLOOR.format(bsdf=floor)
-    return BASE.format(name=name, version=version, integrator=integrator, res=RES,
+    return BASE.format(name=name, version=version, integrator=integrator, res=RES, sensor=sensor,
                        filter=rfilter, floor_shape=floor_shape, sphere=sphere, light=light,
                        defs=CHECKS if 'id="checks"' in floor else "")
 
@@ -179,6 +180,19 @@ def features():
         <float name="turbidity" value="6.5"/><float name="albedo" value="0.5"/>
         <transform name="to_world"><rotate x="1" angle="-90"/></transform>
     </emitter>""")
+    # The sphere's centre is 3.2 from the camera: in focus at 2.2 it is blurred.
+    add("sensor-thinlens", sensor="""<sensor type="thinlens">
+        <float name="fov" value="40"/>
+        <float name="aperture_radius" value="0.15"/>
+        <float name="focus_distance" value="2.2"/>
+        <transform name="to_world">
+            <lookat origin="0, 1.6, 3" target="0, 0.4, 0" up="0, 1, 0"/>
+        </transform>""")
+    add("sensor-orthographic", sensor="""<sensor type="orthographic">
+        <transform name="to_world">
+            <scale value="1.4"/>
+            <lookat origin="0.3, 1.6, 3" target="0, 0.4, 0" up="0, 1, 0"/>
+        </transform>""")
     legacy = scene("legacy-0.5", version="0.5.0",
                    sphere='<bsdf type="roughconductor"><float name="alpha" value="0.2"/><string name="material" value="Cu"/>'
                           '<float name="extEta" value="1.0"/></bsdf>',

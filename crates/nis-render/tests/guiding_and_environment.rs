@@ -105,7 +105,7 @@ fn guided_mixture_is_unbiased_and_records_paths() {
 /// How many of `records` were made away from a camera ray's hit in `scene` (where a vertex
 /// does not look back at the eye).
 fn beyond_first_hit(scene: &Scene, records: &[GuideRecord]) -> usize {
-    let eye = scene.camera.ray(0.5, 0.5).origin;
+    let eye = scene.camera.ray(0.5, 0.5, glam::Vec2::ZERO).origin;
     records
         .iter()
         .filter(|r| (eye - r.vertex.p).normalize().dot(r.vertex.wo) <= 1.0 - 1e-4)

@@ -22,6 +22,7 @@ use std::ops::Range;
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::time::Instant;
 
+use glam::Vec2;
 use nis::comm::Comm;
 use rand_pcg::Pcg32;
 use rayon::prelude::*;
@@ -456,7 +457,13 @@ impl Renderer<'_> {
                         let mut rng = sample_rng(self.options.seed, pixel, u64::from(s));
                         let (dx, wx) = filter.sample(uniform(&mut rng));
                         let (dy, wy) = filter.sample(uniform(&mut rng));
-                        rays.push(scene.camera.ray(x as f32 + dx, y as f32 + dy));
+                        // Only a thin lens draws its sample: other renders keep their streams.
+                        let lens = if scene.camera.needs_lens() {
+                            Vec2::new(uniform(&mut rng), uniform(&mut rng))
+                        } else {
+                            Vec2::ZERO
+                        };
+                        rays.push(scene.camera.ray(x as f32 + dx, y as f32 + dy, lens));
                         weights.push(wx * wy);
                         rngs.push(rng);
                     }

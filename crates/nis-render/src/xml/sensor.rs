@@ -1,18 +1,18 @@
-//! The `<sensor>`: a `perspective` camera with its film (`hdrfilm`, or Mitsuba 0.x's `ldrfilm`,
+//! The `<sensor>`: a `perspective`, `thinlens` or `orthographic` camera with its film (`hdrfilm`, or Mitsuba 0.x's `ldrfilm`,
 //! whose tonemapping does not change the linear image), reconstruction filter and sampler
 //! (any type: only its `sample_count` matters to an unbiased renderer).
 
 use super::dom::{err, Element};
 use super::props::{Props, PROPERTY_TAGS};
 use super::{out_of_range, unsupported, LoadResult, Loader, MAX_FILM_PIXELS, MAX_FILM_SIDE};
-use crate::camera::{Camera, FovAxis};
+use crate::camera::{Camera, FovAxis, Projection};
 use crate::filter::{Filter, FilterKind};
 
 impl Loader {
     pub(super) fn sensor(&mut self, el: &Element) -> LoadResult<()> {
         let kind = el.required("type")?;
-        if kind != "perspective" {
-            return unsupported(el, "perspective");
+        if !["perspective", "thinlens", "orthographic"].contains(&kind) {
+            return unsupported(el, "perspective, thinlens, orthographic");
         }
         if self.camera.is_some() {
             return Err(err::<()>(el.line, "only one <sensor> is supported")
@@ -20,10 +20,16 @@ impl Loader {
                 .into());
         }
         let p = Props::new(el)?;
-        let Some(fov) = p.float_opt("fov")? else {
-            return Err(err::<()>(el.line, "the sensor needs <float name=\"fov\">")
-                .unwrap_err()
-                .into());
+        let projection = projection(el, &p, kind)?;
+        // Parallel rays have no field of view (a value given is read and left unused).
+        let fov = match p.float_opt("fov")? {
+            Some(fov) => fov,
+            None if projection == Projection::Orthographic => 40.0,
+            None => {
+                return Err(err::<()>(el.line, "the sensor needs <float name=\"fov\">")
+                    .unwrap_err()
+                    .into())
+            }
         };
         if !(fov > 0.0 && fov < 180.0) {
             return Err(err::<()>(
@@ -46,13 +52,10 @@ impl Loader {
             }
         };
         let to_world = p.transform("to_world")?;
-        p.ignore(&[
-            "near_clip",
-            "far_clip",
-            "focus_distance",
-            "shutter_open",
-            "shutter_close",
-        ]);
+        p.ignore(&["near_clip", "far_clip", "shutter_open", "shutter_close"]);
+        if projection == Projection::Perspective {
+            p.ignore(&["focus_distance"]);
+        }
         p.finish()?;
         let (mut width, mut height) = (768, 576);
         for c in el
@@ -83,13 +86,10 @@ impl Loader {
                 _ => return unsupported(c, "film, sampler"),
             }
         }
-        self.camera = Some(Camera::new(
-            to_world,
-            fov,
-            fov_axis,
-            width as u32,
-            height as u32,
-        ));
+        self.camera = Some(
+            Camera::new(to_world, fov, fov_axis, width as u32, height as u32)
+                .with_projection(projection),
+        );
         Ok(())
     }
 
@@ -186,4 +186,42 @@ fn rfilter(r: &Element) -> LoadResult<FilterKind> {
     };
     p.finish()?;
     Ok(kind)
+}
+
+/// The projection of a sensor of type `kind`: a thin lens's `aperture_radius` (required, as in
+/// Mitsuba) and `focus_distance` (Mitsuba's default: the far clip distance, 10⁴).
+fn projection(el: &Element, p: &Props, kind: &str) -> LoadResult<Projection> {
+    Ok(match kind {
+        "thinlens" => {
+            let Some(aperture_radius) = p.float_opt("aperture_radius")? else {
+                return Err(err::<()>(
+                    el.line,
+                    "a thinlens sensor needs <float name=\"aperture_radius\">",
+                )
+                .unwrap_err()
+                .into());
+            };
+            let far = p.float("far_clip", 1e4)?;
+            let focus_distance = p.float("focus_distance", far)?;
+            for (name, v) in [
+                ("aperture_radius", aperture_radius),
+                ("focus_distance", focus_distance),
+            ] {
+                if !(v.is_finite() && v > 0.0) {
+                    return Err(err::<()>(
+                        el.line,
+                        format!("the thinlens sensor's {name} must be a positive number, got {v}"),
+                    )
+                    .unwrap_err()
+                    .into());
+                }
+            }
+            Projection::ThinLens {
+                aperture_radius,
+                focus_distance,
+            }
+        }
+        "orthographic" => Projection::Orthographic,
+        _ => Projection::Perspective,
+    })
 }

@@ -283,6 +283,58 @@ fn legacy_files_unknown_integrators_and_missing_features_say_what_and_where() {
     }
 }
 
+#[test]
+fn thin_lens_and_orthographic_sensors_read_their_parameters_and_refuse_bad_ones() {
+    use crate::camera::Projection;
+    let with = |sensor: &str| load(&format!("<scene version=\"3.0.0\">\n{sensor}\n</scene>"));
+    let s = with(
+        r#"<sensor type="thinlens"><float name="fov" value="30"/><float name="aperture_radius" value="0.1"/><float name="focus_distance" value="4"/></sensor>"#,
+    )
+    .unwrap();
+    assert_eq!(
+        s.camera.projection,
+        Projection::ThinLens {
+            aperture_radius: 0.1,
+            focus_distance: 4.0
+        }
+    );
+    // Mitsuba's default focus: the far clip distance; a 0.x file's names are upgraded.
+    let s = load(
+        "<scene version=\"0.5.0\"><sensor type=\"thinlens\"><float name=\"fov\" value=\"30\"/><float name=\"apertureRadius\" value=\"0.2\"/><float name=\"farClip\" value=\"50\"/></sensor></scene>",
+    )
+    .unwrap();
+    assert_eq!(
+        s.camera.projection,
+        Projection::ThinLens {
+            aperture_radius: 0.2,
+            focus_distance: 50.0
+        }
+    );
+    let s = with(r#"<sensor type="orthographic"/>"#).unwrap();
+    assert_eq!(s.camera.projection, Projection::Orthographic);
+    for (sensor, needle) in [
+        (
+            r#"<sensor type="thinlens"><float name="fov" value="30"/></sensor>"#,
+            "aperture_radius",
+        ),
+        (
+            r#"<sensor type="thinlens"><float name="fov" value="30"/><float name="aperture_radius" value="0.1"/><float name="focus_distance" value="-1"/></sensor>"#,
+            "focus_distance must be a positive number",
+        ),
+        (
+            r#"<sensor type="thinlens"><float name="aperture_radius" value="0.1"/></sensor>"#,
+            "fov",
+        ),
+        (
+            r#"<sensor type="irradiancemeter"/>"#,
+            "thinlens, orthographic",
+        ),
+    ] {
+        let e = with(sensor).unwrap_err().to_string();
+        assert!(e.starts_with("test.xml:2:") && e.contains(needle), "{e}");
+    }
+}
+
 /// A Mitsuba 3 sunsky reads its parameters (and refuses a sun placed twice); a Mitsuba 0.5 one
 /// keeps the sun where 0.5 put it. Skipped, with the reason, without Mitsuba's tables.
 #[test]
