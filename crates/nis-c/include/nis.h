@@ -179,8 +179,9 @@ typedef struct nis_result {
    */
   size_t components;
   /**
-   * PSIS's Pareto k̂ of the final phase's weights: above 0.5 the error bar cannot be trusted
-   * (NaN when it cannot be fitted).
+   * PSIS's Pareto k̂ of the final phase's weights: above 0.5 by more than its noise (1.645
+   * standard errors of a k̂ fitted to this tail) the error bar cannot be trusted, and the
+   * result warns (NaN when it cannot be fitted).
    */
   double pareto_k;
   /**

@@ -115,8 +115,9 @@ pub struct nis_result {
     pub seconds: f64,
     /// Components of the integrand (1: scalar).
     pub components: usize,
-    /// PSIS's Pareto k̂ of the final phase's weights: above 0.5 the error bar cannot be trusted
-    /// (NaN when it cannot be fitted).
+    /// PSIS's Pareto k̂ of the final phase's weights: above 0.5 by more than its noise (1.645
+    /// standard errors of a k̂ fitted to this tail) the error bar cannot be trusted, and the
+    /// result warns (NaN when it cannot be fitted).
     pub pareto_k: f64,
     /// Effective sample size (Σ|w|)²/Σw² of the final phase's weights.
     pub ess: f64,

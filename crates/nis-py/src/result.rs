@@ -96,11 +96,18 @@ impl PyIntegrationResult {
         self.r.unweighting_efficiency
     }
 
-    /// PSIS's Pareto k̂ of the final phase's weights: above 0.5 the error bar cannot be trusted
-    /// (NaN when it cannot be fitted).
+    /// PSIS's Pareto k̂ of the final phase's weights: above `pareto_k_limit` the error bar cannot
+    /// be trusted (NaN when it cannot be fitted).
     #[getter]
     fn pareto_k(&self) -> f64 {
         self.r.pareto_k
+    }
+
+    /// The k̂ above which the result warns: 0.5 plus 1.645 standard errors of a k̂ fitted to
+    /// this tail (a one-sided test at 5 % that k > 0.5; inf when k̂ cannot be fitted).
+    #[getter]
+    fn pareto_k_limit(&self) -> f64 {
+        self.r.pareto_k_limit
     }
 
     /// Effective sample size (Σ|w|)²/Σw² of the final phase's weights.

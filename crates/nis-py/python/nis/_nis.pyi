@@ -52,8 +52,12 @@ class IntegrationResult:
         """mean(|w|)/max(|w|) of the final phase's weights."""
     @property
     def pareto_k(self) -> float:
-        """PSIS's Pareto k̂ of the final phase's weights: above 0.5 the error bar cannot be
-        trusted (NaN when it cannot be fitted)."""
+        """PSIS's Pareto k̂ of the final phase's weights: above ``pareto_k_limit`` the error bar
+        cannot be trusted (NaN when it cannot be fitted)."""
+    @property
+    def pareto_k_limit(self) -> float:
+        """The k̂ above which the result warns: 0.5 plus 1.645 standard errors of a k̂ fitted to
+        this tail (a one-sided test at 5 % that k > 0.5; inf when k̂ cannot be fitted)."""
     @property
     def ess(self) -> float:
         """Effective sample size (Σ|w|)²/Σw² of the final phase's weights."""

@@ -180,6 +180,7 @@ impl Accumulator {
                 sum_abs_w / final_evals as f64 / max_abs_w
             },
             pareto_k: reliability.pareto_k,
+            pareto_k_limit: reliability.pareto_k_limit,
             ess: reliability.ess,
             var_rel_err: reliability.var_rel_err,
             seconds: started.elapsed().as_secs_f64(),

@@ -33,6 +33,11 @@ pub struct IntegrationResult {
     /// [`diagnostics`](super::diagnostics).
     #[serde(default)]
     pub pareto_k: f64,
+    /// The k̂ above which this result warns: [`PARETO_K_LIMIT`](super::PARETO_K_LIMIT) plus the
+    /// noise of a k̂ fitted to its tail ([`diagnostics::pareto_k_threshold`](super::diagnostics::pareto_k_threshold);
+    /// `null` in JSON without a fit).
+    #[serde(default)]
+    pub pareto_k_limit: f64,
     /// Effective sample size (Σ|w|)²/Σw² of the weights that make the estimate.
     #[serde(default)]
     pub ess: f64,
@@ -118,6 +123,7 @@ impl IntegrationResult {
     pub fn reliability(&self) -> super::diagnostics::Reliability {
         super::diagnostics::Reliability {
             pareto_k: self.pareto_k,
+            pareto_k_limit: self.pareto_k_limit,
             ess: self.ess,
             var_rel_err: self.var_rel_err,
         }

@@ -11,7 +11,7 @@ use std::path::{Path, PathBuf};
 use nis::integrands::{self, Builtin, SUITE};
 use nis::integrate::{
     integrator, Convergence, Method, Settings, DIVERGENCE_LIMIT, HOLE_LIMIT, MISSING_MASS_LIMIT,
-    PARETO_K_LIMIT,
+    PARETO_K_LIMIT, PARETO_K_Z,
 };
 use nis::loss::Loss;
 use plotters::prelude::*;
@@ -117,6 +117,10 @@ pub struct Run {
     pub chi2: Option<f64>,
     /// Pareto k̂ (`None` where it cannot be fitted).
     pub pareto_k: Option<f64>,
+    /// The k̂ above which the run warns (`None` in caches from before the limit depended on the
+    /// tail: such runs are judged by [`PARETO_K_LIMIT`] alone).
+    #[serde(default)]
+    pub pareto_k_limit: Option<f64>,
     /// Effective sample size.
     pub ess: f64,
     /// The relative error of the variance estimate (`None` where undefined).
@@ -165,10 +169,26 @@ pub struct Stats {
     pub worst_pull: f64,
     /// Mean χ²/dof over the runs where it is defined.
     pub mean_chi2: f64,
-    /// Fraction flagged by k̂ > [`PARETO_K_LIMIT`].
+    /// Fraction whose k̂ warns ([`Run::k_warns`]).
     pub flagged: f64,
     /// Median k̂ over the runs where it is defined.
     pub median_k: f64,
+}
+
+impl Run {
+    /// Whether its k̂ warns: above its limit ([`nis::integrate::diagnostics::pareto_k_threshold`]).
+    pub fn k_warns(&self) -> bool {
+        let limit = self.pareto_k_limit.unwrap_or(PARETO_K_LIMIT);
+        self.pareto_k.is_some_and(|k| k > limit)
+    }
+
+    /// How many standard errors of k̂ it lies above [`PARETO_K_LIMIT`] (the test's statistic;
+    /// its limit is [`PARETO_K_Z`]), from the limit it was judged by.
+    pub fn k_excess(&self) -> Option<f64> {
+        let (k, limit) = (self.pareto_k?, self.pareto_k_limit?);
+        let se = (limit - PARETO_K_LIMIT) / PARETO_K_Z;
+        (se > 0.0).then(|| (k - PARETO_K_LIMIT) / se)
+    }
 }
 
 impl Cell {
@@ -201,7 +221,7 @@ fn stats<'a>(runs: impl Iterator<Item = (f64, &'a Run)>) -> Stats {
             chi2_sum += c;
             chi2_n += 1;
         }
-        s.flagged += r.pareto_k.is_some_and(|k| k > PARETO_K_LIMIT) as u8 as f64;
+        s.flagged += r.k_warns() as u8 as f64;
     }
     let n = s.n.max(1) as f64;
     s.cover1 /= n;
@@ -263,6 +283,7 @@ pub fn run_cell(f: &Builtin, method: &str, budget: Budget) -> Cell {
                 std_err: r.std_err,
                 chi2: r.chi2_per_dof.is_finite().then_some(r.chi2_per_dof),
                 pareto_k: r.pareto_k.is_finite().then_some(r.pareto_k),
+                pareto_k_limit: r.pareto_k_limit.is_finite().then_some(r.pareto_k_limit),
                 ess: r.ess,
                 var_rel_err: r.var_rel_err.is_finite().then_some(r.var_rel_err),
                 seconds: r.seconds,
@@ -274,10 +295,14 @@ pub fn run_cell(f: &Builtin, method: &str, budget: Budget) -> Cell {
     cell
 }
 
+/// What a cached run records: raised when the warnings read a figure older caches lack (2: the
+/// k̂ limit of each run's own tail), so that such a cache is run anew instead of misjudged.
+const RECORD: u32 = 2;
+
 /// The cache file of a cell, named by the cell and by a hash of the default settings of every
-/// method, so that cells run under other defaults (a training batch, an encoding, i.i.d.
-/// latents) cannot pass for this run's. (The hash changes with the Rust version too; that only
-/// costs a rerun.)
+/// method and of [`RECORD`], so that cells run under other defaults (a training batch, an
+/// encoding, i.i.d. latents) cannot pass for this run's. (The hash changes with the Rust version
+/// too; that only costs a rerun.)
 fn cache_path(dir: &Path, name: &str, dim: usize, method: &str, budget: Budget) -> PathBuf {
     use std::hash::{DefaultHasher, Hash, Hasher};
     let method = method.replace("χ²", "chi2").to_lowercase();
@@ -285,6 +310,7 @@ fn cache_path(dir: &Path, name: &str, dim: usize, method: &str, budget: Budget) 
     serde_json::to_string(&Settings::default())
         .expect("settings serialise")
         .hash(&mut hasher);
+    RECORD.hash(&mut hasher);
     dir.join(format!(
         "{name}-d{dim}-{method}-{}-{}-{:016x}.json",
         budget.evals,
@@ -407,6 +433,7 @@ mod tests {
             std_err,
             chi2: Some(1.0),
             pareto_k: k,
+            pareto_k_limit: None,
             ess: 1.0,
             var_rel_err: None,
             seconds: 0.0,

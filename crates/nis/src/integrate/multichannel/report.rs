@@ -86,6 +86,7 @@ pub(super) fn combine(
             0.0
         },
         pareto_k: pooled.pareto_k,
+        pareto_k_limit: pooled.pareto_k_limit,
         ess: pooled.ess,
         var_rel_err: f64::NAN,
         seconds: started.elapsed().as_secs_f64(),
