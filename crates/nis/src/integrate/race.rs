@@ -7,7 +7,7 @@
 //! cheap, nearly separable one VEGAS+ reaches a target in less time than a flow takes to anneal.
 //! So NIS, asked for a target with an untrained flow, trains ten batches, which measure its time
 //! per batch and with it the time its annealing and settling would take at the slow pace
-//! ([`Pace::rival_seconds`], NIS's training at its slowest). VEGAS+ (its own run to the target,
+//! ([`Pace::training_seconds`], NIS's training at its slowest). VEGAS+ (its own run to the target,
 //! its own seed) does not start when its warm-up alone would take [`LEAST_SHARE`] of that at the
 //! integrand's seconds per point (a costly integrand); else it runs [`LEAST_SHARE`] of it in any
 //! case and goes on while its time so far plus its prediction from the latest iteration stays
@@ -88,7 +88,7 @@ pub(crate) trait Rival: Integrator {
 #[derive(Clone, Copy, Debug)]
 pub(crate) struct Pace {
     /// Seconds its training would take at its slowest (annealing and settling).
-    pub(crate) rival_seconds: f64,
+    pub(crate) training_seconds: f64,
     /// The integrand's own seconds per point (without the learner's sampling), if measured.
     pub(crate) integrand_seconds_per_eval: Option<f64>,
     /// Evaluations the learner has spent.
@@ -109,7 +109,7 @@ pub(crate) fn race(
     // Priced at the integrand's own cost per point: the learner's includes drawing its points,
     // which the rival's do not pay (on cheap integrands most of it).
     let per_point = pace.integrand_seconds_per_eval.unwrap_or(f64::INFINITY);
-    if rival.warm_up_evals(target) as f64 * per_point > LEAST_SHARE * pace.rival_seconds {
+    if rival.warm_up_evals(target) as f64 * per_point > LEAST_SHARE * pace.training_seconds {
         return Ok(Raced::Lost { evals: 0 });
     }
     // The rival may spend half of the limits (the learner's first batches included), so that
@@ -129,8 +129,8 @@ pub(crate) fn race(
     rival.set_comm(comm.clone());
     rival.set_progress(progress.take());
     let race = Race {
-        least: LEAST_SHARE * pace.rival_seconds,
-        rival: ESTIMATE_TOO * pace.rival_seconds,
+        least: LEAST_SHARE * pace.training_seconds,
+        rival: ESTIMATE_TOO * pace.training_seconds,
     };
     let pursued = rival.race_to(f, &half, started, pace.evals, race);
     *progress = rival.take_progress();

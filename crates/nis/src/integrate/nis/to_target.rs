@@ -169,7 +169,7 @@ impl NisIntegrator {
         if length.paused() {
             if races {
                 let pace = Pace {
-                    rival_seconds: length.slow_seconds_left(),
+                    training_seconds: length.slow_seconds_left(),
                     integrand_seconds_per_eval: length.integrand_seconds_per_eval(),
                     evals: self.trained_evals - before,
                 };
