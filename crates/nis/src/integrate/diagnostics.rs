@@ -23,12 +23,11 @@
 use std::cmp::Reverse;
 use std::collections::BinaryHeap;
 
-/// The limit on k̂ above which a result warns that its error bar cannot be trusted: 1/2, where the
-/// weights' variance, and with it the error bar, stops existing. PSIS's own practical threshold
-/// is 0.7, for the reliability of a (smoothed) mean; for error bars `nis bench coverage`
-/// measured 0.5 as the one that works (docs/results/robustness.md): across the default cells it flags
-/// 132 of the 135 runs more than 4σ off (0.7: 84), and the runs it leaves unflagged cover at
-/// 2σ within the binomial band for every method and budget (0.7: VEGAS+ at 2·10⁵ covers 0.865).
+/// The limit on k: 1/2, where the weights' variance, and with it the error bar, stops existing.
+/// A result warns when its k̂ lies above it by more than its noise ([`pareto_k_threshold`]).
+/// PSIS's own practical threshold is 0.7, for the reliability of a (smoothed) mean; for error
+/// bars `nis bench coverage` measured 1/2 as the one that works (docs/results/robustness.md,
+/// "Coverage of the error bars over seeds": at 0.7 the runs left unflagged undercover).
 pub const PARETO_K_LIMIT: f64 = 0.5;
 
 /// How many of its standard errors k̂ must lie above [`PARETO_K_LIMIT`] for a result to warn: a
