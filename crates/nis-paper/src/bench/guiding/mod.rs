@@ -194,29 +194,38 @@ fn load(entry: &str, args: &Settings) -> Result<(String, Scene)> {
     }
 }
 
-/// The reference of `name` and where it comes from: a cached Mitsuba 3 render if there is
-/// one, else our cached path-traced one, rendered when missing.
+/// The reference of `name` and where it comes from: for a scene file, a cached Mitsuba 3 render
+/// if there is one (`scripts/scenes/guiding-references.py`), else our cached path-traced one,
+/// rendered when missing. A built-in scene's are cached apart (`reference/built-in/`): a
+/// built-in and a published scene may share a name (`cornell-box`), never a reference.
 fn reference(
     name: &str,
     scene: &Scene,
+    built_in: bool,
     path_tracer: &PathTracer,
     args: &Settings,
     io: &mut Io<'_>,
 ) -> Result<(Image, String)> {
-    let dir = args.out.join("reference");
+    let mut dir = args.out.join("reference");
+    if built_in {
+        dir = dir.join("built-in");
+    }
     let stem = format!("{name}-{}-{}spp", args.res, args.reference_spp);
     let size = (scene.camera.width(), scene.camera.height());
     let (path, ours) = (
         dir.join(format!("{stem}.exr")),
         format!("nis path tracing, {} spp", args.reference_spp),
     );
-    let cached = [
-        (
-            dir.join(format!("{stem}-mitsuba.exr")),
-            format!("Mitsuba 3, {} spp", args.reference_spp),
-        ),
-        (path.clone(), ours.clone()),
-    ];
+    let mut cached = vec![(path.clone(), ours.clone())];
+    if !built_in {
+        cached.insert(
+            0,
+            (
+                dir.join(format!("{stem}-mitsuba.exr")),
+                format!("Mitsuba 3, {} spp", args.reference_spp),
+            ),
+        );
+    }
     for (path, source) in cached {
         if path.is_file() {
             let image = Image::read_exr(&path)?;
@@ -294,7 +303,8 @@ pub fn run(args: &Settings, io: &mut Io<'_>) -> Result<String> {
             (io.log)(&format!("{name}: {w}"));
         }
         let path_tracer = PathTracer::from_scene(&scene, Strategy::Mis);
-        let (reference, source) = reference(&name, &scene, &path_tracer, args, io)?;
+        let built_in = !Path::new(entry).is_file();
+        let (reference, source) = reference(&name, &scene, built_in, &path_tracer, args, io)?;
         let mut seeds = Vec::new();
         for k in 0..u64::from(args.seeds) {
             let bench = SceneBench {
