@@ -239,8 +239,8 @@ pub(super) fn section(
          {rspp} --equal-time-spp {etspp} --curve-points {points} --seeds {seeds}{drop}`. \
          Every method renders each scene, longer side {res} pixels, with {spp} samples per \
          pixel in total (guided methods spend up to half of them on training passes of 1, 2, \
-         4, … spp, and the passes are combined by inverse variance), once per seed ({seeds} \
-         seeds from {seed}); cells give the mean over seeds and, in brackets, the least and \
+         4, … spp, and the passes are combined by inverse variance), once per seed \
+         ({seeds} from {seed}); cells give the mean over seeds and, in brackets, the least and \
          largest. At equal time every method gets one wall-clock budget per scene and seed, \
          {budget}, and also half, a quarter, … of it ({points} budgets): the curves below plot \
          the seeds' mean MAPE against the seconds each render took, and the last column gives \
