@@ -180,6 +180,16 @@ def features():
         <float name="turbidity" value="6.5"/><float name="albedo" value="0.5"/>
         <transform name="to_world"><rotate x="1" angle="-90"/></transform>
     </emitter>""")
+    add("blendbsdf",
+        sphere='<bsdf type="blendbsdf"><float name="weight" value="0.35"/>'
+               '<bsdf type="diffuse"><rgb name="reflectance" value="0.2, 0.5, 0.7"/></bsdf>'
+               '<bsdf type="roughconductor"><string name="material" value="Au"/><float name="alpha" value="0.2"/></bsdf></bsdf>')
+    add("blendbsdf-textured",
+        floor='<shape type="obj"><string name="filename" value="quad-uv.obj"/>'
+              '<bsdf type="blendbsdf"><texture type="bitmap" name="weight"><string name="filename" value="texture.png"/></texture>'
+              '<bsdf type="diffuse"><rgb name="reflectance" value="0.7, 0.6, 0.3"/></bsdf>'
+              '<bsdf type="roughplastic"><float name="alpha" value="0.1"/><rgb name="diffuse_reflectance" value="0.05, 0.1, 0.3"/></bsdf>'
+              '</bsdf></shape>')
     # The sphere's centre is 3.2 from the camera: in focus at 2.2 it is blurred.
     add("sensor-thinlens", sensor="""<sensor type="thinlens">
         <float name="fov" value="40"/>

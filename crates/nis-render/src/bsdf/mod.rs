@@ -96,6 +96,64 @@ pub enum Bsdf {
     /// A diffuse base under a smooth or rough dielectric coating (Mitsuba `plastic`,
     /// `roughplastic`).
     Plastic(Box<Plastic>),
+    /// Two BSDFs mixed by a weight (Mitsuba `blendbsdf`).
+    Blend(Box<Blend>),
+}
+
+/// (1 − `weight`)·`bsdfs[0]` + `weight`·`bsdfs[1]` (Mitsuba `blendbsdf`). A sample picks one of
+/// the two by its share; a non-delta direction gets the mixture's value and density (so that
+/// MIS sees the density it was drawn with), a delta one its lobe scaled by the share.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Blend {
+    /// The second BSDF's share, in [0, 1].
+    pub weight: f32,
+    /// The two BSDFs.
+    pub bsdfs: [Bsdf; 2],
+}
+
+impl Blend {
+    /// The two shares (1 − weight, weight).
+    fn shares(&self) -> [f32; 2] {
+        [1.0 - self.weight, self.weight]
+    }
+
+    fn f(&self, wo: Vec3, wi: Vec3) -> Rgb {
+        let [a, b] = self.shares();
+        self.bsdfs[0].f(wo, wi) * a + self.bsdfs[1].f(wo, wi) * b
+    }
+
+    fn pdf(&self, wo: Vec3, wi: Vec3) -> f32 {
+        let [a, b] = self.shares();
+        a * self.bsdfs[0].pdf(wo, wi) + b * self.bsdfs[1].pdf(wo, wi)
+    }
+
+    fn sample(&self, wo: Vec3, u_lobe: f32, u: Vec2) -> Option<BsdfSample> {
+        let [a, b] = self.shares();
+        let (i, share, u_lobe) = if u_lobe < a {
+            (0, a, u_lobe / a)
+        } else {
+            (1, b, (u_lobe - a) / b)
+        };
+        let s = self.bsdfs[i].sample(wo, u_lobe.min(1.0 - f32::EPSILON), u)?;
+        if s.delta {
+            return Some(BsdfSample {
+                f: s.f * share,
+                pdf: s.pdf * share,
+                ..s
+            });
+        }
+        let mut m = BsdfSample::from_density(s.wi, self.pdf(wo, s.wi), || self.f(wo, s.wi))?;
+        m.eta = s.eta;
+        Some(m)
+    }
+
+    fn is_delta(&self) -> bool {
+        self.bsdfs.iter().all(Bsdf::is_delta)
+    }
+
+    fn transmits(&self) -> bool {
+        self.bsdfs.iter().any(Bsdf::transmits)
+    }
 }
 
 /// A direction drawn from a BSDF.
@@ -154,6 +212,8 @@ pub enum Slot {
     SpecularTransmittance,
     /// A mask's `opacity` (the texture's luminance).
     Opacity,
+    /// A blend's `weight` (the texture's luminance).
+    BlendWeight,
 }
 
 impl Material {
@@ -185,6 +245,7 @@ impl Material {
             let v = t.eval(uv);
             match (slot, &mut m.bsdf) {
                 (Slot::Opacity, _) => m.opacity = t.eval_scalar(uv).clamp(0.0, 1.0),
+                (Slot::BlendWeight, Bsdf::Blend(b)) => b.weight = t.eval_scalar(uv).clamp(0.0, 1.0),
                 (Slot::Reflectance, Bsdf::Diffuse { reflectance }) => *reflectance = v,
                 (Slot::Reflectance, Bsdf::Plastic(p)) => p.diffuse_reflectance = v,
                 (
@@ -238,10 +299,7 @@ impl Material {
 
     /// Whether every lobe is a Dirac delta (no point in light sampling or MIS).
     pub fn is_delta(&self) -> bool {
-        matches!(
-            self.bsdf,
-            Bsdf::Conductor { .. } | Bsdf::Dielectric { .. } | Bsdf::ThinDielectric { .. }
-        )
+        self.bsdf.is_delta()
     }
 
     /// Whether light may pass through the surface (a dielectric, or a mask); every other BSDF
@@ -250,12 +308,7 @@ impl Material {
     pub fn transmits(&self) -> bool {
         self.opacity < 1.0
             || self.textures.iter().any(|(s, _)| *s == Slot::Opacity)
-            || matches!(
-                self.bsdf,
-                Bsdf::Dielectric { .. }
-                    | Bsdf::RoughDielectric { .. }
-                    | Bsdf::ThinDielectric { .. }
-            )
+            || self.bsdf.transmits()
     }
 
     /// BSDF value `f(wo, wi)` (zero for delta lobes).
@@ -320,6 +373,26 @@ impl Material {
 }
 
 impl Bsdf {
+    /// Whether every lobe is a Dirac delta.
+    pub fn is_delta(&self) -> bool {
+        match self {
+            Bsdf::Conductor { .. } | Bsdf::Dielectric { .. } | Bsdf::ThinDielectric { .. } => true,
+            Bsdf::Blend(b) => b.is_delta(),
+            _ => false,
+        }
+    }
+
+    /// Whether it scatters light to the other side of the surface.
+    pub fn transmits(&self) -> bool {
+        match self {
+            Bsdf::Dielectric { .. }
+            | Bsdf::RoughDielectric { .. }
+            | Bsdf::ThinDielectric { .. } => true,
+            Bsdf::Blend(b) => b.transmits(),
+            _ => false,
+        }
+    }
+
     /// BSDF value `f(wo, wi)` (zero for delta lobes).
     pub fn f(&self, wo: Vec3, wi: Vec3) -> Rgb {
         match *self {
@@ -350,6 +423,7 @@ impl Bsdf {
                 wi,
             ),
             Bsdf::Plastic(ref p) => p.f(wo, wi),
+            Bsdf::Blend(ref b) => b.f(wo, wi),
             Bsdf::Conductor { .. } | Bsdf::Dielectric { .. } | Bsdf::ThinDielectric { .. } => {
                 Rgb::ZERO
             }
@@ -369,6 +443,7 @@ impl Bsdf {
             Bsdf::RoughConductor { dist, .. } => rough_conductor_pdf(&dist, wo, wi),
             Bsdf::RoughDielectric { dist, eta, .. } => rough_dielectric_pdf(&dist, eta, wo, wi),
             Bsdf::Plastic(ref p) => p.pdf(wo, wi),
+            Bsdf::Blend(ref b) => b.pdf(wo, wi),
             Bsdf::Conductor { .. } | Bsdf::Dielectric { .. } | Bsdf::ThinDielectric { .. } => 0.0,
         }
     }
@@ -388,6 +463,7 @@ impl Bsdf {
                 from_density(rough_conductor_sample(&dist, wo, u)?)
             }
             Bsdf::Plastic(ref p) => p.sample(wo, u_lobe, u),
+            Bsdf::Blend(ref b) => b.sample(wo, u_lobe, u),
             Bsdf::ThinDielectric {
                 eta,
                 specular_reflectance,

@@ -90,6 +90,44 @@ fn materials() -> Vec<(&'static str, Material)> {
                 Some(beckmann(0.2)),
             )))),
         ),
+        (
+            "blend 0.3 of rough gold over diffuse",
+            Material::new(Bsdf::Blend(Box::new(Blend {
+                weight: 0.3,
+                bsdfs: [
+                    Bsdf::Diffuse {
+                        reflectance: Vec3::new(0.2, 0.6, 0.3),
+                    },
+                    Bsdf::RoughConductor {
+                        dist: beckmann(0.25),
+                        eta: gold_eta,
+                        k: gold_k,
+                        specular_reflectance: Vec3::ONE,
+                    },
+                ],
+            }))),
+        ),
+        (
+            "blend 0.6 of smooth plastic and rough glass",
+            Material::new(Bsdf::Blend(Box::new(Blend {
+                weight: 0.6,
+                bsdfs: [
+                    Bsdf::Plastic(Box::new(Plastic::new(
+                        1.49,
+                        Vec3::new(0.7, 0.3, 0.1),
+                        Vec3::ONE,
+                        false,
+                        None,
+                    ))),
+                    Bsdf::RoughDielectric {
+                        dist: beckmann(0.4),
+                        eta: 1.5,
+                        specular_reflectance: Vec3::ONE,
+                        specular_transmittance: Vec3::ONE,
+                    },
+                ],
+            }))),
+        ),
         ("masked diffuse", {
             let mut m = Material::new(Bsdf::Diffuse {
                 reflectance: Vec3::splat(0.6),
@@ -234,6 +272,15 @@ fn sampled_directions_follow_the_pdf_chi_square() {
     }
 }
 
+/// The index of the rough dielectric a BSDF transmits through (itself, or inside a blend).
+fn rough_dielectric_eta(b: &Bsdf) -> Option<f32> {
+    match b {
+        Bsdf::RoughDielectric { eta, .. } => Some(*eta),
+        Bsdf::Blend(blend) => blend.bsdfs.iter().find_map(rough_dielectric_eta),
+        _ => None,
+    }
+}
+
 #[test]
 fn bsdf_values_are_reciprocal() {
     let mut rng = Pcg32::seed_from_u64(3);
@@ -244,7 +291,7 @@ fn bsdf_values_are_reciprocal() {
             let b =
                 crate::sampling::square_to_uniform_sphere(Vec2::new(rng.random(), rng.random()));
             let (fab, fba) = (m.f(a, b), m.f(b, a));
-            if let Bsdf::RoughDielectric { eta, .. } = m.bsdf {
+            if let Some(eta) = rough_dielectric_eta(&m.bsdf) {
                 // Fresnel at a grazing microfacet cosine is ill-conditioned in f32: skip those.
                 let etap = if a.z > 0.0 { eta } else { 1.0 / eta };
                 let h = if a.z * b.z > 0.0 { a + b } else { a + b * etap }.normalize();
@@ -253,8 +300,8 @@ fn bsdf_values_are_reciprocal() {
                 }
             }
             // Transmission in radiance mode satisfies f(a,b) η'(a)² = f(b,a) (Veach §5.2).
-            let scale = match m.bsdf {
-                Bsdf::RoughDielectric { eta, .. } if a.z * b.z < 0.0 => {
+            let scale = match rough_dielectric_eta(&m.bsdf) {
+                Some(eta) if a.z * b.z < 0.0 => {
                     if a.z > 0.0 {
                         eta * eta
                     } else {

@@ -9,7 +9,7 @@ use std::sync::Arc;
 use super::dom::{err, Element, XmlError};
 use super::props::{ior, Props, PROPERTY_TAGS};
 use super::{unsupported, LoadResult, Loader};
-use crate::bsdf::{conductors, Bsdf, Material, Microfacet, MicrofacetKind, Plastic, Slot};
+use crate::bsdf::{conductors, Blend, Bsdf, Material, Microfacet, MicrofacetKind, Plastic, Slot};
 use crate::bump::Bump;
 use crate::geometry::{luminance, Rgb};
 use crate::spectrum::Role;
@@ -17,7 +17,7 @@ use crate::texture::Texture;
 
 /// The BSDF plugins the reader knows, for error messages.
 const SUPPORTED: &str = "diffuse, conductor, roughconductor, dielectric, roughdielectric, \
-                         thindielectric, plastic, roughplastic, twosided, mask, bumpmap";
+                         thindielectric, plastic, roughplastic, twosided, mask, bumpmap, blendbsdf";
 
 impl Loader {
     pub(super) fn bsdf(&mut self, el: &Element) -> LoadResult<Material> {
@@ -54,8 +54,9 @@ impl Loader {
                 return Ok(m);
             }
             "bumpmap" => return self.bumpmap(el),
-            "principled" | "principledthin" | "hair" | "blendbsdf" | "pplastic" | "measured"
-            | "polarizer" | "retarder" | "circular" | "normalmap" => {
+            "blendbsdf" => return self.blend(el),
+            "principled" | "principledthin" | "hair" | "pplastic" | "measured" | "polarizer"
+            | "retarder" | "circular" | "normalmap" => {
                 return Err(err::<()>(
                     el.line,
                     format!(
@@ -216,27 +217,7 @@ impl Loader {
             })
             .collect();
         match inner.as_slice() {
-            [c] if c.name == "bsdf" => {
-                let m = self.bsdf(c)?;
-                if let Some(id) = c.attr("id") {
-                    self.materials.push(m.clone());
-                    self.bsdf_ids
-                        .insert(id.to_string(), self.materials.len() - 1);
-                }
-                Ok(m)
-            }
-            [c] if c.name == "ref" => {
-                let id = c.required("id")?;
-                match self.bsdf_ids.get(id) {
-                    Some(&i) => Ok(self.materials[i].clone()),
-                    None => Err(err::<()>(
-                        c.line,
-                        format!("no bsdf with id '{id}' is defined before this point"),
-                    )
-                    .unwrap_err()
-                    .into()),
-                }
-            }
+            [c] if c.name == "bsdf" || c.name == "ref" => self.child_bsdf(c),
             [_, _] if kind == "twosided" => Err(err::<()>(
                 el.line,
                 "a twosided BSDF with different front and back BSDFs is not supported",
@@ -250,6 +231,111 @@ impl Loader {
             .unwrap_err()
             .into()),
         }
+    }
+}
+
+impl Loader {
+    /// A wrapper's BSDF: an inline `<bsdf>` (which, with an `id`, can be referred to later) or
+    /// a `<ref>` to one defined before.
+    fn child_bsdf(&mut self, c: &Element) -> LoadResult<Material> {
+        if c.name == "bsdf" {
+            let m = self.bsdf(c)?;
+            if let Some(id) = c.attr("id") {
+                self.materials.push(m.clone());
+                self.bsdf_ids
+                    .insert(id.to_string(), self.materials.len() - 1);
+            }
+            return Ok(m);
+        }
+        let id = c.required("id")?;
+        match self.bsdf_ids.get(id) {
+            Some(&i) => Ok(self.materials[i].clone()),
+            None => Err(err::<()>(
+                c.line,
+                format!("no bsdf with id '{id}' is defined before this point"),
+            )
+            .unwrap_err()
+            .into()),
+        }
+    }
+
+    /// Mitsuba's `blendbsdf`: two BSDFs (inline or by reference) mixed by `weight`, a number or
+    /// a texture (its luminance), clipped to [0, 1] as Mitsuba does; required, as in Mitsuba.
+    /// The two must be plain BSDFs: a textured, masked or bump-mapped one inside is refused,
+    /// and they must agree on two-sidedness, which the blend then has.
+    fn blend(&mut self, el: &Element) -> LoadResult<Material> {
+        let textures = self.named_textures(el)?;
+        let p = Props::new(el)?;
+        let texture = textures.into_iter().find(|(n, _)| n == "weight");
+        let weight = match (&texture, p.float_opt("weight")?) {
+            (Some((_, t)), _) => luminance(t.mean()),
+            (None, Some(w)) => w,
+            (None, None) => {
+                return Err(err::<()>(
+                    el.line,
+                    "a blendbsdf needs its weight: <float name=\"weight\"> or a texture",
+                )
+                .unwrap_err()
+                .into())
+            }
+        };
+        if !weight.is_finite() {
+            return Err(err::<()>(
+                el.line,
+                format!("blendbsdf weight {weight} is not a number"),
+            )
+            .unwrap_err()
+            .into());
+        }
+        p.finish()?;
+        let inner: Vec<&Element> = el
+            .children
+            .iter()
+            .filter(|c| !(PROPERTY_TAGS.contains(&c.name.as_str()) || is_named_texture(c)))
+            .collect();
+        let [a, b] = inner.as_slice() else {
+            return Err(err::<()>(
+                el.line,
+                "a blendbsdf needs exactly two nested <bsdf> (or <ref>)",
+            )
+            .unwrap_err()
+            .into());
+        };
+        let mut parts = Vec::new();
+        for c in [a, b] {
+            if c.name != "bsdf" && c.name != "ref" {
+                return unsupported(c, "bsdf, ref inside a blendbsdf");
+            }
+            let m = self.child_bsdf(c)?;
+            if !m.textures.is_empty() || m.opacity < 1.0 || m.bump.is_some() {
+                return Err(err::<()>(
+                    c.line,
+                    "a textured, masked or bump-mapped BSDF inside a blendbsdf is not supported",
+                )
+                .unwrap_err()
+                .into());
+            }
+            parts.push(m);
+        }
+        if parts[0].two_sided != parts[1].two_sided {
+            return Err(err::<()>(
+                el.line,
+                "a blendbsdf of a two-sided and a one-sided BSDF is not supported",
+            )
+            .unwrap_err()
+            .into());
+        }
+        let two_sided = parts[0].two_sided;
+        let [first, second]: [Material; 2] = parts.try_into().expect("two parts");
+        let mut m = Material::new(Bsdf::Blend(Box::new(Blend {
+            weight: weight.clamp(0.0, 1.0),
+            bsdfs: [first.bsdf, second.bsdf],
+        })));
+        m.two_sided = two_sided;
+        if let Some((_, t)) = texture {
+            m.textures.push((Slot::BlendWeight, t));
+        }
+        Ok(m)
     }
 }
 

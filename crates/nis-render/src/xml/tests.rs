@@ -284,6 +284,48 @@ fn legacy_files_unknown_integrators_and_missing_features_say_what_and_where() {
 }
 
 #[test]
+fn a_blendbsdf_mixes_two_plain_bsdfs_and_refuses_what_it_cannot_mix() {
+    use crate::bsdf::{Blend, Bsdf};
+    let with = |bsdf: &str| {
+        load(&format!(
+            "<scene version=\"3.0.0\">\n{SENSOR}\n<bsdf type=\"diffuse\" id=\"d\"/>\n{bsdf}\n</scene>"
+        ))
+    };
+    let s = with(
+        r#"<bsdf type="blendbsdf" id="b"><float name="weight" value="1.3"/><ref id="d"/><bsdf type="conductor"/></bsdf>"#,
+    )
+    .unwrap();
+    let Bsdf::Blend(b) = &s.materials.last().unwrap().bsdf else {
+        panic!("{:?}", s.materials)
+    };
+    // Clipped to [0, 1] as Mitsuba does; the first BSDF by reference, the second inline.
+    let Blend { weight, bsdfs } = &**b;
+    assert_eq!(*weight, 1.0);
+    assert!(matches!(bsdfs[0], Bsdf::Diffuse { .. }) && matches!(bsdfs[1], Bsdf::Conductor { .. }));
+    for (bsdf, needle) in [
+        (
+            r#"<bsdf type="blendbsdf"><ref id="d"/><ref id="d"/></bsdf>"#,
+            "weight",
+        ),
+        (
+            r#"<bsdf type="blendbsdf"><float name="weight" value="0.5"/><ref id="d"/></bsdf>"#,
+            "exactly two",
+        ),
+        (
+            r#"<bsdf type="blendbsdf"><float name="weight" value="0.5"/><ref id="d"/><bsdf type="mask"><float name="opacity" value="0.5"/><ref id="d"/></bsdf></bsdf>"#,
+            "masked",
+        ),
+        (
+            r#"<bsdf type="blendbsdf"><float name="weight" value="0.5"/><ref id="d"/><bsdf type="twosided"><ref id="d"/></bsdf></bsdf>"#,
+            "two-sided",
+        ),
+    ] {
+        let e = with(bsdf).unwrap_err().to_string();
+        assert!(e.starts_with("test.xml:4:") && e.contains(needle), "{e}");
+    }
+}
+
+#[test]
 fn thin_lens_and_orthographic_sensors_read_their_parameters_and_refuse_bad_ones() {
     use crate::camera::Projection;
     let with = |sensor: &str| load(&format!("<scene version=\"3.0.0\">\n{sensor}\n</scene>"));
