@@ -364,3 +364,46 @@ fn diffuse_is_one_sided_unless_two_sided() {
     assert!((t.f(-up, -up).x - 1.0 / PI).abs() < 1e-6);
     assert!(t.sample(-up, 0.5, Vec2::splat(0.5)).unwrap().wi.z < 0.0);
 }
+
+#[test]
+fn a_blend_with_a_delta_lobe_reflects_the_mixture_of_the_albedos() {
+    // Diffuse ρ = 0.6 and a perfect mirror, weight 0.3 on the mirror: the sampled albedo
+    // E[f·cos/pdf] is 0.7·0.6 + 0.3·1 = 0.72 (the diffuse part's weight is constant, the
+    // mirror's exactly 1, so the estimate's only noise is which lobe is picked: σ ≈ 0.18/√n).
+    let m = Material::new(Bsdf::Blend(Box::new(Blend {
+        weight: 0.3,
+        bsdfs: [
+            Bsdf::Diffuse {
+                reflectance: Vec3::splat(0.6),
+            },
+            Bsdf::Conductor {
+                eta: Vec3::ZERO,
+                k: Vec3::ONE,
+                specular_reflectance: Vec3::ONE,
+            },
+        ],
+    })));
+    assert!(!m.is_delta() && !m.transmits());
+    let mut rng = Pcg32::seed_from_u64(9);
+    let wo = Vec3::new(0.3, -0.2, 0.9).normalize();
+    let n = 40_000;
+    let (mut sum, mut deltas) = (0.0f64, 0);
+    for _ in 0..n {
+        let s = m
+            .sample(wo, rng.random(), Vec2::new(rng.random(), rng.random()))
+            .unwrap();
+        deltas += s.delta as usize;
+        sum += f64::from(s.f.x * s.wi.z.abs() / s.pdf);
+    }
+    let albedo = sum / n as f64;
+    assert!(
+        (albedo - 0.72).abs() < 5.0 * 0.18 / (n as f64).sqrt(),
+        "{albedo}"
+    );
+    // The mirror is picked with its share, and its weight is the mirror's own.
+    let share = deltas as f64 / n as f64;
+    assert!(
+        (share - 0.3).abs() < 5.0 * (0.21f64 / n as f64).sqrt(),
+        "{share}"
+    );
+}
