@@ -190,6 +190,11 @@ def features():
               '<bsdf type="diffuse"><rgb name="reflectance" value="0.7, 0.6, 0.3"/></bsdf>'
               '<bsdf type="roughplastic"><float name="alpha" value="0.1"/><rgb name="diffuse_reflectance" value="0.05, 0.1, 0.3"/></bsdf>'
               '</bsdf></shape>')
+    add("normalmap",
+        floor='<shape type="obj"><string name="filename" value="quad-uv.obj"/>'
+              '<bsdf type="normalmap"><texture type="bitmap" name="normalmap"><string name="filename" value="normals.png"/>'
+              '<boolean name="raw" value="true"/></texture>'
+              '<bsdf type="roughplastic"><float name="alpha" value="0.1"/></bsdf></bsdf></shape>')
     # The sphere's centre is 3.2 from the camera: in focus at 2.2 it is blurred.
     add("sensor-thinlens", sensor="""<sensor type="thinlens">
         <float name="fov" value="40"/>
@@ -284,6 +289,13 @@ def write_data(mi):
     y, x = np.mgrid[0:12, 0:16]
     img = np.stack([(x * 16) % 256, (y * 21) % 256, ((x + y) % 2) * 200 + 30], axis=-1).astype(np.uint8)
     mi.Bitmap(img).write(str(OUT / "texture.png"))
+    # A 16 x 16 normal map (read raw): normals tilted by two waves, encoded as (n + 1) / 2.
+    v16, u16 = np.mgrid[0:16, 0:16]
+    nx = 0.45 * np.sin(2 * np.pi * u16 / 16)
+    ny = 0.35 * np.cos(2 * np.pi * v16 / 8)
+    nz = np.sqrt(1 - nx * nx - ny * ny)
+    normals = np.stack([nx, ny, nz], axis=-1) * 0.5 + 0.5
+    mi.Bitmap(np.round(normals * 255).astype(np.uint8)).write(str(OUT / "normals.png"))
     # A 32 x 16 sky: a blue gradient, a bright sun and a dark ground.
     v, u = (np.mgrid[0:16, 0:32] + 0.5) / np.array([16, 32])[:, None, None]
     sky = np.stack([0.3 + 0.4 * v, 0.4 + 0.3 * v, 0.9 - 0.2 * v], axis=-1) * (v < 0.5)[..., None]

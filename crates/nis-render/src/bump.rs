@@ -4,7 +4,8 @@
 //!
 //! `n' ∝ (∂p/∂u + (s ∂h/∂u − n·∂p/∂u) n) × (∂p/∂v + (s ∂h/∂v − n·∂p/∂v) n)`,
 //!
-//! turned to the side of the geometric normal, and mirrored about `n` where it would face away
+//! turned to the side of the geometric normal; or a normal map (Mitsuba 3's `normalmap`) gives
+//! the new normal itself in the shading frame. Either is mirrored about `n` where it would face away
 //! from the viewer (Mitsuba's `flip_invalid_normals`, on by default). As in Mitsuba, a direction
 //! on different sides of the two normals scatters nothing, and the BSDF's value is multiplied by
 //! the shadowing of Estevez et al., "A Microfacet-Based Shadowing Function to Solve the Bump
@@ -17,13 +18,26 @@ use glam::{Vec2, Vec3};
 
 use crate::texture::Texture;
 
-/// A bump map: the height texture and its scale.
+/// What a [`Bump`]'s texture holds.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum BumpMap {
+    /// A height (the texture's luminance) times `scale` (Mitsuba `bumpmap`).
+    Height {
+        /// Factor on the height.
+        scale: f32,
+    },
+    /// The shading normal in the shading frame (s, t, n) as 2·rgb − 1, s along ∂p/∂u (Mitsuba
+    /// `normalmap`; its texture is read raw).
+    Normal,
+}
+
+/// A bump or normal map: the texture and what it holds.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Bump {
-    /// Height (the texture's luminance).
+    /// The height or the normals.
     pub texture: Arc<Texture>,
-    /// Factor on the height.
-    pub scale: f32,
+    /// Which of the two.
+    pub map: BumpMap,
 }
 
 impl Bump {
@@ -37,15 +51,32 @@ impl Bump {
         (dpdu, dpdv): (Vec3, Vec3),
         wo: Vec3,
     ) -> Vec3 {
-        let g = self.texture.eval_scalar_grad(uv) * self.scale;
-        let du = dpdu + (g.x - ns.dot(dpdu)) * ns;
-        let dv = dpdv + (g.y - ns.dot(dpdv)) * ns;
-        let Some(mut n) = du.cross(dv).try_normalize() else {
-            return ns;
+        let mut n = match self.map {
+            BumpMap::Height { scale } => {
+                let g = self.texture.eval_scalar_grad(uv) * scale;
+                let du = dpdu + (g.x - ns.dot(dpdu)) * ns;
+                let dv = dpdv + (g.y - ns.dot(dpdv)) * ns;
+                let Some(n) = du.cross(dv).try_normalize() else {
+                    return ns;
+                };
+                if n.dot(ng) < 0.0 {
+                    -n
+                } else {
+                    n
+                }
+            }
+            BumpMap::Normal => {
+                let c = self.texture.eval(uv) * 2.0 - Vec3::ONE;
+                let s = (dpdu - ns * ns.dot(dpdu))
+                    .try_normalize()
+                    .unwrap_or_else(|| ns.any_orthonormal_vector());
+                let t = ns.cross(s);
+                let Some(n) = (s * c.x + t * c.y + ns * c.z).try_normalize() else {
+                    return ns;
+                };
+                n
+            }
         };
-        if n.dot(ng) < 0.0 {
-            n = -n;
-        }
         if wo.dot(ns) * wo.dot(n) <= 0.0 {
             // Mirror the tilt about the original normal.
             n = (2.0 * n.dot(ns) * ns - n).normalize_or(ns);
@@ -112,7 +143,7 @@ mod tests {
                 image,
                 to_uv: Mat3::IDENTITY,
             }),
-            scale: 0.5,
+            map: BumpMap::Height { scale: 0.5 },
         };
         let n = bump.normal(
             Vec2::new(0.5, 0.5),
@@ -136,5 +167,36 @@ mod tests {
         assert_eq!(s.factor(Vec3::new(-1.0, 0.0, 0.1).normalize()), 0.0);
         let flat = BumpShading::new(Vec3::Z, Vec3::Z);
         assert_eq!(flat.factor(Vec3::new(0.0, 0.9, 0.1).normalize()), 1.0);
+    }
+
+    #[test]
+    fn a_normal_map_sets_the_normal_in_the_frame_of_dpdu_and_mirrors_it_away_from_the_back() {
+        // Every texel (0.75, 0.5, 0.933): the normal (0.5, 0, 0.866), 30° towards ∂p/∂u.
+        let texels = vec![[0.75, 0.5, 0.933]; 4];
+        let image = Arc::new(
+            Bitmap::from_linear(2, 2, texels, FilterMode::Bilinear, WrapMode::Clamp).unwrap(),
+        );
+        let map = Bump {
+            texture: Arc::new(Texture::Bitmap {
+                image,
+                to_uv: Mat3::IDENTITY,
+            }),
+            map: BumpMap::Normal,
+        };
+        // ∂p/∂u along +y (tilted out of the tangent plane, which the frame projects away).
+        let d = (Vec3::new(0.0, 2.0, 0.3), Vec3::new(-1.0, 0.0, 0.0));
+        let uv = Vec2::splat(0.5);
+        let n = map.normal(uv, Vec3::Z, Vec3::Z, d, Vec3::Z);
+        assert!(
+            (n - Vec3::new(0.0, 0.5, 0.866).normalize()).length() < 1e-3,
+            "{n}"
+        );
+        // Seen from where the tilted normal faces away: mirrored about the shading normal.
+        let wo = Vec3::new(0.0, -0.9, 0.2).normalize();
+        let m = map.normal(uv, Vec3::Z, Vec3::Z, d, wo);
+        assert!(
+            (m - Vec3::new(0.0, -0.5, 0.866).normalize()).length() < 1e-3,
+            "{m}"
+        );
     }
 }

@@ -10,14 +10,14 @@ use super::dom::{err, Element, XmlError};
 use super::props::{ior, Props, PROPERTY_TAGS};
 use super::{unsupported, LoadResult, Loader};
 use crate::bsdf::{conductors, Blend, Bsdf, Material, Microfacet, MicrofacetKind, Plastic, Slot};
-use crate::bump::Bump;
+use crate::bump::{Bump, BumpMap};
 use crate::geometry::{luminance, Rgb};
 use crate::spectrum::Role;
 use crate::texture::Texture;
 
 /// The BSDF plugins the reader knows, for error messages.
 const SUPPORTED: &str = "diffuse, conductor, roughconductor, dielectric, roughdielectric, \
-                         thindielectric, plastic, roughplastic, twosided, mask, bumpmap, blendbsdf";
+                         thindielectric, plastic, roughplastic, twosided, mask, bumpmap, normalmap, blendbsdf";
 
 impl Loader {
     pub(super) fn bsdf(&mut self, el: &Element) -> LoadResult<Material> {
@@ -55,8 +55,9 @@ impl Loader {
             }
             "bumpmap" => return self.bumpmap(el),
             "blendbsdf" => return self.blend(el),
+            "normalmap" => return self.normalmap(el),
             "principled" | "principledthin" | "hair" | "pplastic" | "measured" | "polarizer"
-            | "retarder" | "circular" | "normalmap" => {
+            | "retarder" | "circular" => {
                 return Err(err::<()>(
                     el.line,
                     format!(
@@ -199,7 +200,52 @@ impl Loader {
             self.texture(texture)?
         };
         let mut m = self.nested_bsdf(el)?;
-        m.bump = Some(Bump { texture, scale });
+        m.bump = Some(Bump {
+            texture,
+            map: BumpMap::Height { scale },
+        });
+        Ok(m)
+    }
+
+    /// Mitsuba's `normalmap`: the texture `normalmap` (read as given: Mitsuba's scenes mark it
+    /// `raw`) holds the shading normal, and the BSDF it tilts. Mitsuba's defaults
+    /// `flip_invalid_normals` and `use_shadowing_function` are what nis does; turning either off
+    /// is refused.
+    fn normalmap(&mut self, el: &Element) -> LoadResult<Material> {
+        let textures = self.named_textures(el)?;
+        let p = Props::new(el)?;
+        for name in ["flip_invalid_normals", "use_shadowing_function"] {
+            if !p.boolean(name, true)? {
+                return Err(err::<()>(
+                    el.line,
+                    format!("a normalmap with {name} false is not supported"),
+                )
+                .unwrap_err()
+                .into());
+            }
+        }
+        p.finish()?;
+        let Some((_, texture)) = textures.into_iter().find(|(n, _)| n == "normalmap") else {
+            return Err(err::<()>(
+                el.line,
+                "<bsdf type=\"normalmap\"> needs <texture name=\"normalmap\">",
+            )
+            .unwrap_err()
+            .into());
+        };
+        let mut m = self.nested_bsdf(el)?;
+        if m.bump.is_some() {
+            return Err(err::<()>(
+                el.line,
+                "a normalmap around a bump or normal map is not supported",
+            )
+            .unwrap_err()
+            .into());
+        }
+        m.bump = Some(Bump {
+            texture,
+            map: BumpMap::Normal,
+        });
         Ok(m)
     }
 

@@ -326,6 +326,32 @@ fn a_blendbsdf_mixes_two_plain_bsdfs_and_refuses_what_it_cannot_mix() {
 }
 
 #[test]
+fn a_normalmap_needs_its_texture_and_mitsubas_defaults() {
+    let with = |bsdf: &str| {
+        load(&format!(
+            "<scene version=\"3.0.0\">\n{SENSOR}\n<bsdf type=\"diffuse\" id=\"d\"/>\n{bsdf}\n</scene>"
+        ))
+    };
+    for (bsdf, needle) in [
+        (
+            r#"<bsdf type="normalmap"><ref id="d"/></bsdf>"#,
+            "texture name=\"normalmap\"",
+        ),
+        (
+            r#"<bsdf type="normalmap"><boolean name="use_shadowing_function" value="false"/><texture type="checkerboard" name="normalmap"/><ref id="d"/></bsdf>"#,
+            "use_shadowing_function false",
+        ),
+    ] {
+        let e = with(bsdf).unwrap_err().to_string();
+        assert!(e.starts_with("test.xml:4:") && e.contains(needle), "{e}");
+    }
+    let s = with(r#"<bsdf type="normalmap" id="n"><texture type="checkerboard" name="normalmap"/><ref id="d"/></bsdf>"#)
+        .unwrap();
+    let bump = s.materials.last().unwrap().bump.as_ref().unwrap();
+    assert_eq!(bump.map, crate::bump::BumpMap::Normal);
+}
+
+#[test]
 fn thin_lens_and_orthographic_sensors_read_their_parameters_and_refuse_bad_ones() {
     use crate::camera::Projection;
     let with = |sensor: &str| load(&format!("<scene version=\"3.0.0\">\n{sensor}\n</scene>"));
