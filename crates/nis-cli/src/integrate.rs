@@ -293,7 +293,8 @@ pull: (value − exact)/std_err; beyond ±3 the error bar is too small.
 rel.var/eval: n·std_err²/value², n the evaluations that make the estimate (not those that only
   trained or adapted the sampler): the sampler's quality, lower is better; the error of n such
   evaluations is |value|·√(rel.var/eval / n).
-χ²/dof near 1 and k̂ below 0.5: the error bar can be trusted (above, a warning says why not).
+χ²/dof near 1 and k̂ below 0.5: the error bar can be trusted (a warning says why not where
+  χ²/dof exceeds 3 or k̂ exceeds 0.5 by more than its own noise).
 unw.eff: mean|w|/max|w|, the share of points kept as unweighted events.
 n_eval, seconds: the whole run, training included. NIS pays where the integrand is peaked or
   correlated and a point costs more than the flow's pass (docs/results/integration.md).";
