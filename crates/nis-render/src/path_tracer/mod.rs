@@ -6,7 +6,7 @@
 //! sample and one BSDF sample are taken and weighted with the power heuristic. A path guide
 //! replaces the BSDF sample by one from a guide–BSDF mixture at the vertices it serves (its
 //! first [`Guide::guided_bounces`] non-delta ones), and learns from those vertices alone; the
-//! weights stay those of light against BSDF sampling (see [`PathTracer::sample_light`]).
+//! weights stay those of light against BSDF sampling (see `PathTracer::sample_light`).
 //! Depth counting, `max_depth` and `rr_depth` follow Mitsuba 3's `path` integrator:
 //! `max_depth = 1` shows only directly visible emitters, `2` adds direct lighting, `-1` is
 //! unbounded; Russian roulette continues with probability `min(max(throughput · η²), 0.95)`

@@ -16,7 +16,7 @@
 //!
 //! [`render`] is the one entry point; [`RenderOptions::schedule`] says whether the guide trains
 //! in passes of its own first ([`schedule`], whose passes are then combined by inverse variance,
-//! [`combine`]) or learns, if it wants to, after every pass of a plain render.
+//! [`mod@combine`]) or learns, if it wants to, after every pass of a plain render.
 
 use std::ops::Range;
 use std::sync::atomic::{AtomicU64, Ordering};
@@ -62,7 +62,7 @@ pub enum Schedule {
     /// A guided render: training passes ([`schedule`]) while the guide learns after each, then
     /// the guide stops learning ([`Guide::end_training`]) for a final phase with the rest of the
     /// budget. Every pass is an unbiased image whatever the guide had learned by then; the
-    /// result combines them by inverse variance ([`combine`]), so the training passes are not
+    /// result combines them by inverse variance ([`mod@combine`]), so the training passes are not
     /// wasted.
     Training,
 }

@@ -1,6 +1,6 @@
 //! Spectra given as `wavelength:value` lists, turned into linear sRGB the way Mitsuba 3's RGB
 //! variants do (`spectrum_list_to_srgb`, Mitsuba 3 `src/core/spectrum.cpp`): the piecewise-linear
-//! spectrum is integrated against the CIE 1931 matching functions ([`cie`]) — weighted by D65 for
+//! spectrum is integrated against the CIE 1931 matching functions ([`mod@cie`]) — weighted by D65 for
 //! reflectances, as seen under a white light — then converted from XYZ to linear sRGB
 //! (IEC 61966-2-1). A constant spectrum is a constant reflectance, but an emitter's constant
 //! spectrum is D65-less white, `value · M·(1, 1, 1)`, which is slightly purple in sRGB.

@@ -2,9 +2,9 @@
 //! Learning of Parametric Mixture Models for Light Transport Simulation" (SIGGRAPH).
 //!
 //! The incident radiance on the hemisphere around the shading normal is modelled by a mixture
-//! of up to eight 2-D Gaussians on the unit disk ([`disk`]: the area-preserving hemisphere–disk
+//! of up to eight 2-D Gaussians on the unit disk (`mixture.rs`: the area-preserving hemisphere–disk
 //! map, Gaussians with their exact in-disk mass), fitted by on-line (stepwise) weighted EM
-//! with a MAP prior ([`em`]; §4–5 of the paper, Cappé & Moulines 2009 for stepwise EM), and
+//! with a MAP prior (`em.rs`; §4–5 of the paper, Cappé & Moulines 2009 for stepwise EM), and
 //! mixtures are cached in the leaves of the spatial tree shared with practical path guiding
 //! ([`spatial`](super::spatial); Vorba et al. use a kd-tree). The hemisphere is the one on the
 //! side of `wo` (the shading normal flipped if the surface is seen from the back); directions
@@ -12,7 +12,7 @@
 //!
 //! Departures from Vorba et al.: the mixtures train on the path tracer's own records (the
 //! radiance found along sampled directions, weighted by `radiance / pdf`), not on separate
-//! photon/importon passes; the uniform "outside the disk" component of [`disk`] replaces their
+//! photon/importon passes; the uniform "outside the disk" component of the disk map replaces their
 //! truncation; the fallback uniform point of a sample that left the disk comes from a hash of
 //! the two random numbers (the [`Guide`] interface gives only two); and since a mixture is in
 //! local coordinates, every spatial leaf keeps six mixtures, one per dominant axis (±x, ±y,

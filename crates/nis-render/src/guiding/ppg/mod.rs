@@ -3,7 +3,7 @@
 //!
 //! Space is the binary tree of [`spatial`](super::spatial) over the scene's bounding cube, split
 //! at the midpoint along x, y, z in turn (§5.1); each spatial leaf holds a *directional
-//! quadtree* ([`quadtree`]) over world-space cylindrical coordinates `((cos θ + 1)/2, φ/2π)`
+//! quadtree* (`quadtree.rs`) over world-space cylindrical coordinates `((cos θ + 1)/2, φ/2π)`
 //! whose nodes store the radiance flux of their four quadrants (§5.2). Sampling descends the quadtree picking children by their
 //! flux; the density is the product of `4 · child / parent` along the way, divided by `4π` (the
 //! cylindrical map preserves area).
