@@ -5,18 +5,18 @@
 //!
 //! This crate is thin: it converts numpy arrays and keywords, runs the library with the GIL
 //! released, and turns the library's typed errors into Python exceptions. Only whole batches
-//! cross the language boundary ([`call`]).
+//! cross the language boundary (`call.rs`).
 //!
-//! - [`call`]: a Python function as a fallible [`nis::integrate::Integrand`], and the runner that
+//! - `call.rs`: a Python function as a fallible [`nis::integrate::Integrand`], and the runner that
 //!   releases the GIL, polls for Ctrl-C and re-raises the integrand's own exception.
-//! - [`integrator`]: `nis.Integrator` (NIS, VEGAS+, plain MC by name; multi-channel with
+//! - `integrator.rs`: `nis.Integrator` (NIS, VEGAS+, plain MC by name; multi-channel with
 //!   `channels`/`signs`) and `nis.IntegrationResult`.
-//! - [`flow`]: `nis.Flow`, a coupling flow as a distribution.
-//! - [`settings`]: keyword arguments as the library's settings keywords (one reader for Python,
+//! - `flow.rs`: `nis.Flow`, a coupling flow as a distribution.
+//! - `settings.rs`: keyword arguments as the library's settings keywords (one reader for Python,
 //!   the C ABI and the CLI).
-//! - [`channel`]: `nis.Channel`, a channel of multi-channel integration (Python callbacks or a
+//! - `channel.rs`: `nis.Channel`, a channel of multi-channel integration (Python callbacks or a
 //!   built-in example's).
-//! - [`builtin`]: the built-in suite, `nis.integrands.*`.
+//! - `builtin.rs`: the built-in suite, `nis.integrands.*`.
 
 use std::path::Path;
 

@@ -140,7 +140,7 @@ impl Options<'_> {
 
 /// Runs every method on the chosen cells of the suite at `o.evals` evaluations, seeds
 /// 0..`o.seeds`; `log` sees a line per run. Writes the section of `docs` that
-/// [`Options::section`] names and returns its Markdown.
+/// `Options::section` names and returns its Markdown.
 pub fn run(o: &Options, docs: &Path, log: &mut dyn FnMut(&str)) -> Result<String> {
     let (evals, seeds) = (o.evals, o.seeds.max(1));
     let methods = methods();

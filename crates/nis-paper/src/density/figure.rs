@@ -46,7 +46,7 @@ pub fn manifold_png(
     )
 }
 
-/// `n` samples x = h⁻¹(z), z ~ U[0,1]^D from `seed` (row-major, n × D).
+/// `n` samples x = h⁻¹(z), z ~ U\[0,1\]^D from `seed` (row-major, n × D).
 pub fn samples(model: &dyn Bijection, n: usize, seed: u64) -> Result<Vec<f32>> {
     let mut rng = Pcg64Mcg::seed_from_u64(seed);
     Ok(model.sample(n, None, &mut rng)?.x)

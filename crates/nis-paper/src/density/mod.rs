@@ -2,7 +2,7 @@
 //! Figure 4, after RealNVP, Dinh et al. 2016): `nis density`.
 //!
 //! An image with D pixels of L integer levels x ∈ {0..L−1}^D is *dequantised* to
-//! y = (x + u)/L with u ~ U[0,1)^D, a point of the unit hypercube, and a flow q on [0,1]^D with a
+//! y = (x + u)/L with u ~ U\[0,1)^D, a point of the unit hypercube, and a flow q on \[0,1\]^D with a
 //! uniform latent is trained by maximum likelihood on such points. The discrete model
 //! P(x) = ∫_{cell(x)} q(y) dy (a cell has volume L^−D) satisfies, by Jensen,
 //! −log₂ P(x) ≤ E_u[−ln q((x + u)/L)]/ln 2 + D·log₂ L, so
@@ -30,7 +30,7 @@ use rand::Rng;
 use crate::data::Images;
 
 /// Bits per dimension of a model with mean negative log-density `mean_nll` (nats, of the
-/// dequantised points in [0,1]^D) on data with `levels` levels per pixel and `dim` pixels.
+/// dequantised points in \[0,1\]^D) on data with `levels` levels per pixel and `dim` pixels.
 ///
 /// ```
 /// // q ≡ 1 (the uniform flow) on 8-bit images: exactly 8 bits per pixel.
@@ -41,7 +41,7 @@ pub fn bits_per_dim(mean_nll: f64, dim: usize, levels: usize) -> f64 {
     (mean_nll + d * (levels as f64).ln()) / (d * std::f64::consts::LN_2)
 }
 
-/// The images at `indices`, dequantised to y = (x + u)/L with u ~ U[0,1) drawn from `rng`
+/// The images at `indices`, dequantised to y = (x + u)/L with u ~ U\[0,1) drawn from `rng`
 /// (row-major, `indices.len() × D`). In f32, (x + u)/L can round up to 1 at most, which the
 /// flows accept.
 pub fn dequantize(images: &Images, indices: &[usize], rng: &mut impl Rng) -> Vec<f32> {

@@ -8,7 +8,7 @@ use crate::error::Error;
 /// Supersampling per pixel axis when a built-in is rasterised (anti-aliases its sharp edges).
 const SUPERSAMPLING: usize = 4;
 
-/// A built-in target density on [0,1]² (y up).
+/// A built-in target density on \[0,1\]² (y up).
 ///
 /// ```
 /// use nis_paper::image::Builtin;
@@ -47,7 +47,7 @@ impl Builtin {
         }
     }
 
-    /// The density at (x, y) ∈ [0,1]², y up (not normalised).
+    /// The density at (x, y) ∈ \[0,1\]², y up (not normalised).
     pub fn density(self, x: f64, y: f64) -> f64 {
         match self {
             Builtin::Rings => rings(x, y),

@@ -21,7 +21,7 @@ use nis::transform::TransformKind;
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
 pub enum Sampling {
-    /// Uniform on [0,1]², weights f/1: the paper's Figure 3 setting.
+    /// Uniform on \[0,1\]², weights f/1: the paper's Figure 3 setting.
     Uniform,
     /// The flow's own samples, weights f/q (on-policy, as in integration).
     Flow,

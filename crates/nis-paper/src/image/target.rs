@@ -148,7 +148,7 @@ impl Target {
         self.height
     }
 
-    /// The unnormalised density f at (x, y) ∈ [0,1]² (bilinear between pixel centres).
+    /// The unnormalised density f at (x, y) ∈ \[0,1\]² (bilinear between pixel centres).
     pub fn value(&self, x: f64, y: f64) -> f64 {
         let (w, h) = (self.width, self.height);
         let u = (x * w as f64 - 0.5).clamp(0.0, (w - 1) as f64);

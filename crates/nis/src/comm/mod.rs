@@ -13,7 +13,7 @@
 //! one result. With one process every reduction is the identity, so results are bit-identical to
 //! those of a build without MPI.
 //!
-//! The MPI implementation ([`mpi::MpiComm`], feature `mpi`) sums with a binomial tree whose
+//! The MPI implementation (`mpi::MpiComm`, feature `mpi`) sums with a binomial tree whose
 //! pairing depends only on the ranks: at step s = 1, 2, 4, …, rank r with r mod 2s = s sends its
 //! partial sum to rank r − s, which adds it after its own; rank 0 then broadcasts the total.
 

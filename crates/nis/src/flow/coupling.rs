@@ -279,7 +279,7 @@ impl Layer for Coupling {
 
     /// Each chunk's whole reverse chain through the stack (the transforms' reverse mode, the
     /// conditioner's, the encoding's), adding its parameter gradients as it goes, in the groups
-    /// of consecutive chunks of [`kernels::sum_in_groups`]: one parallel loop per backward
+    /// of consecutive chunks of `kernels::sum_in_groups`: one parallel loop per backward
     /// pass, where a loop per coupling made a 256-point training step wait for its slowest
     /// chunk six times, and sums that do not depend on the thread count.
     fn backward_stack(

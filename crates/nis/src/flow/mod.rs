@@ -2,7 +2,7 @@
 //!
 //! Data x maps to latent z = h_L ∘ … ∘ h_1(x); the density is exact,
 //! q(x) = Π_l |det ∂h_l/∂u| (Müller et al. 2019, Eq. 2), and sampling runs the layers backwards
-//! from z ~ U[0,1]^D.
+//! from z ~ U\[0,1\]^D.
 //!
 //! - [`Density`] and [`Bijection`]: what every flow offers (sample, log-density with a training
 //!   tape, parameters, backward; both directions with log-det).

@@ -13,7 +13,7 @@ use super::iteration::{Iteration, Source};
 /// batches in the estimate, too few iterations or batches).
 #[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
 pub struct Convergence {
-    /// n/ESS − 1 = E[w²]/E[|w|]² − 1 of the weights that make the estimate: the χ² divergence
+    /// n/ESS − 1 = E\[w²\]/E\[|w|\]² − 1 of the weights that make the estimate: the χ² divergence
     /// of |f|/∫|f| from the sampler, 0 for the sampler NIS aims at; the estimate rests on about
     /// n/(1 + divergence) equally weighted points.
     pub divergence: Option<f64>,

@@ -123,7 +123,7 @@ pub trait Integrator: Send {
     fn check_target(&self, target: &Target) -> Result<()>;
     /// Sets (or removes) the observer of progress; the default is none.
     fn set_progress(&mut self, progress: Option<Box<dyn Progress>>);
-    /// Runs data-parallel over the ranks of `comm` (e.g. [`crate::comm::mpi::MpiComm`]) from
+    /// Runs data-parallel over the ranks of `comm` (e.g. `nis::comm::mpi::MpiComm`, feature `mpi`) from
     /// now on; the default is one process. Every rank builds the same integrator with the same
     /// settings, sets its communicator before integrating and makes the same calls: each draws
     /// its share of every batch from its own random stream (derived from the seed and its rank,

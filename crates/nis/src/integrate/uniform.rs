@@ -131,7 +131,7 @@ impl Integrator for PlainMc {
         in_pool(|| self.run(f, evals))
     }
 
-    /// A pilot of [`PILOT`] points, kept out of the estimate, plans the iterations that make it.
+    /// A pilot of `PILOT` points, kept out of the estimate, plans the iterations that make it.
     fn integrate_to(&mut self, f: &dyn Integrand, target: &Target) -> Result<IntegrationResult> {
         in_pool(|| self.run_to(f, target))
     }

@@ -1,4 +1,4 @@
-//! The conditioner of the multi-scale flow ([`super::multiscale`]): a small residual network of
+//! The conditioner of the multi-scale flow ([`crate::flow::multiscale`]): a small residual network of
 //! 3×3 convolutions (RealNVP, Dinh et al. 2016, Sec. 4.1, without batch normalisation) on the
 //! fused im2col + gemm kernels of [`crate::kernels::conv`], with its backward pass.
 

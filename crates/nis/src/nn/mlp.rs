@@ -162,7 +162,7 @@ impl Mlp {
 
     /// Backward pass over all chunks of a batch. `g_out[c]` is ∂L/∂output of chunk `c` (laid out
     /// as the output). Writes ∂L/∂parameters into `grads` (overwriting) and returns ∂L/∂input
-    /// per chunk when asked. Chunks are reduced in groups ([`kernels::sum_in_groups`]), so the
+    /// per chunk when asked. Chunks are reduced in groups (`kernels::sum_in_groups`), so the
     /// sums do not depend on the thread count.
     pub fn backward(
         &self,

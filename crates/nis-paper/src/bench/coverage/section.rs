@@ -80,7 +80,7 @@ pub fn warning_labels(r: &Run, method: &str) -> Vec<&'static str> {
 pub(super) const WARNINGS: [&str; 5] = ["χ²", "k̂", "divergence", "missing mass", "hole"];
 
 /// Whether a cell's sampler has converged at its budget: its runs cover at 2σ within the
-/// binomial band, at most [`CONVERGED_FAR`] of them lie beyond 4σ, and the median run's sampler
+/// binomial band, at most `CONVERGED_FAR` of them lie beyond 4σ, and the median run's sampler
 /// is close to |f| with weights of finite variance: median divergence at most
 /// [`DIVERGENCE_LIMIT`] and median k̂ at most [`PARETO_K_LIMIT`]. (Plain MC on a sharp peak may
 /// cover at 2·10⁵, but the uniform density stays far from the peak: it never converges here.)

@@ -19,7 +19,8 @@ pub enum Signs {
     Whole,
 }
 
-/// Settings of [`MultiChannel`] (the method's own settings are [`Settings`]).
+/// Settings of [`MultiChannel`](super::MultiChannel) (the method's own settings are
+/// [`Settings`](crate::integrate::Settings)).
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct MultiChannelConfig {

@@ -1,7 +1,7 @@
 //! Multi-channel integration (Kleiss & Pittau 1994, hep-ph/9405257; with a flow per channel as in
 //! MadNIS, Heimel et al. 2023, arXiv:2212.06172) and signed integrands: F = Σ_k ∫ α_k f, each
 //! channel's part written over its own cube, h_k(u) = a_k·f(φ_k(u))/g(φ_k(u)) with
-//! g = Σ_j a_j g_j ([`part`]), and integrated by a sampler of its own: for NIS a flow conditioned
+//! g = Σ_j a_j g_j (`part.rs`), and integrated by a sampler of its own: for NIS a flow conditioned
 //! on the part (one flow for all, `shared.rs`; or a flow per part), trained on the variance
 //! ([`Loss::resolve`](crate::loss::Loss::resolve)); a VEGAS+ map for VEGAS+ (multi-channel VEGAS);
 //! uniform points for plain MC (the classic multi-channel estimator). When f changes sign every

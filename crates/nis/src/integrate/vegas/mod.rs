@@ -1,6 +1,6 @@
 //! VEGAS+ (Lepage 1978; Lepage 2021, "Adaptive multidimensional integration: VEGAS enhanced",
-//! arXiv:2009.05112): a separable importance map ([`map`]) combined with adaptive stratified
-//! sampling in y over hypercubes ([`strata`]), both adapted after every iteration as G. P.
+//! arXiv:2009.05112): a separable importance map (`map.rs`) combined with adaptive stratified
+//! sampling in y over hypercubes (`adaptive_strata.rs`), both adapted after every iteration as G. P.
 //! Lepage's `vegas` package adapts them (its defaults: α = 0.5, β = 0.75, a quarter of the points
 //! spread evenly, increments and strata from the points per iteration; docs/results/integration.md compares
 //! the two on the suite).
@@ -13,7 +13,7 @@
 //! from the same samples: an iteration whose points happened to miss part of the integrand has
 //! both a low estimate and a low variance, and weighs more. Equal weights, though, waste the later
 //! iterations of a still-improving map, so the result iterations here get shares fixed before
-//! their points are drawn, from the trend of the earlier variances ([`next_share`]).
+//! their points are drawn, from the trend of the earlier variances (`shares.rs`).
 
 mod iteration;
 mod map;
