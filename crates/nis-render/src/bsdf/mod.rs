@@ -142,7 +142,11 @@ impl Blend {
                 ..s
             });
         }
-        let mut m = BsdfSample::from_density(s.wi, self.pdf(wo, s.wi), || self.f(wo, s.wi))?;
+        // The drawn BSDF's value and density come with its sample; only the other one's are new.
+        let (other, other_share) = (&self.bsdfs[1 - i], [a, b][1 - i]);
+        let pdf = share * s.pdf + other_share * other.pdf(wo, s.wi);
+        let mut m =
+            BsdfSample::from_density(s.wi, pdf, || s.f * share + other.f(wo, s.wi) * other_share)?;
         m.eta = s.eta;
         Some(m)
     }

@@ -173,8 +173,9 @@ pub fn scene_name(path: &Path) -> String {
     }
 }
 
-/// A scene of the comparison: its name and the scene at the bench's resolution.
-fn load(entry: &str, args: &Settings) -> Result<(String, Scene)> {
+/// A scene of the comparison: its name, the scene at the bench's resolution, and whether it is
+/// a built-in one (not a file).
+fn load(entry: &str, args: &Settings) -> Result<(String, Scene, bool)> {
     let path = Path::new(entry);
     if path.is_file() {
         let options = LoadOptions {
@@ -184,12 +185,13 @@ fn load(entry: &str, args: &Settings) -> Result<(String, Scene)> {
         let mut scene = nis_render::xml::load_scene_with(path, &[], &options)?;
         let (w, h) = fit_resolution(scene.camera.width(), scene.camera.height(), args.res);
         scene.camera.set_resolution(w, h);
-        Ok((scene_name(path), scene))
+        Ok((scene_name(path), scene, false))
     } else {
         let params = [("res".to_string(), args.res.to_string())];
         Ok((
             entry.to_string(),
             nis_render::scenes::load_with(entry, &params)?,
+            true,
         ))
     }
 }
@@ -293,7 +295,7 @@ pub fn run(args: &Settings, io: &mut Io<'_>) -> Result<String> {
     };
     let mut results = Vec::new();
     for entry in &entries {
-        let (name, scene) = load(entry, args)?;
+        let (name, scene, built_in) = load(entry, args)?;
         if results.iter().any(|r: &table::SceneResult| r.name == name) {
             return Err(Error::Config(format!(
                 "two scenes are called '{name}': their references would collide"
@@ -303,7 +305,6 @@ pub fn run(args: &Settings, io: &mut Io<'_>) -> Result<String> {
             (io.log)(&format!("{name}: {w}"));
         }
         let path_tracer = PathTracer::from_scene(&scene, Strategy::Mis);
-        let built_in = !Path::new(entry).is_file();
         let (reference, source) = reference(&name, &scene, built_in, &path_tracer, args, io)?;
         let mut seeds = Vec::new();
         for k in 0..u64::from(args.seeds) {

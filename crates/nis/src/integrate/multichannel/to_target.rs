@@ -18,11 +18,8 @@ use crate::comm::Comm;
 use crate::error::{Error, Result};
 use crate::integrate::estimate::chi2_per_dof;
 use crate::integrate::nis::NisIntegrator;
-use crate::integrate::target::{drive, Prior, Pursuit, Step, Stepper, AIM};
+use crate::integrate::target::{drive, Prior, Pursuit, Step, Stepper};
 use crate::integrate::{Integrand, IntegrationResult, Iteration, Method, Source, Target};
-
-/// The estimate's iterations a plan aims at (later ones grow at most ×2 each).
-const RESULT_ITERATIONS: f64 = 10.0;
 
 /// The evaluations of the least run of `parts` parts: one adaptation and one estimate each.
 fn least_run(parts: u64) -> u64 {
@@ -115,7 +112,6 @@ impl MultiChannel {
         let least = parts * MIN_PART_EVALS;
         let mut steps = Steps {
             f,
-            target,
             w: Weighting {
                 set: &self.set,
                 a: &self.weights,
@@ -193,7 +189,6 @@ impl MultiChannel {
 /// The estimate's iterations: each spreads its evaluations over the parts by their σ.
 struct Steps<'a> {
     f: &'a dyn Integrand,
-    target: &'a Target,
     w: Weighting<'a>,
     parts: &'a mut [Part],
     comm: &'a Comm,
@@ -212,11 +207,7 @@ struct Steps<'a> {
 impl Stepper for Steps<'_> {
     /// Iterations grow at most ×2 each towards a tenth of the predicted need.
     fn size(&mut self, pursuit: &Pursuit, prior: &mut Prior, _: f64) -> (u64, u64) {
-        let wanted = self
-            .target
-            .error_for(pursuit.estimate().unwrap_or(prior.estimate));
-        if wanted > 0.0 {
-            let need = prior.var_per_eval / (AIM * wanted).powi(2) / RESULT_ITERATIONS;
+        if let Some(need) = pursuit.iteration_goal(prior) {
             self.chunk = (need as u64).clamp(self.least, (2 * self.chunk).max(self.least));
         }
         (self.least, self.chunk)

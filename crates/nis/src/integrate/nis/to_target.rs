@@ -76,9 +76,13 @@ impl NisIntegrator {
         let batch = self.config.batch as f64;
         let anneal = anneal_batches(self.flow().dim());
         let least_train = ((anneal + SETTLE_BATCHES) as f64 * batch / share).ceil() as u64;
+        target.check("nis", least_train + self.least_final())
+    }
+
+    /// The fewest evaluations of a final phase: its least iteration, `final_iterations` times.
+    fn least_final(&self) -> u64 {
         let iters = self.config.final_iterations as u64;
-        let least_final = FinalPlan::new(&self.config, self.flow().dim(), 0).least * iters;
-        target.check("nis", least_train + least_final)
+        FinalPlan::new(&self.config, self.flow().dim(), 0).least * iters
     }
 
     /// [`crate::integrate::Integrator::integrate_to`] for NIS: training whose length the rule
@@ -217,7 +221,7 @@ impl NisIntegrator {
     ) -> Result<IntegrationResult> {
         let dim = self.flow().dim();
         let iters = self.config.final_iterations as u64;
-        let least_final = FinalPlan::new(&self.config, dim, 0).least * iters;
+        let least_final = self.least_final();
         let (var_per_eval, estimate, seconds_per_eval) =
             length.latest().expect("at least one batch trained");
         let mut prior = Prior {

@@ -30,6 +30,10 @@ pub const DEFAULT_MAX_EVALS: u64 = 100_000_000;
 /// The plan aims at this fraction of the target error, so that a round usually meets it.
 pub(crate) const AIM: f64 = 0.95;
 
+/// The estimate's iterations a method whose iterations grow plans for (VEGAS+, channels): each
+/// grows towards this fraction of the predicted need ([`Pursuit::iteration_goal`]).
+pub(crate) const RESULT_ITERATIONS: f64 = 10.0;
+
 /// A precision to integrate to, and the limits of the attempt.
 ///
 /// ```

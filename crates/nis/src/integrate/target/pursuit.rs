@@ -3,7 +3,7 @@
 
 use std::time::Instant;
 
-use super::{Target, AIM};
+use super::{Target, AIM, RESULT_ITERATIONS};
 use crate::comm::Comm;
 use crate::error::{Error, Result};
 use crate::integrate::diagnostics::{ADVICE_MET, ADVICE_MORE};
@@ -121,6 +121,21 @@ impl Pursuit {
             .then(|| self.var / (1.0 - self.remaining).max(f64::MIN_POSITIVE).powi(2))
     }
 
+    /// The error bar that meets the target at the estimate so far (`prior`'s before the first
+    /// iteration).
+    pub(crate) fn wanted(&self, prior: &Prior) -> f64 {
+        self.target
+            .error_for(self.estimate().unwrap_or(prior.estimate))
+    }
+
+    /// The evaluations of one of [`RESULT_ITERATIONS`] equal iterations that would meet the
+    /// target (aiming at [`AIM`] of it) at `prior`'s variance per evaluation; `None` when the
+    /// target error is zero. Methods whose iterations grow towards it size them by it.
+    pub(crate) fn iteration_goal(&self, prior: &Prior) -> Option<f64> {
+        let wanted = self.wanted(prior);
+        (wanted > 0.0).then(|| prior.var_per_eval / (AIM * wanted).powi(2) / RESULT_ITERATIONS)
+    }
+
     /// Wall-clock seconds since the start, the same on every rank of `comm` (their largest).
     pub(crate) fn elapsed(&self, comm: &Comm) -> f64 {
         comm.max(self.started.elapsed().as_secs_f64())
@@ -167,13 +182,12 @@ impl Pursuit {
         if self.stop.is_some() {
             return Ok(None);
         }
-        let estimate = self.estimate().unwrap_or(prior.estimate);
         let var_per_eval = if self.sum_evals > 0.0 && !self.adapting {
             self.var_evals / self.sum_evals
         } else {
             prior.var_per_eval
         };
-        let wanted = self.target.error_for(estimate);
+        let wanted = self.wanted(&prior);
         if wanted == 0.0 && var_per_eval == 0.0 {
             return Err(Error::Config(
                 "precision target: only rel_err was given, and the integrand was zero at every \

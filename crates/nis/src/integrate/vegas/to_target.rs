@@ -22,8 +22,6 @@ use crate::integrate::{
 
 /// The budget whose plan lays out the warm-up (points per iteration, increments, strata).
 const NOMINAL_EVALS: u64 = 100_000;
-/// The estimate's iterations the first plan aims at (the last ones may differ in size).
-const RESULT_ITERATIONS: f64 = 10.0;
 
 impl Vegas {
     /// The plan whose warm-up a run to `target` starts with: the nominal budget's.
@@ -130,7 +128,6 @@ impl Vegas {
         let predicted = prior.evals_to(target, target.max_evals as f64);
         let mut steps = Steps {
             f,
-            target,
             dim: self.dim,
             config: &self.config,
             map: self.map.as_mut().expect("made by the warm-up"),
@@ -195,7 +192,6 @@ impl Rival for Vegas {
 /// The estimate's iterations of a run to a target, the map and the strata adapting after each.
 struct Steps<'a> {
     f: &'a dyn Integrand,
-    target: &'a Target,
     dim: usize,
     config: &'a VegasConfig,
     map: &'a mut Map,
@@ -231,11 +227,7 @@ impl Stepper for Steps<'_> {
     /// adapts once per iteration, so more of them sooner make it better sooner.
     fn size(&mut self, pursuit: &Pursuit, prior: &mut Prior, _: f64) -> (u64, u64) {
         let min_per_cube = self.config.min_per_cube;
-        let wanted = self
-            .target
-            .error_for(pursuit.estimate().unwrap_or(prior.estimate));
-        if wanted > 0.0 {
-            let need = prior.var_per_eval / (AIM * wanted).powi(2) / RESULT_ITERATIONS;
+        if let Some(need) = pursuit.iteration_goal(prior) {
             let growth = if self.improving { SLOW_GROWTH } else { 2.0 };
             let most = (self.chunk as f64 * growth) as usize;
             self.chunk = (need as usize).clamp(self.per_iter, most.max(self.per_iter));
@@ -259,8 +251,7 @@ impl Stepper for Steps<'_> {
         };
         let own = self.warm_seconds + slowest(self.comm, self.clock);
         let v = self.best.min(prior.var_per_eval);
-        let estimate = pursuit.estimate().unwrap_or(prior.estimate);
-        let wanted = AIM * self.target.error_for(estimate);
+        let wanted = AIM * pursuit.wanted(prior);
         let pooled = pursuit.variance().unwrap_or(f64::INFINITY);
         let left = v * (1.0 / (wanted * wanted) - 1.0 / pooled).max(0.0);
         let left = left * prior.seconds_per_eval;
