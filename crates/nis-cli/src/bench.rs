@@ -36,12 +36,13 @@ pub struct BenchCoverageArgs {
     /// Every suite integrand in every dimension (hours) instead of the default cells (~30 min).
     #[arg(long)]
     full: bool,
-    /// Only this integrand.
+    /// Only this integrand (with --peaked, a multi-channel example's cell through its channels
+    /// too).
     #[arg(long)]
     only: Option<String>,
     /// The peaked cells (camel-sharp, gauss-sharp, gauss-diagonal, peaks, ridge in d = 4, 6 and
-    /// 8, and the signed pair gauss-pm in d = 2) instead of the default cells, into a section of
-    /// their own.
+    /// 8, and the signed pair gauss-pm in d = 2), and resonances-4d, dalitz and gauss-pm through
+    /// their channels, instead of the default cells, into a section of their own.
     #[arg(long)]
     peaked: bool,
     /// Seeds per cell instead of each budget's own.

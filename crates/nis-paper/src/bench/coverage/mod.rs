@@ -5,6 +5,7 @@
 //! sorts the runs: how many of those more than 4σ off it flags, and whether the unflagged ones
 //! cover at their nominal rate. Every cell is cached as JSON as soon as it is done, so an
 //! interrupted run resumes where it stopped. Writes a section of `docs/results/robustness.md` and a plot.
+//! The peaked run also integrates multi-channel examples through their channels (`channels.rs`).
 
 use std::path::{Path, PathBuf};
 
@@ -22,7 +23,9 @@ use crate::error::{Error, Result};
 use crate::image::figure::{canvas, draw_legend, figure_error, has_font, png_bytes};
 use crate::report;
 
+mod channels;
 mod section;
+pub use channels::{part_labels, run_channel_cell, PEAKED_CHANNELS};
 use section::*;
 pub use section::{band, converged, warning_labels};
 
@@ -92,7 +95,8 @@ pub struct Options {
     pub full: bool,
     /// Only this integrand (all its dimensions in the chosen set).
     pub only: Option<String>,
-    /// [`PEAKED_CELLS`] instead of [`DEFAULT_CELLS`], into the section "coverage-peaked".
+    /// [`PEAKED_CELLS`] and the examples of [`PEAKED_CHANNELS`] through their channels instead
+    /// of [`DEFAULT_CELLS`], into the section "coverage-peaked".
     pub peaked: bool,
     /// Seeds per cell instead of each budget's own.
     pub seeds: Option<u64>,
@@ -128,9 +132,14 @@ pub struct Run {
     pub var_rel_err: Option<f64>,
     /// Wall seconds.
     pub seconds: f64,
-    /// The sampler's convergence figures.
+    /// The sampler's convergence figures (through channels: the parts' missing mass and hole
+    /// together, no divergence).
     #[serde(default)]
     pub convergence: Convergence,
+    /// Through channels: the labels of the warnings its parts gave ([`part_labels`]), which
+    /// take the place of χ² and the divergence; `None` for a single-channel run.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub part_warnings: Option<Vec<String>>,
 }
 
 /// One cell: an integrand, a method and a budget, all its seeds.
@@ -142,6 +151,9 @@ pub struct Cell {
     pub dim: usize,
     /// Method label (one of [`METHODS`]).
     pub method: String,
+    /// Whether its runs integrate the example through its channels ([`PEAKED_CHANNELS`]).
+    #[serde(default)]
+    pub channels: bool,
     /// Evaluations per run.
     pub evals: u64,
     /// The exact value and its uncertainty.
@@ -176,6 +188,23 @@ pub struct Stats {
 }
 
 impl Run {
+    /// The figures of result `r` of `seed`.
+    pub fn of(seed: u64, r: &nis::integrate::IntegrationResult) -> Run {
+        Run {
+            seed,
+            value: r.value,
+            std_err: r.std_err,
+            chi2: r.chi2_per_dof.is_finite().then_some(r.chi2_per_dof),
+            pareto_k: r.pareto_k.is_finite().then_some(r.pareto_k),
+            pareto_k_limit: r.pareto_k_limit.is_finite().then_some(r.pareto_k_limit),
+            ess: r.ess,
+            var_rel_err: r.var_rel_err.is_finite().then_some(r.var_rel_err),
+            seconds: r.seconds,
+            convergence: r.convergence,
+            part_warnings: r.channels.is_some().then(|| part_labels(r)),
+        }
+    }
+
     /// Whether its k̂ warns: above its limit ([`nis::integrate::diagnostics::pareto_k_threshold`]).
     pub fn k_warns(&self) -> bool {
         let limit = self.pareto_k_limit.unwrap_or(PARETO_K_LIMIT);
@@ -192,6 +221,12 @@ impl Run {
 }
 
 impl Cell {
+    /// Its row label: "camel d4", or "resonances-4d d4 channels" through channels.
+    pub fn label(&self) -> String {
+        let through = if self.channels { " channels" } else { "" };
+        format!("{} d{}{through}", self.integrand, self.dim)
+    }
+
     /// The pull of a run, with the exact value's own uncertainty folded in.
     pub fn pull(&self, r: &Run) -> f64 {
         (r.value - self.exact) / r.std_err.hypot(self.exact_err)
@@ -238,11 +273,17 @@ fn stats<'a>(runs: impl Iterator<Item = (f64, &'a Run)>) -> Stats {
     s
 }
 
-/// The settings of a method by its label.
-fn settings(method: &str, seed: u64) -> (Method, Settings) {
+/// The settings of a method by its label, for a whole integrand or for the parts of a
+/// multi-channel one (`channels`: there the default loss is χ², so NIS-KL asks for KL).
+fn settings(method: &str, seed: u64, channels: bool) -> (Method, Settings) {
     let mut s = Settings::default().seed(seed);
     let m = match method {
-        "NIS-KL" => Method::Nis,
+        "NIS-KL" => {
+            if channels {
+                s.nis.loss = Loss::Kl;
+            }
+            Method::Nis
+        }
         "NIS-χ²" => {
             s.nis.loss = Loss::ChiSquare;
             Method::Nis
@@ -258,7 +299,7 @@ pub fn run_cell(f: &Builtin, method: &str, budget: Budget) -> Cell {
     let outcomes: Vec<(u64, nis::Result<nis::integrate::IntegrationResult>)> = (0..budget.seeds)
         .into_par_iter()
         .map(|seed| {
-            let (m, s) = settings(method, seed);
+            let (m, s) = settings(method, seed, false);
             (
                 seed,
                 integrator(m, f.dim, &s).and_then(|mut i| i.integrate(f, budget.evals)),
@@ -269,6 +310,7 @@ pub fn run_cell(f: &Builtin, method: &str, budget: Budget) -> Cell {
         integrand: f.name.clone(),
         dim: f.dim,
         method: method.into(),
+        channels: false,
         evals: budget.evals,
         exact: f.exact,
         exact_err: f.exact_err,
@@ -277,18 +319,7 @@ pub fn run_cell(f: &Builtin, method: &str, budget: Budget) -> Cell {
     };
     for (seed, o) in outcomes {
         match o {
-            Ok(r) => cell.runs.push(Run {
-                seed,
-                value: r.value,
-                std_err: r.std_err,
-                chi2: r.chi2_per_dof.is_finite().then_some(r.chi2_per_dof),
-                pareto_k: r.pareto_k.is_finite().then_some(r.pareto_k),
-                pareto_k_limit: r.pareto_k_limit.is_finite().then_some(r.pareto_k_limit),
-                ess: r.ess,
-                var_rel_err: r.var_rel_err.is_finite().then_some(r.var_rel_err),
-                seconds: r.seconds,
-                convergence: r.convergence,
-            }),
+            Ok(r) => cell.runs.push(Run::of(seed, &r)),
             Err(e) => cell.errors.push((seed, e.to_string())),
         }
     }
@@ -301,9 +332,10 @@ const RECORD: u32 = 2;
 
 /// The cache file of a cell, named by the cell and by a hash of the default settings of every
 /// method and of [`RECORD`], so that cells run under other defaults (a training batch, an
-/// encoding, i.i.d. latents) cannot pass for this run's. (The hash changes with the Rust version
-/// too; that only costs a rerun.)
-fn cache_path(dir: &Path, name: &str, dim: usize, method: &str, budget: Budget) -> PathBuf {
+/// encoding, i.i.d. latents) cannot pass for this run's; a channel cell's name says
+/// "channels" and its hash covers the multi-channel defaults too (a single-channel cell's hash
+/// is as before). (The hash changes with the Rust version too; that only costs a rerun.)
+fn cache_path(dir: &Path, spec: &Spec, method: &str, budget: Budget) -> PathBuf {
     use std::hash::{DefaultHasher, Hash, Hasher};
     let method = method.replace("χ²", "chi2").to_lowercase();
     let mut hasher = DefaultHasher::new();
@@ -311,20 +343,43 @@ fn cache_path(dir: &Path, name: &str, dim: usize, method: &str, budget: Budget) 
         .expect("settings serialise")
         .hash(&mut hasher);
     RECORD.hash(&mut hasher);
+    let through = if spec.channels {
+        serde_json::to_string(&nis::integrate::multichannel::MultiChannelConfig::default())
+            .expect("settings serialise")
+            .hash(&mut hasher);
+        "-channels"
+    } else {
+        ""
+    };
+    let (name, dim) = (&spec.name, spec.dim);
     dir.join(format!(
-        "{name}-d{dim}-{method}-{}-{}-{:016x}.json",
+        "{name}-d{dim}{through}-{method}-{}-{}-{:016x}.json",
         budget.evals,
         budget.seeds,
         hasher.finish()
     ))
 }
 
-/// Every (integrand, dimension) of the run.
-fn cells(o: &Options) -> Vec<(String, usize)> {
-    let all: Vec<(String, usize)> = if o.full {
+/// A cell of the run without its method: an integrand, its dimension, and whether it goes
+/// through the example's channels.
+#[derive(Clone, Debug)]
+struct Spec {
+    name: String,
+    dim: usize,
+    channels: bool,
+}
+
+/// Every cell of the run.
+fn cells(o: &Options) -> Result<Vec<Spec>> {
+    let spec = |name: &str, dim, channels| Spec {
+        name: name.to_string(),
+        dim,
+        channels,
+    };
+    let mut all: Vec<Spec> = if o.full {
         SUITE
             .iter()
-            .flat_map(|e| e.dims.iter().map(|&d| (e.name.to_string(), d)))
+            .flat_map(|e| e.dims.iter().map(|&d| spec(e.name, d, false)))
             .collect()
     } else {
         let set = if o.peaked {
@@ -332,11 +387,18 @@ fn cells(o: &Options) -> Vec<(String, usize)> {
         } else {
             DEFAULT_CELLS
         };
-        set.iter().map(|&(n, d)| (n.to_string(), d)).collect()
+        set.iter().map(|&(n, d)| spec(n, d, false)).collect()
     };
-    all.into_iter()
-        .filter(|(n, _)| o.only.as_deref().is_none_or(|only| only == n))
-        .collect()
+    if o.peaked && !o.full {
+        for name in PEAKED_CHANNELS {
+            let dim = nis::channels::examples::by_name(name)?.integrand.dim;
+            all.push(spec(name, dim, true));
+        }
+    }
+    Ok(all
+        .into_iter()
+        .filter(|s| o.only.as_deref().is_none_or(|only| only == s.name))
+        .collect())
 }
 
 /// Runs (or reads from the cache) every cell, reporting each with `log` (cells done, cells in
@@ -352,7 +414,7 @@ pub fn run(o: &Options, log: &mut dyn FnMut(usize, usize, &str)) -> Result<Strin
         })
         .collect();
     let budgets = &budgets[..];
-    let list = cells(o);
+    let list = cells(o)?;
     if list.is_empty() {
         return Err(Error::Config(format!(
             "no suite integrand named {:?}",
@@ -362,17 +424,21 @@ pub fn run(o: &Options, log: &mut dyn FnMut(usize, usize, &str)) -> Result<Strin
     let mut done = Vec::new();
     let total = budgets.len() * list.len() * METHODS.len();
     for &budget in budgets {
-        for (name, dim) in &list {
-            let f = integrands::by_name(name, Some(*dim))?;
+        for spec in &list {
+            let f = integrands::by_name(&spec.name, Some(spec.dim))?;
             for method in METHODS {
-                let path = cache_path(&o.cache, name, *dim, method, budget);
+                let path = cache_path(&o.cache, spec, method, budget);
                 let cached = std::fs::read(&path)
                     .ok()
                     .and_then(|b| serde_json::from_slice::<Cell>(&b).ok());
                 let cell = match cached {
                     Some(c) => c,
                     None => {
-                        let c = run_cell(&f, method, budget);
+                        let c = if spec.channels {
+                            run_channel_cell(&spec.name, method, budget)?
+                        } else {
+                            run_cell(&f, method, budget)
+                        };
                         let json =
                             serde_json::to_vec(&c).map_err(|e| Error::Config(e.to_string()))?;
                         report::write_file(&path, &json)?;
@@ -384,13 +450,14 @@ pub fn run(o: &Options, log: &mut dyn FnMut(usize, usize, &str)) -> Result<Strin
                     done.len() + 1,
                     total,
                     &format!(
-                    "{name} d{dim} {method:<7} {:>7} evals: 2σ cover {:.3}, worst pull {:+.1}, \
+                        "{} {method:<7} {:>7} evals: 2σ cover {:.3}, worst pull {:+.1}, \
                      k̂-flagged {:.2}, {} errors",
-                    budget.evals,
-                    s.cover2,
-                    s.worst_pull,
-                    s.flagged,
-                    cell.errors.len()
+                        cell.label(),
+                        budget.evals,
+                        s.cover2,
+                        s.worst_pull,
+                        s.flagged,
+                        cell.errors.len()
                     ),
                 );
                 done.push(cell);
@@ -423,101 +490,4 @@ pub fn run(o: &Options, log: &mut dyn FnMut(usize, usize, &str)) -> Result<Strin
 }
 
 #[cfg(test)]
-mod tests {
-    use super::*;
-
-    fn run_of(value: f64, std_err: f64, k: Option<f64>) -> Run {
-        Run {
-            seed: 0,
-            value,
-            std_err,
-            chi2: Some(1.0),
-            pareto_k: k,
-            pareto_k_limit: None,
-            ess: 1.0,
-            var_rel_err: None,
-            seconds: 0.0,
-            convergence: Convergence::default(),
-        }
-    }
-
-    #[test]
-    fn stats_count_coverage_pulls_and_flags() {
-        let cell = Cell {
-            integrand: "x".into(),
-            dim: 2,
-            method: "MC".into(),
-            evals: 10,
-            exact: 1.0,
-            exact_err: 0.0,
-            runs: vec![
-                run_of(1.5, 1.0, Some(0.1)),  // pull 0.5
-                run_of(2.5, 1.0, Some(0.9)),  // pull 1.5, flagged
-                run_of(-4.0, 1.0, Some(0.2)), // pull −5
-                run_of(1.0, 1.0, None),       // pull 0
-            ],
-            errors: vec![],
-        };
-        let s = cell.stats();
-        assert_eq!((s.n, s.cover1, s.cover2), (4, 0.5, 0.75));
-        assert_eq!(s.worst_pull, -5.0);
-        assert_eq!(s.mean_pull, (0.5 + 1.5 - 5.0 + 0.0) / 4.0);
-        assert_eq!(s.flagged, 0.25);
-        let (lo, hi) = band(0.5, 100);
-        assert!((lo - 0.4).abs() < 1e-12 && (hi - 0.6).abs() < 1e-12);
-    }
-
-    #[test]
-    fn each_warning_is_named_and_the_divergence_is_one_of_them() {
-        let mut r = run_of(1.0, 1.0, Some(0.7));
-        r.chi2 = Some(4.0);
-        r.convergence.divergence = Some(2.0 * DIVERGENCE_LIMIT);
-        assert_eq!(warning_labels(&r, "NIS-KL"), ["χ²", "k̂", "divergence"]);
-        assert_eq!(warning_labels(&r, "MC"), ["χ²", "k̂"]);
-        let mut quiet = run_of(1.0, 1.0, Some(0.1));
-        quiet.convergence.divergence = Some(0.5 * DIVERGENCE_LIMIT);
-        assert!(warning_labels(&quiet, "NIS-KL").is_empty());
-        quiet.convergence.divergence = Some(2.0 * DIVERGENCE_LIMIT);
-        assert_eq!(warning_labels(&quiet, "VEGAS+"), ["divergence"]);
-        // A large recalled weight alone is a figure, not a warning; a missing mass is.
-        quiet.convergence.training_weight_ratio = Some(100.0);
-        assert_eq!(warning_labels(&quiet, "NIS-χ²"), ["divergence"]);
-        quiet.convergence.missing_mass = Some(2.0 * MISSING_MASS_LIMIT);
-        quiet.convergence.recalled_shift = Some(2.0 * HOLE_LIMIT);
-        assert_eq!(
-            warning_labels(&quiet, "NIS-χ²"),
-            ["divergence", "missing mass"]
-        );
-        // A hole warns only where the mass does not.
-        quiet.convergence.missing_mass = Some(0.5 * MISSING_MASS_LIMIT);
-        assert_eq!(warning_labels(&quiet, "NIS-χ²"), ["divergence", "hole"]);
-    }
-
-    #[test]
-    fn a_cell_runs_resumes_from_its_cache_and_writes_the_section() {
-        let dir = std::env::temp_dir().join(format!("nis-coverage-{}", std::process::id()));
-        let _ = std::fs::remove_dir_all(&dir);
-        let f = integrands::by_name("camel", Some(2)).unwrap();
-        let budget = Budget {
-            evals: 4_000,
-            seeds: 6,
-        };
-        let cell = run_cell(&f, "VEGAS+", budget);
-        assert_eq!(cell.runs.len(), 6);
-        // Seeds are independent of the parallel schedule: a second run is identical.
-        let again = run_cell(&f, "VEGAS+", budget);
-        assert_eq!(
-            cell.runs.iter().map(|r| r.value).collect::<Vec<_>>(),
-            again.runs.iter().map(|r| r.value).collect::<Vec<_>>()
-        );
-        // A cached cell is read back instead of run.
-        let path = cache_path(&dir, "camel", 2, "VEGAS+", budget);
-        std::fs::create_dir_all(&dir).unwrap();
-        std::fs::write(&path, serde_json::to_vec(&cell).unwrap()).unwrap();
-        let back: Cell = serde_json::from_slice(&std::fs::read(&path).unwrap()).unwrap();
-        assert_eq!(back.runs.len(), 6);
-        let md = markdown(&[back], &[budget]);
-        assert!(md.contains("| camel d2 | VEGAS+ |"));
-        let _ = std::fs::remove_dir_all(&dir);
-    }
-}
+mod tests;
