@@ -148,12 +148,8 @@ impl Accumulator {
                  only says that no sample found where it is not zero"
                     .into(),
             );
-        } else if chi2 > 3.0 && !rounding {
-            warnings.push(format!(
-                "χ²/dof = {chi2:.2} between iterations: the weights are heavy-tailed or the \
-                 sampler misses part of the integrand, and the error bar may be too small; \
-                 {ADVICE_MORE}"
-            ));
+        } else if chi2 > CHI2_LIMIT && !rounding {
+            warnings.push(chi2_warning(chi2));
         }
         if let Some(w) = reliability.warning() {
             warnings.push(w);
@@ -291,6 +287,18 @@ fn check_representable(estimate: f64, variance: f64, max_abs_w: f64) -> Result<(
          f64 (squares beyond ~10^±308), so no error bar can be given; multiply the integrand by \
          a constant that brings its values nearer 1"
     )))
+}
+
+/// The χ²/dof between iterations above which a result warns: for 2 degrees of freedom a
+/// converged sampler passes it with probability e⁻³ ≈ 0.05, for 9 with 0.001.
+pub const CHI2_LIMIT: f64 = 3.0;
+
+/// The warning of a χ²/dof above [`CHI2_LIMIT`].
+pub(crate) fn chi2_warning(chi2: f64) -> String {
+    format!(
+        "χ²/dof = {chi2:.2} between iterations: the weights are heavy-tailed or the sampler \
+         misses part of the integrand, and the error bar may be too small; {ADVICE_MORE}"
+    )
 }
 
 /// χ² per degree of freedom of `its` around `value` (NaN for fewer than two): against each

@@ -41,7 +41,7 @@ pub use convergence::{
     Convergence, ConvergenceWarning, DIVERGENCE_LIMIT, HOLE_LIMIT, MISSING_MASS_LIMIT,
 };
 pub use diagnostics::{Reliability, PARETO_K_LIMIT, PARETO_K_Z};
-pub use estimate::Accumulator;
+pub use estimate::{Accumulator, CHI2_LIMIT};
 pub use integrand::{check_dim, evaluate, points_per_task, Integrand, TrainOn, VectorFn};
 pub use method::Method;
 pub use result::{

@@ -1,9 +1,9 @@
 //! The multi-channel cells of `nis bench coverage --peaked`: a built-in example integrated
 //! through its channels (`nis integrate EX --channels`), each seed a [`MultiChannel`] with the
 //! example's channels and the default [`MultiChannelConfig`], judged by the same warnings as the
-//! single-channel cells. A multi-channel result carries the pooled k̂, the missing mass and the
-//! hole of its parts together, but the χ² and divergence warnings only as its parts' sentences
-//! ("channel k: …"); [`part_labels`] reads those back into the warnings' labels.
+//! single-channel cells. A multi-channel result carries the χ²/dof, the pooled k̂, the missing
+//! mass and the hole of its parts together, but the divergence warning only as its parts'
+//! sentences ("channel k: …"); [`part_labels`] reads those back into the warnings' labels.
 
 use nis::channels::{examples, ChannelSet};
 use nis::integrate::multichannel::{MultiChannel, MultiChannelConfig};
@@ -19,11 +19,11 @@ use crate::error::Result;
 pub const PEAKED_CHANNELS: &[&str] = &["resonances-4d", "dalitz", "gauss-pm"];
 
 /// The warnings' labels of the parts of a multi-channel result `r`, read from its sentences
-/// ("channel k: …", "channel k (f > 0): …"): "χ²" for a part's χ²/dof, "divergence" for its
-/// divergence, "other" for anything else a part says; each once, in that order. (A part's own
-/// k̂, missing mass and hole are not among them: the result judges those on the parts together.)
+/// ("channel k: …", "channel k (f > 0): …"): "divergence" for its divergence, "other" for
+/// anything else a part says; each once, in that order. (A part's own χ², k̂, missing mass and
+/// hole are not among them: the result judges those on the parts together.)
 pub fn part_labels(r: &IntegrationResult) -> Vec<String> {
-    let mut found = [false; 3];
+    let mut found = [false; 2];
     for w in &r.warnings {
         let Some(rest) = w.strip_prefix("channel ") else {
             continue;
@@ -31,16 +31,14 @@ pub fn part_labels(r: &IntegrationResult) -> Vec<String> {
         let Some((_, sentence)) = rest.split_once(": ") else {
             continue;
         };
-        let i = if sentence.starts_with("χ²/dof") {
+        let i = if sentence.starts_with("the sampler is far from the integrand's shape") {
             0
-        } else if sentence.starts_with("the sampler is far from the integrand's shape") {
-            1
         } else {
-            2
+            1
         };
         found[i] = true;
     }
-    ["χ²", "divergence", "other"]
+    ["divergence", "other"]
         .iter()
         .zip(found)
         .filter(|(_, f)| *f)
@@ -97,7 +95,7 @@ mod tests {
     use nis::integrate::Convergence;
 
     #[test]
-    fn a_part_s_divergence_and_chi2_sentences_read_back_as_their_labels() {
+    fn a_part_s_divergence_and_other_sentences_read_back_as_their_labels() {
         let c = Convergence {
             divergence: Some(2.0 * DIVERGENCE_LIMIT),
             ..Convergence::default()
@@ -105,16 +103,19 @@ mod tests {
         let r = IntegrationResult {
             warnings: vec![
                 format!("channel 1 (f > 0): {}", c.warnings()[0].sentence),
-                "channel 0: χ²/dof = 4.20 between iterations: …".into(),
+                "the channels together: χ²/dof = 4.20 between iterations: …".into(),
                 "the channels' weights together: the weights f/q are heavy-tailed".into(),
-                "channel 2: χ²/dof = 5.00 between iterations: …".into(),
+                "channel 2: the integrand was zero at every sampled point".into(),
             ],
             ..IntegrationResult::default()
         };
-        assert_eq!(part_labels(&r), ["χ²", "divergence"]);
-        // A run without parts' warnings has none; the pooled k̂ is not a part's.
+        assert_eq!(part_labels(&r), ["divergence", "other"]);
+        // A run without parts' warnings has none; the pooled k̂ and χ² are not a part's.
         let quiet = IntegrationResult {
-            warnings: vec!["the channels' weights together: k̂".into()],
+            warnings: vec![
+                "the channels' weights together: k̂".into(),
+                "the channels together: χ²/dof = 4.20".into(),
+            ],
             ..IntegrationResult::default()
         };
         assert!(part_labels(&quiet).is_empty());

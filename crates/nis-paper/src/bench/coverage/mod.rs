@@ -11,8 +11,8 @@ use std::path::{Path, PathBuf};
 
 use nis::integrands::{self, Builtin, SUITE};
 use nis::integrate::{
-    integrator, Convergence, Method, Settings, DIVERGENCE_LIMIT, HOLE_LIMIT, MISSING_MASS_LIMIT,
-    PARETO_K_LIMIT, PARETO_K_Z,
+    integrator, Convergence, Method, Settings, CHI2_LIMIT, DIVERGENCE_LIMIT, HOLE_LIMIT,
+    MISSING_MASS_LIMIT, PARETO_K_LIMIT, PARETO_K_Z,
 };
 use nis::loss::Loss;
 use plotters::prelude::*;
@@ -330,6 +330,9 @@ pub fn run_cell(f: &Builtin, method: &str, budget: Budget) -> Cell {
 /// k̂ limit of each run's own tail), so that such a cache is run anew instead of misjudged.
 const RECORD: u32 = 2;
 
+/// As [`RECORD`], for the channel cells alone (2: χ² of the parts together, not any part's).
+const CHANNEL_RECORD: u32 = 2;
+
 /// The cache file of a cell, named by the cell and by a hash of the default settings of every
 /// method and of [`RECORD`], so that cells run under other defaults (a training batch, an
 /// encoding, i.i.d. latents) cannot pass for this run's; a channel cell's name says
@@ -347,6 +350,7 @@ fn cache_path(dir: &Path, spec: &Spec, method: &str, budget: Budget) -> PathBuf 
         serde_json::to_string(&nis::integrate::multichannel::MultiChannelConfig::default())
             .expect("settings serialise")
             .hash(&mut hasher);
+        CHANNEL_RECORD.hash(&mut hasher);
         "-channels"
     } else {
         ""

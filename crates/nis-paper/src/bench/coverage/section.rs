@@ -70,8 +70,8 @@ const CHANNELS_LEGEND: &str = "Rows \"… channels\": the multi-channel example 
     value the example's. The methods are the parts' samplers: NIS-KL a flow trained on KL \
     (`--loss kl`; not the default through channels), NIS-χ² on the variance (the default), \
     VEGAS+ a VEGAS+ map per part (multi-channel VEGAS), MC uniform points per part (the classic \
-    multi-channel estimator). Their warnings are the result's: χ² and the divergence are any \
-    part's (χ²/dof > 3 between its iterations; its divergence above the limit), k̂ is fitted to \
+    multi-channel estimator). Their warnings are the result's: the divergence is any part's (above \
+    the limit), χ² the parts' summed over their degrees of freedom (χ²/dof > 3), k̂ is fitted to \
     the parts' weights pooled (each its point's share of F), the missing mass is the NIS parts' \
     summed against the combined error bar and the hole the largest of theirs in it. The runs \
     have no divergence of their own: they count as converged when fewer than half of them \
@@ -80,9 +80,9 @@ const CHANNELS_LEGEND: &str = "Rows \"… channels\": the multi-channel example 
 
 /// The warnings a run of `method` gives, by label: χ² between iterations and k̂, then the
 /// convergence figures', which plain MC reports without warning (a sampler not learned from f).
-/// Through channels, χ² and the divergence are its parts' ([`Run::part_warnings`]: any part's
-/// χ²/dof above 3, any part's divergence), as the result gives them; k̂, the missing mass and
-/// the hole are the parts' together.
+/// Through channels, the divergence is its parts' ([`Run::part_warnings`]: any part's), as the
+/// result gives it; χ² (the parts' summed over their degrees of freedom), k̂, the missing mass
+/// and the hole are the parts' together.
 pub fn warning_labels(r: &Run, method: &str) -> Vec<&'static str> {
     let mut out = Vec::new();
     let part = |l: &str| {
@@ -90,11 +90,7 @@ pub fn warning_labels(r: &Run, method: &str) -> Vec<&'static str> {
             .as_ref()
             .is_some_and(|p| p.iter().any(|w| w == l))
     };
-    let chi2 = match &r.part_warnings {
-        Some(_) => part("χ²"),
-        None => r.chi2.is_some_and(|c| c > 3.0),
-    };
-    if chi2 {
+    if r.chi2.is_some_and(|c| c > CHI2_LIMIT) {
         out.push("χ²");
     }
     if r.k_warns() {

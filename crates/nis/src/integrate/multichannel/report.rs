@@ -6,6 +6,7 @@ use std::time::Instant;
 use super::part::Sign;
 use crate::integrate::convergence::Convergence;
 use crate::integrate::diagnostics::WeightTail;
+use crate::integrate::estimate::{chi2_warning, CHI2_LIMIT};
 use crate::integrate::result::{ChannelReport, IntegrationResult, SignReport};
 
 /// Sums the parts' `results` ((channel, sign) each in `index`) into one result.
@@ -28,7 +29,9 @@ pub(super) fn combine(
     let mut signs = SignReport::default();
     let mut split = false;
     let mut warnings = Vec::new();
-    let (mut chi2_sum, mut chi2_evals) = (0.0, 0.0);
+    // The parts' χ² summed over their degrees of freedom: the χ² of independent estimates,
+    // one test of the whole result instead of one per part (each at its own false-alarm rate).
+    let (mut chi2_sum, mut chi2_dof) = (0.0, 0.0);
     let mut estimate_evals = 0u64;
     // Every part's weights scaled by 1/n: each its point's share of the sum F.
     let mut tails = Vec::with_capacity(results.len());
@@ -44,9 +47,10 @@ pub(super) fn combine(
         report.evals[k] += evals;
         estimate_evals += evals;
         split |= add_to_signs(&mut signs, sign, r.value, v, evals);
-        if r.chi2_per_dof.is_finite() {
-            chi2_sum += r.chi2_per_dof * evals as f64;
-            chi2_evals += evals as f64;
+        let dof = r.iterations.len().saturating_sub(1) as f64;
+        if r.chi2_per_dof.is_finite() && dof > 0.0 {
+            chi2_sum += r.chi2_per_dof * dof;
+            chi2_dof += dof;
         }
         if let Some(t) = &r.tail {
             tails.push((t, 1.0 / t.count().max(1) as f64));
@@ -61,6 +65,14 @@ pub(super) fn combine(
     if split {
         report.signs = Some(finished(signs));
     }
+    let chi2 = if chi2_dof > 0.0 {
+        chi2_sum / chi2_dof
+    } else {
+        f64::NAN
+    };
+    if chi2 > CHI2_LIMIT {
+        warnings.push(format!("the channels together: {}", chi2_warning(chi2)));
+    }
     let pooled = WeightTail::pooled(&tails);
     if let Some(w) = pooled.warning() {
         warnings.push(format!("the channels' weights together: {w}"));
@@ -73,11 +85,7 @@ pub(super) fn combine(
     IntegrationResult {
         value,
         std_err: var.sqrt(),
-        chi2_per_dof: if chi2_evals > 0.0 {
-            chi2_sum / chi2_evals
-        } else {
-            f64::NAN
-        },
+        chi2_per_dof: chi2,
         n_eval,
         rel_var_per_eval: estimate_evals as f64 * var / (value * value),
         unweighting_efficiency: if trials > 0.0 {
@@ -182,6 +190,7 @@ fn part_warnings(k: usize, sign: Sign, r: &IntegrationResult) -> Vec<String> {
         Sign::Minus => format!("channel {k} (f < 0)"),
     };
     let own_k = r.reliability().warning();
+    let own_chi2 = chi2_warning(r.chi2_per_dof);
     let own: Vec<String> = r
         .convergence
         .recalled_warnings()
@@ -190,7 +199,74 @@ fn part_warnings(k: usize, sign: Sign, r: &IntegrationResult) -> Vec<String> {
         .collect();
     r.warnings
         .iter()
-        .filter(|w| own_k.as_ref() != Some(*w) && !own.contains(w))
+        .filter(|w| own_k.as_ref() != Some(*w) && **w != own_chi2 && !own.contains(w))
         .map(|w| format!("{label}: {w}"))
         .collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::integrate::estimate::chi2_warning;
+    use crate::integrate::iteration::Iteration;
+
+    /// A part's result of `k` iterations with χ²/dof `chi2` and its warning where it warns.
+    fn part(k: usize, chi2: f64) -> IntegrationResult {
+        let it = Iteration {
+            estimate: 1.0,
+            variance: 0.01,
+            evals: 100,
+            source: Default::default(),
+            max_abs_w: 1.0,
+            sum_abs_w: 100.0,
+            components: None,
+        };
+        IntegrationResult {
+            value: 1.0,
+            std_err: 0.1,
+            chi2_per_dof: chi2,
+            iterations: vec![it; k],
+            warnings: (chi2 > CHI2_LIMIT)
+                .then(|| chi2_warning(chi2))
+                .into_iter()
+                .collect(),
+            ..IntegrationResult::default()
+        }
+    }
+
+    #[test]
+    fn the_parts_chi_square_is_summed_over_their_degrees_of_freedom_and_tested_once() {
+        let index = [(0, Sign::Both), (1, Sign::Both), (2, Sign::Both)];
+        let combined = |parts: &[IntegrationResult]| {
+            combine(&index, parts, &[1.0 / 3.0; 3], 3, 900, Instant::now())
+        };
+        // One part at 4.0 on 2 dof beside two at 1.0 on 8: (8 + 8 + 8)/18 = 1.33, no warning,
+        // and the part's own warning is not passed on.
+        let r = combined(&[part(3, 4.0), part(9, 1.0), part(9, 1.0)]);
+        assert!(
+            (r.chi2_per_dof - 24.0 / 18.0).abs() < 1e-12,
+            "{}",
+            r.chi2_per_dof
+        );
+        assert!(
+            r.warnings.iter().all(|w| !w.contains("χ²")),
+            "{:?}",
+            r.warnings
+        );
+        // A part far off (χ²/dof 40 on 2 dof) moves the sum past the limit: one warning.
+        let r = combined(&[part(3, 40.0), part(9, 1.0), part(9, 1.0)]);
+        assert!((r.chi2_per_dof - 96.0 / 18.0).abs() < 1e-12);
+        let chi2: Vec<_> = r.warnings.iter().filter(|w| w.contains("χ²")).collect();
+        assert_eq!(chi2.len(), 1, "{:?}", r.warnings);
+        assert!(
+            chi2[0].starts_with("the channels together: χ²/dof = 5.33"),
+            "{chi2:?}"
+        );
+        // Parts of one iteration have no χ²: neither has the sum.
+        assert!(
+            combined(&[part(1, f64::NAN), part(1, f64::NAN), part(1, f64::NAN)])
+                .chi2_per_dof
+                .is_nan()
+        );
+    }
 }
