@@ -105,8 +105,25 @@ impl Texture {
     }
 
     /// The value as a scalar (the luminance of a colour), as a float parameter reads it.
+    /// Mitsuba 3.9's checkerboard gives its scalar reading (`eval_1`, what a mask's opacity, a
+    /// blend's weight or a principled BSDF's parameters take) the two colours swapped, and so
+    /// does this one, to render as Mitsuba does.
     pub fn eval_scalar(&self, uv: Vec2) -> f32 {
-        luminance(self.eval(uv))
+        match self {
+            Texture::Checkerboard {
+                color0,
+                color1,
+                to_uv,
+            } => {
+                let swapped = Texture::Checkerboard {
+                    color0: *color1,
+                    color1: *color0,
+                    to_uv: *to_uv,
+                };
+                luminance(swapped.eval(uv))
+            }
+            Texture::Bitmap { .. } => luminance(self.eval(uv)),
+        }
     }
 
     /// The gradient of [`Texture::eval_scalar`] with respect to `uv` (zero for the nearest
@@ -414,6 +431,9 @@ mod tests {
         assert_eq!(t.eval(Vec2::new(0.75, 0.25)), Rgb::ONE);
         assert_eq!(t.eval(Vec2::new(0.75, 0.75)), Rgb::ZERO);
         assert_eq!(t.mean(), Rgb::splat(0.5));
+        // Read as a scalar, the colours swap places (Mitsuba 3.9's eval_1).
+        assert_eq!(t.eval_scalar(Vec2::new(0.25, 0.25)), 1.0);
+        assert_eq!(t.eval_scalar(Vec2::new(0.75, 0.25)), 0.0);
     }
 
     #[test]
