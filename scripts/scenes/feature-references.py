@@ -195,6 +195,20 @@ def features():
               '<bsdf type="normalmap"><texture type="bitmap" name="normalmap"><string name="filename" value="normals.png"/>'
               '<boolean name="raw" value="true"/></texture>'
               '<bsdf type="roughplastic"><float name="alpha" value="0.1"/></bsdf></bsdf></shape>')
+    add("principled",
+        sphere='<bsdf type="principled"><rgb name="base_color" value="0.8, 0.3, 0.2"/><float name="roughness" value="0.4"/>'
+               '<float name="sheen" value="0.5"/><float name="sheen_tint" value="0.5"/><float name="clearcoat" value="0.7"/>'
+               '<float name="clearcoat_gloss" value="0.3"/><float name="spec_tint" value="0.3"/><float name="flatness" value="0.3"/></bsdf>',
+        floor='<bsdf type="principled"><rgb name="base_color" value="0.7, 0.6, 0.5"/><float name="metallic" value="0.6"/>'
+              '<float name="roughness" value="0.35"/><float name="specular" value="0.7"/></bsdf>')
+    add("principled-transmission",
+        sphere='<bsdf type="principled"><rgb name="base_color" value="0.7, 0.9, 0.8"/><float name="spec_trans" value="0.8"/>'
+               '<float name="roughness" value="0.3"/><float name="eta" value="1.45"/><float name="clearcoat" value="0.3"/></bsdf>')
+    add("principled-textured",
+        floor='<shape type="obj"><string name="filename" value="quad-uv.obj"/>'
+              '<bsdf type="principled"><texture type="bitmap" name="base_color"><string name="filename" value="texture.png"/></texture>'
+              '<texture type="checkerboard" name="metallic"><rgb name="color0" value="0"/><rgb name="color1" value="1"/>'
+              '<transform name="to_uv"><scale x="4" y="4"/></transform></texture><float name="roughness" value="0.3"/></bsdf></shape>')
     # The sphere's centre is 3.2 from the camera: in focus at 2.2 it is blurred.
     add("sensor-thinlens", sensor="""<sensor type="thinlens">
         <float name="fov" value="40"/>

@@ -14,6 +14,7 @@ pub mod conductors;
 mod fresnel;
 mod microfacet;
 mod plastic;
+mod principled;
 
 use std::f32::consts::FRAC_1_PI;
 
@@ -24,6 +25,7 @@ use glam::{Vec2, Vec3};
 pub use fresnel::{fresnel_conductor, fresnel_dielectric, refract};
 pub use microfacet::{Microfacet, MicrofacetKind};
 pub use plastic::Plastic;
+pub use principled::{Principled, PrincipledParam};
 
 use crate::bump::Bump;
 use crate::geometry::{reflect_z, Rgb};
@@ -98,6 +100,8 @@ pub enum Bsdf {
     Plastic(Box<Plastic>),
     /// Two BSDFs mixed by a weight (Mitsuba `blendbsdf`).
     Blend(Box<Blend>),
+    /// Burley's Disney BSDF as Mitsuba 3 defines it (Mitsuba `principled`).
+    Principled(Box<Principled>),
 }
 
 /// (1 − `weight`)·`bsdfs[0]` + `weight`·`bsdfs[1]` (Mitsuba `blendbsdf`). A sample picks one of
@@ -208,7 +212,8 @@ pub struct Material {
 /// A BSDF parameter a texture can drive.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Slot {
-    /// A diffuse BSDF's `reflectance`, a plastic's `diffuse_reflectance`.
+    /// A diffuse BSDF's `reflectance`, a plastic's `diffuse_reflectance`, a principled
+    /// BSDF's `base_color`.
     Reflectance,
     /// `specular_reflectance`.
     SpecularReflectance,
@@ -218,6 +223,8 @@ pub enum Slot {
     Opacity,
     /// A blend's `weight` (the texture's luminance).
     BlendWeight,
+    /// One of a principled BSDF's scalar parameters (the texture's luminance).
+    Principled(PrincipledParam),
 }
 
 impl Material {
@@ -252,6 +259,10 @@ impl Material {
                 (Slot::BlendWeight, Bsdf::Blend(b)) => b.weight = t.eval_scalar(uv).clamp(0.0, 1.0),
                 (Slot::Reflectance, Bsdf::Diffuse { reflectance }) => *reflectance = v,
                 (Slot::Reflectance, Bsdf::Plastic(p)) => p.diffuse_reflectance = v,
+                (Slot::Reflectance, Bsdf::Principled(p)) => p.base_color = v,
+                (Slot::Principled(param), Bsdf::Principled(p)) => {
+                    *p.param_mut(*param) = t.eval_scalar(uv);
+                }
                 (
                     Slot::SpecularReflectance,
                     Bsdf::Conductor {
@@ -393,6 +404,7 @@ impl Bsdf {
             | Bsdf::RoughDielectric { .. }
             | Bsdf::ThinDielectric { .. } => true,
             Bsdf::Blend(b) => b.transmits(),
+            Bsdf::Principled(p) => p.transmits(),
             _ => false,
         }
     }
@@ -428,6 +440,7 @@ impl Bsdf {
             ),
             Bsdf::Plastic(ref p) => p.f(wo, wi),
             Bsdf::Blend(ref b) => b.f(wo, wi),
+            Bsdf::Principled(ref p) => p.f(wo, wi),
             Bsdf::Conductor { .. } | Bsdf::Dielectric { .. } | Bsdf::ThinDielectric { .. } => {
                 Rgb::ZERO
             }
@@ -448,6 +461,7 @@ impl Bsdf {
             Bsdf::RoughDielectric { dist, eta, .. } => rough_dielectric_pdf(&dist, eta, wo, wi),
             Bsdf::Plastic(ref p) => p.pdf(wo, wi),
             Bsdf::Blend(ref b) => b.pdf(wo, wi),
+            Bsdf::Principled(ref p) => p.pdf(wo, wi),
             Bsdf::Conductor { .. } | Bsdf::Dielectric { .. } | Bsdf::ThinDielectric { .. } => 0.0,
         }
     }
@@ -468,6 +482,7 @@ impl Bsdf {
             }
             Bsdf::Plastic(ref p) => p.sample(wo, u_lobe, u),
             Bsdf::Blend(ref b) => b.sample(wo, u_lobe, u),
+            Bsdf::Principled(ref p) => p.sample(wo, u_lobe, u),
             Bsdf::ThinDielectric {
                 eta,
                 specular_reflectance,
@@ -551,5 +566,7 @@ impl Bsdf {
     }
 }
 
+#[cfg(test)]
+mod principled_tests;
 #[cfg(test)]
 mod tests;

@@ -8,6 +8,7 @@ use glam::{Vec2, Vec3};
 use rand::{Rng, SeedableRng};
 use rand_pcg::Pcg32;
 
+use super::principled_tests::principled;
 use super::*;
 
 fn materials() -> Vec<(&'static str, Material)> {
@@ -128,6 +129,12 @@ fn materials() -> Vec<(&'static str, Material)> {
                 ],
             }))),
         ),
+        (
+            "principled: sheen, clearcoat, tint, flatness",
+            principled(0),
+        ),
+        ("principled: metallic", principled(1)),
+        ("principled: rough transmission", principled(2)),
         ("masked diffuse", {
             let mut m = Material::new(Bsdf::Diffuse {
                 reflectance: Vec3::splat(0.6),
@@ -277,6 +284,7 @@ fn rough_dielectric_eta(b: &Bsdf) -> Option<f32> {
     match b {
         Bsdf::RoughDielectric { eta, .. } => Some(*eta),
         Bsdf::Blend(blend) => blend.bsdfs.iter().find_map(rough_dielectric_eta),
+        Bsdf::Principled(p) if p.spec_trans > 0.0 => Some(p.eta),
         _ => None,
     }
 }

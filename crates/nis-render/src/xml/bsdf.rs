@@ -1,8 +1,9 @@
 //! BSDFs as Mitsuba 3 defines its plugins: `diffuse`, `conductor`, `roughconductor`,
-//! `dielectric`, `roughdielectric`, `thindielectric`, `plastic`, `roughplastic`, and the
-//! wrappers `twosided`, `mask` and `bumpmap`; inline or defined once and used by `<ref id=…>`. Rough
-//! BSDFs take Beckmann (Mitsuba's default) or GGX microfacets; conductors an `eta`/`k` pair or
-//! a named `material` (`Au`, `Cu`, …, `bsdf::conductors`).
+//! `dielectric`, `roughdielectric`, `thindielectric`, `plastic`, `roughplastic`, `principled`
+//! (read in `principled.rs`), and the wrappers `twosided`, `mask` and `bumpmap`; inline or
+//! defined once and used by `<ref id=…>`. Rough BSDFs take Beckmann (Mitsuba's default) or GGX
+//! microfacets; conductors an `eta`/`k` pair or a named `material` (`Au`, `Cu`, …,
+//! `bsdf::conductors`).
 
 use std::sync::Arc;
 
@@ -17,7 +18,8 @@ use crate::texture::Texture;
 
 /// The BSDF plugins the reader knows, for error messages.
 const SUPPORTED: &str = "diffuse, conductor, roughconductor, dielectric, roughdielectric, \
-                         thindielectric, plastic, roughplastic, twosided, mask, bumpmap, normalmap, blendbsdf";
+                         thindielectric, plastic, roughplastic, principled, twosided, mask, bumpmap, normalmap, \
+                         blendbsdf";
 
 impl Loader {
     pub(super) fn bsdf(&mut self, el: &Element) -> LoadResult<Material> {
@@ -56,8 +58,8 @@ impl Loader {
             "bumpmap" => return self.bumpmap(el),
             "blendbsdf" => return self.blend(el),
             "normalmap" => return self.normalmap(el),
-            "principled" | "principledthin" | "hair" | "pplastic" | "measured" | "polarizer"
-            | "retarder" | "circular" => {
+            "principledthin" | "hair" | "pplastic" | "measured" | "polarizer" | "retarder"
+            | "circular" => {
                 return Err(err::<()>(
                     el.line,
                     format!(
@@ -144,6 +146,7 @@ impl Loader {
                     rough,
                 )))
             }
+            "principled" => super::principled::principled(&p, el, &mut c)?,
             _ => {
                 return unsupported(el, SUPPORTED);
             }
@@ -475,9 +478,9 @@ fn dielectric_eta(p: &Props, default_int: &str) -> Result<f32, XmlError> {
 
 /// The colours of one BSDF, each a value or one of its named textures; a textured colour's mean
 /// stands for it where one value is needed (the choice of a lobe).
-struct Colours<'a> {
+pub(super) struct Colours<'a> {
     p: &'a Props<'a>,
-    textures: &'a [(String, Arc<Texture>)],
+    pub(super) textures: &'a [(String, Arc<Texture>)],
     /// The textures used, by the slot they fill.
     slots: Vec<(Slot, Arc<Texture>)>,
     /// The names of the textures used.
@@ -485,7 +488,12 @@ struct Colours<'a> {
 }
 
 impl Colours<'_> {
-    fn get(&mut self, name: &'static str, slot: Slot, default: Rgb) -> Result<Rgb, XmlError> {
+    pub(super) fn get(
+        &mut self,
+        name: &'static str,
+        slot: Slot,
+        default: Rgb,
+    ) -> Result<Rgb, XmlError> {
         match self.textures.iter().find(|(n, _)| n == name) {
             Some((_, t)) => {
                 self.slots.push((slot, t.clone()));
@@ -493,6 +501,24 @@ impl Colours<'_> {
                 Ok(t.mean())
             }
             None => self.p.rgb(name, default),
+        }
+    }
+
+    /// A scalar parameter: a number, or a texture's luminance (its mean's where one value is
+    /// needed).
+    pub(super) fn scalar(
+        &mut self,
+        name: &'static str,
+        slot: Slot,
+        default: f32,
+    ) -> Result<f32, XmlError> {
+        match self.textures.iter().find(|(n, _)| n == name) {
+            Some((_, t)) => {
+                self.slots.push((slot, t.clone()));
+                self.used.push(name);
+                Ok(luminance(t.mean()))
+            }
+            None => self.p.float(name, default),
         }
     }
 

@@ -19,6 +19,7 @@ mod bsdf;
 mod dom;
 mod emitter;
 mod include;
+mod principled;
 mod props;
 mod sensor;
 mod shape;

@@ -272,7 +272,7 @@ fn legacy_files_unknown_integrators_and_missing_features_say_what_and_where() {
     assert!(s.warnings[0].starts_with("test.xml:2:") && s.warnings[0].contains("guided_path"));
     for (element, needle) in [
         ("<medium type=\"homogeneous\" id=\"m\"/>", "medium"),
-        ("<bsdf type=\"principled\" id=\"p\"/>", "principled"),
+        ("<bsdf type=\"principledthin\" id=\"p\"/>", "principledthin"),
         ("<emitter type=\"projector\"/>", "projector"),
         ("<shape type=\"cylinder\"/>", "cylinder"),
     ] {
@@ -318,6 +318,65 @@ fn a_blendbsdf_mixes_two_plain_bsdfs_and_refuses_what_it_cannot_mix() {
         (
             r#"<bsdf type="blendbsdf"><float name="weight" value="0.5"/><ref id="d"/><bsdf type="twosided"><ref id="d"/></bsdf></bsdf>"#,
             "two-sided",
+        ),
+    ] {
+        let e = with(bsdf).unwrap_err().to_string();
+        assert!(e.starts_with("test.xml:4:") && e.contains(needle), "{e}");
+    }
+}
+
+#[test]
+fn a_principled_bsdf_reads_mitsubas_parameters_and_refuses_anisotropy() {
+    use crate::bsdf::{Bsdf, PrincipledParam, Slot};
+    let with = |bsdf: &str| {
+        load(&format!(
+            "<scene version=\"3.0.0\">\n{SENSOR}\n<texture type=\"checkerboard\" id=\"c\"/>\n{bsdf}\n</scene>"
+        ))
+    };
+    let s = with(r#"<bsdf type="principled" id="p"><rgb name="base_color" value="0.2, 0.4, 0.6"/><float name="specular" value="0.6"/><ref name="metallic" id="c"/><float name="sheen" value="0.3"/></bsdf>"#).unwrap();
+    let m = s.materials.last().unwrap();
+    let Bsdf::Principled(p) = &m.bsdf else {
+        panic!("{:?}", m.bsdf)
+    };
+    // specular 0.6 is eta = 2 / (1 − √0.048) − 1; Mitsuba's defaults elsewhere.
+    assert!((p.eta - (2.0 / (1.0 - 0.048f32.sqrt()) - 1.0)).abs() < 1e-6);
+    assert_eq!((p.roughness, p.sheen, p.spec_trans), (0.5, 0.3, 0.0));
+    assert_eq!(p.base_color, glam::Vec3::new(0.2, 0.4, 0.6));
+    assert_eq!(m.textures[0].0, Slot::Principled(PrincipledParam::Metallic));
+    // With a transmission lobe, an index of exactly 1 is nudged off it, as in Mitsuba.
+    let s = with(r#"<bsdf type="principled" id="t"><float name="spec_trans" value="0.5"/><float name="eta" value="1"/></bsdf>"#).unwrap();
+    let Bsdf::Principled(p) = &s.materials.last().unwrap().bsdf else {
+        panic!()
+    };
+    assert_eq!(p.eta, 1.001);
+    for (bsdf, needle) in [
+        (
+            r#"<bsdf type="principled"><float name="anisotropic" value="0.5"/></bsdf>"#,
+            "anisotropic",
+        ),
+        (
+            r#"<bsdf type="principled"><ref name="anisotropic" id="c"/></bsdf>"#,
+            "anisotropic",
+        ),
+        (
+            r#"<bsdf type="principled"><float name="eta" value="1.5"/><float name="specular" value="0.5"/></bsdf>"#,
+            "not both",
+        ),
+        (
+            r#"<bsdf type="principled"><float name="eta" value="-1"/></bsdf>"#,
+            "positive",
+        ),
+        (
+            r#"<bsdf type="principled"><float name="clearcoat_gloss" value="2"/></bsdf>"#,
+            "clearcoat_gloss",
+        ),
+        (
+            r#"<bsdf type="principled"><float name="sheeen" value="1"/></bsdf>"#,
+            "sheeen",
+        ),
+        (
+            r#"<bsdf type="principled"><ref name="eta" id="c"/></bsdf>"#,
+            "eta",
         ),
     ] {
         let e = with(bsdf).unwrap_err().to_string();
