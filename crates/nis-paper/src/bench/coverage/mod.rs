@@ -66,7 +66,8 @@ pub const DEFAULT_CELLS: &[(&str, usize)] = &[
 ];
 
 /// The peaked cells of issue 40, where small budgets leave the sampler unconverged, and a signed
-/// pair of peaks that NIS splits by sign (`--peaked`).
+/// pair of peaks integrated whole (`--peaked`; its split by sign is the channel cell of
+/// [`PEAKED_CHANNELS`]).
 pub const PEAKED_CELLS: &[(&str, usize)] = &[
     ("camel-sharp", 4),
     ("camel-sharp", 6),
