@@ -10,7 +10,7 @@ use nis::integrate::multichannel::{MultiChannel, MultiChannelConfig};
 use nis::integrate::{IntegrationResult, Integrator};
 use rayon::prelude::*;
 
-use super::{settings, Budget, Cell, Run};
+use super::{settings, Budget, Cell};
 use crate::error::Result;
 
 /// The multi-channel examples the peaked run integrates through their channels: narrow
@@ -68,24 +68,7 @@ pub fn run_channel_cell(name: &str, method: &str, budget: Budget) -> Result<Cell
         .into_par_iter()
         .map(|seed| (seed, run_one(name, method, seed, budget.evals, f)))
         .collect();
-    let mut cell = Cell {
-        integrand: name.into(),
-        dim: f.dim,
-        method: method.into(),
-        channels: true,
-        evals: budget.evals,
-        exact: ex.exact,
-        exact_err: ex.exact_err,
-        runs: Vec::new(),
-        errors: Vec::new(),
-    };
-    for (seed, o) in outcomes {
-        match o {
-            Ok(r) => cell.runs.push(Run::of(seed, &r)),
-            Err(e) => cell.errors.push((seed, e.to_string())),
-        }
-    }
-    Ok(cell)
+    Ok(Cell::of(f, method, true, budget, outcomes))
 }
 
 #[cfg(test)]

@@ -222,6 +222,35 @@ impl Run {
 }
 
 impl Cell {
+    /// The cell of integrand `f` (its name, dimension and exact value) and `method` from its
+    /// runs' outcomes, seed by seed.
+    fn of(
+        f: &Builtin,
+        method: &str,
+        channels: bool,
+        budget: Budget,
+        outcomes: Vec<(u64, nis::Result<nis::integrate::IntegrationResult>)>,
+    ) -> Cell {
+        let mut cell = Cell {
+            integrand: f.name.clone(),
+            dim: f.dim,
+            method: method.into(),
+            channels,
+            evals: budget.evals,
+            exact: f.exact,
+            exact_err: f.exact_err,
+            runs: Vec::new(),
+            errors: Vec::new(),
+        };
+        for (seed, o) in outcomes {
+            match o {
+                Ok(r) => cell.runs.push(Run::of(seed, &r)),
+                Err(e) => cell.errors.push((seed, e.to_string())),
+            }
+        }
+        cell
+    }
+
     /// Its row label: "camel d4", or "resonances-4d d4 channels" through channels.
     pub fn label(&self) -> String {
         let through = if self.channels { " channels" } else { "" };
@@ -307,24 +336,7 @@ pub fn run_cell(f: &Builtin, method: &str, budget: Budget) -> Cell {
             )
         })
         .collect();
-    let mut cell = Cell {
-        integrand: f.name.clone(),
-        dim: f.dim,
-        method: method.into(),
-        channels: false,
-        evals: budget.evals,
-        exact: f.exact,
-        exact_err: f.exact_err,
-        runs: Vec::new(),
-        errors: Vec::new(),
-    };
-    for (seed, o) in outcomes {
-        match o {
-            Ok(r) => cell.runs.push(Run::of(seed, &r)),
-            Err(e) => cell.errors.push((seed, e.to_string())),
-        }
-    }
-    cell
+    Cell::of(f, method, false, budget, outcomes)
 }
 
 /// What a cached run records: raised when the warnings read a figure older caches lack (2: the
