@@ -103,6 +103,18 @@ def features():
     add("roughconductor-beckmann",
         sphere='<bsdf type="roughconductor"><string name="material" value="Au"/><float name="alpha" value="0.15"/></bsdf>',
         floor='<bsdf type="roughconductor"><string name="material" value="Al"/><float name="alpha" value="0.3"/></bsdf>')
+    add("roughconductor-textured",
+        sphere='<bsdf type="roughconductor"><string name="material" value="Au"/><texture type="checkerboard" name="alpha">'
+               '<float name="color0" value="0.05"/><float name="color1" value="0.4"/>'
+               '<transform name="to_uv"><scale x="8" y="4"/></transform></texture></bsdf>',
+        floor='<shape type="obj"><string name="filename" value="quad-uv.obj"/>'
+              '<bsdf type="roughconductor"><string name="distribution" value="ggx"/><string name="material" value="Al"/>'
+              '<texture type="bitmap" name="alpha_u"><string name="filename" value="texture.png"/></texture>'
+              '<texture type="bitmap" name="alpha_v"><string name="filename" value="texture.png"/></texture></bsdf></shape>')
+    add("roughdielectric-textured",
+        sphere='<bsdf type="roughdielectric"><texture type="checkerboard" name="alpha">'
+               '<float name="color0" value="0.01"/><float name="color1" value="0.7"/>'
+               '<transform name="to_uv"><scale x="3" y="2"/></transform></texture></bsdf>')
     add("conductor-named", sphere='<bsdf type="conductor"><string name="material" value="Cu"/></bsdf>')
     add("roughdielectric-beckmann",
         sphere='<bsdf type="roughdielectric"><float name="alpha" value="0.2"/></bsdf>')

@@ -15,6 +15,7 @@ mod fresnel;
 mod microfacet;
 mod plastic;
 mod principled;
+mod textured;
 
 use std::f32::consts::FRAC_1_PI;
 
@@ -26,6 +27,7 @@ pub use fresnel::{fresnel_conductor, fresnel_dielectric, refract};
 pub use microfacet::{Microfacet, MicrofacetKind};
 pub use plastic::Plastic;
 pub use principled::{Principled, PrincipledParam};
+pub use textured::{Slot, MIN_ALPHA};
 
 use crate::bump::Bump;
 use crate::geometry::{reflect_z, Rgb};
@@ -209,24 +211,6 @@ pub struct Material {
     pub bump: Option<Bump>,
 }
 
-/// A BSDF parameter a texture can drive.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum Slot {
-    /// A diffuse BSDF's `reflectance`, a plastic's `diffuse_reflectance`, a principled
-    /// BSDF's `base_color`.
-    Reflectance,
-    /// `specular_reflectance`.
-    SpecularReflectance,
-    /// `specular_transmittance`.
-    SpecularTransmittance,
-    /// A mask's `opacity` (the texture's luminance).
-    Opacity,
-    /// A blend's `weight` (the texture's luminance).
-    BlendWeight,
-    /// One of a principled BSDF's scalar parameters (the texture's luminance).
-    Principled(PrincipledParam),
-}
-
 impl Material {
     /// A one-sided material.
     pub fn new(bsdf: Bsdf) -> Self {
@@ -237,75 +221,6 @@ impl Material {
             textures: Vec::new(),
             bump: None,
         }
-    }
-
-    /// The material at texture coordinates `uv`, its textured parameters looked up; `None`
-    /// when nothing is textured (the material is the same everywhere).
-    pub fn at(&self, uv: Vec2) -> Option<Material> {
-        if self.textures.is_empty() {
-            return None;
-        }
-        let mut m = Material {
-            bsdf: self.bsdf.clone(),
-            two_sided: self.two_sided,
-            opacity: self.opacity,
-            textures: Vec::new(),
-            bump: None,
-        };
-        for (slot, t) in &self.textures {
-            let v = t.eval(uv);
-            match (slot, &mut m.bsdf) {
-                (Slot::Opacity, _) => m.opacity = t.eval_scalar(uv).clamp(0.0, 1.0),
-                (Slot::BlendWeight, Bsdf::Blend(b)) => b.weight = t.eval_scalar(uv).clamp(0.0, 1.0),
-                (Slot::Reflectance, Bsdf::Diffuse { reflectance }) => *reflectance = v,
-                (Slot::Reflectance, Bsdf::Plastic(p)) => p.diffuse_reflectance = v,
-                (Slot::Reflectance, Bsdf::Principled(p)) => p.base_color = v,
-                (Slot::Principled(param), Bsdf::Principled(p)) => {
-                    *p.param_mut(*param) = t.eval_scalar(uv);
-                }
-                (
-                    Slot::SpecularReflectance,
-                    Bsdf::Conductor {
-                        specular_reflectance,
-                        ..
-                    }
-                    | Bsdf::RoughConductor {
-                        specular_reflectance,
-                        ..
-                    }
-                    | Bsdf::Dielectric {
-                        specular_reflectance,
-                        ..
-                    }
-                    | Bsdf::RoughDielectric {
-                        specular_reflectance,
-                        ..
-                    }
-                    | Bsdf::ThinDielectric {
-                        specular_reflectance,
-                        ..
-                    },
-                ) => *specular_reflectance = v,
-                (Slot::SpecularReflectance, Bsdf::Plastic(p)) => p.specular_reflectance = v,
-                (
-                    Slot::SpecularTransmittance,
-                    Bsdf::Dielectric {
-                        specular_transmittance,
-                        ..
-                    }
-                    | Bsdf::RoughDielectric {
-                        specular_transmittance,
-                        ..
-                    }
-                    | Bsdf::ThinDielectric {
-                        specular_transmittance,
-                        ..
-                    },
-                ) => *specular_transmittance = v,
-                _ => {}
-            }
-        }
-        Some(m)
     }
 
     fn flip(&self, wo: Vec3) -> bool {

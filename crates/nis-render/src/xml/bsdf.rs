@@ -10,7 +10,9 @@ use std::sync::Arc;
 use super::dom::{err, Element, XmlError};
 use super::props::{ior, Props, PROPERTY_TAGS};
 use super::{unsupported, LoadResult, Loader};
-use crate::bsdf::{conductors, Blend, Bsdf, Material, Microfacet, MicrofacetKind, Plastic, Slot};
+use crate::bsdf::{
+    conductors, Blend, Bsdf, Material, Microfacet, MicrofacetKind, Plastic, Slot, MIN_ALPHA,
+};
 use crate::bump::{Bump, BumpMap};
 use crate::geometry::{luminance, Rgb};
 use crate::spectrum::Role;
@@ -101,7 +103,7 @@ impl Loader {
             "roughconductor" => {
                 let (eta, k) = conductor(&p, el)?;
                 Bsdf::RoughConductor {
-                    dist: microfacet(&p, el)?,
+                    dist: microfacet(&mut c, el, true)?,
                     eta,
                     k,
                     specular_reflectance: c.specular_reflectance()?,
@@ -118,7 +120,7 @@ impl Loader {
                 specular_transmittance: c.specular_transmittance()?,
             },
             "roughdielectric" => Bsdf::RoughDielectric {
-                dist: microfacet(&p, el)?,
+                dist: microfacet(&mut c, el, true)?,
                 eta: dielectric_eta(&p, "bk7")?,
                 specular_reflectance: c.specular_reflectance()?,
                 specular_transmittance: c.specular_transmittance()?,
@@ -134,7 +136,7 @@ impl Loader {
                         .unwrap_err()
                         .into());
                     }
-                    Some(microfacet(&p, el)?)
+                    Some(microfacet(&mut c, el, false)?)
                 } else {
                     None
                 };
@@ -395,8 +397,11 @@ fn is_named_texture(c: &Element) -> bool {
 }
 
 /// The microfacet distribution of a rough BSDF: `distribution` (Mitsuba's default `beckmann`,
-/// or `ggx`) and `alpha` (isotropic only).
-fn microfacet(p: &Props, el: &Element) -> Result<Microfacet, XmlError> {
+/// or `ggx`) and an isotropic roughness: `alpha`, or `alpha_u` and `alpha_v` (both, as Mitsuba
+/// requires) when equal; a number or, where `textured`, a texture (its luminance, as Mitsuba's
+/// `eval_1`), raised to Mitsuba's least roughness as it does.
+fn microfacet(c: &mut Colours, el: &Element, textured: bool) -> Result<Microfacet, XmlError> {
+    let p = c.p;
     let kind = match p.string("distribution")?.unwrap_or("beckmann") {
         "beckmann" => MicrofacetKind::Beckmann,
         "ggx" => MicrofacetKind::Ggx,
@@ -407,24 +412,59 @@ fn microfacet(p: &Props, el: &Element) -> Result<Microfacet, XmlError> {
             )
         }
     };
-    let a = p.float("alpha", 0.1)?;
-    let (au, av) = (p.float("alpha_u", a)?, p.float("alpha_v", a)?);
-    if au != av {
+    let textures = c.textures;
+    let texture = |name: &str| textures.iter().find(|(n, _)| n == name).map(|(_, t)| t);
+    let given = |name: &str| p.by_name.contains_key(name) || texture(name).is_some();
+    let (u, v) = (given("alpha_u"), given("alpha_v"));
+    if u != v {
         return err(
             el.line,
-            "anisotropic roughness (alpha_u ≠ alpha_v) is not supported",
+            "a rough BSDF takes both alpha_u and alpha_v, or neither (Mitsuba's rule)",
         );
     }
-    if au < 0.0 {
+    if u && given("alpha") {
         return err(
             el.line,
-            format!("roughness alpha = {au} must be non-negative"),
+            "a rough BSDF takes its roughness as alpha or as alpha_u and alpha_v, not both",
+        );
+    }
+    let name = if u {
+        let same = match (texture("alpha_u"), texture("alpha_v")) {
+            (Some(a), Some(b)) => a == b,
+            (None, None) => p.float("alpha_u", 0.1)? == p.float("alpha_v", 0.1)?,
+            _ => false,
+        };
+        if !same {
+            return err(
+                el.line,
+                "anisotropic roughness (alpha_u ≠ alpha_v) is not supported",
+            );
+        }
+        // The two are the same: read alpha_u, mark alpha_v read.
+        if texture("alpha_v").is_some() {
+            c.used.push("alpha_v");
+        } else {
+            p.float("alpha_v", 0.1)?;
+        }
+        "alpha_u"
+    } else {
+        "alpha"
+    };
+    if !textured && texture(name).is_some() {
+        // Left unused: the caller reports it as a parameter that cannot be a texture.
+        return Ok(Microfacet { kind, alpha: 0.1 });
+    }
+    let alpha = c.scalar(name, Slot::Alpha, 0.1)?;
+    if !alpha.is_finite() || (texture(name).is_none() && alpha < 0.0) {
+        return err(
+            el.line,
+            format!("roughness {name} = {alpha} must be a non-negative number"),
         );
     }
     p.ignore(&["sample_visible"]);
     Ok(Microfacet {
         kind,
-        alpha: au.max(1e-4),
+        alpha: alpha.max(MIN_ALPHA),
     })
 }
 

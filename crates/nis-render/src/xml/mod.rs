@@ -336,4 +336,6 @@ impl Loader {
 }
 
 #[cfg(test)]
+mod rough_tests;
+#[cfg(test)]
 mod tests;

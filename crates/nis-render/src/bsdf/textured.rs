@@ -1,0 +1,106 @@
+//! BSDF parameters that vary over a surface: which parameter a texture drives ([`Slot`]) and
+//! the material at a point, its textures looked up ([`Material::at`]). Colours take the
+//! texture's value; scalar parameters its luminance, as Mitsuba 3's `Texture::eval_1` does.
+
+use glam::Vec2;
+
+use super::{Bsdf, Material, PrincipledParam};
+
+/// The least microfacet roughness: Mitsuba's `MicrofacetDistribution` raises `alpha` to it.
+pub const MIN_ALPHA: f32 = 1e-4;
+
+/// A BSDF parameter a texture can drive.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Slot {
+    /// A diffuse BSDF's `reflectance`, a plastic's `diffuse_reflectance`, a principled
+    /// BSDF's `base_color`.
+    Reflectance,
+    /// `specular_reflectance`.
+    SpecularReflectance,
+    /// `specular_transmittance`.
+    SpecularTransmittance,
+    /// A mask's `opacity` (the texture's luminance).
+    Opacity,
+    /// A blend's `weight` (the texture's luminance).
+    BlendWeight,
+    /// A rough conductor's or dielectric's isotropic roughness `alpha` (the texture's
+    /// luminance, at least [`MIN_ALPHA`]).
+    Alpha,
+    /// One of a principled BSDF's scalar parameters (the texture's luminance).
+    Principled(PrincipledParam),
+}
+
+impl Material {
+    /// The material at texture coordinates `uv`, its textured parameters looked up; `None`
+    /// when nothing is textured (the material is the same everywhere).
+    pub fn at(&self, uv: Vec2) -> Option<Material> {
+        if self.textures.is_empty() {
+            return None;
+        }
+        let mut m = Material {
+            bsdf: self.bsdf.clone(),
+            two_sided: self.two_sided,
+            opacity: self.opacity,
+            textures: Vec::new(),
+            bump: None,
+        };
+        for (slot, t) in &self.textures {
+            let v = t.eval(uv);
+            match (slot, &mut m.bsdf) {
+                (Slot::Opacity, _) => m.opacity = t.eval_scalar(uv).clamp(0.0, 1.0),
+                (Slot::BlendWeight, Bsdf::Blend(b)) => b.weight = t.eval_scalar(uv).clamp(0.0, 1.0),
+                (Slot::Reflectance, Bsdf::Diffuse { reflectance }) => *reflectance = v,
+                (Slot::Reflectance, Bsdf::Plastic(p)) => p.diffuse_reflectance = v,
+                (Slot::Reflectance, Bsdf::Principled(p)) => p.base_color = v,
+                (
+                    Slot::Alpha,
+                    Bsdf::RoughConductor { dist, .. } | Bsdf::RoughDielectric { dist, .. },
+                ) => dist.alpha = t.eval_scalar(uv).max(MIN_ALPHA),
+                (Slot::Principled(param), Bsdf::Principled(p)) => {
+                    *p.param_mut(*param) = t.eval_scalar(uv);
+                }
+                (
+                    Slot::SpecularReflectance,
+                    Bsdf::Conductor {
+                        specular_reflectance,
+                        ..
+                    }
+                    | Bsdf::RoughConductor {
+                        specular_reflectance,
+                        ..
+                    }
+                    | Bsdf::Dielectric {
+                        specular_reflectance,
+                        ..
+                    }
+                    | Bsdf::RoughDielectric {
+                        specular_reflectance,
+                        ..
+                    }
+                    | Bsdf::ThinDielectric {
+                        specular_reflectance,
+                        ..
+                    },
+                ) => *specular_reflectance = v,
+                (Slot::SpecularReflectance, Bsdf::Plastic(p)) => p.specular_reflectance = v,
+                (
+                    Slot::SpecularTransmittance,
+                    Bsdf::Dielectric {
+                        specular_transmittance,
+                        ..
+                    }
+                    | Bsdf::RoughDielectric {
+                        specular_transmittance,
+                        ..
+                    }
+                    | Bsdf::ThinDielectric {
+                        specular_transmittance,
+                        ..
+                    },
+                ) => *specular_transmittance = v,
+                _ => {}
+            }
+        }
+        Some(m)
+    }
+}

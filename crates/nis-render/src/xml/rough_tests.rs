@@ -1,0 +1,88 @@
+//! Reader tests of rough BSDFs' roughness: numbers or textures, isotropic only, with Mitsuba's
+//! rules for `alpha`, `alpha_u` and `alpha_v`.
+
+use std::path::Path;
+
+use glam::Vec2;
+
+use super::load_scene_str;
+use crate::bsdf::{Bsdf, Slot};
+use crate::scene::Scene;
+use crate::Error;
+
+/// A scene with a checkerboard `c` (float colours 0.05 and 0.4) and `bsdf` on line 4.
+fn with(bsdf: &str) -> Result<Scene, Error> {
+    let xml = format!(
+        "<scene version=\"3.0.0\">\n<sensor type=\"perspective\"><float name=\"fov\" value=\"45\"/></sensor>\n\
+         <texture type=\"checkerboard\" id=\"c\"><float name=\"color0\" value=\"0.05\"/><float name=\"color1\" value=\"0.4\"/></texture>\n\
+         {bsdf}\n</scene>"
+    );
+    load_scene_str(&xml, Path::new("."), "test.xml", &[])
+}
+
+fn alpha(b: &Bsdf) -> f32 {
+    match b {
+        Bsdf::RoughConductor { dist, .. } | Bsdf::RoughDielectric { dist, .. } => dist.alpha,
+        other => panic!("{other:?}"),
+    }
+}
+
+#[test]
+fn a_textured_alpha_is_looked_up_where_the_path_hits() {
+    for bsdf in [
+        r#"<bsdf type="roughconductor" id="b"><ref name="alpha" id="c"/></bsdf>"#,
+        r#"<bsdf type="roughdielectric" id="b"><ref name="alpha" id="c"/></bsdf>"#,
+        r#"<bsdf type="roughconductor" id="b"><ref name="alpha_u" id="c"/><ref name="alpha_v" id="c"/></bsdf>"#,
+    ] {
+        let s = with(bsdf).unwrap_or_else(|e| panic!("{bsdf}: {e}"));
+        let m = s.materials.last().unwrap();
+        assert_eq!(m.textures.len(), 1, "{bsdf}");
+        assert_eq!(m.textures[0].0, Slot::Alpha);
+        // The mean stands for it where one value is needed; a hit reads the texture's scalar
+        // (Mitsuba's eval_1 puts color0 where eval puts color1).
+        assert!((alpha(&m.bsdf) - 0.225).abs() < 1e-6, "{bsdf}");
+        let a = alpha(&m.at(Vec2::new(0.25, 0.25)).unwrap().bsdf);
+        let b = alpha(&m.at(Vec2::new(0.75, 0.25)).unwrap().bsdf);
+        assert!((a - 0.4).abs() < 1e-6 && (b - 0.05).abs() < 1e-6, "{a} {b}");
+    }
+    // Equal numbers are isotropic; a zero roughness is raised to Mitsuba's least.
+    let s = with(r#"<bsdf type="roughconductor" id="b"><float name="alpha_u" value="0.2"/><float name="alpha_v" value="0.2"/></bsdf>"#).unwrap();
+    assert_eq!(alpha(&s.materials.last().unwrap().bsdf), 0.2);
+    let s = with(r#"<bsdf type="roughdielectric" id="b"><float name="alpha" value="0"/></bsdf>"#)
+        .unwrap();
+    assert_eq!(alpha(&s.materials.last().unwrap().bsdf), 1e-4);
+}
+
+#[test]
+fn anisotropic_or_ill_given_roughness_is_refused_with_its_line() {
+    for (bsdf, needle) in [
+        (
+            r#"<bsdf type="roughconductor" id="b"><ref name="alpha_u" id="c"/><float name="alpha_v" value="0.1"/></bsdf>"#,
+            "anisotropic",
+        ),
+        (
+            r#"<bsdf type="roughconductor" id="b"><float name="alpha_u" value="0.1"/><float name="alpha_v" value="0.3"/></bsdf>"#,
+            "anisotropic",
+        ),
+        (
+            r#"<bsdf type="roughdielectric" id="b"><float name="alpha_u" value="0.1"/></bsdf>"#,
+            "both alpha_u and alpha_v",
+        ),
+        (
+            r#"<bsdf type="roughconductor" id="b"><float name="alpha" value="0.1"/><float name="alpha_u" value="0.1"/><float name="alpha_v" value="0.1"/></bsdf>"#,
+            "not both",
+        ),
+        (
+            r#"<bsdf type="roughconductor" id="b"><float name="alpha" value="-0.1"/></bsdf>"#,
+            "non-negative",
+        ),
+        // Mitsuba's rough plastic takes a number: its coating tables depend on it.
+        (
+            r#"<bsdf type="roughplastic" id="b"><ref name="alpha" id="c"/></bsdf>"#,
+            "parameter 'alpha' of <bsdf type=\"roughplastic\"> cannot be a texture",
+        ),
+    ] {
+        let e = with(bsdf).unwrap_err().to_string();
+        assert!(e.starts_with("test.xml:4:") && e.contains(needle), "{e}");
+    }
+}
