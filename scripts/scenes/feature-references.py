@@ -143,6 +143,21 @@ def features():
         <transform name="to_world"><scale value="0.6"/><translate x="-0.8" y="0.8" z="-1.2"/></transform>
         <bsdf type="diffuse"><rgb name="reflectance" value="0.2, 0.7, 0.3"/></bsdf>
     </shape>""")
+    # An emitting tube along p0-p1 and a textured open tube (two-sided: its inside shows).
+    add("cylinder", light="""<shape type="cylinder">
+        <point name="p0" x="0.9" y="1.7" z="-0.4"/><point name="p1" x="-0.5" y="2.0" z="0.3"/>
+        <float name="radius" value="0.12"/>
+        <emitter type="area"><rgb name="radiance" value="9, 8, 7"/></emitter>
+    </shape>
+    <shape type="cylinder">
+        <point name="p0" x="-0.9" y="0" z="-0.3"/><point name="p1" x="-0.7" y="1.0" z="-0.7"/>
+        <float name="radius" value="0.3"/>
+        <transform name="to_world"><rotate y="1" angle="20"/><translate x="0.1"/></transform>
+        <bsdf type="twosided"><bsdf type="diffuse"><texture type="checkerboard" name="reflectance">
+            <rgb name="color0" value="0.85, 0.8, 0.7"/><rgb name="color1" value="0.05, 0.05, 0.1"/>
+            </texture></bsdf></bsdf>
+    </shape>
+    <emitter type="constant"><rgb name="radiance" value="0.15, 0.2, 0.25"/></emitter>""")
     add("integrator-plugin", mitsuba=scene("integrator-plugin", integrator='<integrator type="path"><integer name="max_depth" value="6"/></integrator>'),
         integrator='<integrator type="guided_path"><integer name="max_depth" value="6"/><string name="budget_type" value="spp"/></integrator>')
     add("bitmap",

@@ -1,5 +1,5 @@
-//! Shapes: `obj`, `ply` and `serialized` meshes, Mitsuba's `rectangle`, `cube`, `disk` and `sphere`,
-//! each with its BSDF (inline or by reference) and area emitter. A mesh file that is missing
+//! Shapes: `obj`, `ply` and `serialized` meshes, Mitsuba's `rectangle`, `cube`, `disk`,
+//! `cylinder` (`p0`, `p1`, `radius`) and `sphere`, each with its BSDF (inline or by reference) and area emitter. A mesh file that is missing
 //! is an error, or, with [`LoadOptions::drop_missing_meshes`](super::LoadOptions), a warning
 //! and the shape left out (public snapshots of scenes sometimes lack their largest files).
 
@@ -118,6 +118,28 @@ impl Loader {
                 )?;
                 Geometry::Mesh(mesh)
             }
+            "cylinder" => {
+                let radius = p.float("radius", 1.0)?;
+                let p0 = p.point("p0", Vec3::ZERO)?;
+                let p1 = p.point("p1", Vec3::Z)?;
+                if !(radius > 0.0 && radius.is_finite()) {
+                    return Err(err::<()>(
+                        el.line,
+                        format!("a cylinder's radius = {radius} must be positive"),
+                    )
+                    .unwrap_err()
+                    .into());
+                }
+                if !((p1 - p0).length() > 0.0 && (p1 - p0).is_finite()) {
+                    return Err(err::<()>(
+                        el.line,
+                        "a cylinder's p0 and p1 must be distinct points",
+                    )
+                    .unwrap_err()
+                    .into());
+                }
+                Geometry::Mesh(TriangleMesh::cylinder(p0, p1, radius, &to_world))
+            }
             "sphere" => {
                 let center = p.point("center", Vec3::ZERO)?;
                 let radius = p.float("radius", 1.0)?;
@@ -138,7 +160,12 @@ impl Loader {
                     inward: false,
                 })
             }
-            _ => return unsupported(el, "obj, ply, serialized, rectangle, cube, disk, sphere"),
+            _ => {
+                return unsupported(
+                    el,
+                    "obj, ply, serialized, rectangle, cube, disk, cylinder, sphere",
+                )
+            }
         };
         p.finish()?;
         let geometry = match geometry {

@@ -274,7 +274,7 @@ fn legacy_files_unknown_integrators_and_missing_features_say_what_and_where() {
         ("<medium type=\"homogeneous\" id=\"m\"/>", "medium"),
         ("<bsdf type=\"principledthin\" id=\"p\"/>", "principledthin"),
         ("<emitter type=\"projector\"/>", "projector"),
-        ("<shape type=\"cylinder\"/>", "cylinder"),
+        ("<shape type=\"linearcurve\"/>", "linearcurve"),
     ] {
         let e = load(&format!("<scene>\n{SENSOR}\n{element}\n</scene>"))
             .unwrap_err()
@@ -542,4 +542,37 @@ fn a_sunsky_reads_mitsuba_3_and_0_5_files() {
         "{:?}",
         s.warnings
     );
+}
+
+#[test]
+fn a_cylinder_reads_p0_p1_and_radius_and_refuses_a_degenerate_one() {
+    let with = |shape: &str| {
+        load(&format!(
+            "<scene version=\"3.0.0\">\n{SENSOR}\n\n{shape}\n</scene>"
+        ))
+    };
+    let s = with(r#"<shape type="cylinder"><point name="p0" x="1" y="0" z="0"/><point name="p1" x="1" y="3" z="0"/><float name="radius" value="0.5"/><emitter type="area"><rgb name="radiance" value="1"/></emitter></shape>"#).unwrap();
+    // An open tube, 2π r l, as a fine tessellation (0.01 % short).
+    let area: f32 = s.lights.area.iter().map(|l| l.area).sum();
+    assert!(
+        (area / (3.0 * std::f32::consts::PI) - 1.0).abs() < 2e-4,
+        "{area}"
+    );
+    for (shape, needle) in [
+        (
+            r#"<shape type="cylinder"><float name="radius" value="0"/></shape>"#,
+            "radius",
+        ),
+        (
+            r#"<shape type="cylinder"><point name="p0" x="1" y="1" z="1"/><point name="p1" x="1" y="1" z="1"/></shape>"#,
+            "distinct",
+        ),
+        (
+            r#"<shape type="cylinder"><float name="height" value="2"/></shape>"#,
+            "height",
+        ),
+    ] {
+        let e = with(shape).unwrap_err().to_string();
+        assert!(e.starts_with("test.xml:4:") && e.contains(needle), "{e}");
+    }
 }
