@@ -111,6 +111,14 @@ def features():
               '<bsdf type="roughconductor"><string name="distribution" value="ggx"/><string name="material" value="Al"/>'
               '<texture type="bitmap" name="alpha_u"><string name="filename" value="texture.png"/></texture>'
               '<texture type="bitmap" name="alpha_v"><string name="filename" value="texture.png"/></texture></bsdf></shape>')
+    add("roughconductor-anisotropic",
+        sphere='<bsdf type="roughconductor"><string name="material" value="Au"/>'
+               '<float name="alpha_u" value="0.05"/><float name="alpha_v" value="0.4"/></bsdf>',
+        floor='<shape type="obj"><string name="filename" value="quad-uv.obj"/>'
+              '<bsdf type="roughconductor"><string name="distribution" value="ggx"/><string name="material" value="Al"/>'
+              '<texture type="checkerboard" name="alpha_u"><float name="color0" value="0.2"/><float name="color1" value="0.5"/>'
+              '<transform name="to_uv"><scale x="3" y="3"/></transform></texture>'
+              '<float name="alpha_v" value="0.02"/></bsdf></shape>')
     add("roughdielectric-textured",
         sphere='<bsdf type="roughdielectric"><texture type="checkerboard" name="alpha">'
                '<float name="color0" value="0.01"/><float name="color1" value="0.7"/>'

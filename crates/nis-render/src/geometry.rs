@@ -68,6 +68,19 @@ impl Frame {
         Self { s, t, n }
     }
 
+    /// Mitsuba 3's shading frame: `s` is `dpdu` made orthogonal to the unit normal `n`,
+    /// `t = n × s`; [`Frame::from_normal`] where `dpdu` is degenerate.
+    pub fn from_normal_tangent(n: Vec3, dpdu: Vec3) -> Self {
+        match (dpdu - n * n.dot(dpdu)).try_normalize() {
+            Some(s) => Self {
+                s,
+                t: n.cross(s),
+                n,
+            },
+            None => Self::from_normal(n),
+        }
+    }
+
     /// World vector to local coordinates.
     pub fn to_local(&self, v: Vec3) -> Vec3 {
         Vec3::new(v.dot(self.s), v.dot(self.t), v.dot(self.n))
@@ -113,6 +126,20 @@ mod tests {
             assert!(f.s.dot(f.t).abs() < 1e-5 && f.s.dot(n).abs() < 1e-5);
             let v = Vec3::new(0.2, -0.7, 0.4);
             assert!((f.to_world(f.to_local(v)) - v).length() < 1e-5);
+        }
+    }
+
+    #[test]
+    fn a_tangent_frame_follows_dpdu_projected_onto_the_normal() {
+        let n = Vec3::new(0.0, 0.6, 0.8);
+        let f = Frame::from_normal_tangent(n, Vec3::new(2.0, 1.0, 0.0));
+        let s = Vec3::new(2.0, 0.64, -0.48).normalize();
+        assert!((f.s - s).length() < 1e-5 && (f.t - n.cross(s)).length() < 1e-5);
+        assert!(f.s.cross(f.t).dot(n) > 0.999);
+        // Degenerate: along the normal, or zero.
+        for d in [n * 3.0, Vec3::ZERO] {
+            let f = Frame::from_normal_tangent(n, d);
+            assert_eq!(f.s, Frame::from_normal(n).s);
         }
     }
 }

@@ -245,6 +245,19 @@ impl Scene {
         (dpdu.is_finite() && dpdv.is_finite()).then_some((dpdu, dpdv))
     }
 
+    /// `∂p/∂u` as Mitsuba 3 (3.9) sets a shading frame's tangent, up to its length: from a
+    /// triangle's texture coordinates, its first edge where it has none, zero where they are
+    /// degenerate; `z × n` on a sphere (its `φ` direction, up to sign).
+    pub fn dpdu(&self, hit: &SurfaceHit) -> Vec3 {
+        let Some(info) = self.triangles.get(hit.triangle as usize) else {
+            return Vec3::new(-hit.ng.y, hit.ng.x, 0.0);
+        };
+        if info.uv == u32::MAX {
+            return self.bvh.triangles()[hit.triangle as usize].e1;
+        }
+        self.uv_derivatives(hit).map_or(Vec3::ZERO, |d| d.0)
+    }
+
     /// Number of triangles in the BVH.
     pub fn triangle_count(&self) -> usize {
         self.triangles.len()

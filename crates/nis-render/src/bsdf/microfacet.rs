@@ -10,6 +10,11 @@
 //! form `G1(wo) G1(wi)`, which is what Mitsuba 3 uses, with its Beckmann `G1`: Walter et al.'s
 //! rational fit of the exact `1/(1 + Λ)`. Densities use the exact `G1`, since that is what the
 //! visible normals are drawn from.
+//!
+//! Anisotropic roughness (`alpha_u` along the shading frame's `s`, `alpha_v` along `t`) is
+//! Mitsuba 3's `microfacet.h`: `D` with the slopes scaled per axis, `G1` with the roughness
+//! projected onto the azimuth of the direction, and visible normals drawn by stretching the
+//! direction to unit roughness and unstretching the normal (Heitz 2014, 2018).
 
 use std::f32::consts::PI;
 
@@ -27,30 +32,73 @@ pub enum MicrofacetKind {
     Beckmann,
 }
 
-/// An isotropic microfacet distribution with roughness `alpha` (the slope parameter, not
-/// squared).
+/// A microfacet distribution with roughness `alpha_u` along the local `x` (the shading
+/// frame's `s`) and `alpha_v` along `y` (slope parameters, not squared); isotropic when equal.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Microfacet {
     /// The distribution.
     pub kind: MicrofacetKind,
-    /// Roughness.
-    pub alpha: f32,
+    /// Roughness along the local `x`.
+    pub alpha_u: f32,
+    /// Roughness along the local `y`.
+    pub alpha_v: f32,
 }
 
 impl Microfacet {
+    /// An isotropic distribution of roughness `alpha`.
+    pub fn new(kind: MicrofacetKind, alpha: f32) -> Self {
+        Microfacet {
+            kind,
+            alpha_u: alpha,
+            alpha_v: alpha,
+        }
+    }
+
     /// GGX of roughness `alpha`.
     pub fn ggx(alpha: f32) -> Self {
-        Microfacet {
-            kind: MicrofacetKind::Ggx,
-            alpha,
+        Self::new(MicrofacetKind::Ggx, alpha)
+    }
+
+    /// Whether the roughness differs along `x` and `y`.
+    pub fn is_anisotropic(&self) -> bool {
+        self.alpha_u != self.alpha_v
+    }
+
+    /// The roughness projected onto the azimuth of `v`: `√(α_u² cos²φ + α_v² sin²φ)`.
+    fn alpha_along(&self, v: Vec3) -> f32 {
+        let r2 = v.x * v.x + v.y * v.y;
+        if !self.is_anisotropic() || r2 <= 0.0 {
+            return self.alpha_u;
         }
+        let (x, y) = (self.alpha_u * v.x, self.alpha_v * v.y);
+        ((x * x + y * y) / r2).sqrt()
     }
 
     /// Microfacet normal density `D(m)` (per unit projected area).
     pub fn d(&self, m: Vec3) -> f32 {
+        if self.is_anisotropic() {
+            return self.anisotropic_d(m);
+        }
         match self.kind {
             MicrofacetKind::Ggx => self.ggx_d(m),
-            MicrofacetKind::Beckmann => beckmann_d(self.alpha, m),
+            MicrofacetKind::Beckmann => beckmann_d(self.alpha_u, m),
+        }
+    }
+
+    /// Mitsuba's anisotropic `D(m)`, the slopes scaled by `1/α_u` and `1/α_v`.
+    fn anisotropic_d(&self, m: Vec3) -> f32 {
+        if m.z <= 0.0 {
+            return 0.0;
+        }
+        let (x, y) = (m.x / self.alpha_u, m.y / self.alpha_v);
+        let cos2 = m.z * m.z;
+        let area = PI * self.alpha_u * self.alpha_v;
+        match self.kind {
+            MicrofacetKind::Ggx => {
+                let t = x * x + y * y + cos2;
+                1.0 / (area * t * t)
+            }
+            MicrofacetKind::Beckmann => (-(x * x + y * y) / cos2).exp() / (area * cos2 * cos2),
         }
     }
 
@@ -58,7 +106,7 @@ impl Microfacet {
     pub fn g1(&self, v: Vec3, m: Vec3) -> f32 {
         match self.kind {
             MicrofacetKind::Ggx => self.ggx_g1(v, m),
-            MicrofacetKind::Beckmann => beckmann_g1_fit(self.alpha, v, m),
+            MicrofacetKind::Beckmann => beckmann_g1_fit(self.alpha_along(v), v, m),
         }
     }
 
@@ -66,7 +114,7 @@ impl Microfacet {
     pub fn sample_visible(&self, v: Vec3, u: Vec2) -> Vec3 {
         match self.kind {
             MicrofacetKind::Ggx => self.ggx_sample_visible(v, u),
-            MicrofacetKind::Beckmann => beckmann_sample_visible(self.alpha, v, u),
+            MicrofacetKind::Beckmann => beckmann_sample_visible((self.alpha_u, self.alpha_v), v, u),
         }
     }
 
@@ -75,7 +123,7 @@ impl Microfacet {
     pub fn pdf_visible(&self, v: Vec3, m: Vec3) -> f32 {
         let g1 = match self.kind {
             MicrofacetKind::Ggx => self.ggx_g1(v, m),
-            MicrofacetKind::Beckmann => beckmann_g1_exact(self.alpha, v, m),
+            MicrofacetKind::Beckmann => beckmann_g1_exact(self.alpha_along(v), v, m),
         };
         g1 * v.dot(m).abs() * self.d(m) / v.z.abs()
     }
@@ -85,7 +133,7 @@ impl Microfacet {
         if m.z <= 0.0 {
             return 0.0;
         }
-        let a2 = self.alpha * self.alpha;
+        let a2 = self.alpha_u * self.alpha_u;
         let cos2 = m.z * m.z;
         let t = (m.x * m.x + m.y * m.y) / a2 + cos2;
         1.0 / (PI * a2 * t * t)
@@ -98,13 +146,14 @@ impl Microfacet {
         }
         let cos2 = v.z * v.z;
         let tan2 = ((1.0 - cos2) / cos2).max(0.0);
-        2.0 / (1.0 + (1.0 + self.alpha * self.alpha * tan2).sqrt())
+        let a = self.alpha_along(v);
+        2.0 / (1.0 + (1.0 + a * a * tan2).sqrt())
     }
 
     /// A microfacet normal from the distribution of normals visible from `v` (`v.z > 0`).
     fn ggx_sample_visible(&self, v: Vec3, u: Vec2) -> Vec3 {
-        let a = self.alpha;
-        let vh = Vec3::new(a * v.x, a * v.y, v.z).normalize();
+        let (au, av) = (self.alpha_u, self.alpha_v);
+        let vh = Vec3::new(au * v.x, av * v.y, v.z).normalize();
         let len2 = vh.x * vh.x + vh.y * vh.y;
         let t1 = if len2 > 0.0 {
             Vec3::new(-vh.y, vh.x, 0.0) / len2.sqrt()
@@ -118,7 +167,7 @@ impl Microfacet {
         let s = 0.5 * (1.0 + vh.z);
         let p2 = (1.0 - s) * (1.0 - p1 * p1).max(0.0).sqrt() + s * r * phi.sin();
         let nh = p1 * t1 + p2 * t2 + (1.0 - p1 * p1 - p2 * p2).max(0.0).sqrt() * vh;
-        Vec3::new(a * nh.x, a * nh.y, nh.z.max(1e-6)).normalize()
+        Vec3::new(au * nh.x, av * nh.y, nh.z.max(1e-6)).normalize()
     }
 }
 
@@ -174,8 +223,8 @@ const PI64: f64 = std::f64::consts::PI;
 /// roughness, draw the visible slope in the incidence plane by inverting its CDF
 /// `C(x) = G1 [(1 + erf x)/2 + tan θ exp(−x²)/(2√π)]` for `x ≤ cot θ`, the other slope from
 /// its Gaussian by inverting `erf`, rotate and unstretch.
-fn beckmann_sample_visible(alpha: f32, v: Vec3, u: Vec2) -> Vec3 {
-    let vs = Vec3::new(alpha * v.x, alpha * v.y, v.z).normalize();
+fn beckmann_sample_visible((au, av): (f32, f32), v: Vec3, u: Vec2) -> Vec3 {
+    let vs = Vec3::new(au * v.x, av * v.y, v.z).normalize();
     let (u1, u2) = (f64::from(u.x), f64::from(u.y));
     let cos = f64::from(vs.z).clamp(-1.0, 1.0);
     let sin = (1.0 - cos * cos).max(0.0).sqrt();
@@ -204,8 +253,8 @@ fn beckmann_sample_visible(alpha: f32, v: Vec3, u: Vec2) -> Vec3 {
         (1.0, 0.0)
     };
     let (x, y) = (c * sx - s * sy, s * sx + c * sy);
-    let a = f64::from(alpha);
-    Vec3::new((-x * a) as f32, (-y * a) as f32, 1.0).normalize()
+    let (au, av) = (f64::from(au), f64::from(av));
+    Vec3::new((-x * au) as f32, (-y * av) as f32, 1.0).normalize()
 }
 
 /// The `x` in `[lo, hi]` with `cdf(x) = target` for an increasing `cdf` with derivative

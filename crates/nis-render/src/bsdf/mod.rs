@@ -232,6 +232,16 @@ impl Material {
         self.bsdf.is_delta()
     }
 
+    /// Whether its roughness differs along the shading frame's tangents (a number or a
+    /// texture): such a surface needs the frame Mitsuba builds from `∂p/∂u`.
+    pub fn is_anisotropic(&self) -> bool {
+        self.bsdf.is_anisotropic()
+            || self
+                .textures
+                .iter()
+                .any(|(s, _)| matches!(s, Slot::AlphaU | Slot::AlphaV))
+    }
+
     /// Whether light may pass through the surface (a dielectric, or a mask); every other BSDF
     /// scatters only into `wo`'s side of the shading normal (one-sided ones only from the
     /// front).
@@ -308,6 +318,17 @@ impl Bsdf {
         match self {
             Bsdf::Conductor { .. } | Bsdf::Dielectric { .. } | Bsdf::ThinDielectric { .. } => true,
             Bsdf::Blend(b) => b.is_delta(),
+            _ => false,
+        }
+    }
+
+    /// Whether its roughness differs along the shading frame's tangents.
+    pub fn is_anisotropic(&self) -> bool {
+        match self {
+            Bsdf::RoughConductor { dist, .. } | Bsdf::RoughDielectric { dist, .. } => {
+                dist.is_anisotropic()
+            }
+            Bsdf::Blend(b) => b.bsdfs.iter().any(Bsdf::is_anisotropic),
             _ => false,
         }
     }

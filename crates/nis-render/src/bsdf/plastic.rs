@@ -288,7 +288,7 @@ mod tests {
     #[test]
     fn rough_transmittance_tends_to_the_smooth_one() {
         for kind in [MicrofacetKind::Ggx, MicrofacetKind::Beckmann] {
-            let dist = Microfacet { kind, alpha: 0.01 };
+            let dist = Microfacet::new(kind, 0.01);
             for mu in [0.3f32, 0.7, 1.0] {
                 let rough = rough_transmittance(&dist, 1.5, mu);
                 let smooth = 1.0 - fresnel_dielectric(mu, 1.5).0;
@@ -297,7 +297,7 @@ mod tests {
                     "{kind:?} μ {mu}: {rough} vs {smooth}"
                 );
             }
-            let dist = Microfacet { kind, alpha: 0.3 };
+            let dist = Microfacet::new(kind, 0.3);
             assert!(rough_transmittance(&dist, 1.5, 0.1) < rough_transmittance(&dist, 1.5, 0.9));
         }
     }

@@ -72,6 +72,42 @@ fn materials() -> Vec<(&'static str, Material)> {
             }),
         ),
         (
+            "anisotropic ggx conductor 0.05 × 0.4",
+            Material::new(Bsdf::RoughConductor {
+                dist: anisotropic(MicrofacetKind::Ggx, 0.05, 0.4),
+                eta: gold_eta,
+                k: gold_k,
+                specular_reflectance: Vec3::ONE,
+            }),
+        ),
+        (
+            "anisotropic beckmann conductor 0.5 × 0.1",
+            Material::new(Bsdf::RoughConductor {
+                dist: anisotropic(MicrofacetKind::Beckmann, 0.5, 0.1),
+                eta: gold_eta,
+                k: gold_k,
+                specular_reflectance: Vec3::ONE,
+            }),
+        ),
+        (
+            "anisotropic ggx dielectric 0.15 × 0.5",
+            Material::new(Bsdf::RoughDielectric {
+                dist: anisotropic(MicrofacetKind::Ggx, 0.15, 0.5),
+                eta: 1.5,
+                specular_reflectance: Vec3::ONE,
+                specular_transmittance: Vec3::ONE,
+            }),
+        ),
+        (
+            "anisotropic beckmann dielectric 0.4 × 0.1",
+            Material::new(Bsdf::RoughDielectric {
+                dist: anisotropic(MicrofacetKind::Beckmann, 0.4, 0.1),
+                eta: 1.5,
+                specular_reflectance: Vec3::ONE,
+                specular_transmittance: Vec3::ONE,
+            }),
+        ),
+        (
             "plastic",
             Material::new(Bsdf::Plastic(Box::new(Plastic::new(
                 1.49,
@@ -146,9 +182,14 @@ fn materials() -> Vec<(&'static str, Material)> {
 }
 
 fn beckmann(alpha: f32) -> Microfacet {
+    Microfacet::new(MicrofacetKind::Beckmann, alpha)
+}
+
+fn anisotropic(kind: MicrofacetKind, alpha_u: f32, alpha_v: f32) -> Microfacet {
     Microfacet {
-        kind: MicrofacetKind::Beckmann,
-        alpha,
+        kind,
+        alpha_u,
+        alpha_v,
     }
 }
 
@@ -414,4 +455,44 @@ fn a_blend_with_a_delta_lobe_reflects_the_mixture_of_the_albedos() {
         (share - 0.3).abs() < 5.0 * (0.21f64 / n as f64).sqrt(),
         "{share}"
     );
+}
+
+/// `∫ f(m) dω_m` over the upper hemisphere, in slope space `m ∝ (−tan a, −tan b, 1)` (where
+/// `dω_m = cos³θ_m sec²a sec²b da db`), by the midpoint rule.
+fn over_normals(f: impl Fn(Vec3) -> f32) -> f64 {
+    const N: usize = 600;
+    let h = PI / N as f32;
+    let mut sum = 0.0f64;
+    for i in 0..N {
+        let a = -0.5 * PI + h * (i as f32 + 0.5);
+        for j in 0..N {
+            let b = -0.5 * PI + h * (j as f32 + 0.5);
+            let m = Vec3::new(-a.tan(), -b.tan(), 1.0);
+            let cos = 1.0 / m.length();
+            let jac = cos.powi(3) / (a.cos() * b.cos()).powi(2);
+            sum += f64::from(f(m * cos) * jac * h * h);
+        }
+    }
+    sum
+}
+
+#[test]
+fn anisotropic_normals_project_to_unit_area_and_their_visible_ones_integrate_to_one() {
+    for kind in [MicrofacetKind::Ggx, MicrofacetKind::Beckmann] {
+        let dist = anisotropic(kind, 0.1, 0.4);
+        let area = over_normals(|m| dist.d(m) * m.z);
+        assert!((area - 1.0).abs() < 2e-3, "{kind:?}: ∫ D cos = {area}");
+        for v in [Vec3::new(0.5, 0.2, 0.6), Vec3::new(-0.1, 0.9, 0.3)] {
+            let v = v.normalize();
+            let visible = over_normals(|m| dist.pdf_visible(v, m));
+            assert!(
+                (visible - 1.0).abs() < 3e-3,
+                "{kind:?} {v}: ∫ Dv = {visible}"
+            );
+        }
+        // Rotated 90°, the distribution differs: it is not isotropic.
+        let m = Vec3::new(0.3, 0.0, 1.0).normalize();
+        let turned = anisotropic(kind, 0.4, 0.1);
+        assert!(dist.d(m) < 0.5 * turned.d(m), "{kind:?}");
+    }
 }

@@ -26,6 +26,10 @@ pub enum Slot {
     /// A rough conductor's or dielectric's isotropic roughness `alpha` (the texture's
     /// luminance, at least [`MIN_ALPHA`]).
     Alpha,
+    /// Its roughness `alpha_u` along the shading frame's `s` (as [`Slot::Alpha`]).
+    AlphaU,
+    /// Its roughness `alpha_v` along the shading frame's `t` (as [`Slot::Alpha`]).
+    AlphaV,
     /// One of a principled BSDF's scalar parameters (the texture's luminance).
     Principled(PrincipledParam),
 }
@@ -53,9 +57,17 @@ impl Material {
                 (Slot::Reflectance, Bsdf::Plastic(p)) => p.diffuse_reflectance = v,
                 (Slot::Reflectance, Bsdf::Principled(p)) => p.base_color = v,
                 (
-                    Slot::Alpha,
+                    Slot::Alpha | Slot::AlphaU | Slot::AlphaV,
                     Bsdf::RoughConductor { dist, .. } | Bsdf::RoughDielectric { dist, .. },
-                ) => dist.alpha = t.eval_scalar(uv).max(MIN_ALPHA),
+                ) => {
+                    let a = t.eval_scalar(uv).max(MIN_ALPHA);
+                    if *slot != Slot::AlphaV {
+                        dist.alpha_u = a;
+                    }
+                    if *slot != Slot::AlphaU {
+                        dist.alpha_v = a;
+                    }
+                }
                 (Slot::Principled(param), Bsdf::Principled(p)) => {
                     *p.param_mut(*param) = t.eval_scalar(uv);
                 }

@@ -232,9 +232,14 @@ impl PathTracer {
                     hit.ns = n;
                 }
             }
-            let frame = Frame::from_normal(hit.ns);
             let textured = base.at(hit.uv).map(Box::new);
             let material = textured.as_deref().unwrap_or(base);
+            // Anisotropic roughness is oriented by Mitsuba's tangent; others keep the old frame.
+            let frame = if base.is_anisotropic() {
+                Frame::from_normal_tangent(hit.ns, scene.dpdu(&hit))
+            } else {
+                Frame::from_normal(hit.ns)
+            };
             let vertex = GuideVertex {
                 p: hit.p,
                 n: hit.ns,

@@ -397,9 +397,9 @@ fn is_named_texture(c: &Element) -> bool {
 }
 
 /// The microfacet distribution of a rough BSDF: `distribution` (Mitsuba's default `beckmann`,
-/// or `ggx`) and an isotropic roughness: `alpha`, or `alpha_u` and `alpha_v` (both, as Mitsuba
-/// requires) when equal; a number or, where `textured`, a texture (its luminance, as Mitsuba's
-/// `eval_1`), raised to Mitsuba's least roughness as it does.
+/// or `ggx`) and its roughness: `alpha`, or `alpha_u` and `alpha_v` (both, as Mitsuba
+/// requires; anisotropic when they differ); each a number or, where `textured`, a texture (its
+/// luminance, as Mitsuba's `eval_1`), raised to Mitsuba's least roughness as it does.
 fn microfacet(c: &mut Colours, el: &Element, textured: bool) -> Result<Microfacet, XmlError> {
     let p = c.p;
     let kind = match p.string("distribution")?.unwrap_or("beckmann") {
@@ -428,43 +428,48 @@ fn microfacet(c: &mut Colours, el: &Element, textured: bool) -> Result<Microface
             "a rough BSDF takes its roughness as alpha or as alpha_u and alpha_v, not both",
         );
     }
-    let name = if u {
-        let same = match (texture("alpha_u"), texture("alpha_v")) {
+    let same = u
+        && match (texture("alpha_u"), texture("alpha_v")) {
             (Some(a), Some(b)) => a == b,
             (None, None) => p.float("alpha_u", 0.1)? == p.float("alpha_v", 0.1)?,
             _ => false,
         };
-        if !same {
-            return err(
-                el.line,
-                "anisotropic roughness (alpha_u ≠ alpha_v) is not supported",
-            );
-        }
-        // The two are the same: read alpha_u, mark alpha_v read.
+    let names: &[(&'static str, Slot)] = if !u {
+        &[("alpha", Slot::Alpha)]
+    } else if same {
+        // The two are the same: read alpha_u for both, mark alpha_v read.
         if texture("alpha_v").is_some() {
             c.used.push("alpha_v");
         } else {
             p.float("alpha_v", 0.1)?;
         }
-        "alpha_u"
+        &[("alpha_u", Slot::Alpha)]
     } else {
-        "alpha"
+        &[("alpha_u", Slot::AlphaU), ("alpha_v", Slot::AlphaV)]
     };
-    if !textured && texture(name).is_some() {
-        // Left unused: the caller reports it as a parameter that cannot be a texture.
-        return Ok(Microfacet { kind, alpha: 0.1 });
+    let mut alphas = [0.1f32; 2];
+    for (i, &(name, slot)) in names.iter().enumerate() {
+        if !textured && texture(name).is_some() {
+            // Left unused: the caller reports it as a parameter that cannot be a texture.
+            return Ok(Microfacet::new(kind, 0.1));
+        }
+        let alpha = c.scalar(name, slot, 0.1)?;
+        if !alpha.is_finite() || (texture(name).is_none() && alpha < 0.0) {
+            return err(
+                el.line,
+                format!("roughness {name} = {alpha} must be a non-negative number"),
+            );
+        }
+        alphas[i] = alpha.max(MIN_ALPHA);
     }
-    let alpha = c.scalar(name, Slot::Alpha, 0.1)?;
-    if !alpha.is_finite() || (texture(name).is_none() && alpha < 0.0) {
-        return err(
-            el.line,
-            format!("roughness {name} = {alpha} must be a non-negative number"),
-        );
+    if names.len() == 1 {
+        alphas[1] = alphas[0];
     }
     p.ignore(&["sample_visible"]);
     Ok(Microfacet {
         kind,
-        alpha: alpha.max(MIN_ALPHA),
+        alpha_u: alphas[0],
+        alpha_v: alphas[1],
     })
 }
 
