@@ -136,7 +136,17 @@ impl Loader {
                         .unwrap_err()
                         .into());
                     }
-                    Some(microfacet(&mut c, el, false)?)
+                    let dist = microfacet(&mut c, el, false)?;
+                    if dist.is_anisotropic() {
+                        // As Mitsuba 3's roughplastic, whose coating tables are isotropic.
+                        return Err(err::<()>(
+                            el.line,
+                            "a rough plastic's roughness is isotropic (alpha_u = alpha_v)",
+                        )
+                        .unwrap_err()
+                        .into());
+                    }
+                    Some(dist)
                 } else {
                     None
                 };

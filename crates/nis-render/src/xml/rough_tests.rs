@@ -94,6 +94,10 @@ fn ill_given_roughness_is_refused_with_its_line() {
             r#"<bsdf type="roughconductor" id="b"><float name="alpha" value="-0.1"/></bsdf>"#,
             "non-negative",
         ),
+        (
+            r#"<bsdf type="roughplastic" id="b"><float name="alpha_u" value="0.1"/><float name="alpha_v" value="0.3"/></bsdf>"#,
+            "isotropic",
+        ),
         // Mitsuba's rough plastic takes a number: its coating tables depend on it.
         (
             r#"<bsdf type="roughplastic" id="b"><ref name="alpha" id="c"/></bsdf>"#,
