@@ -119,6 +119,10 @@ def features():
               '<texture type="checkerboard" name="alpha_u"><float name="color0" value="0.2"/><float name="color1" value="0.5"/>'
               '<transform name="to_uv"><scale x="3" y="3"/></transform></texture>'
               '<float name="alpha_v" value="0.02"/></bsdf></shape>')
+    add("roughdielectric-anisotropic",
+        sphere='<bsdf type="roughdielectric"><string name="distribution" value="ggx"/>'
+               '<float name="alpha_u" value="0.4"/><float name="alpha_v" value="0.03"/></bsdf>',
+        floor='<bsdf type="diffuse"><ref name="reflectance" id="checks"/></bsdf>')
     add("roughdielectric-textured",
         sphere='<bsdf type="roughdielectric"><texture type="checkerboard" name="alpha">'
                '<float name="color0" value="0.01"/><float name="color1" value="0.7"/>'
