@@ -246,8 +246,9 @@ impl Scene {
     }
 
     /// `∂p/∂u` as Mitsuba 3 (3.9) sets a shading frame's tangent, up to its length: from a
-    /// triangle's texture coordinates, its first edge where it has none, zero where they are
-    /// degenerate; `z × n` on a sphere (its `φ` direction, up to sign).
+    /// triangle's texture coordinates, its first edge where it has none (after `flip_normals`,
+    /// which swaps our faces' last two vertices, the other edge: Mitsuba keeps the first),
+    /// zero where they are degenerate; `z × n` on a sphere (its `φ` direction, up to sign).
     pub fn dpdu(&self, hit: &SurfaceHit) -> Vec3 {
         let Some(info) = self.triangles.get(hit.triangle as usize) else {
             return Vec3::new(-hit.ng.y, hit.ng.x, 0.0);
