@@ -248,6 +248,14 @@ def features():
               '<bsdf type="principled"><texture type="bitmap" name="base_color"><string name="filename" value="texture.png"/></texture>'
               '<texture type="checkerboard" name="metallic"><rgb name="color0" value="0"/><rgb name="color1" value="1"/>'
               '<transform name="to_uv"><scale x="4" y="4"/></transform></texture><float name="roughness" value="0.3"/></bsdf></shape>')
+    add("principled-anisotropic",
+        sphere='<bsdf type="principled"><rgb name="base_color" value="0.9, 0.7, 0.4"/><float name="metallic" value="0.8"/>'
+               '<float name="roughness" value="0.5"/><float name="anisotropic" value="0.9"/><float name="clearcoat" value="0.3"/></bsdf>',
+        floor='<shape type="obj"><string name="filename" value="quad-uv.obj"/>'
+              '<bsdf type="principled"><rgb name="base_color" value="0.8, 0.8, 0.8"/><float name="metallic" value="1"/>'
+              '<float name="roughness" value="0.4"/><texture type="checkerboard" name="anisotropic">'
+              '<float name="color0" value="0"/><float name="color1" value="1"/>'
+              '<transform name="to_uv"><scale x="3" y="3"/></transform></texture></bsdf></shape>')
     # The sphere's centre is 3.2 from the camera: in focus at 2.2 it is blurred.
     add("sensor-thinlens", sensor="""<sensor type="thinlens">
         <float name="fov" value="40"/>

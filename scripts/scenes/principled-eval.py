@@ -1,6 +1,6 @@
 #!/usr/bin/env python3
 """Mitsuba 3's `principled` BSDF evaluated at fixed directions: the values and densities that
-`crates/nis-render/src/bsdf/tests.rs` pins (`principled_matches_mitsuba_eval_and_pdf`).
+`crates/nis-render/src/bsdf/principled_tests.rs` pins (`principled_matches_mitsuba_eval_and_pdf`).
 
 Prints Rust rows `(case, wo, wi, f, pdf)` in nis's convention: `wo` towards the viewer
 (Mitsuba's `si.wi`), `wi` the scattered direction, `f` without the cosine (Mitsuba's value over
@@ -21,6 +21,8 @@ CASES = [
     {"base_color": [0.9, 0.6, 0.3], "roughness": 0.25, "metallic": 0.8, "specular": 0.6},
     {"base_color": [0.7, 0.9, 0.8], "roughness": 0.3, "spec_trans": 0.7, "metallic": 0.1,
      "clearcoat": 0.3, "eta": 1.45},
+    {"base_color": [0.6, 0.8, 0.4], "roughness": 0.45, "anisotropic": 0.8, "spec_trans": 0.5,
+     "metallic": 0.3, "clearcoat": 0.4, "eta": 1.5},
 ]
 
 
@@ -48,7 +50,9 @@ def main():
         ctx = mi.BSDFContext()
         for wo, wi in PAIRS:
             si = mi.SurfaceInteraction3f()
-            si.sh_frame = mi.Frame3f(mi.Vector3f(0, 0, 1))
+            # The identity frame: s = x (the anisotropic alpha_x), t = y, n = z.
+            si.sh_frame = mi.Frame3f(mi.Vector3f(1, 0, 0), mi.Vector3f(0, 1, 0),
+                                     mi.Vector3f(0, 0, 1))
             si.wi = mi.Vector3f(wo)
             value = bsdf.eval(ctx, si, mi.Vector3f(wi))
             pdf = bsdf.pdf(ctx, si, mi.Vector3f(wi))

@@ -236,10 +236,12 @@ impl Material {
     /// texture): such a surface needs the frame Mitsuba builds from `∂p/∂u`.
     pub fn is_anisotropic(&self) -> bool {
         self.bsdf.is_anisotropic()
-            || self
-                .textures
-                .iter()
-                .any(|(s, _)| matches!(s, Slot::AlphaU | Slot::AlphaV))
+            || self.textures.iter().any(|(s, _)| {
+                matches!(
+                    s,
+                    Slot::AlphaU | Slot::AlphaV | Slot::Principled(PrincipledParam::Anisotropic)
+                )
+            })
     }
 
     /// Whether light may pass through the surface (a dielectric, or a mask); every other BSDF
@@ -328,6 +330,7 @@ impl Bsdf {
             Bsdf::RoughConductor { dist, .. } | Bsdf::RoughDielectric { dist, .. } => {
                 dist.is_anisotropic()
             }
+            Bsdf::Principled(p) => p.is_anisotropic(),
             Bsdf::Blend(b) => b.bsdfs.iter().any(Bsdf::is_anisotropic),
             _ => false,
         }

@@ -23,13 +23,16 @@ use super::BsdfSample;
 use crate::geometry::{luminance, reflect, Rgb};
 use crate::sampling::square_to_cosine_hemisphere;
 
-/// Mitsuba 3's `principled` BSDF (isotropic roughness).
+/// Mitsuba 3's `principled` BSDF.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Principled {
     /// Colour of the diffuse lobe, the metallic Fresnel and the tints.
     pub base_color: Rgb,
     /// Roughness; the GGX `α` is `max(0.001, roughness²)`.
     pub roughness: f32,
+    /// Anisotropy in [0, 1]: with `aspect = √(1 − 0.9 anisotropic)` the GGX `α`s are
+    /// `max(0.001, roughness² / aspect)` along `x` and `max(0.001, roughness² · aspect)` along `y`.
+    pub anisotropic: f32,
     /// Blend from dielectric to metallic Fresnel.
     pub metallic: f32,
     /// Share of the dielectric Fresnel tinted towards the base colour.
@@ -58,6 +61,8 @@ pub struct Principled {
 pub enum PrincipledParam {
     /// `roughness`.
     Roughness,
+    /// `anisotropic`.
+    Anisotropic,
     /// `metallic`.
     Metallic,
     /// `spec_tint`.
@@ -81,6 +86,7 @@ impl Principled {
     pub(super) fn param_mut(&mut self, param: PrincipledParam) -> &mut f32 {
         match param {
             PrincipledParam::Roughness => &mut self.roughness,
+            PrincipledParam::Anisotropic => &mut self.anisotropic,
             PrincipledParam::Metallic => &mut self.metallic,
             PrincipledParam::SpecTint => &mut self.spec_tint,
             PrincipledParam::SpecTrans => &mut self.spec_trans,
@@ -178,7 +184,18 @@ enum Lobe {
 
 impl Principled {
     fn dist(&self) -> Microfacet {
-        Microfacet::ggx((self.roughness * self.roughness).max(0.001))
+        let r2 = self.roughness * self.roughness;
+        let aspect = (1.0 - 0.9 * self.anisotropic.clamp(0.0, 1.0)).sqrt();
+        Microfacet {
+            alpha_u: (r2 / aspect).max(0.001),
+            alpha_v: (r2 * aspect).max(0.001),
+            ..Microfacet::ggx(0.001)
+        }
+    }
+
+    /// Whether the specular and transmission lobes are anisotropic.
+    pub fn is_anisotropic(&self) -> bool {
+        self.anisotropic != 0.0
     }
 
     fn clearcoat_alpha(&self) -> f32 {

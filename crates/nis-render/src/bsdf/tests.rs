@@ -171,6 +171,7 @@ fn materials() -> Vec<(&'static str, Material)> {
         ),
         ("principled: metallic", principled(1)),
         ("principled: rough transmission", principled(2)),
+        ("principled: anisotropic, transmission", principled(3)),
         ("masked diffuse", {
             let mut m = Material::new(Bsdf::Diffuse {
                 reflectance: Vec3::splat(0.6),

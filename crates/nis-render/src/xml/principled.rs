@@ -1,7 +1,7 @@
 //! Mitsuba 3's `principled` BSDF: its parameters, numbers or textures (a scalar parameter's
 //! texture acts by its luminance, as Mitsuba's `eval_1` does), and the index of refraction given
-//! as `eta` or as `specular` (`eta = 2 / (1 − √(0.08 specular)) − 1`). Anisotropic roughness is
-//! refused.
+//! as `eta` or as `specular` (`eta = 2 / (1 − √(0.08 specular)) − 1`). `anisotropic` (in [0, 1])
+//! stretches the specular and transmission lobes along the shading frame's `∂p/∂u`.
 
 use super::bsdf::Colours;
 use super::dom::{err, Element, XmlError};
@@ -12,13 +12,6 @@ use crate::geometry::Rgb;
 /// The principled BSDF of `<bsdf type="principled">` at `el`.
 pub(super) fn principled(p: &Props, el: &Element, c: &mut Colours) -> Result<Bsdf, XmlError> {
     use PrincipledParam as P;
-    let anisotropic_texture = c.textures.iter().any(|(n, _)| n == "anisotropic");
-    if anisotropic_texture || p.float("anisotropic", 0.0)? != 0.0 {
-        return err(
-            el.line,
-            "a principled BSDF with anisotropic roughness (anisotropic ≠ 0) is not supported",
-        );
-    }
     // Mitsuba keeps a transmission lobe only when spec_trans is given and not the number 0;
     // with one, an index of exactly 1 is nudged off it.
     let has_trans =
@@ -76,6 +69,7 @@ pub(super) fn principled(p: &Props, el: &Element, c: &mut Colours) -> Result<Bsd
     let b = Principled {
         base_color,
         roughness: scalar("roughness", P::Roughness, 0.5)?,
+        anisotropic: scalar("anisotropic", P::Anisotropic, 0.0)?,
         metallic: scalar("metallic", P::Metallic, 0.0)?,
         spec_tint: scalar("spec_tint", P::SpecTint, 0.0)?,
         spec_trans: scalar("spec_trans", P::SpecTrans, 0.0)?,
@@ -87,6 +81,15 @@ pub(super) fn principled(p: &Props, el: &Element, c: &mut Colours) -> Result<Bsd
         eta,
         rates,
     };
+    if !(0.0..=1.0).contains(&b.anisotropic) {
+        return err(
+            el.line,
+            format!(
+                "principled anisotropic = {} must be in [0, 1]",
+                b.anisotropic
+            ),
+        );
+    }
     if !(0.0..=1.0).contains(&b.clearcoat_gloss) {
         return err(
             el.line,

@@ -326,7 +326,7 @@ fn a_blendbsdf_mixes_two_plain_bsdfs_and_refuses_what_it_cannot_mix() {
 }
 
 #[test]
-fn a_principled_bsdf_reads_mitsubas_parameters_and_refuses_anisotropy() {
+fn a_principled_bsdf_reads_mitsubas_parameters() {
     use crate::bsdf::{Bsdf, PrincipledParam, Slot};
     let with = |bsdf: &str| {
         load(&format!(
@@ -349,14 +349,26 @@ fn a_principled_bsdf_reads_mitsubas_parameters_and_refuses_anisotropy() {
         panic!()
     };
     assert_eq!(p.eta, 1.001);
+    // Anisotropy, a number or a texture, asks for the ∂p/∂u frame.
+    let s =
+        with(r#"<bsdf type="principled" id="a"><float name="anisotropic" value="0.5"/></bsdf>"#)
+            .unwrap();
+    let m = s.materials.last().unwrap();
+    assert!(m.is_anisotropic());
+    let s =
+        with(r#"<bsdf type="principled" id="a"><ref name="anisotropic" id="c"/></bsdf>"#).unwrap();
+    let m = s.materials.last().unwrap();
+    assert_eq!(
+        m.textures[0].0,
+        Slot::Principled(PrincipledParam::Anisotropic)
+    );
+    assert!(m.is_anisotropic());
+    let s = with(r#"<bsdf type="principled" id="i"/>"#).unwrap();
+    assert!(!s.materials.last().unwrap().is_anisotropic());
     for (bsdf, needle) in [
         (
-            r#"<bsdf type="principled"><float name="anisotropic" value="0.5"/></bsdf>"#,
-            "anisotropic",
-        ),
-        (
-            r#"<bsdf type="principled"><ref name="anisotropic" id="c"/></bsdf>"#,
-            "anisotropic",
+            r#"<bsdf type="principled"><float name="anisotropic" value="1.5"/></bsdf>"#,
+            "anisotropic = 1.5 must be in [0, 1]",
         ),
         (
             r#"<bsdf type="principled"><float name="eta" value="1.5"/><float name="specular" value="0.5"/></bsdf>"#,
