@@ -147,6 +147,12 @@ def features():
     <emitter type="spot"><rgb name="intensity" value="6, 5, 4"/><float name="cutoff_angle" value="25"/>
         <transform name="to_world"><lookat origin="-1, 2, 1" target="0, 0, 0"/></transform>
     </emitter>""")
+    # A spot projecting the 16 x 12 texture down onto the floor and the sphere.
+    add("spot-texture", light="""<emitter type="constant"><rgb name="radiance" value="0.05, 0.06, 0.08"/></emitter>
+    <emitter type="spot"><rgb name="intensity" value="12, 11, 10"/><float name="cutoff_angle" value="32"/>
+        <texture type="bitmap" name="texture"><string name="filename" value="texture.png"/></texture>
+        <transform name="to_world"><lookat origin="0.3, 3, 1.4" target="0, 0, 0.3" up="0, 0, -1"/></transform>
+    </emitter>""")
     add("disk", light="""<shape type="disk">
         <transform name="to_world"><rotate x="1" angle="90"/><scale value="0.4"/><translate x="0.4" y="2.2" z="0.3"/></transform>
         <emitter type="area"><rgb name="radiance" value="12, 11, 10"/></emitter>

@@ -1,6 +1,6 @@
 //! Light sources: emissive shapes (Mitsuba's one-sided `area` emitter), a constant or mapped
-//! environment or Mitsuba's sun and sky, and delta lights (`directional`, `spot`), with the light-sampling strategy used
-//! for next-event estimation.
+//! environment or Mitsuba's sun and sky, and delta lights (`directional`, `spot`, optionally
+//! projecting a texture), with the light-sampling strategy used for next-event estimation.
 //!
 //! Each kind present (the environment, the area lights, the delta lights) gets an equal share of
 //! the choices; an area light is then chosen with probability proportional to its power
@@ -13,12 +13,13 @@ use std::f32::consts::PI;
 
 use std::sync::Arc;
 
-use glam::{Vec2, Vec3};
+use glam::{Mat3, Vec2, Vec3};
 
 use crate::envmap::{EnvMap, EnvSample};
 use crate::geometry::{luminance, Rgb};
 use crate::sampling::{square_to_triangle, square_to_uniform_sphere, Distribution1D};
 use crate::sunsky::SunSky;
+use crate::texture::Texture;
 
 /// An environment whose radiance varies with direction, importance-sampled.
 #[derive(Debug)]
@@ -119,8 +120,10 @@ pub struct DirectionalLight {
 }
 
 /// A point light shining into a cone (Mitsuba `spot`): full intensity within `beam_width` of
-/// its axis, falling linearly in angle to zero at `cutoff_angle`.
-#[derive(Clone, Copy, Debug)]
+/// its axis, falling linearly in angle to zero at `cutoff_angle`, times an optional texture
+/// projected through the cone (Mitsuba 3's `spot.cpp`: a local direction `d` reads
+/// `uv = ½ + ½ (d.x, d.y) / (d.z tan cutoff)`, so the image spans the cone's square).
+#[derive(Clone, Debug)]
 pub struct SpotLight {
     /// Position.
     pub position: Vec3,
@@ -132,6 +135,10 @@ pub struct SpotLight {
     pub cutoff: f32,
     /// Half-angle of the full-intensity beam, radians.
     pub beam_width: f32,
+    /// The projected texture, if any.
+    pub texture: Option<Arc<Texture>>,
+    /// World-to-local map of directions (the inverse of `to_world`'s linear part).
+    pub to_local: Mat3,
 }
 
 impl SpotLight {
@@ -146,10 +153,28 @@ impl SpotLight {
             (self.cutoff - cos.acos()) / (self.cutoff - self.beam_width)
         }
     }
+
+    /// The intensity sent in unit direction `d`: falloff times texture.
+    pub fn intensity_towards(&self, d: Vec3) -> Rgb {
+        let falloff = self.falloff(d);
+        if falloff <= 0.0 {
+            return Rgb::ZERO;
+        }
+        let mut intensity = self.intensity * falloff;
+        if let Some(texture) = &self.texture {
+            let l = self.to_local * d;
+            let uv = Vec2::new(l.x, l.y) / (2.0 * l.z * self.cutoff.tan()) + Vec2::splat(0.5);
+            if !uv.is_finite() {
+                return Rgb::ZERO;
+            }
+            intensity *= texture.eval(uv);
+        }
+        intensity
+    }
 }
 
 /// A light that no BSDF sample can reach: sampled by next-event estimation only.
-#[derive(Clone, Copy, Debug)]
+#[derive(Clone, Debug)]
 pub enum DeltaLight {
     /// Infinitely far away in one direction.
     Directional(DirectionalLight),
@@ -162,7 +187,9 @@ impl DeltaLight {
     fn power(&self) -> f32 {
         match self {
             DeltaLight::Directional(l) => luminance(l.irradiance),
-            DeltaLight::Spot(l) => luminance(l.intensity),
+            DeltaLight::Spot(l) => {
+                luminance(l.intensity) * l.texture.as_ref().map_or(1.0, |t| luminance(t.mean()))
+            }
         }
     }
 }
@@ -314,7 +341,7 @@ impl Lights {
             let u = ((u_select - p_env - p_area) / p_dir).min(1.0 - f32::EPSILON);
             let index = selection.sample(u);
             let pdf = p_dir * selection.pmf(index);
-            return match self.delta[index] {
+            return match &self.delta[index] {
                 DeltaLight::Directional(light) => Some(LightSample {
                     wi: -light.direction,
                     dist: f32::INFINITY,
@@ -326,13 +353,16 @@ impl Lights {
                 DeltaLight::Spot(light) => {
                     let to = light.position - p;
                     let dist2 = to.length_squared();
+                    if dist2 <= 0.0 {
+                        return None;
+                    }
                     let dist = dist2.sqrt();
-                    let falloff = light.falloff(-to / dist);
-                    (falloff > 0.0 && dist2 > 0.0).then(|| LightSample {
+                    let intensity = light.intensity_towards(-to / dist);
+                    (intensity != Rgb::ZERO).then(|| LightSample {
                         wi: to / dist,
                         dist,
                         point: light.position,
-                        radiance: light.intensity * (falloff / dist2),
+                        radiance: intensity / dist2,
                         pdf,
                         delta: true,
                     })

@@ -1,6 +1,6 @@
 //! The scene's own emitters: a `constant` environment, an `envmap` or a `sunsky`
-//! (`sunsky.rs`), `directional` and `spot` lights (Mitsuba 3's plugins, their parameters and
-//! defaults). Area emitters belong to their shape.
+//! (`sunsky.rs`), `directional` and `spot` lights, a spot projecting a `texture` (Mitsuba 3's
+//! plugins, their parameters and defaults). Area emitters belong to their shape.
 
 use glam::{Mat3, Vec3};
 
@@ -16,13 +16,26 @@ use crate::texture::{Bitmap, FilterMode, WrapMode};
 impl Loader {
     pub(super) fn emitter(&mut self, c: &Element) -> LoadResult<()> {
         let kind = c.required("type")?;
+        // A spot's `texture` is the one texture an emitter takes.
+        let takes_texture = |x: &Element| {
+            kind == "spot"
+                && matches!(x.name.as_str(), "texture" | "ref")
+                && x.attr("name") == Some("texture")
+        };
         if let Some(x) = c
             .children
             .iter()
-            .find(|x| !PROPERTY_TAGS.contains(&x.name.as_str()))
+            .find(|x| !PROPERTY_TAGS.contains(&x.name.as_str()) && !takes_texture(x))
         {
-            return unsupported(x, "properties inside an emitter (no textures)");
+            return unsupported(
+                x,
+                "properties inside an emitter; a spot's <texture name=\"texture\">",
+            );
         }
+        let texture = match kind {
+            "spot" => self.named_textures(c)?.pop().map(|(_, t)| t),
+            _ => None,
+        };
         let p = Props::new(c)?;
         match kind {
             "constant" | "envmap" | "sunsky" if self.environment.is_some() || self.environment_map.is_some() => {
@@ -83,7 +96,11 @@ impl Loader {
                 }
                 // It sits at to_world's origin and shines along its local +z.
                 let to_world = p.transform("to_world")?;
-                let Some(axis) = to_world.transform_vector3(Vec3::Z).try_normalize() else {
+                let linear = Mat3::from_mat4(to_world);
+                let Some(axis) = (linear * Vec3::Z)
+                    .try_normalize()
+                    .filter(|_| linear.determinant() != 0.0)
+                else {
                     return Err(err::<()>(c.line, "a spot's to_world has no direction")
                         .unwrap_err()
                         .into());
@@ -94,6 +111,8 @@ impl Loader {
                     intensity,
                     cutoff: cutoff.to_radians(),
                     beam_width: beam.to_radians(),
+                    texture,
+                    to_local: linear.inverse(),
                 }));
             }
             "sunsky" => self.sunsky(c, &p)?,

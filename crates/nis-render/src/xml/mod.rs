@@ -336,6 +336,8 @@ impl Loader {
 }
 
 #[cfg(test)]
+mod emitter_tests;
+#[cfg(test)]
 mod rough_tests;
 #[cfg(test)]
 mod tests;
