@@ -153,6 +153,12 @@ def features():
         <texture type="bitmap" name="texture"><string name="filename" value="texture.png"/></texture>
         <transform name="to_world"><lookat origin="0.3, 3, 1.4" target="0, 0, 0.3" up="0, 0, -1"/></transform>
     </emitter>""")
+    # A projector casting the 16 x 12 texture (its aspect sets the frustum's) from the front left.
+    add("projector", light="""<emitter type="constant"><rgb name="radiance" value="0.05, 0.06, 0.08"/></emitter>
+    <emitter type="projector"><float name="fov" value="45"/><float name="scale" value="1.5"/>
+        <texture type="bitmap" name="irradiance"><string name="filename" value="texture.png"/></texture>
+        <transform name="to_world"><lookat origin="-1, 2.4, 2.2" target="0, 0.2, 0" up="0, 1, 0"/></transform>
+    </emitter>""")
     add("disk", light="""<shape type="disk">
         <transform name="to_world"><rotate x="1" angle="90"/><scale value="0.4"/><translate x="0.4" y="2.2" z="0.3"/></transform>
         <emitter type="area"><rgb name="radiance" value="12, 11, 10"/></emitter>

@@ -101,22 +101,7 @@ impl Camera {
             (self.width, self.height) = (width, height);
             return;
         }
-        let t = (0.5 * self.fov.to_radians()).tan();
-        let axis = match self.fov_axis {
-            FovAxis::Smaller if w <= h => FovAxis::X,
-            FovAxis::Smaller => FovAxis::Y,
-            FovAxis::Larger if w >= h => FovAxis::X,
-            FovAxis::Larger => FovAxis::Y,
-            a => a,
-        };
-        (self.tan_x, self.tan_y) = match axis {
-            FovAxis::X => (t, t * h / w),
-            FovAxis::Y => (t * w / h, t),
-            _ => {
-                let d = (w * w + h * h).sqrt();
-                (t * w / d, t * h / d)
-            }
-        };
+        (self.tan_x, self.tan_y) = half_tangents(self.fov, self.fov_axis, w, h);
         self.width = width;
         self.height = height;
     }
@@ -167,6 +152,27 @@ pub fn look_at(origin: Vec3, target: Vec3, up: Vec3) -> Mat4 {
         dir.extend(0.0),
         origin.extend(1.0),
     )
+}
+
+/// Tangents of the half field of view along x and y for a `w × h` image whose `fov` (degrees)
+/// is taken along `fov_axis` (Mitsuba's `parse_fov`).
+pub fn half_tangents(fov: f32, fov_axis: FovAxis, w: f32, h: f32) -> (f32, f32) {
+    let t = (0.5 * fov.to_radians()).tan();
+    let axis = match fov_axis {
+        FovAxis::Smaller if w <= h => FovAxis::X,
+        FovAxis::Smaller => FovAxis::Y,
+        FovAxis::Larger if w >= h => FovAxis::X,
+        FovAxis::Larger => FovAxis::Y,
+        a => a,
+    };
+    match axis {
+        FovAxis::X => (t, t * h / w),
+        FovAxis::Y => (t * w / h, t),
+        _ => {
+            let d = (w * w + h * h).sqrt();
+            (t * w / d, t * h / d)
+        }
+    }
 }
 
 #[cfg(test)]

@@ -1,6 +1,7 @@
 //! Light sources: emissive shapes (Mitsuba's one-sided `area` emitter), a constant or mapped
 //! environment or Mitsuba's sun and sky, and delta lights (`directional`, `spot`, optionally
-//! projecting a texture), with the light-sampling strategy used for next-event estimation.
+//! projecting a texture, and `projector`), with the light-sampling strategy used for
+//! next-event estimation.
 //!
 //! Each kind present (the environment, the area lights, the delta lights) gets an equal share of
 //! the choices; an area light is then chosen with probability proportional to its power
@@ -13,7 +14,7 @@ use std::f32::consts::PI;
 
 use std::sync::Arc;
 
-use glam::{Mat3, Vec2, Vec3};
+use glam::{Mat3, Mat4, Vec2, Vec3};
 
 use crate::envmap::{EnvMap, EnvSample};
 use crate::geometry::{luminance, Rgb};
@@ -173,6 +174,44 @@ impl SpotLight {
     }
 }
 
+/// A pinhole projecting an image (Mitsuba 3's `projector.cpp`, the perspective camera's
+/// reciprocal): a point `p` in the local frame reads the irradiance texture at
+/// `uv = ½ − ½ (x / (z tan_x), y / (z tan_y))` (Mitsuba's sample-to-camera map) and receives
+/// intensity over distance² `π · scale · E(uv) / (z² cos θ)`, so that a plane at z = 1 facing
+/// it gets irradiance `π · scale · E`, as in Mitsuba.
+#[derive(Clone, Debug)]
+pub struct ProjectorLight {
+    /// Position (the pinhole).
+    pub position: Vec3,
+    /// World-to-local map of points.
+    pub to_local: Mat4,
+    /// The local +z in world space (Mitsuba's `ds.n`).
+    pub axis: Vec3,
+    /// Half-width and half-height of the image at z = 1.
+    pub tan_half: Vec2,
+    /// Constant irradiance factor (the colour, or one under a texture) times `scale`.
+    pub irradiance: Rgb,
+    /// The projected image, if any.
+    pub texture: Option<Arc<Texture>>,
+}
+
+impl ProjectorLight {
+    /// Radiance times solid angle arriving at world point `p` from the projector (zero
+    /// outside its frustum).
+    pub fn arriving_at(&self, p: Vec3) -> Rgb {
+        let l = self.to_local.transform_point3(p);
+        let uv = Vec2::splat(0.5) - 0.5 * Vec2::new(l.x, l.y) / (l.z * self.tan_half);
+        let inside = l.z > 0.0 && uv.cmpge(Vec2::ZERO).all() && uv.cmple(Vec2::ONE).all();
+        let to_light = self.position - p;
+        let cos = self.axis.dot(-to_light.normalize_or_zero());
+        if !inside || cos <= 0.0 {
+            return Rgb::ZERO;
+        }
+        let e = self.texture.as_ref().map_or(Rgb::ONE, |t| t.eval(uv));
+        self.irradiance * e * (PI / (l.z * l.z * cos))
+    }
+}
+
 /// A light that no BSDF sample can reach: sampled by next-event estimation only.
 #[derive(Clone, Debug)]
 pub enum DeltaLight {
@@ -180,6 +219,8 @@ pub enum DeltaLight {
     Directional(DirectionalLight),
     /// A point with a cone.
     Spot(SpotLight),
+    /// A pinhole projecting an image.
+    Projector(ProjectorLight),
 }
 
 impl DeltaLight {
@@ -189,6 +230,10 @@ impl DeltaLight {
             DeltaLight::Directional(l) => luminance(l.irradiance),
             DeltaLight::Spot(l) => {
                 luminance(l.intensity) * l.texture.as_ref().map_or(1.0, |t| luminance(t.mean()))
+            }
+            DeltaLight::Projector(l) => {
+                PI * luminance(l.irradiance)
+                    * l.texture.as_ref().map_or(1.0, |t| luminance(t.mean()))
             }
         }
     }
@@ -363,6 +408,19 @@ impl Lights {
                         dist,
                         point: light.position,
                         radiance: intensity / dist2,
+                        pdf,
+                        delta: true,
+                    })
+                }
+                DeltaLight::Projector(light) => {
+                    let to = light.position - p;
+                    let dist = to.length();
+                    let radiance = light.arriving_at(p);
+                    (dist > 0.0 && radiance != Rgb::ZERO).then(|| LightSample {
+                        wi: to / dist,
+                        dist,
+                        point: light.position,
+                        radiance,
                         pdf,
                         delta: true,
                     })

@@ -1,26 +1,34 @@
 //! The scene's own emitters: a `constant` environment, an `envmap` or a `sunsky`
-//! (`sunsky.rs`), `directional` and `spot` lights, a spot projecting a `texture` (Mitsuba 3's
-//! plugins, their parameters and defaults). Area emitters belong to their shape.
+//! (`sunsky.rs`), `directional` and `spot` lights, a spot projecting a `texture`, and a
+//! `projector` (Mitsuba 3's plugins, their parameters and defaults). Area emitters belong to
+//! their shape.
 
-use glam::{Mat3, Vec3};
+use std::sync::Arc;
+
+use glam::{Mat3, Vec2, Vec3};
 
 use super::dom::{err, Element};
 use super::props::{Props, PROPERTY_TAGS};
+use super::sensor::fov_axis;
 use super::{unsupported, LoadResult, Loader};
+use crate::camera::{half_tangents, FovAxis};
 use crate::envmap::EnvMap;
 use crate::geometry::Rgb;
-use crate::light::{DeltaLight, DirectionalLight, EnvironmentLight, SpotLight};
+use crate::light::{DeltaLight, DirectionalLight, EnvironmentLight, ProjectorLight, SpotLight};
 use crate::spectrum::Role;
-use crate::texture::{Bitmap, FilterMode, WrapMode};
+use crate::texture::{Bitmap, FilterMode, Texture, WrapMode};
 
 impl Loader {
     pub(super) fn emitter(&mut self, c: &Element) -> LoadResult<()> {
         let kind = c.required("type")?;
-        // A spot's `texture` is the one texture an emitter takes.
+        // A spot's `texture` and a projector's `irradiance` are the textures emitters take.
+        let slot = match kind {
+            "spot" => Some("texture"),
+            "projector" => Some("irradiance"),
+            _ => None,
+        };
         let takes_texture = |x: &Element| {
-            kind == "spot"
-                && matches!(x.name.as_str(), "texture" | "ref")
-                && x.attr("name") == Some("texture")
+            slot.is_some() && matches!(x.name.as_str(), "texture" | "ref") && x.attr("name") == slot
         };
         if let Some(x) = c
             .children
@@ -29,12 +37,13 @@ impl Loader {
         {
             return unsupported(
                 x,
-                "properties inside an emitter; a spot's <texture name=\"texture\">",
+                "properties inside an emitter; a spot's <texture name=\"texture\">, a \
+                 projector's <texture name=\"irradiance\">",
             );
         }
-        let texture = match kind {
-            "spot" => self.named_textures(c)?.pop().map(|(_, t)| t),
-            _ => None,
+        let texture = match slot {
+            Some(_) => self.named_textures(c)?.pop().map(|(_, t)| t),
+            None => None,
         };
         let p = Props::new(c)?;
         match kind {
@@ -115,18 +124,77 @@ impl Loader {
                     to_local: linear.inverse(),
                 }));
             }
+            "projector" => {
+                let light = projector(c, &p, texture)?;
+                self.delta.push(DeltaLight::Projector(light));
+            }
             "sunsky" => self.sunsky(c, &p)?,
-            "sky" | "sun" | "point" | "projector" => {
+            "sky" | "sun" | "point" => {
                 return Err(err::<()>(
                     c.line,
-                    format!("the emitter <emitter type=\"{kind}\"> is not supported yet (supported: constant, envmap, sunsky, directional, spot, area inside a shape)"),
+                    format!("the emitter <emitter type=\"{kind}\"> is not supported yet (supported: constant, envmap, sunsky, directional, spot, projector, area inside a shape)"),
                 )
                 .unwrap_err()
                 .into())
             }
-            _ => return unsupported(c, "constant, envmap, sunsky, directional, spot; area inside a shape"),
+            _ => return unsupported(c, "constant, envmap, sunsky, directional, spot, projector; area inside a shape"),
         }
         p.finish()?;
         Ok(())
     }
+}
+
+/// A `projector`: its field of view (`fov` along `fov_axis`, or Mitsuba's default 35 mm
+/// `focal_length` of 50mm along the diagonal) over the irradiance texture's aspect (a colour's
+/// is 1, as Mitsuba's constant texture has resolution 1 × 1).
+fn projector(c: &Element, p: &Props, texture: Option<Arc<Texture>>) -> LoadResult<ProjectorLight> {
+    let fail =
+        |m: String| -> LoadResult<ProjectorLight> { Err(err::<()>(c.line, m).unwrap_err().into()) };
+    let irradiance = match texture {
+        Some(_) => Rgb::ONE,
+        None => p.spectrum("irradiance", Rgb::ONE, Role::Emission)?,
+    };
+    let scale = p.float("scale", 1.0)?;
+    let (w, h) = match texture.as_deref() {
+        Some(Texture::Bitmap { image, .. }) => image.size(),
+        _ => (1, 1),
+    };
+    let (fov, axis) = match (p.float_opt("fov")?, p.string("focal_length")?) {
+        (Some(_), Some(_)) => {
+            return fail("give a projector either fov or focal_length, not both".into())
+        }
+        (Some(fov), None) => (fov, fov_axis(c, p)?),
+        (None, f) => {
+            let f = f.unwrap_or("50mm");
+            let Some(mm) = f
+                .strip_suffix("mm")
+                .and_then(|x| x.trim().parse::<f32>().ok())
+            else {
+                return fail(format!("focal_length '{f}' is not a length in mm"));
+            };
+            let fov = 2.0
+                * ((36f32 * 36.0 + 24.0 * 24.0).sqrt() / (2.0 * mm))
+                    .atan()
+                    .to_degrees();
+            (fov, FovAxis::Diagonal)
+        }
+    };
+    if !(fov > 0.0 && fov < 180.0) {
+        return fail(format!(
+            "the field of view must be between 0 and 180 degrees, got {fov}"
+        ));
+    }
+    let (tx, ty) = half_tangents(fov, axis, w as f32, h as f32);
+    let to_world = p.transform("to_world")?;
+    if to_world.determinant() == 0.0 {
+        return fail("a projector's to_world is singular".into());
+    }
+    Ok(ProjectorLight {
+        position: to_world.transform_point3(Vec3::ZERO),
+        to_local: to_world.inverse(),
+        axis: to_world.transform_vector3(Vec3::Z),
+        tan_half: Vec2::new(tx, ty),
+        irradiance: irradiance * scale,
+        texture,
+    })
 }

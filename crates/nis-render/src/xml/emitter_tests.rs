@@ -1,12 +1,12 @@
-//! Reader tests of emitters with textures: a spot's projected `texture`, as Mitsuba 3's
-//! `spot.cpp` reads it, and errors for textures elsewhere.
+//! Reader tests of emitters with textures: a spot's projected `texture` and a `projector`, as
+//! Mitsuba 3's `spot.cpp` and `projector.cpp` read them, and errors for textures elsewhere.
 
 use std::path::Path;
 
 use glam::Vec3;
 
 use super::load_scene_str;
-use crate::light::DeltaLight;
+use crate::light::{DeltaLight, ProjectorLight};
 use crate::scene::Scene;
 use crate::Error;
 
@@ -59,4 +59,88 @@ fn only_a_spot_takes_a_texture() {
         .unwrap_err()
         .to_string();
     assert!(e.starts_with("test.xml:4:"), "{e}");
+}
+
+/// The projector of `with(emitter)`.
+fn projector(emitter: &str) -> ProjectorLight {
+    let s = with(emitter).unwrap();
+    let DeltaLight::Projector(l) = &s.lights.delta[0] else {
+        panic!("not a projector")
+    };
+    l.clone()
+}
+
+#[test]
+fn a_projector_lights_its_frustum_as_mitsuba_normalises_it() {
+    // Looking down -z from the origin with a 90° field of view: the image spans |x|, |y| ≤ z.
+    let frame = "<transform name=\"to_world\"><lookat origin=\"0, 0, 0\" target=\"0, 0, -1\" up=\"0, 1, 0\"/></transform>";
+    let plain = projector(&format!(
+        "<emitter type=\"projector\"><float name=\"fov\" value=\"90\"/><rgb name=\"irradiance\" value=\"2\"/>\
+         <float name=\"scale\" value=\"1.5\"/>{frame}</emitter>"
+    ));
+    let pi3 = std::f32::consts::PI * 3.0;
+    let at = |l: &ProjectorLight, x: f32, y: f32, z: f32| {
+        l.arriving_at(l.to_local.inverse().transform_point3(Vec3::new(x, y, z)))
+    };
+    // π · scale · E at z = 1 on the axis; over z² cos θ elsewhere; nothing outside.
+    assert!(
+        (at(&plain, 0.0, 0.0, 1.0) - Vec3::splat(pi3))
+            .abs()
+            .max_element()
+            < 1e-4
+    );
+    let cos = 1.0 / 1.5f32.sqrt();
+    let want = pi3 / (4.0 * cos);
+    assert!(
+        (at(&plain, 1.0, -1.0, 2.0) - Vec3::splat(want))
+            .abs()
+            .max_element()
+            < 1e-4
+    );
+    assert_eq!(at(&plain, 1.2, 0.0, 1.0), Vec3::ZERO);
+    assert_eq!(at(&plain, 0.0, 0.0, -1.0), Vec3::ZERO);
+    // uv = ½ − ½ (x, y) / z: (0.25, 0.25) is colour0, (0.75, 0.25) colour1 (cos θ as above).
+    let textured = projector(&format!(
+        "<emitter type=\"projector\"><float name=\"fov\" value=\"90\"/><ref name=\"irradiance\" id=\"c\"/>{frame}</emitter>"
+    ));
+    let pi = std::f32::consts::PI / cos;
+    assert!(
+        (at(&textured, 0.5, 0.5, 1.0) - Vec3::splat(0.1 * pi))
+            .abs()
+            .max_element()
+            < 1e-4
+    );
+    assert!(
+        (at(&textured, -0.5, 0.5, 1.0) - Vec3::splat(0.9 * pi))
+            .abs()
+            .max_element()
+            < 1e-4
+    );
+    // Mitsuba's default: a 50 mm focal length along the diagonal (46.8°), square for a colour.
+    let default = projector("<emitter type=\"projector\"/>");
+    let t = (23.4f32.to_radians()).tan() / 2f32.sqrt();
+    assert!(
+        (default.tan_half - glam::Vec2::splat(t))
+            .abs()
+            .max_element()
+            < 1e-3
+    );
+}
+
+#[test]
+fn a_projector_takes_fov_or_focal_length_not_both() {
+    let e = with("<emitter type=\"projector\"><float name=\"fov\" value=\"30\"/><string name=\"focal_length\" value=\"35mm\"/></emitter>")
+        .unwrap_err()
+        .to_string();
+    assert!(
+        e.starts_with("test.xml:4:") && e.contains("focal_length"),
+        "{e}"
+    );
+    let e = with("<emitter type=\"projector\"><ref name=\"texture\" id=\"c\"/></emitter>")
+        .unwrap_err()
+        .to_string();
+    assert!(
+        e.starts_with("test.xml:4:") && e.contains("irradiance"),
+        "{e}"
+    );
 }

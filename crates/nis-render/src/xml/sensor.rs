@@ -39,18 +39,7 @@ impl Loader {
             .unwrap_err()
             .into());
         }
-        let fov_axis = match p.string("fov_axis")?.unwrap_or("x") {
-            "x" => FovAxis::X,
-            "y" => FovAxis::Y,
-            "diagonal" => FovAxis::Diagonal,
-            "smaller" => FovAxis::Smaller,
-            "larger" => FovAxis::Larger,
-            other => {
-                return Err(err::<()>(el.line, format!("unknown fov_axis '{other}'"))
-                    .unwrap_err()
-                    .into())
-            }
-        };
+        let fov_axis = fov_axis(el, &p)?;
         let to_world = p.transform("to_world")?;
         p.ignore(&["near_clip", "far_clip", "shutter_open", "shutter_close"]);
         if projection == Projection::Perspective {
@@ -223,5 +212,21 @@ fn projection(el: &Element, p: &Props, kind: &str) -> LoadResult<Projection> {
         }
         "orthographic" => Projection::Orthographic,
         _ => Projection::Perspective,
+    })
+}
+
+/// Mitsuba's `fov_axis` (default `x`).
+pub(super) fn fov_axis(el: &Element, p: &Props) -> LoadResult<FovAxis> {
+    Ok(match p.string("fov_axis")?.unwrap_or("x") {
+        "x" => FovAxis::X,
+        "y" => FovAxis::Y,
+        "diagonal" => FovAxis::Diagonal,
+        "smaller" => FovAxis::Smaller,
+        "larger" => FovAxis::Larger,
+        other => {
+            return Err(err::<()>(el.line, format!("unknown fov_axis '{other}'"))
+                .unwrap_err()
+                .into())
+        }
     })
 }

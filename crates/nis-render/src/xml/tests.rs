@@ -273,7 +273,7 @@ fn legacy_files_unknown_integrators_and_missing_features_say_what_and_where() {
     for (element, needle) in [
         ("<medium type=\"homogeneous\" id=\"m\"/>", "medium"),
         ("<bsdf type=\"principledthin\" id=\"p\"/>", "principledthin"),
-        ("<emitter type=\"projector\"/>", "projector"),
+        ("<emitter type=\"point\"/>", "point"),
         ("<shape type=\"linearcurve\"/>", "linearcurve"),
     ] {
         let e = load(&format!("<scene>\n{SENSOR}\n{element}\n</scene>"))
