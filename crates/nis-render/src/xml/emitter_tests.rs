@@ -1,23 +1,15 @@
 //! Reader tests of emitters with textures: a spot's projected `texture` and a `projector`, as
 //! Mitsuba 3's `spot.cpp` and `projector.cpp` read them, and errors for textures elsewhere.
 
-use std::path::Path;
-
 use glam::Vec3;
 
-use super::load_scene_str;
 use crate::light::{DeltaLight, ProjectorLight};
 use crate::scene::Scene;
 use crate::Error;
 
 /// A scene with a checkerboard `c` (colours 0.1 and 0.9) and `emitter` on line 4.
 fn with(emitter: &str) -> Result<Scene, Error> {
-    let xml = format!(
-        "<scene version=\"3.0.0\">\n<sensor type=\"perspective\"><float name=\"fov\" value=\"45\"/></sensor>\n\
-         <texture type=\"checkerboard\" id=\"c\"><float name=\"color0\" value=\"0.1\"/><float name=\"color1\" value=\"0.9\"/></texture>\n\
-         {emitter}\n</scene>"
-    );
-    load_scene_str(&xml, Path::new("."), "test.xml", &[])
+    super::tests::with_checkerboard(0.1, 0.9, emitter)
 }
 
 #[test]

@@ -1,23 +1,15 @@
 //! Reader tests of rough BSDFs' roughness: numbers or textures, isotropic or anisotropic, with
 //! Mitsuba's rules for `alpha`, `alpha_u` and `alpha_v`.
 
-use std::path::Path;
-
 use glam::Vec2;
 
-use super::load_scene_str;
 use crate::bsdf::{Bsdf, Slot};
 use crate::scene::Scene;
 use crate::Error;
 
 /// A scene with a checkerboard `c` (float colours 0.05 and 0.4) and `bsdf` on line 4.
 fn with(bsdf: &str) -> Result<Scene, Error> {
-    let xml = format!(
-        "<scene version=\"3.0.0\">\n<sensor type=\"perspective\"><float name=\"fov\" value=\"45\"/></sensor>\n\
-         <texture type=\"checkerboard\" id=\"c\"><float name=\"color0\" value=\"0.05\"/><float name=\"color1\" value=\"0.4\"/></texture>\n\
-         {bsdf}\n</scene>"
-    );
-    load_scene_str(&xml, Path::new("."), "test.xml", &[])
+    super::tests::with_checkerboard(0.05, 0.4, bsdf)
 }
 
 fn alphas(b: &Bsdf) -> (f32, f32) {

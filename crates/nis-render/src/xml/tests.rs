@@ -24,6 +24,16 @@ fn load(xml: &str) -> Result<Scene, Error> {
     load_scene_str(xml, Path::new("."), "test.xml", &[])
 }
 
+/// A scene with a checkerboard `c` of float colours `c0` and `c1` and `element` on line 4 (for
+/// the reader tests of textured parameters).
+pub(super) fn with_checkerboard(c0: f32, c1: f32, element: &str) -> Result<Scene, Error> {
+    load(&format!(
+        "<scene version=\"3.0.0\">\n{SENSOR}\n\
+         <texture type=\"checkerboard\" id=\"c\"><float name=\"color0\" value=\"{c0}\"/><float name=\"color1\" value=\"{c1}\"/></texture>\n\
+         {element}\n</scene>"
+    ))
+}
+
 const SENSOR: &str = r#"<sensor type="perspective"><float name="fov" value="45"/></sensor>"#;
 
 #[test]
