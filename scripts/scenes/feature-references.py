@@ -147,6 +147,11 @@ def features():
     <emitter type="spot"><rgb name="intensity" value="6, 5, 4"/><float name="cutoff_angle" value="25"/>
         <transform name="to_world"><lookat origin="-1, 2, 1" target="0, 0, 0"/></transform>
     </emitter>""")
+    # A point light above the sphere (by `position`), seen through a 35 mm lens (`focal_length`,
+    # Mitsuba's field of view along the diagonal, in place of `fov`).
+    add("point", light="""<emitter type="constant"><rgb name="radiance" value="0.05, 0.06, 0.08"/></emitter>
+    <emitter type="point"><rgb name="intensity" value="3, 2.7, 2.4"/><point name="position" x="-0.6" y="1.8" z="0.9"/></emitter>""",
+        sensor=PERSPECTIVE.replace('<float name="fov" value="40"/>', '<string name="focal_length" value="35mm"/>'))
     # A spot projecting the 16 x 12 texture down onto the floor and the sphere.
     add("spot-texture", light="""<emitter type="constant"><rgb name="radiance" value="0.05, 0.06, 0.08"/></emitter>
     <emitter type="spot"><rgb name="intensity" value="12, 11, 10"/><float name="cutoff_angle" value="32"/>

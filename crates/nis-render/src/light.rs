@@ -1,5 +1,5 @@
 //! Light sources: emissive shapes (Mitsuba's one-sided `area` emitter), a constant or mapped
-//! environment or Mitsuba's sun and sky, and delta lights (`directional`, `spot`, optionally
+//! environment or Mitsuba's sun and sky, and delta lights (`directional`, `point`, `spot`, optionally
 //! projecting a texture, and `projector`), with the light-sampling strategy used for
 //! next-event estimation.
 //!
@@ -217,6 +217,14 @@ impl ProjectorLight {
 pub enum DeltaLight {
     /// Infinitely far away in one direction.
     Directional(DirectionalLight),
+    /// A point shining equally in all directions (Mitsuba `point`): radiant intensity at a
+    /// position.
+    Point {
+        /// Position.
+        position: Vec3,
+        /// Radiant intensity.
+        intensity: Rgb,
+    },
     /// A point with a cone.
     Spot(SpotLight),
     /// A pinhole projecting an image.
@@ -228,6 +236,7 @@ impl DeltaLight {
     fn power(&self) -> f32 {
         match self {
             DeltaLight::Directional(l) => luminance(l.irradiance),
+            DeltaLight::Point { intensity, .. } => luminance(*intensity),
             DeltaLight::Spot(l) => {
                 luminance(l.intensity) * l.texture.as_ref().map_or(1.0, |t| luminance(t.mean()))
             }
@@ -249,7 +258,7 @@ pub struct Lights {
     /// An environment map (Mitsuba `envmap`) or the sun and sky (`sunsky`), in place of a
     /// constant environment.
     pub environment_map: Option<Arc<EnvironmentLight>>,
-    /// Directional and spot lights.
+    /// Directional, point, spot and projector lights.
     pub delta: Vec<DeltaLight>,
     selection: Option<Distribution1D>,
     delta_selection: Option<Distribution1D>,
@@ -284,7 +293,7 @@ impl Lights {
         }
     }
 
-    /// Replace the delta (directional and spot) lights.
+    /// Replace the delta (directional, point, spot and projector) lights.
     pub fn set_delta(&mut self, delta: Vec<DeltaLight>) {
         let map = self.environment_map.take();
         *self = Self::with_directional(std::mem::take(&mut self.area), self.environment, delta);
@@ -395,6 +404,22 @@ impl Lights {
                     pdf,
                     delta: true,
                 }),
+                DeltaLight::Point {
+                    position,
+                    intensity,
+                } => {
+                    let to = *position - p;
+                    let dist2 = to.length_squared();
+                    let dist = dist2.sqrt();
+                    (dist2 > 0.0).then(|| LightSample {
+                        wi: to / dist,
+                        dist,
+                        point: *position,
+                        radiance: *intensity / dist2,
+                        pdf,
+                        delta: true,
+                    })
+                }
                 DeltaLight::Spot(light) => {
                     let to = light.position - p;
                     let dist2 = to.length_squared();

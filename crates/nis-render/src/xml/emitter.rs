@@ -1,5 +1,5 @@
 //! The scene's own emitters: a `constant` environment, an `envmap` or a `sunsky`
-//! (`sunsky.rs`), `directional` and `spot` lights, a spot projecting a `texture`, and a
+//! (`sunsky.rs`), `directional`, `point` and `spot` lights, a spot projecting a `texture`, and a
 //! `projector` (Mitsuba 3's plugins, their parameters and defaults). Area emitters belong to
 //! their shape.
 
@@ -9,7 +9,7 @@ use glam::{Mat3, Vec2, Vec3};
 
 use super::dom::{err, Element};
 use super::props::{Props, PROPERTY_TAGS};
-use super::sensor::fov_axis;
+use super::sensor::{focal_length_fov, fov_axis};
 use super::{unsupported, LoadResult, Loader};
 use crate::camera::{half_tangents, FovAxis};
 use crate::envmap::EnvMap;
@@ -128,16 +128,30 @@ impl Loader {
                 let light = projector(c, &p, texture)?;
                 self.delta.push(DeltaLight::Projector(light));
             }
+            "point" => {
+                let intensity = p.spectrum("intensity", Rgb::ONE, Role::Emission)?;
+                // `position`, or to_world's origin (Mitsuba refuses both).
+                let position = match (p.by_name.contains_key("position"), p.by_name.contains_key("to_world")) {
+                    (true, true) => {
+                        return Err(err::<()>(c.line, "give a point emitter either position or to_world, not both")
+                            .unwrap_err()
+                            .into())
+                    }
+                    (true, false) => p.point("position", Vec3::ZERO)?,
+                    (false, _) => p.transform("to_world")?.transform_point3(Vec3::ZERO),
+                };
+                self.delta.push(DeltaLight::Point { position, intensity });
+            }
             "sunsky" => self.sunsky(c, &p)?,
-            "sky" | "sun" | "point" => {
+            "sky" | "sun" => {
                 return Err(err::<()>(
                     c.line,
-                    format!("the emitter <emitter type=\"{kind}\"> is not supported yet (supported: constant, envmap, sunsky, directional, spot, projector, area inside a shape)"),
+                    format!("the emitter <emitter type=\"{kind}\"> is not supported yet (supported: constant, envmap, sunsky, directional, point, spot, projector, area inside a shape)"),
                 )
                 .unwrap_err()
                 .into())
             }
-            _ => return unsupported(c, "constant, envmap, sunsky, directional, spot, projector; area inside a shape"),
+            _ => return unsupported(c, "constant, envmap, sunsky, directional, point, spot, projector; area inside a shape"),
         }
         p.finish()?;
         Ok(())
@@ -164,20 +178,7 @@ fn projector(c: &Element, p: &Props, texture: Option<Arc<Texture>>) -> LoadResul
             return fail("give a projector either fov or focal_length, not both".into())
         }
         (Some(fov), None) => (fov, fov_axis(c, p)?),
-        (None, f) => {
-            let f = f.unwrap_or("50mm");
-            let Some(mm) = f
-                .strip_suffix("mm")
-                .and_then(|x| x.trim().parse::<f32>().ok())
-            else {
-                return fail(format!("focal_length '{f}' is not a length in mm"));
-            };
-            let fov = 2.0
-                * ((36f32 * 36.0 + 24.0 * 24.0).sqrt() / (2.0 * mm))
-                    .atan()
-                    .to_degrees();
-            (fov, FovAxis::Diagonal)
-        }
+        (None, f) => (focal_length_fov(c, f)?, FovAxis::Diagonal),
     };
     if !(fov > 0.0 && fov < 180.0) {
         return fail(format!(

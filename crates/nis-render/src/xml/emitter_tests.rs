@@ -136,3 +136,46 @@ fn a_projector_takes_fov_or_focal_length_not_both() {
         "{e}"
     );
 }
+
+#[test]
+fn a_point_light_sits_at_its_position_or_to_worlds_origin() {
+    let point = |emitter: &str| {
+        let s = with(emitter).unwrap();
+        match s.lights.delta[..] {
+            [DeltaLight::Point {
+                position,
+                intensity,
+            }] => (position, intensity),
+            _ => panic!("not one point light"),
+        }
+    };
+    // Mitsuba 3's `point.cpp`: intensity defaults to 1, the position to the origin.
+    assert_eq!(point("<emitter type=\"point\"/>"), (Vec3::ZERO, Vec3::ONE));
+    assert_eq!(
+        point("<emitter type=\"point\"><rgb name=\"intensity\" value=\"2, 3, 4\"/><point name=\"position\" x=\"1\" y=\"2\" z=\"3\"/></emitter>"),
+        (Vec3::new(1.0, 2.0, 3.0), Vec3::new(2.0, 3.0, 4.0))
+    );
+    assert_eq!(
+        point("<emitter type=\"point\"><transform name=\"to_world\"><translate x=\"-1\" y=\"5\" z=\"0.5\"/></transform></emitter>").0,
+        Vec3::new(-1.0, 5.0, 0.5)
+    );
+    // Next-event estimation sees intensity over distance².
+    let s = with("<emitter type=\"point\"><rgb name=\"intensity\" value=\"8\"/><point name=\"position\" x=\"0\" y=\"2\" z=\"0\"/></emitter>").unwrap();
+    let l = s
+        .lights
+        .sample(Vec3::ZERO, 0.5, glam::Vec2::splat(0.5))
+        .unwrap();
+    assert!(l.delta && l.pdf == 1.0 && l.dist == 2.0, "{l:?}");
+    assert_eq!((l.wi, l.radiance), (Vec3::Y, Vec3::splat(2.0)));
+    // Both places at once, as Mitsuba refuses; a texture.
+    for (emitter, needle) in [
+        (
+            "<emitter type=\"point\"><point name=\"position\" x=\"1\" y=\"2\" z=\"3\"/><transform name=\"to_world\"><translate x=\"1\"/></transform></emitter>",
+            "not both",
+        ),
+        ("<emitter type=\"point\"><ref name=\"intensity\" id=\"c\"/></emitter>", "spot"),
+    ] {
+        let e = with(emitter).unwrap_err().to_string();
+        assert!(e.starts_with("test.xml:4:") && e.contains(needle), "{e}");
+    }
+}

@@ -22,14 +22,24 @@ impl Loader {
         let p = Props::new(el)?;
         let projection = projection(el, &p, kind)?;
         // Parallel rays have no field of view (a value given is read and left unused).
-        let fov = match p.float_opt("fov")? {
-            Some(fov) => fov,
-            None if projection == Projection::Orthographic => 40.0,
-            None => {
-                return Err(err::<()>(el.line, "the sensor needs <float name=\"fov\">")
-                    .unwrap_err()
-                    .into())
+        // Without `fov`, a perspective's `focal_length` (default 50mm) along the diagonal; Mitsuba
+        // refuses both.
+        let focal = match projection {
+            Projection::Orthographic => None,
+            _ => p.string("focal_length")?,
+        };
+        let (fov, fov_axis) = match (p.float_opt("fov")?, focal) {
+            (Some(_), Some(_)) => {
+                return Err(err::<()>(
+                    el.line,
+                    "give the sensor either fov or focal_length, not both",
+                )
+                .unwrap_err()
+                .into())
             }
+            (Some(fov), None) => (fov, fov_axis(el, &p)?),
+            (None, _) if projection == Projection::Orthographic => (40.0, fov_axis(el, &p)?),
+            (None, f) => (focal_length_fov(el, f)?, FovAxis::Diagonal),
         };
         if !(fov > 0.0 && fov < 180.0) {
             return Err(err::<()>(
@@ -39,7 +49,6 @@ impl Loader {
             .unwrap_err()
             .into());
         }
-        let fov_axis = fov_axis(el, &p)?;
         let to_world = p.transform("to_world")?;
         p.ignore(&["near_clip", "far_clip", "shutter_open", "shutter_close"]);
         if projection == Projection::Perspective {
@@ -229,4 +238,29 @@ pub(super) fn fov_axis(el: &Element, p: &Props) -> LoadResult<FovAxis> {
                 .into())
         }
     })
+}
+
+/// The field of view, in degrees along the diagonal, of Mitsuba's `focal_length` (default
+/// `50mm`, a 35 mm film's: 36 × 24 mm), as its `parse_fov` reads it (the `mm` is optional).
+pub(super) fn focal_length_fov(el: &Element, f: Option<&str>) -> LoadResult<f32> {
+    let f = f.unwrap_or("50mm");
+    let Some(mm) = f
+        .strip_suffix("mm")
+        .unwrap_or(f)
+        .trim()
+        .parse::<f32>()
+        .ok()
+        .filter(|mm| mm.is_finite() && *mm > 0.0)
+    else {
+        return Err(err::<()>(
+            el.line,
+            format!("focal_length '{f}' is not a positive length in mm"),
+        )
+        .unwrap_err()
+        .into());
+    };
+    Ok(2.0
+        * ((36f32 * 36.0 + 24.0 * 24.0).sqrt() / (2.0 * mm))
+            .atan()
+            .to_degrees())
 }

@@ -283,7 +283,7 @@ fn legacy_files_unknown_integrators_and_missing_features_say_what_and_where() {
     for (element, needle) in [
         ("<medium type=\"homogeneous\" id=\"m\"/>", "medium"),
         ("<bsdf type=\"principledthin\" id=\"p\"/>", "principledthin"),
-        ("<emitter type=\"point\"/>", "point"),
+        ("<emitter type=\"sun\"/>", "sun"),
         ("<shape type=\"linearcurve\"/>", "linearcurve"),
     ] {
         let e = load(&format!("<scene>\n{SENSOR}\n{element}\n</scene>"))
@@ -471,8 +471,8 @@ fn thin_lens_and_orthographic_sensors_read_their_parameters_and_refuse_bad_ones(
             "focus_distance must be a positive number",
         ),
         (
-            r#"<sensor type="thinlens"><float name="aperture_radius" value="0.1"/></sensor>"#,
-            "fov",
+            r#"<sensor type="thinlens"><float name="fov" value="30"/><string name="focal_length" value="35mm"/><float name="aperture_radius" value="0.1"/></sensor>"#,
+            "not both",
         ),
         (
             r#"<sensor type="irradiancemeter"/>"#,
@@ -595,6 +595,44 @@ fn a_cylinder_reads_p0_p1_and_radius_and_refuses_a_degenerate_one() {
         ),
     ] {
         let e = with(shape).unwrap_err().to_string();
+        assert!(e.starts_with("test.xml:4:") && e.contains(needle), "{e}");
+    }
+}
+
+#[test]
+fn a_perspective_without_fov_reads_its_focal_length_along_the_diagonal() {
+    let sensor = |props: &str| {
+        load(&format!(
+            "<scene version=\"3.0.0\">\n\n\n<sensor type=\"perspective\">{props}</sensor>\n</scene>"
+        ))
+    };
+    // Mitsuba 3's `parse_fov`: 2 atan(√(36² + 24²) / 2f), the `mm` optional, 50mm by default.
+    let diagonal = |mm: f32| 2.0 * (1872f32.sqrt() / (2.0 * mm)).atan().to_degrees();
+    for (props, mm) in [
+        ("", 50.0),
+        ("<string name=\"focal_length\" value=\"35mm\"/>", 35.0),
+        ("<string name=\"focal_length\" value=\"24\"/>", 24.0),
+    ] {
+        let c = sensor(props).unwrap().camera;
+        assert_eq!(c.fov_axis, crate::camera::FovAxis::Diagonal, "{props}");
+        assert!((c.fov - diagonal(mm)).abs() < 1e-4, "{props}: {}", c.fov);
+    }
+    assert!((diagonal(50.0) - 46.793).abs() < 1e-3);
+    for (props, needle) in [
+        (
+            "<float name=\"fov\" value=\"40\"/><string name=\"focal_length\" value=\"35mm\"/>",
+            "not both",
+        ),
+        (
+            "<string name=\"focal_length\" value=\"wide\"/>",
+            "focal_length",
+        ),
+        (
+            "<string name=\"focal_length\" value=\"-5mm\"/>",
+            "focal_length",
+        ),
+    ] {
+        let e = sensor(props).unwrap_err().to_string();
         assert!(e.starts_with("test.xml:4:") && e.contains(needle), "{e}");
     }
 }
