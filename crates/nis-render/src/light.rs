@@ -407,48 +407,12 @@ impl Lights {
                 DeltaLight::Point {
                     position,
                     intensity,
-                } => {
-                    let to = *position - p;
-                    let dist2 = to.length_squared();
-                    let dist = dist2.sqrt();
-                    (dist2 > 0.0).then(|| LightSample {
-                        wi: to / dist,
-                        dist,
-                        point: *position,
-                        radiance: *intensity / dist2,
-                        pdf,
-                        delta: true,
-                    })
-                }
-                DeltaLight::Spot(light) => {
-                    let to = light.position - p;
-                    let dist2 = to.length_squared();
-                    if dist2 <= 0.0 {
-                        return None;
-                    }
-                    let dist = dist2.sqrt();
-                    let intensity = light.intensity_towards(-to / dist);
-                    (intensity != Rgb::ZERO).then(|| LightSample {
-                        wi: to / dist,
-                        dist,
-                        point: light.position,
-                        radiance: intensity / dist2,
-                        pdf,
-                        delta: true,
-                    })
-                }
+                } => from_position(*position, p, pdf, |_, dist2| *intensity / dist2),
+                DeltaLight::Spot(light) => from_position(light.position, p, pdf, |d, dist2| {
+                    light.intensity_towards(d) / dist2
+                }),
                 DeltaLight::Projector(light) => {
-                    let to = light.position - p;
-                    let dist = to.length();
-                    let radiance = light.arriving_at(p);
-                    (dist > 0.0 && radiance != Rgb::ZERO).then(|| LightSample {
-                        wi: to / dist,
-                        dist,
-                        point: light.position,
-                        radiance,
-                        pdf,
-                        delta: true,
-                    })
+                    from_position(light.position, p, pdf, |_, _| light.arriving_at(p))
                 }
             };
         }
@@ -511,4 +475,30 @@ impl Lights {
             None => self.env_probability() / (4.0 * PI),
         }
     }
+}
+
+/// The sample of a light at `position` seen from `p`, of density `pdf` (its selection), with
+/// the radiance `radiance(direction from the light, distance²)` gives; `None` at the light
+/// itself or where it sends nothing.
+fn from_position(
+    position: Vec3,
+    p: Vec3,
+    pdf: f32,
+    radiance: impl FnOnce(Vec3, f32) -> Rgb,
+) -> Option<LightSample> {
+    let to = position - p;
+    let dist2 = to.length_squared();
+    if dist2 <= 0.0 {
+        return None;
+    }
+    let dist = dist2.sqrt();
+    let radiance = radiance(-to / dist, dist2);
+    (radiance != Rgb::ZERO).then(|| LightSample {
+        wi: to / dist,
+        dist,
+        point: position,
+        radiance,
+        pdf,
+        delta: true,
+    })
 }

@@ -549,12 +549,8 @@ impl Colours<'_> {
         slot: Slot,
         default: Rgb,
     ) -> Result<Rgb, XmlError> {
-        match self.textures.iter().find(|(n, _)| n == name) {
-            Some((_, t)) => {
-                self.slots.push((slot, t.clone()));
-                self.used.push(name);
-                Ok(t.mean())
-            }
+        match self.texture(name, slot) {
+            Some(t) => Ok(t.mean()),
             None => self.p.rgb(name, default),
         }
     }
@@ -567,14 +563,19 @@ impl Colours<'_> {
         slot: Slot,
         default: f32,
     ) -> Result<f32, XmlError> {
-        match self.textures.iter().find(|(n, _)| n == name) {
-            Some((_, t)) => {
-                self.slots.push((slot, t.clone()));
-                self.used.push(name);
-                Ok(luminance(t.mean()))
-            }
+        match self.texture(name, slot) {
+            Some(t) => Ok(luminance(t.mean())),
             None => self.p.float(name, default),
         }
+    }
+
+    /// The texture given for `name`, if any, recorded as driving `slot`.
+    fn texture(&mut self, name: &'static str, slot: Slot) -> Option<Arc<Texture>> {
+        let (_, t) = self.textures.iter().find(|(n, _)| *n == name)?;
+        let t = t.clone();
+        self.slots.push((slot, t.clone()));
+        self.used.push(name);
+        Some(t)
     }
 
     fn specular_reflectance(&mut self) -> Result<Rgb, XmlError> {

@@ -81,23 +81,16 @@ pub(super) fn principled(p: &Props, el: &Element, c: &mut Colours) -> Result<Bsd
         eta,
         rates,
     };
-    if !(0.0..=1.0).contains(&b.anisotropic) {
-        return err(
-            el.line,
-            format!(
-                "principled anisotropic = {} must be in [0, 1]",
-                b.anisotropic
-            ),
-        );
-    }
-    if !(0.0..=1.0).contains(&b.clearcoat_gloss) {
-        return err(
-            el.line,
-            format!(
-                "principled clearcoat_gloss = {} must be in [0, 1]",
-                b.clearcoat_gloss
-            ),
-        );
+    for (name, v) in [
+        ("anisotropic", b.anisotropic),
+        ("clearcoat_gloss", b.clearcoat_gloss),
+    ] {
+        if !(0.0..=1.0).contains(&v) {
+            return err(
+                el.line,
+                format!("principled {name} = {v} must be in [0, 1]"),
+            );
+        }
     }
     Ok(Bsdf::Principled(Box::new(b)))
 }
