@@ -304,8 +304,12 @@ impl Scene {
             }
         }
         if let Some((s, t)) = nearest {
-            let p = ray.at(t);
-            let d = (p - s.sphere.center) / s.sphere.radius;
+            // The point re-projected onto the sphere and its unit normal, as Mitsuba 3 does: a
+            // path bouncing inside a sphere otherwise drifts off it, its error growing tenfold
+            // a bounce, until its rays miss the sphere.
+            let off = ray.at(t) - s.sphere.center;
+            let d = off.try_normalize().unwrap_or(-ray.dir);
+            let p = s.sphere.center + s.sphere.radius * d;
             let n = if s.sphere.inward { -d } else { d };
             // Mitsuba's sphere coordinates (φ/2π, θ/π), here about the world axes.
             let phi = d.y.atan2(d.x).rem_euclid(2.0 * std::f32::consts::PI);
