@@ -105,8 +105,9 @@ pub const COSTLY: SuiteEntry = SuiteEntry {
     description: "camel (α = 0.2) at ~100 µs per point (transcendental rounds; scaling tests)",
 };
 
-/// Rounds of [`costly`] in the built-in `costly`: about 100 µs per point on the 2-core Zen 4
-/// development machine (docs/results/scaling.md measures it).
+/// Rounds of [`costly`] in the built-in `costly`, chosen for about 100 µs per point on the
+/// development machine (docs/results/scaling.md, "MPI: strong scaling on this machine", measures
+/// it).
 pub const COSTLY_ROUNDS: usize = 4_500;
 
 /// `camel` (α = 0.2) in `dim` dimensions, each point also paying for `rounds` rounds of

@@ -56,7 +56,8 @@ fn ln_1p_unit(t: f32) -> f32 {
 
 /// `out[i] = softplus(x[i] + shift) = ln(1 + e^(x[i] + shift))`, computed stably as
 /// max(v, 0) + ln(1 + e^(−|v|)) in f32 and stored in f64: the knot derivatives of the
-/// rational-quadratic spline (libm's log1p took a third of its integration time).
+/// rational-quadratic spline (libm's scalar log1p was its hot spot; docs/results/integration.md,
+/// "Flow throughput against bare gemm and PyTorch", lists the kernel work).
 #[multiversion(targets = "simd")]
 pub fn softplus_shifted(x: &[f32], shift: f32, out: &mut [f64]) {
     for (o, &v) in out.iter_mut().zip(x) {
@@ -158,7 +159,8 @@ pub fn column_sums(m: &[f32], o: usize, c0: usize, out: &mut [f32]) {
 
 /// Σ g², accumulated in f64 over eight interleaved lanes and summed lane by lane at the end:
 /// a fixed order (the result does not depend on scheduling) that vectorises, where one running
-/// sum is a chain of dependent additions (Adam's gradient norm over 39k parameters took 50 µs).
+/// sum is a chain of dependent additions (Adam's gradient norm runs over every parameter of the
+/// flow at each step).
 #[multiversion(targets = "simd")]
 pub fn sum_of_squares(g: &[f32]) -> f64 {
     const W: usize = 8;

@@ -249,7 +249,7 @@ impl Mlp {
         let mut deltas = vec![Vec::new(); self.layers()];
         let mut g = g_out;
         // The deltas are kept row-major: `gemm` computes a weight gradient from a feature-major
-        // one at about half the speed (40 against 90 GFLOP/s at 512 × 64 → 132 here), so a
+        // one more slowly (`nis bench flow` compares the dense layers with bare `gemm`), so a
         // feature-major output's delta is transposed once, here, for its weight gradient.
         let rows = |j: usize, g: Vec<f32>| match self.shape(j, tape.rows) {
             Shape {

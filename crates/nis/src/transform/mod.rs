@@ -333,8 +333,9 @@ impl Real for f64 {
 
     /// Through the vectorised f32 kernel ([`crate::kernels::elementwise::exp_shifted`]); its
     /// relative error (< 4e-7) only perturbs which spline the parameters denote, and forward,
-    /// inverse and gradient all see the same one. (libm's scalar f64 exp took a third of the
-    /// integrator's time.)
+    /// inverse and gradient all see the same one. (libm's scalar f64 exp was the integrator's
+    /// hot spot; docs/results/integration.md, "Flow throughput against bare gemm and PyTorch",
+    /// lists the kernel work.)
     #[inline]
     fn exponentials(logits: &[f32], out: &mut [f64]) -> f64 {
         let max = logits.iter().fold(f32::NEG_INFINITY, |m, &l| m.max(l));

@@ -27,8 +27,8 @@ const MIN_V: f32 = MIN_DENSITY as f32;
 /// Unlike the other transforms it computes in f32 (x and y enter and leave as f64 holding f32
 /// values; only ln C' is taken in f64): its knots, bin search and evaluation are the integrator's
 /// and the path guide's hottest code, and f32 runs twice the lanes per instruction
-/// (docs/results/integration.md, "f32 splines"). The price: a round trip loses a few f32 ulps of y rather
-/// than half of one, and the spline the parameters denote moves by the f32 rounding of its knots
+/// (docs/results/integration.md, "Flow throughput against bare gemm and PyTorch", the row "f32
+/// splines"). The price: a round trip loses a few f32 ulps of y rather than half of one, and the spline the parameters denote moves by the f32 rounding of its knots
 /// (a few 1e-6 of y). Sampling and density stay consistent with each other, which is what keeps
 /// an importance-sampling estimate unbiased. The tests check the f64 twin of the same code by
 /// finite differences and the f32 transform against it, with bounds derived from the rounding.

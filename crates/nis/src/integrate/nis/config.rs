@@ -66,9 +66,8 @@ pub struct NisConfig {
     /// unbiased (`integrate/nis/reuse.rs`, docs/ESTIMATE.md; 0: the final phase's evaluations
     /// alone). Each batch's share weighs it against the final phase as predicted from earlier
     /// batches, post-stratified on the stratified final phase's latent grid, so training takes
-    /// little where stratification gains much (2-d) and more where it gains little (d ≥ 4):
-    /// at 10⁶ (batches of 256), σ × 0.96 on camel d4, × 0.93 on camel d8, × 0.97 on gauss d4,
-    /// × 1.00 on camel-sharp d8; × 0.99–1.00 on 2-d integrands (batches of 1024).
+    /// little where stratification gains much (2-d) and more where it gains little (d ≥ 4;
+    /// docs/results/integration.md, "Training in the estimate").
     pub reuse_training: f64,
     /// Seed of the random streams (training, estimating, unweighting).
     pub seed: u64,

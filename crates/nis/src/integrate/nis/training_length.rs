@@ -50,9 +50,8 @@ const TRACKING_ESS: f64 = 0.8;
 /// enough for a median time per batch and a median of the tempered weights' ESS.
 const PROBE_BATCHES: usize = PACE_WINDOW;
 /// The median ESS fraction of the tempered weights over the first [`PROBE_BATCHES`] above which
-/// the integrand counts as smooth. Seed 1 at 10⁻³ (docs/results/integration.md, "Precision
-/// targets"): gauss d = 8 and 16, camel d = 4 and 8 above 0.7; camel d = 16 and every sharp or
-/// multi-peaked cell below 0.5.
+/// the integrand counts as smooth: between the smooth cells (gauss d = 8 and 16, camel d = 4 and
+/// 8) and the sharp or multi-peaked ones of docs/results/integration.md, "Precision targets".
 const SMOOTH_ESS: f64 = 0.6;
 
 /// The measurements of one training batch (over all ranks).
