@@ -55,12 +55,19 @@ impl MultiChannel {
                 "unweighted events through channels need method nis (a flow per channel)".into(),
             ));
         }
-        let dim = self.set.dim();
         let seed = self.settings.seed_of(self.method) ^ EVENTS_SALT;
         let stream = seed ^ self.event_draws.wrapping_mul(0x9e37_79b9_7f4a_7c15);
         self.event_draws += 1;
         let mut rng = Pcg64Mcg::seed_from_u64(self.comm.stream_seed(stream));
-        // A_p = mean |w| of a calibration batch of each part's frozen sampler.
+        let mass = self.part_masses(f)?;
+        let counts = multinomial(&mass, n, &mut rng);
+        let drawn = self.draw_events(f, &counts, overweight)?;
+        Ok(drawn.shuffled(self.set.dim(), n, &mut rng))
+    }
+
+    /// A_p of every part p: the mean |w| of a calibration batch of its frozen sampler. An error
+    /// when f was zero at every calibration point.
+    fn part_masses(&mut self, f: &dyn crate::integrate::Integrand) -> Result<Vec<f64>> {
         let mut mass = Vec::with_capacity(self.parts.len());
         let w = Weighting {
             set: &self.set,
@@ -81,27 +88,31 @@ impl MultiChannel {
                     .into(),
             ));
         }
-        // The events per part: multinomial with probabilities A_p/ΣA.
-        let mut counts = vec![0usize; self.parts.len()];
-        for _ in 0..n {
-            let mut r = rng.random::<f64>() * total;
-            let mut i = 0;
-            while i + 1 < mass.len() && r >= mass[i] {
-                r -= mass[i];
-                i += 1;
-            }
-            counts[i] += 1;
-        }
-        let mut points = Vec::with_capacity(n * dim);
-        let mut weights = Vec::with_capacity(n);
-        let mut channels = Vec::with_capacity(n);
-        let (mut proposed, mut w_max, mut over) = (0.0, 0.0f64, 0.0f64);
+        Ok(mass)
+    }
+
+    /// `counts[p]` unweighted events of every part p, part after part, mapped by its channel.
+    fn draw_events(
+        &mut self,
+        f: &dyn crate::integrate::Integrand,
+        counts: &[usize],
+        overweight: f64,
+    ) -> Result<Drawn> {
+        let n: usize = counts.iter().sum();
+        let mut drawn = Drawn {
+            points: Vec::with_capacity(n * self.set.dim()),
+            weights: Vec::with_capacity(n),
+            channels: Vec::with_capacity(n),
+            proposed: 0.0,
+            w_max: 0.0,
+            over: 0.0,
+        };
         let w = Weighting {
             set: &self.set,
             a: &self.weights,
             net: self.net.as_ref(),
         };
-        for (p, &m) in self.parts.iter_mut().zip(&counts) {
+        for (p, &m) in self.parts.iter_mut().zip(counts) {
             if m == 0 {
                 continue;
             }
@@ -110,31 +121,66 @@ impl MultiChannel {
             let u = nis.unweighted(&h, m, overweight)?;
             let mut x = vec![0.0; u.points.len()];
             self.set.sample(p.channel, &u.points, &mut x)?;
-            points.extend_from_slice(&x);
-            weights.extend(u.weights.iter().map(|w| p.sign.factor() * w));
-            channels.extend(std::iter::repeat_n(p.channel, m));
-            proposed += m as f64 / u.efficiency;
-            w_max = w_max.max(u.w_max);
-            over = over.max(u.overweight);
+            drawn.points.extend_from_slice(&x);
+            drawn
+                .weights
+                .extend(u.weights.iter().map(|w| p.sign.factor() * w));
+            drawn.channels.extend(std::iter::repeat_n(p.channel, m));
+            drawn.proposed += m as f64 / u.efficiency;
+            drawn.w_max = drawn.w_max.max(u.w_max);
+            drawn.over = drawn.over.max(u.overweight);
         }
-        // Random order, so that any prefix is a sample too.
+        Ok(drawn)
+    }
+}
+
+/// The events per part of `n`: multinomial with probabilities A_p/ΣA (`mass` holds the A_p).
+fn multinomial(mass: &[f64], n: usize, rng: &mut Pcg64Mcg) -> Vec<usize> {
+    let total: f64 = mass.iter().sum();
+    let mut counts = vec![0usize; mass.len()];
+    for _ in 0..n {
+        let mut r = rng.random::<f64>() * total;
+        let mut i = 0;
+        while i + 1 < mass.len() && r >= mass[i] {
+            r -= mass[i];
+            i += 1;
+        }
+        counts[i] += 1;
+    }
+    counts
+}
+
+/// The events of every part, part after part ([`MultiChannel::unweighted`]).
+struct Drawn {
+    points: Vec<f64>,
+    weights: Vec<f64>,
+    channels: Vec<usize>,
+    /// Points proposed over all parts, Σ m_p / efficiency_p.
+    proposed: f64,
+    w_max: f64,
+    over: f64,
+}
+
+impl Drawn {
+    /// The `n` events in random order, so that any prefix is a sample too.
+    fn shuffled(self, dim: usize, n: usize, rng: &mut Pcg64Mcg) -> ChannelEvents {
         let mut order: Vec<usize> = (0..n).collect();
-        order.shuffle(&mut rng);
-        let negative = weights.iter().filter(|w| **w < 0.0).count();
-        Ok(ChannelEvents {
+        order.shuffle(rng);
+        let negative = self.weights.iter().filter(|w| **w < 0.0).count();
+        ChannelEvents {
             events: Unweighted {
                 dim,
                 points: order
                     .iter()
-                    .flat_map(|&i| points[i * dim..(i + 1) * dim].iter().copied())
+                    .flat_map(|&i| self.points[i * dim..(i + 1) * dim].iter().copied())
                     .collect(),
-                weights: order.iter().map(|&i| weights[i]).collect(),
-                w_max,
-                efficiency: n as f64 / proposed,
-                overweight: over,
+                weights: order.iter().map(|&i| self.weights[i]).collect(),
+                w_max: self.w_max,
+                efficiency: n as f64 / self.proposed,
+                overweight: self.over,
             },
-            channels: order.iter().map(|&i| channels[i]).collect(),
+            channels: order.iter().map(|&i| self.channels[i]).collect(),
             negative_fraction: negative as f64 / n.max(1) as f64,
-        })
+        }
     }
 }

@@ -5,7 +5,7 @@ use std::time::Instant;
 
 use super::part::Sign;
 use crate::integrate::convergence::Convergence;
-use crate::integrate::diagnostics::WeightTail;
+use crate::integrate::diagnostics::{Reliability, WeightTail};
 use crate::integrate::estimate::{chi2_warning, CHI2_LIMIT};
 use crate::integrate::result::{ChannelReport, IntegrationResult, SignReport};
 
@@ -18,90 +18,142 @@ pub(super) fn combine(
     n_eval: u64,
     started: Instant,
 ) -> IntegrationResult {
-    let mut report = ChannelReport {
-        weights: weights.to_vec(),
-        means: vec![0.0; channels],
-        std_errs: vec![0.0; channels],
-        evals: vec![0; channels],
-        signs: None,
-    };
-    let (mut value, mut var) = (0.0, 0.0);
-    let mut signs = SignReport::default();
-    let mut split = false;
-    let mut warnings = Vec::new();
-    // The parts' χ² summed over their degrees of freedom: the χ² of independent estimates,
-    // one test of the whole result instead of one per part (each at its own false-alarm rate).
-    let (mut chi2_sum, mut chi2_dof) = (0.0, 0.0);
-    let mut estimate_evals = 0u64;
-    // Every part's weights scaled by 1/n: each its point's share of the sum F.
-    let mut tails = Vec::with_capacity(results.len());
-    let mut trials = 0.0;
-    let mut missing = Missing::default();
+    let mut sums = Sums::new(weights, channels, results.len());
     for (&(k, sign), r) in index.iter().zip(results) {
+        sums.add(k, sign, r);
+    }
+    let abs_total: f64 = results.iter().map(|r| r.value.abs()).sum();
+    sums.finish(abs_total, n_eval, started)
+}
+
+/// The parts' estimates summed as [`combine`] adds them, in their order.
+struct Sums<'a> {
+    report: ChannelReport,
+    value: f64,
+    var: f64,
+    signs: SignReport,
+    /// Whether a part is one of a sign split.
+    split: bool,
+    warnings: Vec<String>,
+    /// The parts' χ² summed over their degrees of freedom: the χ² of independent estimates,
+    /// one test of the whole result instead of one per part (each at its own false-alarm rate).
+    chi2_sum: f64,
+    chi2_dof: f64,
+    estimate_evals: u64,
+    /// Every part's weights scaled by 1/n: each its point's share of the sum F.
+    tails: Vec<(&'a WeightTail, f64)>,
+    /// The unweighting trials Σ |F_p| / efficiency_p.
+    trials: f64,
+    missing: Missing,
+}
+
+impl<'a> Sums<'a> {
+    fn new(weights: &[f64], channels: usize, parts: usize) -> Sums<'a> {
+        Sums {
+            report: ChannelReport {
+                weights: weights.to_vec(),
+                means: vec![0.0; channels],
+                std_errs: vec![0.0; channels],
+                evals: vec![0; channels],
+                signs: None,
+            },
+            value: 0.0,
+            var: 0.0,
+            signs: SignReport::default(),
+            split: false,
+            warnings: Vec::new(),
+            chi2_sum: 0.0,
+            chi2_dof: 0.0,
+            estimate_evals: 0,
+            tails: Vec::with_capacity(parts),
+            trials: 0.0,
+            missing: Missing::default(),
+        }
+    }
+
+    /// Adds the result `r` of part (channel `k`, `sign`).
+    fn add(&mut self, k: usize, sign: Sign, r: &'a IntegrationResult) {
         let v = r.std_err * r.std_err;
-        value += sign.factor() * r.value;
-        var += v;
-        report.means[k] += sign.factor() * r.value;
-        report.std_errs[k] += v;
+        self.value += sign.factor() * r.value;
+        self.var += v;
+        self.report.means[k] += sign.factor() * r.value;
+        self.report.std_errs[k] += v;
         let evals: u64 = r.iterations.iter().map(|i| i.evals).sum();
-        report.evals[k] += evals;
-        estimate_evals += evals;
-        split |= add_to_signs(&mut signs, sign, r.value, v, evals);
+        self.report.evals[k] += evals;
+        self.estimate_evals += evals;
+        self.split |= add_to_signs(&mut self.signs, sign, r.value, v, evals);
         let dof = r.iterations.len().saturating_sub(1) as f64;
         if r.chi2_per_dof.is_finite() && dof > 0.0 {
-            chi2_sum += r.chi2_per_dof * dof;
-            chi2_dof += dof;
+            self.chi2_sum += r.chi2_per_dof * dof;
+            self.chi2_dof += dof;
         }
         if let Some(t) = &r.tail {
-            tails.push((t, 1.0 / t.count().max(1) as f64));
+            self.tails.push((t, 1.0 / t.count().max(1) as f64));
         }
         if r.unweighting_efficiency > 0.0 {
-            trials += r.value.abs() / r.unweighting_efficiency;
+            self.trials += r.value.abs() / r.unweighting_efficiency;
         }
-        warnings.extend(part_warnings(k, sign, r));
-        missing.add(r);
+        self.warnings.extend(part_warnings(k, sign, r));
+        self.missing.add(r);
     }
-    report.std_errs.iter_mut().for_each(|v| *v = v.sqrt());
-    if split {
-        report.signs = Some(finished(signs));
+
+    /// The result of the sums: `abs_total` is Σ |F_p| over the parts, `n_eval` every
+    /// evaluation spent.
+    fn finish(mut self, abs_total: f64, n_eval: u64, started: Instant) -> IntegrationResult {
+        let mut report = self.report;
+        report.std_errs.iter_mut().for_each(|v| *v = v.sqrt());
+        if self.split {
+            report.signs = Some(finished(self.signs));
+        }
+        let chi2 = if self.chi2_dof > 0.0 {
+            self.chi2_sum / self.chi2_dof
+        } else {
+            f64::NAN
+        };
+        let (value, var) = (self.value, self.var);
+        let pooled = WeightTail::pooled(&self.tails);
+        let convergence = self.missing.convergence(var.sqrt());
+        together_warnings(&mut self.warnings, chi2, &pooled, &convergence);
+        IntegrationResult {
+            value,
+            std_err: var.sqrt(),
+            chi2_per_dof: chi2,
+            n_eval,
+            rel_var_per_eval: self.estimate_evals as f64 * var / (value * value),
+            unweighting_efficiency: if self.trials > 0.0 {
+                abs_total / self.trials
+            } else {
+                0.0
+            },
+            pareto_k: pooled.pareto_k,
+            pareto_k_limit: pooled.pareto_k_limit,
+            ess: pooled.ess,
+            var_rel_err: f64::NAN,
+            seconds: started.elapsed().as_secs_f64(),
+            warnings: self.warnings,
+            convergence,
+            channels: Some(report),
+            ..IntegrationResult::default()
+        }
     }
-    let chi2 = if chi2_dof > 0.0 {
-        chi2_sum / chi2_dof
-    } else {
-        f64::NAN
-    };
+}
+
+/// The warnings of the parts judged together, after the parts' own: their summed χ²/dof, their
+/// pooled weights' tail, and their summed missing mass.
+fn together_warnings(
+    warnings: &mut Vec<String>,
+    chi2: f64,
+    pooled: &Reliability,
+    convergence: &Convergence,
+) {
     if chi2 > CHI2_LIMIT {
         warnings.push(format!("the channels together: {}", chi2_warning(chi2)));
     }
-    let pooled = WeightTail::pooled(&tails);
     if let Some(w) = pooled.warning() {
         warnings.push(format!("the channels' weights together: {w}"));
     }
-    let abs_total: f64 = results.iter().map(|r| r.value.abs()).sum();
-    let convergence = missing.convergence(var.sqrt());
     for w in convergence.recalled_warnings() {
         warnings.push(format!("the channels together: {}", w.sentence));
-    }
-    IntegrationResult {
-        value,
-        std_err: var.sqrt(),
-        chi2_per_dof: chi2,
-        n_eval,
-        rel_var_per_eval: estimate_evals as f64 * var / (value * value),
-        unweighting_efficiency: if trials > 0.0 {
-            abs_total / trials
-        } else {
-            0.0
-        },
-        pareto_k: pooled.pareto_k,
-        pareto_k_limit: pooled.pareto_k_limit,
-        ess: pooled.ess,
-        var_rel_err: f64::NAN,
-        seconds: started.elapsed().as_secs_f64(),
-        warnings,
-        convergence,
-        channels: Some(report),
-        ..IntegrationResult::default()
     }
 }
 

@@ -71,19 +71,8 @@ impl NisIntegrator {
         mut pieces: Option<&mut TrainingPieces>,
         mut length: Option<&mut TrainingLength>,
     ) -> Result<()> {
-        let dim = self.flow().dim();
-        check_dim(f, dim)?;
-        let k = f.components();
-        self.config.train_on.check(k)?;
-        let batch = self.config.batch;
-        if batch < self.comm.size() {
-            return Err(Error::Config(format!(
-                "a batch of {batch} points cannot be shared by {} ranks",
-                self.comm.size()
-            )));
-        }
-        // This rank's share of every batch; the steps are the whole batch's.
-        let share = self.comm.share(batch as u64) as usize;
+        let share = self.training_share(f)?;
+        let (k, batch) = (f.components(), self.config.batch);
         if !self.scheduled {
             self.schedule(steps)?;
         }
@@ -98,61 +87,21 @@ impl NisIntegrator {
         }
         let mut done = 0;
         for step in 0..steps {
-            let beta = match (&length, anneal) {
-                (Some(rule), _) => rule.beta(),
-                (None, Some(span)) => anneal_beta(&self.config, step, span),
-                (None, None) => 1.0,
-            };
-            if length.as_deref().is_some_and(|rule| rule.just_annealed()) {
-                if let Some(a) = &mut self.average {
-                    *a = ParamAverage::new(a.decay(), &[self.sampler.density.params()]);
-                }
-            }
+            let beta = self.batch_beta(length.as_deref(), anneal, step);
             let started = Instant::now();
             self.learner.set_temperature(beta);
-            // The flow's latents are the first numbers of the stream (`Flow::sample`): a copy of
-            // it redraws them for the prediction of the stratified final phase.
-            let latent_rng = pieces
-                .as_deref()
-                .is_some_and(TrainingPieces::needs_latents)
-                .then(|| self.streams.train.clone());
-            // Training sees q's share only (on-policy), so only its pass keeps a tape.
-            let drawn = draw(
-                &self.sampler,
-                share,
-                &mut self.streams.train,
-                Record::DensityShare,
-            );
-            let sampled_in = started.elapsed().as_secs_f64();
-            // The failure flag of the batch: an error on any rank stops every rank here.
-            let (b, fx) = self
-                .comm
-                .check(drawn.and_then(|(b, x64)| Ok((b, evaluate(f, &x64, dim)?))))?;
-            let drawn_in = started.elapsed().as_secs_f64();
-            self.memory
-                .observe(&b.x, &b.log_q_mix, &fx, k, &mut self.streams.memory);
-            if let Some(p) = pieces.as_deref_mut() {
-                let z = latent_rng.map_or_else(Vec::new, |mut rng| {
-                    crate::flow::uniform_latents(b.density_part.len() * dim, &mut rng)
-                });
-                p.observe(step, &b, &z, &fx, &self.comm);
-            }
-            let moments = length.is_some().then(|| {
-                let mut m = Moments::new(k);
-                m.add(&super::reuse::batch_weights(&b, &fx, k));
-                m.across(&self.comm)
-            });
+            let (b, fx, [sampled_in, drawn_in]) =
+                self.draw_batch(f, share, step, pieces.as_deref_mut(), started)?;
             let target = self.config.train_on.target(&fx, k);
-            let tempered_ess = if beta < 1.0 && length.is_some() {
-                tempered_ess(&target, &b.log_q_mix, beta, &self.comm)
-            } else {
-                1.0
-            };
+            // What the training-length rule reads of the batch.
+            let measured = length
+                .is_some()
+                .then(|| self.measure_batch(&b, &fx, k, &target, beta));
             self.trained_evals += batch as u64;
             done += batch as u64;
             self.learn_from(b, &target, &mut replay)?;
             report(&mut self.progress, done, evals, "nis: training");
-            if let (Some(rule), Some(m)) = (length.as_deref_mut(), moments) {
+            if let (Some(rule), Some((m, tempered_ess))) = (length.as_deref_mut(), measured) {
                 let times = [
                     drawn_in,
                     started.elapsed().as_secs_f64(),
@@ -164,6 +113,107 @@ impl NisIntegrator {
             }
         }
         Ok(())
+    }
+
+    /// This rank's share of every training batch, after checking that `f` fits the flow and
+    /// the batch can be shared by the ranks (the steps are the whole batch's).
+    fn training_share(&self, f: &dyn Integrand) -> Result<usize> {
+        check_dim(f, self.flow().dim())?;
+        self.config.train_on.check(f.components())?;
+        let batch = self.config.batch;
+        if batch < self.comm.size() {
+            return Err(Error::Config(format!(
+                "a batch of {batch} points cannot be shared by {} ranks",
+                self.comm.size()
+            )));
+        }
+        Ok(self.comm.share(batch as u64) as usize)
+    }
+
+    /// The tempered target's exponent β for batch `step`: the rule's when it decides the length,
+    /// else the first training's annealing over `anneal` batches, else 1. When the rule has just
+    /// ended its annealing, the weights' average restarts from the flow as it stands.
+    fn batch_beta(
+        &mut self,
+        length: Option<&TrainingLength>,
+        anneal: Option<f64>,
+        step: usize,
+    ) -> f64 {
+        let beta = match (length, anneal) {
+            (Some(rule), _) => rule.beta(),
+            (None, Some(span)) => anneal_beta(&self.config, step, span),
+            (None, None) => 1.0,
+        };
+        if length.is_some_and(|rule| rule.just_annealed()) {
+            if let Some(a) = &mut self.average {
+                *a = ParamAverage::new(a.decay(), &[self.sampler.density.params()]);
+            }
+        }
+        beta
+    }
+
+    /// Draws this rank's `share` of training batch `step` and evaluates `f` on it; the batch
+    /// feeds the memory of training points and, when given, `pieces`. Returns the batch, f at its
+    /// points, and the seconds since `started` when its points were drawn and when evaluated.
+    fn draw_batch(
+        &mut self,
+        f: &dyn Integrand,
+        share: usize,
+        step: usize,
+        pieces: Option<&mut TrainingPieces>,
+        started: Instant,
+    ) -> Result<(MixtureBatch, Vec<f64>, [f64; 2])> {
+        let (dim, k) = (self.flow().dim(), f.components());
+        // The flow's latents are the first numbers of the stream (`Flow::sample`): a copy of
+        // it redraws them for the prediction of the stratified final phase.
+        let latent_rng = pieces
+            .as_deref()
+            .is_some_and(TrainingPieces::needs_latents)
+            .then(|| self.streams.train.clone());
+        // Training sees q's share only (on-policy), so only its pass keeps a tape.
+        let drawn = draw(
+            &self.sampler,
+            share,
+            &mut self.streams.train,
+            Record::DensityShare,
+        );
+        let sampled_in = started.elapsed().as_secs_f64();
+        // The failure flag of the batch: an error on any rank stops every rank here.
+        let (b, fx) = self
+            .comm
+            .check(drawn.and_then(|(b, x64)| Ok((b, evaluate(f, &x64, dim)?))))?;
+        let drawn_in = started.elapsed().as_secs_f64();
+        self.memory
+            .observe(&b.x, &b.log_q_mix, &fx, k, &mut self.streams.memory);
+        if let Some(p) = pieces {
+            let z = latent_rng.map_or_else(Vec::new, |mut rng| {
+                crate::flow::uniform_latents(b.density_part.len() * dim, &mut rng)
+            });
+            p.observe(step, &b, &z, &fx, &self.comm);
+        }
+        Ok((b, fx, [sampled_in, drawn_in]))
+    }
+
+    /// What the training-length rule reads of batch `b` (over all ranks): the moments of its
+    /// weights f/q_mix (`k` components each), and the effective sample size of its weights for the tempered
+    /// `target` |f|^`beta` (1 without tempering).
+    fn measure_batch(
+        &self,
+        b: &MixtureBatch,
+        fx: &[f64],
+        k: usize,
+        target: &[f64],
+        beta: f64,
+    ) -> (Moments, f64) {
+        let mut m = Moments::new(k);
+        m.add(&super::reuse::batch_weights(b, fx, k));
+        let m = m.across(&self.comm);
+        let tempered_ess = if beta < 1.0 {
+            tempered_ess(target, &b.log_q_mix, beta, &self.comm)
+        } else {
+            1.0
+        };
+        (m, tempered_ess)
     }
 
     /// The learning of one batch `b` with training values `target`: the on-policy step (and
