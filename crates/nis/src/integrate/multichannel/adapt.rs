@@ -3,10 +3,14 @@
 //! (kept above the floor) and, for NIS, the weight network is fitted (module docs of
 //! [`super`]).
 
+use rand::SeedableRng;
+use rand_pcg::Pcg64Mcg;
+
 use super::part::{self, weight_ratio, PartIntegrand, Weighting};
+use super::weight_net::{fit, PartPoints};
 use super::{part_seed, MultiChannel};
 use crate::error::Result;
-use crate::integrate::{Integrand, IntegrationResult, Integrator, Method};
+use crate::integrate::{evaluate, Integrand, IntegrationResult, Integrator, Method};
 
 impl MultiChannel {
     /// Adapts every part on `adapt` evaluations, then the weights (Kleiss–Pittau), then fits the
@@ -118,6 +122,53 @@ impl MultiChannel {
             self.weights.clone()
         }
     }
+
+    /// Fits the weight network on fresh points of every part's frozen sampler, drawn alike on
+    /// every rank (so every rank fits the same network); returns the points' evaluations and
+    /// every part's σ per evaluation on the held-out half under the weights kept.
+    pub(super) fn fit_weight_net(
+        &mut self,
+        f: &dyn Integrand,
+        adapt: u64,
+    ) -> Result<(u64, Vec<f64>)> {
+        let (dim, k) = (self.set.dim(), self.set.len());
+        let parts = self.parts.len();
+        let n = (adapt as usize / 4)
+            .clamp(NET_POINTS.0, NET_POINTS.1)
+            .min((NET_POINTS.2 / parts).max(NET_POINTS.0 / 2));
+        let base = self.settings.seed_of(self.method) ^ NET_SALT;
+        let one = |_: &[f64]| 1.0;
+        let mut points = Vec::with_capacity(parts);
+        for (i, p) in self.parts.iter_mut().enumerate() {
+            let mut rng = Pcg64Mcg::seed_from_u64(part_seed(base, i as u64));
+            let (u, inv_q) = p.nis()?.target_weights(&one, n, &mut rng)?;
+            let mut x = vec![0.0; u.len()];
+            let gk = self.set.sample(p.channel, &u, &mut x)?;
+            let fx = self.comm.check(evaluate(f, &x, dim))?;
+            let mut g = vec![0.0; n * k];
+            self.set.densities(&x, &mut g)?;
+            // With enhancements the network refines α_k ∝ a_k w̃_k.
+            if let Some(b) = self.set.weight_basis(&x, &g)? {
+                g = b;
+            }
+            let inv_q: Vec<f64> = inv_q.iter().zip(&gk).map(|(q, g)| q / g).collect();
+            points.push(PartPoints::new(
+                p.channel,
+                p.sign,
+                x,
+                &fx,
+                &inv_q,
+                &g,
+                &self.weights,
+            ));
+        }
+        // The fit's rows (each a forward and backward pass of a network much smaller than the
+        // flow) at most FIT_ROWS_PER_EVAL × the parts' adaptation.
+        let max_rows = (adapt as usize * parts).saturating_mul(FIT_ROWS_PER_EVAL);
+        let fit = fit(points, dim, k, part_seed(base, u64::MAX), max_rows)?;
+        self.net = fit.net;
+        Ok(((n * parts) as u64, fit.sigmas))
+    }
 }
 
 /// Each part's standard deviation per evaluation of its estimate, from its adaptation's result.
@@ -158,3 +209,11 @@ fn adapt_part(integ: &mut dyn Integrator, h: &dyn Integrand, n: u64) -> Result<I
     }
     integ.integrate(h, n)
 }
+
+/// Points per part for the weight network: at least, at most, and at most all parts together
+/// (a quarter of a part's adaptation within these bounds).
+const NET_POINTS: (usize, usize, usize) = (1024, 8192, 1 << 16);
+/// Rows of the weight network's fit per evaluation the parts adapted on.
+const FIT_ROWS_PER_EVAL: usize = 2;
+/// Salt of the weight network's points ("wnet").
+const NET_SALT: u64 = 0x776e_6574;

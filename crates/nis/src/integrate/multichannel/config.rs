@@ -1,10 +1,35 @@
-//! The settings of a multi-channel integral ([`MultiChannelConfig`]) and whether it splits the
-//! integrand by sign ([`Signs`]).
+//! The settings of a multi-channel integral ([`MultiChannelConfig`]), whether it splits the
+//! integrand by sign ([`Signs`]), and which part of the integrand a part integrates ([`Sign`]).
 
 use serde::{Deserialize, Serialize};
 
-use super::MIN_PART_EVALS;
 use crate::error::{Error, Result};
+
+/// Fewest evaluations a part adapts or estimates with.
+pub(super) const MIN_PART_EVALS: u64 = 2000;
+
+/// Which part of the integrand a part integrates.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Sign {
+    /// f itself (it does not change sign, or the split is off).
+    Both,
+    /// f⁺ = max(f, 0).
+    Plus,
+    /// f⁻ = max(−f, 0), entering the integral with a minus sign.
+    Minus,
+}
+
+impl Sign {
+    /// +1 for [`Sign::Minus`]'s −1: how the part enters F.
+    pub fn factor(self) -> f64 {
+        if self == Sign::Minus {
+            -1.0
+        } else {
+            1.0
+        }
+    }
+}
 
 /// Whether the integrand is split by sign.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]

@@ -38,11 +38,11 @@ use rand_pcg::Pcg64Mcg;
 
 pub use super::result::{ChannelReport, SignReport};
 pub use auto::{by_default, AutoSigns};
-pub use config::{MultiChannelConfig, Signs};
+pub use config::{MultiChannelConfig, Sign, Signs};
 pub use events::ChannelEvents;
-pub use part::Sign;
 
 use self::allocation::{allocate, neyman};
+use self::config::MIN_PART_EVALS;
 use self::part::{PartIntegrand, Weighting};
 use self::shared::SharedFlow;
 use self::weight_net::WeightNet;
@@ -367,8 +367,6 @@ impl MultiChannel {
     }
 }
 
-/// Fewest evaluations a part adapts or estimates with.
-const MIN_PART_EVALS: u64 = 2000;
 /// Salt of the pilot's stream ("pilo").
 const PILOT_SALT: u64 = 0x7069_6c6f;
 

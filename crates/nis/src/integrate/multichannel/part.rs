@@ -9,36 +9,13 @@ use std::sync::atomic::{AtomicBool, Ordering};
 
 use rand::Rng;
 use rand_pcg::Pcg64Mcg;
-use serde::{Deserialize, Serialize};
 
+use super::config::Sign;
 use super::weight_net::{exp_shifted, WeightNet};
 use crate::channels::ChannelSet;
 use crate::comm::Comm;
 use crate::error::{Error, Result};
 use crate::integrate::{evaluate, Integrand};
-
-/// Which part of the integrand a part integrates.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
-#[serde(rename_all = "snake_case")]
-pub enum Sign {
-    /// f itself (it does not change sign, or the split is off).
-    Both,
-    /// f⁺ = max(f, 0).
-    Plus,
-    /// f⁻ = max(−f, 0), entering the integral with a minus sign.
-    Minus,
-}
-
-impl Sign {
-    /// +1 for [`Sign::Minus`]'s −1: how the part enters F.
-    pub fn factor(self) -> f64 {
-        if self == Sign::Minus {
-            -1.0
-        } else {
-            1.0
-        }
-    }
-}
 
 /// What splits f into the parts: the channels, the a-priori weights a and the weight network.
 #[derive(Clone, Copy)]

@@ -3,7 +3,7 @@
 
 use std::time::Instant;
 
-use super::part::Sign;
+use super::config::Sign;
 use crate::integrate::convergence::Convergence;
 use crate::integrate::diagnostics::{Reliability, WeightTail};
 use crate::integrate::estimate::{chi2_warning, CHI2_LIMIT};

@@ -12,8 +12,9 @@ use std::time::Instant;
 use rand::SeedableRng;
 use rand_pcg::Pcg64Mcg;
 
+use super::config::MIN_PART_EVALS;
 use super::part::{self, PartIntegrand, Weighting};
-use super::{estimate_part, MultiChannel, Part, MIN_PART_EVALS};
+use super::{estimate_part, MultiChannel, Part};
 use crate::comm::Comm;
 use crate::error::{Error, Result};
 use crate::integrate::estimate::chi2_per_dof;

@@ -19,10 +19,8 @@ use rand::SeedableRng;
 use rand_pcg::Pcg64Mcg;
 use serde::{Deserialize, Serialize};
 
-use super::part::Sign;
-use super::{part_seed, MultiChannel};
+use super::config::Sign;
 use crate::error::Result;
-use crate::integrate::{evaluate, Integrand};
 use crate::nn::mlp::Layout;
 use crate::nn::{Adam, AdamConfig, Mlp};
 
@@ -389,63 +387,6 @@ pub(super) fn fit(
         },
     })
 }
-
-impl MultiChannel {
-    /// Fits the weight network on fresh points of every part's frozen sampler, drawn alike on
-    /// every rank (so every rank fits the same network); returns the points' evaluations and
-    /// every part's σ per evaluation on the held-out half under the weights kept.
-    pub(super) fn fit_weight_net(
-        &mut self,
-        f: &dyn Integrand,
-        adapt: u64,
-    ) -> Result<(u64, Vec<f64>)> {
-        let (dim, k) = (self.set.dim(), self.set.len());
-        let parts = self.parts.len();
-        let n = (adapt as usize / 4)
-            .clamp(NET_POINTS.0, NET_POINTS.1)
-            .min((NET_POINTS.2 / parts).max(NET_POINTS.0 / 2));
-        let base = self.settings.seed_of(self.method) ^ NET_SALT;
-        let one = |_: &[f64]| 1.0;
-        let mut points = Vec::with_capacity(parts);
-        for (i, p) in self.parts.iter_mut().enumerate() {
-            let mut rng = Pcg64Mcg::seed_from_u64(part_seed(base, i as u64));
-            let (u, inv_q) = p.nis()?.target_weights(&one, n, &mut rng)?;
-            let mut x = vec![0.0; u.len()];
-            let gk = self.set.sample(p.channel, &u, &mut x)?;
-            let fx = self.comm.check(evaluate(f, &x, dim))?;
-            let mut g = vec![0.0; n * k];
-            self.set.densities(&x, &mut g)?;
-            // With enhancements the network refines α_k ∝ a_k w̃_k.
-            if let Some(b) = self.set.weight_basis(&x, &g)? {
-                g = b;
-            }
-            let inv_q: Vec<f64> = inv_q.iter().zip(&gk).map(|(q, g)| q / g).collect();
-            points.push(PartPoints::new(
-                p.channel,
-                p.sign,
-                x,
-                &fx,
-                &inv_q,
-                &g,
-                &self.weights,
-            ));
-        }
-        // The fit's rows (each a forward and backward pass of a network much smaller than the
-        // flow) at most FIT_ROWS_PER_EVAL × the parts' adaptation.
-        let max_rows = (adapt as usize * parts).saturating_mul(FIT_ROWS_PER_EVAL);
-        let fit = fit(points, dim, k, part_seed(base, u64::MAX), max_rows)?;
-        self.net = fit.net;
-        Ok(((n * parts) as u64, fit.sigmas))
-    }
-}
-
-/// Points per part for the weight network: at least, at most, and at most all parts together
-/// (a quarter of a part's adaptation within these bounds).
-const NET_POINTS: (usize, usize, usize) = (1024, 8192, 1 << 16);
-/// Rows of the weight network's fit per evaluation the parts adapted on.
-const FIT_ROWS_PER_EVAL: usize = 2;
-/// Salt of the weight network's points ("wnet").
-const NET_SALT: u64 = 0x776e_6574;
 
 #[cfg(test)]
 mod tests {
