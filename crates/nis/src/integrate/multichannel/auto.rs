@@ -10,6 +10,7 @@
 //! split integrates with what is left of the budget or the target's `max_evals`. A vector
 //! integrand, and a budget too small for the split's parts, keep the whole.
 
+use std::any::Any;
 use std::path::Path;
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::{Arc, Mutex};
@@ -17,7 +18,6 @@ use std::sync::{Arc, Mutex};
 use super::{MultiChannel, MultiChannelConfig, Signs};
 use crate::comm::Comm;
 use crate::error::{Error, Result};
-use crate::integrate::nis::NisIntegrator;
 use crate::integrate::{
     integrator, Integrand, IntegrationResult, Integrator, Method, Progress, Settings, Target,
 };
@@ -206,15 +206,15 @@ impl Integrator for AutoSigns {
         }
     }
 
-    fn as_nis(&mut self) -> Option<&mut NisIntegrator> {
+    fn as_nis_any(&mut self) -> Option<&mut dyn Any> {
         match self.split {
             Some(_) => None,
-            None => self.whole.as_nis(),
+            None => self.whole.as_nis_any(),
         }
     }
 
-    fn as_multichannel(&mut self) -> Option<&mut MultiChannel> {
-        self.split.as_mut()
+    fn as_multichannel_any(&mut self) -> Option<&mut dyn Any> {
+        self.split.as_mut().map(|s| s as &mut dyn Any)
     }
 }
 

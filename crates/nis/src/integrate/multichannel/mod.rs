@@ -354,8 +354,16 @@ impl Integrator for MultiChannel {
         self.save_parts(path)
     }
 
-    fn as_multichannel(&mut self) -> Option<&mut MultiChannel> {
+    fn as_multichannel_any(&mut self) -> Option<&mut dyn std::any::Any> {
         Some(self)
+    }
+}
+
+impl<'a> dyn Integrator + 'a {
+    /// This integrator as a multi-channel one, for what only it does (its channel weights,
+    /// events that carry their channel); `None` for the methods on their own.
+    pub fn as_multichannel(&mut self) -> Option<&mut MultiChannel> {
+        self.as_multichannel_any()?.downcast_mut()
     }
 }
 

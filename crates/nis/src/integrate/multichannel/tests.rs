@@ -621,7 +621,12 @@ fn auto_signs_keeps_an_integrand_of_one_sign_bit_identical_and_splits_one_of_two
             (b.value.to_bits(), b.std_err.to_bits(), b.n_eval),
             "{method}"
         );
-        assert!(a.channels.is_none() && auto.as_multichannel().is_none());
+        assert!(
+            a.channels.is_none()
+                && (&mut auto as &mut dyn Integrator)
+                    .as_multichannel()
+                    .is_none()
+        );
     }
     // Both signs: split, every evaluation counted, the estimate right.
     let signed = |x: &[f64]| x[0] - 0.25;
@@ -636,7 +641,9 @@ fn auto_signs_keeps_an_integrand_of_one_sign_bit_identical_and_splits_one_of_two
             r.n_eval
         );
         assert!((r.value - 0.25).abs() < 5.0 * r.std_err, "{method}: {r:?}");
-        assert!(auto.as_multichannel().is_some());
+        assert!((&mut auto as &mut dyn Integrator)
+            .as_multichannel()
+            .is_some());
     }
 }
 

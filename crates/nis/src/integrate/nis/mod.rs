@@ -361,7 +361,7 @@ impl Integrator for NisIntegrator {
         Method::Nis
     }
 
-    fn as_nis(&mut self) -> Option<&mut NisIntegrator> {
+    fn as_nis_any(&mut self) -> Option<&mut dyn std::any::Any> {
         Some(self)
     }
 
@@ -407,6 +407,14 @@ impl Integrator for NisIntegrator {
 
     fn save(&self, path: &Path) -> Result<()> {
         NisIntegrator::save(self, path)
+    }
+}
+
+impl<'a> dyn Integrator + 'a {
+    /// This integrator as NIS, for what only NIS does (train without estimating, estimate with
+    /// the flow frozen, sample, unweight); `None` for the other methods.
+    pub fn as_nis(&mut self) -> Option<&mut NisIntegrator> {
+        self.as_nis_any()?.downcast_mut()
     }
 }
 
