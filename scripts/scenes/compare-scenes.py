@@ -10,10 +10,13 @@ them (camelCase names to snake_case, `lookAt`, `srgb` colours, other integrators
 
     python3 -m venv target/mitsuba-venv && target/mitsuba-venv/bin/pip install mitsuba==3.9.1 numpy
     cargo build --release -p nis-cli
-    target/mitsuba-venv/bin/python scripts/scenes/compare-scenes.py SCENE.xml ... [--spp 16]
+    target/mitsuba-venv/bin/python scripts/scenes/compare-scenes.py SCENE.xml ... [--spp 16] [--seeds 8]
 
 Both render each scene at its own film size. Prints a Markdown table: both means, their standard
-errors (from two seeds each) and the difference.
+errors (from the spread of `--seeds` seeds' means, 1, 2, …; two by default) and the difference.
+Two seeds give a standard error of one degree of freedom, often several times too small on a
+scene whose mean rests on rare bright paths (glass, caustics): use eight or more before calling a
+difference real (docs/results/guiding.md, `veach-bidir`).
 """
 import argparse
 import math
@@ -135,7 +138,13 @@ def upgrade(root, base):
     root.set("version", "3.0.0")
 
 
-def mitsuba_mean(path, spp):
+def mean_and_error(means):
+    """The mean of per-seed means and its standard error."""
+    means = np.asarray(means)
+    return float(means.mean()), float(means.std(ddof=1) / math.sqrt(len(means)))
+
+
+def mitsuba_mean(path, spp, seeds):
     import mitsuba as mi
     mi.set_variant("scalar_rgb")
     base = path.parent
@@ -147,13 +156,14 @@ def mitsuba_mean(path, spp):
         scene = mi.load_file(f.name)
     finally:
         Path(f.name).unlink()
-    means = [float(np.asarray(mi.render(scene, seed=s, spp=spp))[..., :3].mean()) for s in (1, 2)]
-    return np.mean(means), abs(means[0] - means[1]) / 2
+    means = [float(np.asarray(mi.render(scene, seed=s, spp=spp))[..., :3].mean())
+             for s in range(1, seeds + 1)]
+    return mean_and_error(means)
 
 
-def nis_mean(path, spp):
+def nis_mean(path, spp, seeds):
     means = []
-    for seed in (1, 2):
+    for seed in range(1, seeds + 1):
         with tempfile.TemporaryDirectory() as d:
             out = Path(d) / "img.exr"
             subprocess.run([str(NIS), "render", str(path), "--spp", str(spp),
@@ -162,21 +172,25 @@ def nis_mean(path, spp):
             import mitsuba as mi
             mi.set_variant("scalar_rgb")
             means.append(float(np.asarray(mi.Bitmap(str(out)))[..., :3].mean()))
-    return np.mean(means), abs(means[0] - means[1]) / 2
+    return mean_and_error(means)
 
 
 def main():
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("scenes", nargs="+", type=Path)
     ap.add_argument("--spp", type=int, default=16)
+    ap.add_argument("--seeds", type=int, default=2,
+                    help="seeds per renderer (1, 2, …), at least 2; their spread gives the errors")
     args = ap.parse_args()
-    print(f"<!-- each at its own film size, {args.spp} spp × 2 seeds -->")
+    if args.seeds < 2:
+        ap.error("--seeds must be at least 2")
+    print(f"<!-- each at its own film size, {args.spp} spp × {args.seeds} seeds -->")
     print("| scene | nis | Mitsuba 3 | difference (± its standard error) |")
     print("|---|---|---|---|")
     for path in args.scenes:
         try:
-            ours, ours_se = nis_mean(path.resolve(), args.spp)
-            theirs, theirs_se = mitsuba_mean(path.resolve(), args.spp)
+            ours, ours_se = nis_mean(path.resolve(), args.spp, args.seeds)
+            theirs, theirs_se = mitsuba_mean(path.resolve(), args.spp, args.seeds)
         except Exception as e:  # one scene's failure is a row, not the end of the table
             print(f"| {path} | failed: {str(e).splitlines()[-1][:120]} | | |", flush=True)
             continue
