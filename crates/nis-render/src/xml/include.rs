@@ -16,10 +16,14 @@ pub const MAX_INCLUDE_DEPTH: usize = 16;
 /// Replace every `<include>` among `root`'s children by the children of the file it names and
 /// collect the `<path>` folders (resolved against `base_dir`, the including file's folder),
 /// appending them to `paths`; an included legacy file's upgrade warnings go to `warnings` with
-/// the include's line.
+/// the include's line. An include's file is looked for as Mitsuba 3's file resolver looks for
+/// it: in the including file's folder, in the `<path>` folders, then in `scene_dir`, the main
+/// scene file's (Mitsuba's own test scenes include `include/preamble.xml` from
+/// `include/test-scene-base.xml`).
 pub fn expand(
     root: &mut Element,
     base_dir: &Path,
+    scene_dir: &Path,
     paths: &mut Vec<PathBuf>,
     warnings: &mut Vec<(usize, String)>,
     depth: usize,
@@ -36,7 +40,10 @@ pub fn expand(
                     );
                 }
                 let name = c.required("filename")?;
-                let file = resolve(base_dir, paths, name);
+                let mut file = resolve(base_dir, paths, name);
+                if !file.exists() && scene_dir.join(name).exists() {
+                    file = scene_dir.join(name);
+                }
                 let text = std::fs::read_to_string(&file).or_else(|e| {
                     err(
                         c.line,
@@ -64,7 +71,7 @@ pub fn expand(
                     warnings.extend(notes.into_iter().map(|(_, m)| (c.line, m)));
                 }
                 let dir = file.parent().map(Path::to_path_buf).unwrap_or_default();
-                expand(&mut included, &dir, paths, warnings, depth + 1)?;
+                expand(&mut included, &dir, scene_dir, paths, warnings, depth + 1)?;
                 // Errors inside name the include's line: the element tree keeps one file's
                 // lines.
                 for mut e in included.children {

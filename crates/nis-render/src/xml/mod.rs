@@ -109,6 +109,7 @@ fn load(
     include::expand(
         &mut root,
         base_dir,
+        base_dir,
         &mut search_paths,
         &mut upgrade_warnings,
         0,

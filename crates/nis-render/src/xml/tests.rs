@@ -258,6 +258,29 @@ fn includes_search_paths_and_referenced_emitters_load_as_mitsuba_reads_them() {
     .unwrap();
     let scene = load_scene(&dir.join("main.xml"), &[]).unwrap();
     assert_eq!(scene.settings.spp, 7);
+    // A file in a subfolder that includes another by its path from the main file's folder, as
+    // Mitsuba's participating-media test scenes do: found there, as Mitsuba's resolver finds it.
+    std::fs::create_dir_all(dir.join("include")).unwrap();
+    std::fs::write(
+        dir.join("include/base.xml"),
+        r#"<scene version="3.0.0"><include filename="include/glow.xml"/></scene>"#,
+    )
+    .unwrap();
+    std::fs::write(
+        dir.join("include/glow.xml"),
+        r#"<scene version="3.0.0"><emitter type="area" id="glow"><rgb name="radiance" value="3"/></emitter></scene>"#,
+    )
+    .unwrap();
+    std::fs::write(
+        dir.join("nested.xml"),
+        format!(
+            r#"<scene version="3.0.0">{SENSOR}<include filename="include/base.xml"/>
+             <shape type="rectangle"><ref id="glow"/></shape></scene>"#
+        ),
+    )
+    .unwrap();
+    let nested = load_scene(&dir.join("nested.xml"), &[]).unwrap();
+    assert_eq!(nested.lights.area[0].radiance, Rgb::splat(3.0));
     assert_eq!(scene.lights.area.len(), 1);
     assert_eq!(scene.lights.area[0].radiance, Rgb::splat(2.0));
     std::fs::write(
