@@ -251,6 +251,15 @@ def features():
               '<bsdf type="normalmap"><texture type="bitmap" name="normalmap"><string name="filename" value="normals.png"/>'
               '<boolean name="raw" value="true"/></texture>'
               '<bsdf type="roughplastic"><float name="alpha" value="0.1"/></bsdf></bsdf></shape>')
+    # A constant normal tilted towards +x on the floor (0 if ignored: the plain floor), and a
+    # sphere whose roughness (a number) and tint (a vector) are raw constants.
+    add("rawconstant",
+        floor='<shape type="obj"><string name="filename" value="quad-uv.obj"/>'
+              '<bsdf type="normalmap"><texture type="rawconstant" name="normalmap"><vector name="value" value="0.75, 0.5, 0.85"/>'
+              '</texture><bsdf type="roughplastic"><float name="alpha" value="0.1"/></bsdf></bsdf></shape>',
+        sphere='<bsdf type="roughconductor"><string name="material" value="Au"/>'
+               '<texture type="rawconstant" name="alpha"><float name="value" value="0.15"/></texture>'
+               '<texture type="rawconstant" name="specular_reflectance"><vector name="value" value="0.9, 0.6, 0.3"/></texture></bsdf>')
     add("principled",
         sphere='<bsdf type="principled"><rgb name="base_color" value="0.8, 0.3, 0.2"/><float name="roughness" value="0.4"/>'
                '<float name="sheen" value="0.5"/><float name="sheen_tint" value="0.5"/><float name="clearcoat" value="0.7"/>'

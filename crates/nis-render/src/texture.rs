@@ -1,5 +1,6 @@
 //! Textures: spatially varying BSDF parameters looked up by a surface's texture coordinates
-//! (Mitsuba 3's `bitmap` and `checkerboard` plugins, their conventions and defaults).
+//! (Mitsuba 3's `bitmap`, `checkerboard` and `rawconstant` plugins, their conventions and
+//! defaults).
 //!
 //! A bitmap is read from PNG, JPEG, TGA, BMP (8-bit sRGB, decoded to linear unless `raw`),
 //! OpenEXR or Radiance HDR (linear); it is looked up at `to_uv · uv` with texel centres at
@@ -81,6 +82,15 @@ pub enum Texture {
         /// Affine map applied to the texture coordinates.
         to_uv: Mat3,
     },
+    /// A value used as given, with no colour conversion or range check (Mitsuba 3's
+    /// `rawconstant`): a number (the same in every channel) or a 3-vector.
+    RawConstant {
+        /// The value; a number is stored in all three channels.
+        value: Rgb,
+        /// Whether it was given as a 3-vector, which has no scalar reading (Mitsuba's `eval_1`
+        /// throws; the reader refuses it where a number is needed).
+        vector: bool,
+    },
 }
 
 impl Texture {
@@ -101,6 +111,7 @@ impl Texture {
                     *color1
                 }
             }
+            Texture::RawConstant { value, .. } => *value,
         }
     }
 
@@ -123,6 +134,8 @@ impl Texture {
                 luminance(swapped.eval(uv))
             }
             Texture::Bitmap { .. } => luminance(self.eval(uv)),
+            // A number is read as it is (a vector is refused where a number is needed).
+            Texture::RawConstant { value, .. } => value.x,
         }
     }
 
@@ -138,7 +151,7 @@ impl Texture {
                     to_uv.y_axis.x * g.x + to_uv.y_axis.y * g.y,
                 )
             }
-            Texture::Checkerboard { .. } => Vec2::ZERO,
+            Texture::Checkerboard { .. } | Texture::RawConstant { .. } => Vec2::ZERO,
         }
     }
 
@@ -147,6 +160,7 @@ impl Texture {
         match self {
             Texture::Bitmap { image, .. } => image.mean,
             Texture::Checkerboard { color0, color1, .. } => 0.5 * (*color0 + *color1),
+            Texture::RawConstant { value, .. } => *value,
         }
     }
 }

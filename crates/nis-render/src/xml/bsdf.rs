@@ -9,6 +9,7 @@ use std::sync::Arc;
 
 use super::dom::{err, Element, XmlError};
 use super::props::{ior, Props, PROPERTY_TAGS};
+use super::texture::check_scalar;
 use super::{unsupported, LoadResult, Loader};
 use crate::bsdf::{
     conductors, Blend, Bsdf, Material, Microfacet, MicrofacetKind, Plastic, Slot, MIN_ALPHA,
@@ -38,7 +39,10 @@ impl Loader {
                 let texture = textures.into_iter().find(|(n, _)| n == "opacity");
                 // A colour opacity (Mitsuba 0.x scenes give one) acts by its luminance.
                 let opacity = match &texture {
-                    Some((_, t)) => luminance(t.mean()).clamp(0.0, 1.0),
+                    Some((_, t)) => {
+                        check_scalar(t, el.line, "opacity")?;
+                        luminance(t.mean()).clamp(0.0, 1.0)
+                    }
                     None => luminance(p.rgb("opacity", Rgb::splat(0.5))?),
                 };
                 if !(0.0..=1.0).contains(&opacity) {
@@ -329,7 +333,10 @@ impl Loader {
         let p = Props::new(el)?;
         let texture = textures.into_iter().find(|(n, _)| n == "weight");
         let weight = match (&texture, p.float_opt("weight")?) {
-            (Some((_, t)), _) => luminance(t.mean()),
+            (Some((_, t)), _) => {
+                check_scalar(t, el.line, "weight")?;
+                luminance(t.mean())
+            }
             (None, Some(w)) => w,
             (None, None) => {
                 return Err(err::<()>(
@@ -564,7 +571,10 @@ impl Colours<'_> {
         default: f32,
     ) -> Result<f32, XmlError> {
         match self.texture(name, slot) {
-            Some(t) => Ok(luminance(t.mean())),
+            Some(t) => {
+                check_scalar(&t, self.p.line(), name)?;
+                Ok(luminance(t.mean()))
+            }
             None => self.p.float(name, default),
         }
     }

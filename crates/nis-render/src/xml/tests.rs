@@ -659,3 +659,67 @@ fn a_perspective_without_fov_reads_its_focal_length_along_the_diagonal() {
         assert!(e.starts_with("test.xml:4:") && e.contains(needle), "{e}");
     }
 }
+
+#[test]
+fn a_rawconstant_is_its_value_as_given_and_a_vector_is_not_a_number() {
+    use crate::texture::Texture;
+    use glam::Vec2;
+    let with = |bsdf: &str| {
+        load(&format!(
+            "<scene version=\"3.0.0\">\n{SENSOR}\n<bsdf type=\"diffuse\" id=\"d\"/>\n{bsdf}\n</scene>"
+        ))
+    };
+    // Mitsuba's identity normal map: the vector as written, no colour conversion.
+    let s = with(r#"<bsdf type="normalmap" id="n"><texture type="rawconstant" name="normalmap"><vector name="value" value="0.5, 0.5, 1.0"/></texture><ref id="d"/></bsdf>"#)
+        .unwrap();
+    let bump = s.materials.last().unwrap().bump.as_ref().unwrap();
+    assert_eq!(
+        *bump.texture,
+        Texture::RawConstant {
+            value: Rgb::new(0.5, 0.5, 1.0),
+            vector: true
+        }
+    );
+    assert_eq!(
+        bump.texture.eval(Vec2::new(0.3, 0.9)),
+        Rgb::new(0.5, 0.5, 1.0)
+    );
+    // A number fills every channel and is read as itself where a number is needed (not a
+    // luminance); values outside [0, 1] are kept.
+    let s = with(r#"<bsdf type="roughconductor" id="b"><texture type="rawconstant" name="alpha"><float name="value" value="0.3"/></texture><texture type="rawconstant" name="specular_reflectance"><vector name="value" value="1.5, -0.5, 0.2"/></texture></bsdf>"#)
+        .unwrap();
+    let m = s.materials.last().unwrap();
+    let at = m.at(Vec2::new(0.1, 0.2)).unwrap();
+    match at.bsdf {
+        Bsdf::RoughConductor {
+            dist,
+            specular_reflectance,
+            ..
+        } => {
+            assert_eq!((dist.alpha_u, dist.alpha_v), (0.3, 0.3));
+            assert_eq!(specular_reflectance, Rgb::new(1.5, -0.5, 0.2));
+        }
+        ref b => panic!("{b:?}"),
+    }
+    for (bsdf, needle) in [
+        (
+            r#"<bsdf type="roughconductor"><texture type="rawconstant" name="alpha"><vector name="value" value="0.1, 0.2, 0.3"/></texture></bsdf>"#,
+            "'alpha' is a number",
+        ),
+        (
+            r#"<bsdf type="mask"><texture type="rawconstant" name="opacity"><vector name="value" value="1, 1, 1"/></texture><ref id="d"/></bsdf>"#,
+            "'opacity' is a number",
+        ),
+        (
+            r#"<bsdf type="diffuse"><texture type="rawconstant" name="reflectance"/></bsdf>"#,
+            "needs a <float> or <vector>",
+        ),
+        (
+            r#"<bsdf type="diffuse"><texture type="rawconstant" name="reflectance"><rgb name="value" value="0.5"/></texture></bsdf>"#,
+            "must be one of",
+        ),
+    ] {
+        let e = with(bsdf).unwrap_err().to_string();
+        assert!(e.starts_with("test.xml:4:") && e.contains(needle), "{e}");
+    }
+}

@@ -1,4 +1,4 @@
-//! Textures: `bitmap` and `checkerboard` (Mitsuba 3's plugins), nested in a BSDF under a
+//! Textures: `bitmap`, `checkerboard` and `rawconstant` (Mitsuba 3's plugins), nested in a BSDF under a
 //! parameter's name, or defined once at the top with an `id` and used by
 //! `<ref name="reflectance" id="…"/>`. An image file is read once however often it is used.
 
@@ -7,7 +7,7 @@ use std::sync::Arc;
 
 use glam::{Mat3, Mat4, Vec3};
 
-use super::dom::{err, Element};
+use super::dom::{err, Element, XmlError};
 use super::props::Props;
 use super::{unsupported, LoadError, LoadResult, Loader};
 use crate::geometry::Rgb;
@@ -107,7 +107,25 @@ impl Loader {
                 color1: p.rgb("color1", Rgb::splat(0.2))?,
                 to_uv,
             },
-            _ => return unsupported(el, "bitmap, checkerboard"),
+            "rawconstant" => match p.get("value", &["float", "vector", "point"])? {
+                Some(v) if v.name == "float" => Texture::RawConstant {
+                    value: Rgb::splat(p.float("value", 0.0)?),
+                    vector: false,
+                },
+                Some(_) => Texture::RawConstant {
+                    value: p.point("value", Vec3::ZERO)?,
+                    vector: true,
+                },
+                None => {
+                    return Err(err::<()>(
+                        el.line,
+                        "<texture type=\"rawconstant\"> needs a <float> or <vector> \"value\"",
+                    )
+                    .unwrap_err()
+                    .into())
+                }
+            },
+            _ => return unsupported(el, "bitmap, checkerboard, rawconstant"),
         };
         p.finish()?;
         Ok(Arc::new(texture))
@@ -154,6 +172,18 @@ impl Loader {
             out.push((name.to_string(), texture));
         }
         Ok(out)
+    }
+}
+
+/// Refuse a texture read as a number (`name`, on the element at `line`) that has none: a
+/// 3-vector `rawconstant`, whose `eval_1` Mitsuba 3 refuses.
+pub(super) fn check_scalar(t: &Texture, line: usize, name: &str) -> Result<(), XmlError> {
+    match t {
+        Texture::RawConstant { vector: true, .. } => err(
+            line,
+            format!("'{name}' is a number: a rawconstant 3-vector cannot stand for it"),
+        ),
+        _ => Ok(()),
     }
 }
 
