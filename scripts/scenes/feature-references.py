@@ -260,6 +260,17 @@ def features():
         sphere='<bsdf type="roughconductor"><string name="material" value="Au"/>'
                '<texture type="rawconstant" name="alpha"><float name="value" value="0.15"/></texture>'
                '<texture type="rawconstant" name="specular_reflectance"><vector name="value" value="0.9, 0.6, 0.3"/></texture></bsdf>')
+    # Mesh attributes of PLY files: a floor grid whose vertex colours ramp along x and z (its
+    # reflectance), and the wedge, whose faces' weights blend two diffuse BSDFs.
+    add("mesh_attribute",
+        floor='<shape type="ply"><string name="filename" value="attributes.ply"/>'
+              '<bsdf type="diffuse"><texture type="mesh_attribute" name="reflectance"><string name="name" value="vertex_color"/>'
+              '<float name="scale" value="0.9"/></texture></bsdf></shape>'
+              '<shape type="ply"><string name="filename" value="wedge-weights.ply"/>'
+              '<transform name="to_world"><scale value="0.9"/><translate x="-0.9" z="0.5"/></transform>'
+              '<bsdf type="blendbsdf"><texture type="mesh_attribute" name="weight"><string name="name" value="face_weight"/></texture>'
+              '<bsdf type="diffuse"><rgb name="reflectance" value="0.9, 0.8, 0.2"/></bsdf>'
+              '<bsdf type="diffuse"><rgb name="reflectance" value="0.05, 0.1, 0.4"/></bsdf></bsdf></shape>')
     add("principled",
         sphere='<bsdf type="principled"><rgb name="base_color" value="0.8, 0.3, 0.2"/><float name="roughness" value="0.4"/>'
                '<float name="sheen" value="0.5"/><float name="sheen_tint" value="0.5"/><float name="clearcoat" value="0.7"/>'
@@ -362,6 +373,21 @@ def ply_binary(mesh):
     return head.encode() + body
 
 
+def ply_attributes(positions, triangles, vertex_columns, vertex_rows, face_columns, face_rows):
+    """A binary little-endian PLY with extra float properties per vertex and per face."""
+    import struct
+    head = "ply\nformat binary_little_endian 1.0\n" + f"element vertex {len(positions)}\n"
+    head += "".join(f"property float {p}\n" for p in ["x", "y", "z"] + vertex_columns)
+    head += f"element face {len(triangles)}\nproperty list uchar int vertex_indices\n"
+    head += "".join(f"property float {p}\n" for p in face_columns) + "end_header\n"
+    body = b""
+    for p, row in zip(positions, vertex_rows):
+        body += struct.pack(f"<{3 + len(row)}f", *p, *row)
+    for t, row in zip(triangles, face_rows):
+        body += struct.pack("<B3i", 3, *t) + struct.pack(f"<{len(row)}f", *row)
+    return head.encode() + body
+
+
 def write_data(mi):
     """The mesh and the 16 x 12 sRGB image the textured scenes read."""
     import numpy as np
@@ -373,6 +399,19 @@ def write_data(mi):
              [(0, 0), (2, 0), (2, 2), (0, 2)], [(0, 1, 2), (2, 3, 0)])
     (OUT / "meshes.serialized").write_bytes(serialized_v4([wedge, floor]))
     (OUT / "wedge.ply").write_bytes(ply_binary(wedge))
+    # A 4 x 4 floor of 4 x 4 cells, vertex colours ramping along x and z, and the wedge with
+    # a weight per face.
+    grid = [(-2 + i, 0, -2 + j) for j in range(5) for i in range(5)]
+    cells = [(i, j) for j in range(4) for i in range(4)]
+    tris = []
+    for i, j in cells:
+        a, b, c, d = (j + 1) * 5 + i, (j + 1) * 5 + i + 1, j * 5 + i + 1, j * 5 + i
+        tris += [(a, b, c), (a, c, d)]
+    colours = [(0.1 + 0.2 * (x + 2), 0.9 - 0.2 * (z + 2), 0.3) for x, _, z in grid]
+    (OUT / "attributes.ply").write_bytes(ply_attributes(
+        grid, tris, ["r", "g", "b"], colours, ["weight_0"], [(0.5,)] * len(tris)))
+    (OUT / "wedge-weights.ply").write_bytes(ply_attributes(
+        wedge[0], wedge[3], [], [()] * 4, ["weight_0"], [(0.0,), (1.0,), (0.15,), (0.85,)]))
     y, x = np.mgrid[0:12, 0:16]
     img = np.stack([(x * 16) % 256, (y * 21) % 256, ((x + y) % 2) * 200 + 30], axis=-1).astype(np.uint8)
     mi.Bitmap(img).write(str(OUT / "texture.png"))

@@ -2,16 +2,19 @@
 //! `ply` plugin reads them: the `vertex` element's `x y z`, optional normals `nx ny nz` and
 //! texture coordinates (`u v`, `s t` or `texture_u texture_v`, kept as stored, without
 //! Mitsuba's OBJ flip), and the `face` element's index lists (`vertex_indices` or
-//! `vertex_index`), polygons split into fans. Other elements and properties are skipped.
+//! `vertex_index`), polygons split into fans. The two elements' other number properties become
+//! mesh attributes as Mitsuba names them (`vertex_color` from `r g b` or `red green blue`,
+//! `face_weight` from a lone `weight_0`, `vertex_n` from `n_x n_y n_z`: see [`attribute_groups`]),
+//! values as stored; other elements are skipped.
 
 use std::io::BufReader;
 use std::path::Path;
 
 use glam::{Vec2, Vec3};
 use ply_rs_bw::parser::{Parser, Reader};
-use ply_rs_bw::ply::{Property, PropertyAccess, PropertyAccessResult};
+use ply_rs_bw::ply::{Property, PropertyAccess, PropertyAccessResult, PropertyType};
 
-use crate::shape::TriangleMesh;
+use crate::shape::{MeshAttribute, TriangleMesh};
 use crate::Error;
 
 #[derive(Default)]
@@ -21,12 +24,34 @@ struct Vertex {
     uv: [f32; 2],
     has_n: bool,
     has_uv: bool,
+    /// The other number properties, in the header's order.
+    extra: Vec<f32>,
 }
 
 #[derive(Default)]
 struct Face {
     indices: Vec<i64>,
+    /// The number properties, in the header's order.
+    extra: Vec<f32>,
 }
+
+/// The vertex properties nis reads itself.
+const VERTEX_PROPERTIES: [&str; 14] = [
+    "x",
+    "y",
+    "z",
+    "nx",
+    "ny",
+    "nz",
+    "u",
+    "s",
+    "texture_u",
+    "texture_s",
+    "v",
+    "t",
+    "texture_v",
+    "texture_t",
+];
 
 /// Any numeric PLY scalar as `f64`.
 fn scalar(p: &Property) -> Option<f64> {
@@ -66,7 +91,7 @@ impl PropertyAccess for Vertex {
                 self.has_uv = true;
             }
             "v" | "t" | "texture_v" | "texture_t" => self.uv[1] = v,
-            _ => return PropertyAccessResult::Ignored,
+            _ => self.extra.push(v),
         }
         PropertyAccessResult::Set
     }
@@ -79,7 +104,13 @@ impl PropertyAccess for Face {
 
     fn set_property(&mut self, name: &str, property: Property) -> PropertyAccessResult {
         if name != "vertex_indices" && name != "vertex_index" {
-            return PropertyAccessResult::Ignored;
+            return match scalar(&property) {
+                Some(v) => {
+                    self.extra.push(v as f32);
+                    PropertyAccessResult::Set
+                }
+                None => PropertyAccessResult::Ignored,
+            };
         }
         self.indices = match property {
             Property::ListChar(v) => v.into_iter().map(i64::from).collect(),
@@ -136,13 +167,63 @@ pub fn load(path: &Path) -> Result<TriangleMesh, Error> {
     }
     let n = vertices.len();
     let mut indices = Vec::with_capacity(faces.len());
-    for f in &faces {
+    // The face each triangle comes from.
+    let mut face_of = Vec::with_capacity(faces.len());
+    for (j, f) in faces.iter().enumerate() {
         if let Some(bad) = f.indices.iter().find(|&&i| i < 0 || i as usize >= n) {
             return Err(fail(format!("a face refers to vertex {bad} of {n}")));
         }
         for k in 1..f.indices.len().saturating_sub(1) {
             indices.push([f.indices[0], f.indices[k], f.indices[k + 1]].map(|i| i as u32));
+            face_of.push(j);
         }
+    }
+    let columns = |element: &str, own: &dyn Fn(&str) -> bool| -> Vec<String> {
+        header.elements.get(element).map_or(Vec::new(), |e| {
+            e.properties
+                .values()
+                .filter(|d| matches!(d.data_type, PropertyType::Scalar(_)) && !own(&d.name))
+                .map(|d| d.name.clone())
+                .collect()
+        })
+    };
+    let mut attributes = Vec::new();
+    let vertex_columns = columns("vertex", &|name| VERTEX_PROPERTIES.contains(&name));
+    for (name, cols) in attribute_groups("vertex_", &vertex_columns) {
+        let mut values = Vec::with_capacity(n * cols.len());
+        for v in &vertices {
+            for &c in &cols {
+                values.push(
+                    *v.extra
+                        .get(c)
+                        .ok_or_else(|| fail(format!("a vertex lacks {name}")))?,
+                );
+            }
+        }
+        attributes.push(MeshAttribute {
+            name,
+            dim: cols.len(),
+            values,
+        });
+    }
+    let face_columns = columns("face", &|_| false);
+    for (name, cols) in attribute_groups("face_", &face_columns) {
+        let mut values = Vec::with_capacity(face_of.len() * cols.len());
+        for &j in &face_of {
+            for &c in &cols {
+                values.push(
+                    *faces[j]
+                        .extra
+                        .get(c)
+                        .ok_or_else(|| fail(format!("a face lacks {name}")))?,
+                );
+            }
+        }
+        attributes.push(MeshAttribute {
+            name,
+            dim: cols.len(),
+            values,
+        });
     }
     if indices.is_empty() {
         return Err(fail("the file has no triangles".into()));
@@ -156,7 +237,78 @@ pub fn load(path: &Path) -> Result<TriangleMesh, Error> {
         normals: all(|v| v.has_n).then(|| vertices.iter().map(|v| Vec3::from_array(v.n)).collect()),
         indices,
         uvs: all(|v| v.has_uv).then(|| vertices.iter().map(|v| Vec2::from_array(v.uv)).collect()),
+        attributes,
     })
+}
+
+/// Mitsuba 3's grouping of an element's other properties (`columns`, in the header's order)
+/// into attributes named `{kind}…` with the columns they read: `r g b [a]` (or
+/// `red green blue [alpha]`) make `{kind}color`; consecutive `{prefix}_{x y z}`, `_{0 1 2}` or
+/// `_{1 2 3}` make a 3-channel `{kind}{prefix}`, `{prefix}_{r g b}` a `{kind}{prefix}_color`,
+/// and a lone `{prefix}_x` (`_r`, `_0`, `_1`) a 1-channel one. Other properties (no
+/// one-letter suffix, 2 or 4 channels, a repeated prefix) are skipped, as Mitsuba skips them
+/// with a warning.
+pub fn attribute_groups(kind: &str, columns: &[String]) -> Vec<(String, Vec<usize>)> {
+    const SUFFIXES: [&[u8; 4]; 4] = [b"xr01", b"yg12", b"zb23", b"wa34"];
+    let find = |n: &str| columns.iter().position(|c| c == n);
+    let mut out = Vec::new();
+    let mut colour = Vec::new();
+    for set in [["r", "g", "b", "a"], ["red", "green", "blue", "alpha"]] {
+        if let (Some(r), Some(g), Some(b)) = (find(set[0]), find(set[1]), find(set[2])) {
+            colour = vec![r, g, b];
+            colour.extend(find(set[3]));
+            out.push((format!("{kind}color"), colour.clone()));
+            break;
+        }
+    }
+    // The attribute being read: its prefix, suffix family and columns.
+    let mut current: Option<(String, usize, Vec<usize>)> = None;
+    let mut seen: Vec<String> = Vec::new();
+    let flush = |current: &mut Option<(String, usize, Vec<usize>)>,
+                 out: &mut Vec<(String, Vec<usize>)>,
+                 seen: &mut Vec<String>| {
+        if let Some((prefix, family, cols)) = current.take() {
+            if cols.len() == 1 || cols.len() == 3 {
+                let colour = if family == 1 { "_color" } else { "" };
+                out.push((format!("{kind}{prefix}{colour}"), cols));
+                seen.push(prefix);
+            }
+        }
+    };
+    for (i, name) in columns.iter().enumerate() {
+        if colour.contains(&i) || ["r", "g", "b", "a"].contains(&name.as_str()) {
+            continue;
+        }
+        let Some((prefix, suffix)) = name.rsplit_once('_').filter(|(_, s)| s.len() == 1) else {
+            flush(&mut current, &mut out, &mut seen);
+            continue;
+        };
+        if current.as_ref().is_some_and(|c| c.0 != prefix) {
+            flush(&mut current, &mut out, &mut seen);
+        }
+        let c = suffix.as_bytes()[0];
+        match &mut current {
+            None => {
+                if seen.iter().any(|s| s == prefix) {
+                    continue;
+                }
+                if let Some(family) = SUFFIXES[0].iter().position(|&s| s == c) {
+                    current = Some((prefix.to_string(), family, vec![i]));
+                }
+            }
+            Some((_, family, cols)) => {
+                if cols.len() < 4 && SUFFIXES[cols.len()][*family] == c {
+                    cols.push(i);
+                } else {
+                    // A broken sequence: the attribute is skipped.
+                    seen.push(prefix.to_string());
+                    current = None;
+                }
+            }
+        }
+    }
+    flush(&mut current, &mut out, &mut seen);
+    out
 }
 
 #[cfg(test)]
@@ -193,5 +345,49 @@ mod tests {
         std::fs::write(&path, "not a ply").unwrap();
         assert!(load(&path).is_err());
         std::fs::remove_dir_all(&dir).ok();
+    }
+
+    #[test]
+    fn other_properties_become_attributes_named_as_mitsuba_names_them() {
+        let names = |cols: &[&str]| {
+            let cols: Vec<String> = cols.iter().map(|c| c.to_string()).collect();
+            attribute_groups("vertex_", &cols)
+        };
+        assert_eq!(
+            names(&["red", "green", "blue", "weight_0", "n_x", "n_y", "n_z", "c_r", "c_g", "c_b"]),
+            vec![
+                ("vertex_color".to_string(), vec![0, 1, 2]),
+                ("vertex_weight".to_string(), vec![3]),
+                ("vertex_n".to_string(), vec![4, 5, 6]),
+                ("vertex_c_color".to_string(), vec![7, 8, 9]),
+            ]
+        );
+        // Two channels, no one-letter suffix, a broken sequence: skipped, as Mitsuba does.
+        assert_eq!(
+            names(&["p_x", "p_y", "q", "s_0", "s_2", "t_1"]),
+            vec![("vertex_t".to_string(), vec![5])]
+        );
+
+        // A quad's face property is each of its triangles'; vertex colours are per vertex.
+        let dir = std::env::temp_dir().join(format!("nis-ply-attr-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let path = dir.join("quad.ply");
+        std::fs::write(
+            &path,
+            "ply\nformat ascii 1.0\nelement vertex 4\nproperty float x\nproperty float y\n\
+             property float z\nproperty uchar r\nproperty uchar g\nproperty uchar b\n\
+             element face 1\nproperty list uchar int vertex_indices\nproperty float weight_0\n\
+             end_header\n0 0 0 1 2 3\n1 0 0 4 5 6\n1 1 0 7 8 9\n0 1 0 10 11 12\n4 0 1 2 3 0.25\n",
+        )
+        .unwrap();
+        let m = load(&path).unwrap();
+        std::fs::remove_dir_all(&dir).ok();
+        assert_eq!(m.attributes.len(), 2);
+        let (colour, weight) = (&m.attributes[0], &m.attributes[1]);
+        assert_eq!((colour.name.as_str(), colour.dim), ("vertex_color", 3));
+        assert_eq!(colour.texel(2), [7.0, 8.0, 9.0, 0.0]);
+        assert_eq!((weight.name.as_str(), weight.dim), ("face_weight", 1));
+        assert_eq!(weight.values, vec![0.25, 0.25]);
+        assert!(!weight.per_vertex() && colour.per_vertex());
     }
 }

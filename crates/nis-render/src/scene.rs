@@ -14,6 +14,7 @@ use crate::filter::Filter;
 use crate::geometry::{Ray, Rgb};
 use crate::light::{AreaLight, LightPrimitive, Lights};
 use crate::shape::{Geometry, Shape, Sphere};
+use crate::texture::{AttributeHit, Texture};
 use crate::Error;
 
 /// Settings a scene file carries for the film, sampler and integrator; command-line flags
@@ -63,6 +64,9 @@ pub struct SurfaceHit {
     pub uv: Vec2,
     /// The triangle hit (in the BVH's order), or [`NO_TRIANGLE`] for a sphere.
     pub triangle: u32,
+    /// Barycentric coordinates of the hit on the triangle (the weights of its second and
+    /// third vertices); zero on a sphere.
+    pub bary: Vec2,
 }
 
 /// [`SurfaceHit::triangle`] of a sphere.
@@ -80,6 +84,8 @@ struct TriangleInfo {
     uv: u32,
     material: u32,
     light: u32,
+    /// Index of the triangle's first entry in `Scene::attribute_corners`, or `u32::MAX`.
+    attributes: u32,
 }
 
 #[derive(Clone, Copy, Debug)]
@@ -106,6 +112,10 @@ pub struct Scene {
     triangles: Vec<TriangleInfo>,
     vertex_normals: Vec<[Vec3; 3]>,
     vertex_uvs: Vec<[Vec2; 3]>,
+    /// The mesh attributes the materials' `mesh_attribute` textures read.
+    attribute_names: Vec<String>,
+    /// For each triangle whose material reads them, each attribute's value at its corners.
+    attribute_corners: Vec<[[f32; 4]; 3]>,
     spheres: Vec<SphereInfo>,
 }
 
@@ -124,6 +134,26 @@ impl Scene {
         let mut vertex_uvs = Vec::new();
         let mut emission = Vec::new();
         let mut spheres = Vec::new();
+        // The attributes each material reads, by index into `attribute_names`.
+        let mut attribute_names: Vec<String> = Vec::new();
+        let mut reads: Vec<Vec<usize>> = Vec::new();
+        for m in &materials {
+            let mut r = Vec::new();
+            for (_, t) in &m.textures {
+                if let Texture::MeshAttribute { name, .. } = &**t {
+                    let k = match attribute_names.iter().position(|n| n == name) {
+                        Some(k) => k,
+                        None => {
+                            attribute_names.push(name.clone());
+                            attribute_names.len() - 1
+                        }
+                    };
+                    r.push(k);
+                }
+            }
+            reads.push(r);
+        }
+        let mut attribute_corners = Vec::new();
         for shape in &shapes {
             if shape.material >= materials.len() {
                 return Err(Error::Invalid(format!(
@@ -132,9 +162,23 @@ impl Scene {
                     materials.len()
                 )));
             }
+            let read = &reads[shape.material];
+            let missing = |name: &str| {
+                Error::Invalid(format!(
+                    "a mesh_attribute texture reads '{name}', which a shape with its material \
+                     does not have"
+                ))
+            };
             match &shape.geometry {
                 Geometry::Mesh(mesh) => {
-                    for f in &mesh.indices {
+                    // The mesh's attribute for each name the material reads.
+                    let mut found = vec![None; attribute_names.len()];
+                    for &k in read {
+                        let name = &attribute_names[k];
+                        let a = mesh.attributes.iter().find(|a| &a.name == name);
+                        found[k] = Some(a.ok_or_else(|| missing(name))?);
+                    }
+                    for (j, f) in mesh.indices.iter().enumerate() {
                         let p = f.map(|i| mesh.positions[i as usize]);
                         let cross = (p[1] - p[0]).cross(p[2] - p[0]);
                         if cross.length_squared() == 0.0 || !cross.is_finite() {
@@ -155,17 +199,36 @@ impl Scene {
                             }
                             None => u32::MAX,
                         };
+                        let attributes = if read.is_empty() {
+                            u32::MAX
+                        } else {
+                            let start = attribute_corners.len() as u32;
+                            for a in &found {
+                                attribute_corners.push(match a {
+                                    None => [[0.0; 4]; 3],
+                                    Some(a) if a.per_vertex() => f.map(|i| a.texel(i as usize)),
+                                    Some(a) => [a.texel(j); 3],
+                                });
+                            }
+                            start
+                        };
                         infos.push(TriangleInfo {
                             ng: cross.normalize(),
                             smooth,
                             uv,
                             material: shape.material as u32,
                             light: NO_LIGHT,
+                            attributes,
                         });
                         emission.push(shape.emission);
                     }
                 }
-                Geometry::Sphere(s) => spheres.push((*s, shape.material as u32, shape.emission)),
+                Geometry::Sphere(s) => {
+                    if let Some(&k) = read.first() {
+                        return Err(missing(&attribute_names[k]));
+                    }
+                    spheres.push((*s, shape.material as u32, shape.emission))
+                }
             }
         }
         let (bvh, order) = Bvh::build(&tris);
@@ -222,7 +285,23 @@ impl Scene {
             triangles,
             vertex_normals,
             vertex_uvs,
+            attribute_names,
+            attribute_corners,
             spheres,
+        })
+    }
+
+    /// The mesh attributes at a hit, where its material reads any.
+    pub fn attributes(&self, hit: &SurfaceHit) -> Option<AttributeHit<'_>> {
+        let info = self.triangles.get(hit.triangle as usize)?;
+        let start = info.attributes as usize;
+        let corners = self
+            .attribute_corners
+            .get(start..start + self.attribute_names.len())?;
+        Some(AttributeHit {
+            names: &self.attribute_names,
+            corners,
+            bary: Vec3::new(1.0 - hit.bary.x - hit.bary.y, hit.bary.x, hit.bary.y),
         })
     }
 
@@ -293,6 +372,7 @@ impl Scene {
                 light: info.light,
                 uv,
                 triangle: h.prim,
+                bary: Vec2::new(h.u, h.v),
             });
         }
         // The nearest sphere, if nearer than any triangle; its shading data once, at the end.
@@ -326,6 +406,7 @@ impl Scene {
                 light: s.light,
                 uv,
                 triangle: NO_TRIANGLE,
+                bary: Vec2::ZERO,
             });
         }
         best

@@ -158,6 +158,7 @@ pub fn parse(bytes: &[u8], shape_index: u32) -> Result<TriangleMesh, String> {
         normals,
         indices,
         uvs,
+        attributes: Vec::new(),
     })
 }
 
@@ -267,6 +268,7 @@ mod tests {
             normals: Some(vec![Vec3::Z; 4]),
             indices: vec![[0, 1, 2], [2, 3, 0]],
             uvs: Some(vec![Vec2::ZERO, Vec2::X, Vec2::ONE, Vec2::Y]),
+            attributes: Vec::new(),
         }
     }
 

@@ -24,6 +24,40 @@ pub struct TriangleMesh {
     pub indices: Vec<[u32; 3]>,
     /// Per-vertex texture coordinates (`None`: the mesh has none, textures see `(0, 0)`).
     pub uvs: Option<Vec<Vec2>>,
+    /// Named per-vertex or per-triangle values (a PLY file's other properties), which
+    /// Mitsuba 3's `mesh_attribute` texture reads.
+    pub attributes: Vec<MeshAttribute>,
+}
+
+/// A mesh attribute as Mitsuba 3 names and stores it.
+#[derive(Clone, Debug, PartialEq)]
+pub struct MeshAttribute {
+    /// `vertex_…` (one value per vertex, interpolated over a triangle) or `face_…` (one per
+    /// triangle).
+    pub name: String,
+    /// Channels per value: 1 or 3 are read; Mitsuba reads a 4-channel colour as zero.
+    pub dim: usize,
+    /// `dim` values per vertex or per triangle.
+    pub values: Vec<f32>,
+}
+
+impl MeshAttribute {
+    /// Whether the attribute has a value per vertex (else per triangle).
+    pub fn per_vertex(&self) -> bool {
+        self.name.starts_with("vertex_")
+    }
+
+    /// Value `i` as a colour and a number, as a texture reads it: a number in every channel;
+    /// a 3-channel value, read as a number, and any other width are zero (Mitsuba 3's
+    /// `Mesh::eval_attribute` and `eval_attribute_1`).
+    pub fn texel(&self, i: usize) -> [f32; 4] {
+        let v = &self.values[i * self.dim..(i + 1) * self.dim];
+        match self.dim {
+            1 => [v[0]; 4],
+            3 => [v[0], v[1], v[2], 0.0],
+            _ => [0.0; 4],
+        }
+    }
 }
 
 /// Triangles of a [`TriangleMesh::disk`].
@@ -51,6 +85,7 @@ impl TriangleMesh {
                 Vec2::new(1.0, 1.0),
                 Vec2::new(0.0, 1.0),
             ]),
+            attributes: Vec::new(),
         };
         mesh.transform(to_world);
         // Mitsuba transforms the rectangle's normal as a normal; keep the winding consistent.
@@ -79,6 +114,7 @@ impl TriangleMesh {
             normals: None,
             indices,
             uvs: Some(uvs),
+            attributes: Vec::new(),
         };
         mesh.transform(to_world);
         if Mat3::from_mat4(*to_world).determinant() < 0.0 {

@@ -1,6 +1,6 @@
 //! Textures: spatially varying BSDF parameters looked up by a surface's texture coordinates
-//! (Mitsuba 3's `bitmap`, `checkerboard` and `rawconstant` plugins, their conventions and
-//! defaults).
+//! (Mitsuba 3's `bitmap`, `checkerboard`, `rawconstant` and `mesh_attribute` plugins, their
+//! conventions and defaults).
 //!
 //! A bitmap is read from PNG, JPEG, TGA, BMP (8-bit sRGB, decoded to linear unless `raw`),
 //! OpenEXR or Radiance HDR (linear); it is looked up at `to_uv · uv` with texel centres at
@@ -91,11 +91,53 @@ pub enum Texture {
         /// throws; the reader refuses it where a number is needed).
         vector: bool,
     },
+    /// The named attribute of the mesh a path hits, interpolated over the triangle (a
+    /// `vertex_…` one) or constant on it (`face_…`), times `scale` (Mitsuba 3's
+    /// `mesh_attribute`); zero where no mesh attributes are given.
+    MeshAttribute {
+        /// The attribute's name, as Mitsuba names a PLY file's properties.
+        name: String,
+        /// Factor on the value.
+        scale: f32,
+    },
+}
+
+/// The mesh attributes where a path hits a triangle, as a `mesh_attribute` texture reads them.
+#[derive(Clone, Copy, Debug)]
+pub struct AttributeHit<'a> {
+    /// The names of the attributes the scene's textures read.
+    pub names: &'a [String],
+    /// Their values at the triangle's three corners, in `names`' order: the colour and the
+    /// number ([`crate::shape::MeshAttribute::texel`]).
+    pub corners: &'a [[[f32; 4]; 3]],
+    /// The hit's barycentric coordinates (the weights of the three corners).
+    pub bary: Vec3,
+}
+
+impl AttributeHit<'_> {
+    /// The interpolated colour and number of attribute `name` (zero if the scene has none).
+    fn value(&self, name: &str) -> [f32; 4] {
+        let Some(c) = self
+            .names
+            .iter()
+            .position(|n| n == name)
+            .and_then(|k| self.corners.get(k))
+        else {
+            return [0.0; 4];
+        };
+        let b = self.bary;
+        std::array::from_fn(|i| c[0][i] * b.x + (c[1][i] * b.y + c[2][i] * b.z))
+    }
 }
 
 impl Texture {
     /// The value at texture coordinates `uv`.
     pub fn eval(&self, uv: Vec2) -> Rgb {
+        self.eval_at(uv, None)
+    }
+
+    /// The value at texture coordinates `uv` of a hit with mesh attributes `attributes`.
+    pub fn eval_at(&self, uv: Vec2, attributes: Option<&AttributeHit>) -> Rgb {
         match self {
             Texture::Bitmap { image, to_uv } => image.eval(to_uv.transform_point2(uv)),
             Texture::Checkerboard {
@@ -112,6 +154,10 @@ impl Texture {
                 }
             }
             Texture::RawConstant { value, .. } => *value,
+            Texture::MeshAttribute { name, scale } => {
+                let v = attributes.map_or([0.0; 4], |a| a.value(name));
+                Rgb::new(v[0], v[1], v[2]) * *scale
+            }
         }
     }
 
@@ -120,6 +166,12 @@ impl Texture {
     /// blend's weight or a principled BSDF's parameters take) the two colours swapped, and so
     /// does this one, to render as Mitsuba does.
     pub fn eval_scalar(&self, uv: Vec2) -> f32 {
+        self.eval_scalar_at(uv, None)
+    }
+
+    /// [`Texture::eval_scalar`] of a hit with mesh attributes `attributes` (a 1-channel
+    /// attribute as it is; a 3-channel one is zero, as Mitsuba 3 reads it).
+    pub fn eval_scalar_at(&self, uv: Vec2, attributes: Option<&AttributeHit>) -> f32 {
         match self {
             Texture::Checkerboard {
                 color0,
@@ -136,6 +188,9 @@ impl Texture {
             Texture::Bitmap { .. } => luminance(self.eval(uv)),
             // A number is read as it is (a vector is refused where a number is needed).
             Texture::RawConstant { value, .. } => value.x,
+            Texture::MeshAttribute { name, scale } => {
+                attributes.map_or(0.0, |a| a.value(name)[3]) * *scale
+            }
         }
     }
 
@@ -151,7 +206,9 @@ impl Texture {
                     to_uv.y_axis.x * g.x + to_uv.y_axis.y * g.y,
                 )
             }
-            Texture::Checkerboard { .. } | Texture::RawConstant { .. } => Vec2::ZERO,
+            Texture::Checkerboard { .. }
+            | Texture::RawConstant { .. }
+            | Texture::MeshAttribute { .. } => Vec2::ZERO,
         }
     }
 
@@ -161,6 +218,8 @@ impl Texture {
             Texture::Bitmap { image, .. } => image.mean,
             Texture::Checkerboard { color0, color1, .. } => 0.5 * (*color0 + *color1),
             Texture::RawConstant { value, .. } => *value,
+            // Mitsuba 3 has none; ½ stands in where nis needs one before a hit.
+            Texture::MeshAttribute { .. } => Rgb::splat(0.5),
         }
     }
 }

@@ -364,6 +364,7 @@ fn serialized_meshes_mutated() {
         normals: Some(vec![glam::Vec3::Z; 3]),
         indices: vec![[0, 1, 2]],
         uvs: Some(vec![glam::Vec2::ZERO, glam::Vec2::X, glam::Vec2::Y]),
+        attributes: Vec::new(),
     };
     let valid = nis_render::serialized::write(&[mesh(0.0), mesh(1.0)]);
     let bytes = prop_oneof![

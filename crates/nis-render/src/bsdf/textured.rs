@@ -5,6 +5,7 @@
 use glam::Vec2;
 
 use super::{Bsdf, Material, PrincipledParam};
+use crate::texture::AttributeHit;
 
 /// The least microfacet roughness: Mitsuba's `MicrofacetDistribution` raises `alpha` to it.
 pub const MIN_ALPHA: f32 = 1e-4;
@@ -38,6 +39,12 @@ impl Material {
     /// The material at texture coordinates `uv`, its textured parameters looked up; `None`
     /// when nothing is textured (the material is the same everywhere).
     pub fn at(&self, uv: Vec2) -> Option<Material> {
+        self.at_hit(uv, None)
+    }
+
+    /// [`Material::at`] a hit with mesh attributes `attributes` (what `mesh_attribute`
+    /// textures read).
+    pub fn at_hit(&self, uv: Vec2, attributes: Option<&AttributeHit>) -> Option<Material> {
         if self.textures.is_empty() {
             return None;
         }
@@ -49,10 +56,12 @@ impl Material {
             bump: None,
         };
         for (slot, t) in &self.textures {
-            let v = t.eval(uv);
+            let v = t.eval_at(uv, attributes);
             match (slot, &mut m.bsdf) {
-                (Slot::Opacity, _) => m.opacity = t.eval_scalar(uv).clamp(0.0, 1.0),
-                (Slot::BlendWeight, Bsdf::Blend(b)) => b.weight = t.eval_scalar(uv).clamp(0.0, 1.0),
+                (Slot::Opacity, _) => m.opacity = t.eval_scalar_at(uv, attributes).clamp(0.0, 1.0),
+                (Slot::BlendWeight, Bsdf::Blend(b)) => {
+                    b.weight = t.eval_scalar_at(uv, attributes).clamp(0.0, 1.0)
+                }
                 (Slot::Reflectance, Bsdf::Diffuse { reflectance }) => *reflectance = v,
                 (Slot::Reflectance, Bsdf::Plastic(p)) => p.diffuse_reflectance = v,
                 (Slot::Reflectance, Bsdf::Principled(p)) => p.base_color = v,
@@ -60,7 +69,7 @@ impl Material {
                     Slot::Alpha | Slot::AlphaU | Slot::AlphaV,
                     Bsdf::RoughConductor { dist, .. } | Bsdf::RoughDielectric { dist, .. },
                 ) => {
-                    let a = t.eval_scalar(uv).max(MIN_ALPHA);
+                    let a = t.eval_scalar_at(uv, attributes).max(MIN_ALPHA);
                     if *slot != Slot::AlphaV {
                         dist.alpha_u = a;
                     }
@@ -69,7 +78,7 @@ impl Material {
                     }
                 }
                 (Slot::Principled(param), Bsdf::Principled(p)) => {
-                    *p.param_mut(*param) = t.eval_scalar(uv);
+                    *p.param_mut(*param) = t.eval_scalar_at(uv, attributes);
                 }
                 (
                     Slot::SpecularReflectance,

@@ -232,7 +232,9 @@ impl PathTracer {
                     hit.ns = n;
                 }
             }
-            let textured = base.at(hit.uv).map(Box::new);
+            let textured = base
+                .at_hit(hit.uv, scene.attributes(&hit).as_ref())
+                .map(Box::new);
             let material = textured.as_deref().unwrap_or(base);
             // Anisotropic roughness is oriented by Mitsuba's tangent; others keep the old frame.
             let frame = if base.is_anisotropic() {

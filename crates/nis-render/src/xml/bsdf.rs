@@ -9,7 +9,7 @@ use std::sync::Arc;
 
 use super::dom::{err, Element, XmlError};
 use super::props::{ior, Props, PROPERTY_TAGS};
-use super::texture::check_scalar;
+use super::texture::{check_not_attribute, check_scalar};
 use super::{unsupported, LoadResult, Loader};
 use crate::bsdf::{
     conductors, Blend, Bsdf, Material, Microfacet, MicrofacetKind, Plastic, Slot, MIN_ALPHA,
@@ -218,6 +218,7 @@ impl Loader {
         } else {
             self.texture(texture)?
         };
+        check_not_attribute(&texture, el.line, "a bump map")?;
         let mut m = self.nested_bsdf(el)?;
         m.bump = Some(Bump {
             texture,
@@ -252,6 +253,7 @@ impl Loader {
             .unwrap_err()
             .into());
         };
+        check_not_attribute(&texture, el.line, "a normal map")?;
         let mut m = self.nested_bsdf(el)?;
         if m.bump.is_some() {
             return Err(err::<()>(

@@ -45,6 +45,9 @@ impl Loader {
             Some(_) => self.named_textures(c)?.pop().map(|(_, t)| t),
             None => None,
         };
+        if let Some(t) = &texture {
+            super::texture::check_not_attribute(t, c.line, "an emitter's texture")?;
+        }
         let p = Props::new(c)?;
         match kind {
             "constant" | "envmap" | "sunsky" if self.environment.is_some() || self.environment_map.is_some() => {

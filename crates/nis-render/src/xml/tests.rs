@@ -723,3 +723,32 @@ fn a_rawconstant_is_its_value_as_given_and_a_vector_is_not_a_number() {
         assert!(e.starts_with("test.xml:4:") && e.contains(needle), "{e}");
     }
 }
+
+#[test]
+fn a_mesh_attribute_needs_a_vertex_or_face_name_and_a_mesh_that_has_it() {
+    let with = |body: &str| {
+        load(&format!(
+            "<scene version=\"3.0.0\">\n{SENSOR}\n{body}\n</scene>"
+        ))
+    };
+    let e = with(
+        r#"<texture type="mesh_attribute" id="t"><string name="name" value="color"/></texture>"#,
+    )
+    .unwrap_err()
+    .to_string();
+    assert!(
+        e.starts_with("test.xml:3:") && e.contains("\"vertex_\" or \"face_\""),
+        "{e}"
+    );
+    let e = with(r#"<shape type="sphere"><bsdf type="diffuse"><texture type="mesh_attribute" name="reflectance"><string name="name" value="vertex_color"/></texture></bsdf></shape>"#)
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("'vertex_color'"), "{e}");
+    let e = with(r#"<bsdf type="normalmap"><texture type="mesh_attribute" name="normalmap"><string name="name" value="vertex_n"/></texture><bsdf type="diffuse"/></bsdf>"#)
+        .unwrap_err()
+        .to_string();
+    assert!(
+        e.starts_with("test.xml:3:") && e.contains("normal map"),
+        "{e}"
+    );
+}

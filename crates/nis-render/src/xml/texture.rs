@@ -1,4 +1,4 @@
-//! Textures: `bitmap`, `checkerboard` and `rawconstant` (Mitsuba 3's plugins), nested in a BSDF under a
+//! Textures: `bitmap`, `checkerboard`, `rawconstant` and `mesh_attribute` (Mitsuba 3's plugins), nested in a BSDF under a
 //! parameter's name, or defined once at the top with an `id` and used by
 //! `<ref name="reflectance" id="…"/>`. An image file is read once however often it is used.
 
@@ -125,7 +125,32 @@ impl Loader {
                     .into())
                 }
             },
-            _ => return unsupported(el, "bitmap, checkerboard, rawconstant"),
+            "mesh_attribute" => {
+                let Some(name) = p.string("name")? else {
+                    return Err(err::<()>(
+                        el.line,
+                        "<texture type=\"mesh_attribute\"> needs <string name=\"name\">",
+                    )
+                    .unwrap_err()
+                    .into());
+                };
+                // Mitsuba 3 checks for either word anywhere in the name.
+                if !name.contains("vertex_") && !name.contains("face_") {
+                    return Err(err::<()>(
+                        el.line,
+                        format!(
+                            "mesh attribute name '{name}' must start with \"vertex_\" or \"face_\""
+                        ),
+                    )
+                    .unwrap_err()
+                    .into());
+                }
+                Texture::MeshAttribute {
+                    name: name.to_string(),
+                    scale: p.float("scale", 1.0)?,
+                }
+            }
+            _ => return unsupported(el, "bitmap, checkerboard, rawconstant, mesh_attribute"),
         };
         p.finish()?;
         Ok(Arc::new(texture))
@@ -182,6 +207,18 @@ pub(super) fn check_scalar(t: &Texture, line: usize, name: &str) -> Result<(), X
         Texture::RawConstant { vector: true, .. } => err(
             line,
             format!("'{name}' is a number: a rawconstant 3-vector cannot stand for it"),
+        ),
+        _ => Ok(()),
+    }
+}
+
+/// Refuse a `mesh_attribute` texture where nis reads a texture without a mesh hit (`what`:
+/// a bump or normal map, an emitter), on the element at `line`.
+pub(super) fn check_not_attribute(t: &Texture, line: usize, what: &str) -> Result<(), XmlError> {
+    match t {
+        Texture::MeshAttribute { .. } => err(
+            line,
+            format!("a mesh_attribute texture as {what} is not supported"),
         ),
         _ => Ok(()),
     }
