@@ -41,8 +41,7 @@ fn case(workload: &str, budget: String, args: &str) -> Case {
 }
 
 /// The cases: NIS on camel d4 at 10⁶, 10⁷ and 10⁸ evaluations; the Cornell box at 256² with
-/// path tracing at 64, 256 and 1024 spp and guided by NIS-KL at 16 and 64 spp (a guided
-/// render costs ~5 minutes per 64 spp here). `quick` drops
+/// path tracing at 64, 256 and 1024 spp and guided by NIS-KL at 16 and 64 spp. `quick` drops
 /// the largest budget of each workload.
 pub fn cases(quick: bool) -> Vec<Case> {
     let mut v = Vec::new();

@@ -53,12 +53,13 @@ pub fn dir_to_cylindrical(w: Vec3) -> Vec2 {
     )
 }
 
-/// atan2(y, x) in [−π, π] without libm, to within 6.8·10⁻⁷ (its error budget; 3.8·10⁻⁷
-/// measured over the circle, where a correctly rounded f32 result is within 1.2·10⁻⁷): atan of
+/// atan2(y, x) in [−π, π] without libm, to within 6.8·10⁻⁷ (its error budget, which a test
+/// holds it to over the circle; a correctly rounded f32 result is within 1.2·10⁻⁷): atan of
 /// the ratio of the smaller to the larger magnitude, in [0, 1], by an odd polynomial of degree
 /// 15 (least-squares fit weighted toward minimax, error 8.9·10⁻⁸ there), then moved to its
-/// octant. Every guide maps its queries' directions through it (libm's atan2 was 5% of a
-/// guided render). atan2(±0, ±0) is 0.
+/// octant. Every guide maps its queries' directions through it, so libm's atan2 showed in a
+/// guided render's profile (docs/results/guiding.md, "Profile of a guided render").
+/// atan2(±0, ±0) is 0.
 #[inline]
 fn atan2(y: f32, x: f32) -> f32 {
     use std::f32::consts::{FRAC_PI_2, PI};

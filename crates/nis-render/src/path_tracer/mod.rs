@@ -434,7 +434,7 @@ impl PathTracer {
     /// the continuation's throughput, and the guide's density of the light sample's direction
     /// (a network query per light sample for the neural guide) is never needed. Weighing
     /// against the mixture's density instead, as this renderer did before, gave the same error
-    /// at equal samples in 4–11% more time (docs/results/guiding.md, "MIS against the BSDF").
+    /// at equal samples in more time (docs/results/guiding.md, "MIS against the BSDF").
     fn sample_light(
         &self,
         scene: &Scene,

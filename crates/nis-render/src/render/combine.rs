@@ -6,12 +6,12 @@
 //!
 //! A pass's own estimate can fall far below its true variance when its few samples missed the
 //! rare paths that carry most of it (a small, bright light seen in a glossy plate): on
-//! Bitterli's `veach-mis` a 2-spp pass estimated 1/100 of the others' variance per sample,
-//! took 78% of the weight and left the image 21% dark. As the guide learns, the variance per
-//! sample can only fall from pass to pass in expectation, so the estimates per sample are
-//! fitted by the closest non-increasing sequence (isotonic regression, weighted by the passes'
-//! samples) before they are inverted: a pass that claims less noise than the passes after it is
-//! pooled with them.
+//! Bitterli's `veach-mis` such a short pass took most of the weight and left the image dark
+//! (docs/results/guiding.md, "Path guiding on published scenes"). As the guide learns, the
+//! variance per sample can only fall from pass to pass in expectation, so the estimates per
+//! sample are fitted by the closest non-increasing sequence (isotonic regression, weighted by
+//! the passes' samples) before they are inverted: a pass that claims less noise than the passes
+//! after it is pooled with them.
 
 use crate::film::Image;
 use crate::geometry::{luminance, Rgb};

@@ -89,9 +89,9 @@ impl RecordPicker {
 /// (steps × batch) read each of the buffer's `records` at most once on average, and
 /// `alpha · records/picks` when they read it over and over. Drawn with replacement from a
 /// small buffer by weight, the extra reads go to the same bright records again and again,
-/// while a uniform draw spreads them over every record; at 128², 64 spp the first training
-/// phases read their buffer 5–40 times over, and the full α there cost two-rooms-door 3% of
-/// MAPE (docs/results/guiding.md, "Records drawn by weight"). Any α keeps the expected gradient.
+/// while a uniform draw spreads them over every record; the first training phases of a short
+/// render read their buffer many times over, and the full α there raised two-rooms-door's MAPE
+/// (docs/results/guiding.md, "Records drawn by weight"). Any α keeps the expected gradient.
 pub(super) fn phase_alpha(alpha: f64, picks: usize, records: usize) -> f64 {
     if picks <= records {
         alpha

@@ -51,9 +51,8 @@ pub struct PpgConfig {
     /// the samples per leaf grow as `√N_k`. A film of `P` pixels traces `P / P_paper` times
     /// the paper's samples per pass, so keeping that balance at a given `N_k` means the
     /// threshold `c · √(2^k · P / P_paper)`: c = 1 600 at 128², 3 200 at 256². With the
-    /// paper's c unscaled, a 128² render with 31 training spp hardly splits (8 leaves on
-    /// `cornell-indirect` at 64², where the mean relative per-pixel variance at 16 spp was
-    /// 1.51, against 1.68 unguided and 0.97 with c = 2 000 and 62 leaves).
+    /// paper's c unscaled, a small render hardly splits and its guide is little better than
+    /// none (docs/results/guiding.md, "Settings that set the guide's defaults", PPG's row).
     pub spatial_threshold: f64,
     /// Pixels of the film the guide trains on, if the threshold is to be scaled to it by
     /// `√(film_pixels / PAPER_FILM_PIXELS)`; `None` uses `spatial_threshold` as it is.
