@@ -146,7 +146,6 @@ def driver(args):
     else:
         notes.append(f"MadNIS: not installed ({args.madnis_note or 'no venv'})")
 
-    load_end = os.getloadavg()[0]
     by = {}
     for r in rows:
         by.setdefault(r["method"], []).append(r)
@@ -166,9 +165,9 @@ def driver(args):
         f"(seed {SEED}), the same in the CLI and the module.",
         "",
         f"Machine: {machine()}, Python {platform.python_version()}; numpy {versions[1] if len(versions) > 1 else '?'}, "
-        f"nis {versions[0] if versions else '?'}, vegas {vegas_v or '?'}; shared with other "
-        f"builds (1-minute load average {load_start:.1f} at the start, {load_end:.1f} at the end), "
-        "so times carry noise of that order.",
+        f"nis {versions[0] if versions else '?'}, vegas {vegas_v or '?'}"
+        + ("; on a shared machine (other processes were running), so the times are noisy."
+           if load_start >= 0.5 else "."),
         "",
         "pull = (value − exact)/std_err; σ²·N/F² = std_err² × all evaluations (training "
         "included) / exact²: the evaluations a method spends per unit of squared relative "

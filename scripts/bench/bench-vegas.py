@@ -95,7 +95,6 @@ def main():
                       f"{b[-1]['sdev']:.2g} ({b[-1]['wall']:.1f} s), exact {exact:.6g}",
                       file=sys.stderr, flush=True)
             rows.append((name, dim, exact, a, b))
-    load_end = os.getloadavg()[0]
 
     def rv(r, exact):
         return r["n"] * r["sdev"] ** 2 / exact ** 2
@@ -107,8 +106,8 @@ def main():
         "## VEGAS+: ours against the `vegas` package (`scripts/bench/bench-vegas.sh`)",
         "",
         f"Machine: {machine()}; Python {platform.python_version()}, vegas {vegas.__version__}, "
-        f"numpy {numpy.__version__}; 1-minute load {load_start:.1f} at the start, "
-        f"{load_end:.1f} at the end (shared with other builds).",
+        f"numpy {numpy.__version__}"
+        + ("; on a shared machine (other processes were running)." if load_start >= 0.5 else "."),
         "",
         f"Budget {args.evals:.0e} evaluations per run, seeds 1–{args.seeds}, the same integrand "
         "code on both sides (`vegas` gets its values from `nis eval` over a pipe). Ours: "

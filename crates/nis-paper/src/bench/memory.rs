@@ -193,9 +193,9 @@ pub fn table(rows: &[(Case, Measurement)]) -> String {
         "Each case runs alone in a fresh `nis` process; peak RSS is the kernel's `ru_maxrss` of \
          that process (`wait4`), wall time from spawn to exit; on Linux it includes the peak of \
          the small spawning process (a few MiB), which a child shares until it runs `nis`. Run \
-         with `nis bench memory` (`--quick` drops the largest budgets, `--only TEXT` keeps matching cases). The \
-         machine's two cores were shared with other builds while it ran, so wall times are \
-         upper bounds; the memory figures do not depend on that.\n\n\
+         with `nis bench memory` (`--quick` drops the largest budgets, `--only TEXT` keeps matching cases). \
+         Wall times are upper bounds where other processes share the machine; the memory \
+         figures do not depend on that.\n\n\
          | workload | budget | peak RSS (MiB) | wall (s) |\n|---|---|---:|---:|\n",
     );
     for (c, m) in rows {

@@ -279,7 +279,8 @@ pub fn run(
     let mut done = 0;
     let mut cells = Vec::new();
     let mut versions = None;
-    let load_start = load_average();
+    // Other processes running before the first run: the times below are noisy.
+    let shared = load_average() >= SHARED_LOAD;
     for (name, dim) in &o.cells {
         let f = nis::integrands::by_name(name, Some(*dim))?;
         let spins = cost::calibrate(&f, f.dim, o.cost_us)?;
@@ -381,8 +382,7 @@ pub fn run(
             cost,
         });
     }
-    let load = (load_start, load_average());
-    let mut md = section::table(o, &cells, load, versions.as_ref());
+    let mut md = section::table(o, &cells, shared, versions.as_ref());
     if let Some(docs) = &o.docs {
         section::write_docs(o, docs, &cells, &mut md)?;
     }
@@ -439,6 +439,9 @@ fn to_targets(
         })
         .collect()
 }
+
+/// The 1-minute load average at the start above which the section says the machine was shared.
+const SHARED_LOAD: f64 = 0.5;
 
 /// The 1-minute load average (how busy the machine was), NaN where unknown.
 fn load_average() -> f64 {

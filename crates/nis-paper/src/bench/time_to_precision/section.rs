@@ -90,7 +90,7 @@ pub fn cell_text(o: Option<&Outcome>, cap: f64) -> String {
 pub(super) fn table(
     o: &Options,
     cells: &[CellResult],
-    load: (f64, f64),
+    shared: bool,
     versions: Option<&(String, String)>,
 ) -> String {
     let mut md = format!(
@@ -160,11 +160,12 @@ pub(super) fn table(
             md.push('\n');
         }
     }
-    md.push_str(&format!(
-        "\n1-minute load average {:.1} at the start and {:.1} at the end: the machine is shared \
-         with other builds, so these times are noisy.\n",
-        load.0, load.1
-    ));
+    if shared {
+        md.push_str(
+            "\nMeasured on a shared machine (other processes were running): these times are \
+             noisy.\n",
+        );
+    }
     let full = Options::default();
     if o.cells != full.cells
         || o.contenders != full.contenders
