@@ -162,10 +162,18 @@ fn a_smooth_integrand_switches_to_the_codes_and_a_peaked_one_does_not() {
 
 #[test]
 fn vegas_answers_a_race_it_wins_and_nis_one_it_loses() {
-    use nis::integrate::Method;
-    let racing = |seed| NisConfig {
-        race_vegas: true,
-        ..small_nis(seed)
+    use nis::integrate::{integrator, Method, Settings};
+    // The factory hands NIS its rival (`NisIntegrator::new` builds one that races nothing).
+    let racing = |dim, seed| {
+        let nis = NisConfig {
+            race_vegas: true,
+            ..small_nis(seed)
+        };
+        let settings = Settings {
+            nis,
+            ..Settings::default()
+        };
+        integrator(Method::Nis, dim, &settings).unwrap()
     };
     // gauss d = 4, cheap and separable: VEGAS+ meets the target first and answers when its
     // result has no warning (a few of its short runs warn anyway, χ²/dof > 3 between three
@@ -173,7 +181,7 @@ fn vegas_answers_a_race_it_wins_and_nis_one_it_loses() {
     let f = integrands::by_name("gauss", Some(4)).unwrap();
     let by_vegas = AtomicU64::new(0);
     check_stopped("race gauss d4", f.exact, 60, 0.0, |seed| {
-        let mut nis = NisIntegrator::new(4, racing(seed)).unwrap();
+        let mut nis = racing(4, seed);
         let r = nis.integrate_to(&f, &Target::rel(2e-3)).unwrap();
         if r.answered_by == Some(Method::Vegas) {
             assert!(r.warnings.is_empty(), "{:?}", r.warnings);
@@ -188,7 +196,7 @@ fn vegas_answers_a_race_it_wins_and_nis_one_it_loses() {
     // their product makes, its weights stay far from the integrand's shape, and NIS answers.
     let f = integrands::by_name("camel", Some(6)).unwrap();
     for seed in 0..3 {
-        let mut nis = NisIntegrator::new(6, racing(seed)).unwrap();
+        let mut nis = racing(6, seed);
         let r = nis.integrate_to(&f, &Target::rel(1e-2)).unwrap();
         assert_eq!((r.answered_by, r.stop), (None, Some(Stop::Target)), "{r}");
         assert!((r.value - f.exact).abs() < 4.0 * r.std_err, "{r}");

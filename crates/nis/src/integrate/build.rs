@@ -57,14 +57,18 @@ impl Settings {
 /// ```
 pub fn integrator(method: Method, dim: usize, settings: &Settings) -> Result<Box<dyn Integrator>> {
     Ok(match method {
-        Method::Nis => Box::new(nis::NisIntegrator::new(dim, settings.nis.clone())?),
+        Method::Nis => {
+            let mut nis = nis::NisIntegrator::new(dim, settings.nis.clone())?;
+            nis.set_rival(rival);
+            Box::new(nis)
+        }
         Method::Vegas => Box::new(vegas::Vegas::new(dim, settings.vegas.clone())?),
         Method::Uniform => Box::new(uniform::PlainMc::new(dim, settings.uniform.clone())?),
     })
 }
 
-/// The rival a learning method races to a target (`race.rs`): VEGAS+ with its defaults but
-/// `seed` and `train_on`.
+/// The rival a learning method races to a target (`race.rs`), handed to the NIS integrators
+/// [`integrator`] builds: VEGAS+ with its defaults but `seed` and `train_on`.
 pub(crate) fn rival(dim: usize, seed: u64, train_on: TrainOn) -> Result<Box<dyn Rival>> {
     let config = vegas::VegasConfig {
         seed,

@@ -32,7 +32,6 @@ pub mod uniform;
 pub mod unweight;
 pub mod vegas;
 
-pub(crate) use build::rival;
 pub use build::{integrator, Settings};
 pub use convergence::{
     Convergence, ConvergenceWarning, DIVERGENCE_LIMIT, HOLE_LIMIT, MISSING_MASS_LIMIT,

@@ -1,7 +1,8 @@
 //! A learning method races a cheaper one to a precision target: NIS races VEGAS+ (issue 40,
 //! "training length that pays for itself"). A strategy of the road to a target: the learner
-//! calls [`race`] with what its first batches measured, and the rival is any [`Rival`] (VEGAS+,
-//! built by [`super::rival`]), so neither method imports the other.
+//! calls [`race`] with what its first batches measured, and the rival is any [`Rival`], built by
+//! the [`RivalFactory`] the learner was handed ([`super::integrator`] hands NIS VEGAS+'s), so
+//! neither method imports the other.
 //!
 //! A flow pays for its training on integrands whose shape a separable map cannot follow; on a
 //! cheap, nearly separable one VEGAS+ reaches a target in less time than a flow takes to anneal.
@@ -20,7 +21,7 @@
 
 use std::time::Instant;
 
-use super::{Integrand, IntegrationResult, Integrator, Progress, Stop, Target};
+use super::{Integrand, IntegrationResult, Integrator, Progress, Stop, Target, TrainOn};
 use crate::comm::Comm;
 use crate::error::Result;
 
@@ -65,6 +66,10 @@ pub(crate) enum Raced {
     /// The learner goes on; the rival spent `evals`.
     Lost { evals: u64 },
 }
+
+/// Builds the rival a learner races, from the dimension, the rival's seed and what the learner
+/// adapts to.
+pub(crate) type RivalFactory = fn(usize, u64, TrainOn) -> Result<Box<dyn Rival>>;
 
 /// A method that can race a learner to a target.
 pub(crate) trait Rival: Integrator {

@@ -90,7 +90,9 @@ pub struct NisConfig {
     /// NIS's training would end, and its result is the answer when it meets the target with no
     /// warning (`IntegrationResult::answered_by`; the flow then stays barely trained). Cheap,
     /// nearly separable integrands then take VEGAS+'s time instead of a flow's training
-    /// (`integrate/race.rs`). No effect on budgets or on a trained flow.
+    /// (`integrate/race.rs`). No effect on budgets, on a trained flow, or on an integrator
+    /// built without a rival ([`super::NisIntegrator::new`]; [`crate::integrate::integrator`],
+    /// which every front end builds with, hands NIS VEGAS+).
     pub race_vegas: bool,
 }
 

@@ -22,12 +22,14 @@ use rand::SeedableRng;
 use rand_pcg::Pcg64Mcg;
 
 use super::estimate::iid_iteration;
+use super::race::RivalFactory;
 use super::{
     check_budget, check_dim, evaluate, report, Accumulator, Integrand, IntegrationResult,
     Integrator, Method, Progress, Target,
 };
 use crate::comm::Comm;
 use crate::error::{Error, Result};
+use crate::flow::mask::Masks;
 use crate::flow::mixture::{DefensiveMixture, MixtureBatch, Record};
 use crate::flow::{Density, Flow, FlowConfig};
 use crate::kernels::in_pool;
@@ -72,6 +74,9 @@ pub struct NisIntegrator {
     /// The ranks that share every batch (one process by default).
     comm: Comm,
     progress: Option<Box<dyn Progress>>,
+    /// What builds the rival a run to a target races ([`NisConfig::race_vegas`]), if this
+    /// integrator was handed one (`build.rs`'s factory hands it VEGAS+'s).
+    rival: Option<RivalFactory>,
 }
 
 /// Salts of the three random streams drawn from one seed: distinct, so the streams are
@@ -141,6 +146,36 @@ impl NisIntegrator {
         self.memory.clear();
         self.comm = comm;
         self.set_seed(self.config.seed);
+    }
+
+    /// Hands it the factory of the rival its runs to a target race ([`NisConfig::race_vegas`]):
+    /// without one, they do not race.
+    pub(crate) fn set_rival(&mut self, rival: RivalFactory) {
+        self.rival = Some(rival);
+    }
+
+    /// Starts the flow afresh, untrained, with the layout `masks` (the same settings and seed
+    /// otherwise): a new flow, optimiser, weight average and training memory; the ranks, the
+    /// progress display, the random streams and the rival stay.
+    pub(super) fn relayout(&mut self, masks: Masks) -> Result<()> {
+        let mut config = self.config.clone();
+        config.flow.masks = masks;
+        config.validate()?;
+        let dim = self.flow().dim();
+        let flow = Flow::new(FlowConfig {
+            dim,
+            ..config.flow.clone()
+        })?;
+        let mut learner = Learner::new(flow.param_count(), config.loss, config.adam)?;
+        learner.set_comm(self.comm.clone());
+        self.sampler = DefensiveMixture::new(flow, config.uniform_fraction)?;
+        self.learner = learner;
+        self.config = config;
+        self.memory = TrainingMemory::new(dim);
+        self.average = None;
+        self.trained_evals = 0;
+        self.scheduled = false;
+        Ok(())
     }
 
     /// The points of the flow's latest training (trained elsewhere: a shared multi-channel flow),
@@ -352,6 +387,7 @@ impl NisIntegrator {
             scheduled: false,
             comm: Comm::default(),
             progress: None,
+            rival: None,
         })
     }
 }

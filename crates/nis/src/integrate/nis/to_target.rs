@@ -17,7 +17,7 @@ use crate::flow::mask::{default_layers, Masks};
 use crate::flow::mixture::{DefensiveMixture, Record};
 use crate::flow::{Density, Flow};
 use crate::integrate::estimate::iid_iteration;
-use crate::integrate::race::{race, Pace, Raced, RACE_SEED_SALT};
+use crate::integrate::race::{race, Pace, Raced, RivalFactory, RACE_SEED_SALT};
 use crate::integrate::target::{drive, Prior, Pursuit, Step, Stepper};
 use crate::integrate::{
     check_dim, report, Accumulator, Integrand, IntegrationResult, Iteration, Progress, Target,
@@ -28,10 +28,11 @@ use crate::integrate::{
 const HORIZON_BATCHES: usize = 1000;
 
 impl NisIntegrator {
-    /// Whether a run to a target races VEGAS+ (`integrate/race.rs`,
-    /// [`super::NisConfig::race_vegas`], an untrained flow).
-    fn races(&self) -> bool {
-        self.config.race_vegas && self.trained_evals == 0
+    /// What builds the rival a run to a target races (`integrate/race.rs`), if it races one:
+    /// [`super::NisConfig::race_vegas`], a rival handed in, an untrained flow.
+    fn rival_to_race(&self) -> Option<RivalFactory> {
+        self.rival
+            .filter(|_| self.config.race_vegas && self.trained_evals == 0)
     }
 
     /// Whether a run to a target probes for a smooth integrand to switch to the codes
@@ -48,18 +49,26 @@ impl NisIntegrator {
             && default_layers(dim, Masks::Codes) < default_layers(dim, Masks::Binary)
     }
 
-    /// Replaces the flow, untrained, by one with the codes' masks (the same settings and seed
-    /// otherwise), keeping the ranks, the progress display and the random streams.
-    fn switch_to_codes(&mut self) -> Result<()> {
-        let mut config = self.config.clone();
-        config.flow.masks = Masks::Codes;
-        let mut fresh = NisIntegrator::new(self.flow().dim(), config)?;
-        fresh.comm = self.comm.clone();
-        fresh.learner.set_comm(self.comm.clone());
-        fresh.progress = self.progress.take();
-        std::mem::swap(&mut fresh.streams, &mut self.streams);
-        *self = fresh;
-        Ok(())
+    /// Races the rival `make` builds (its own seed) with the pace that `length` measured over
+    /// the first batches, those since `before` evaluations of training.
+    fn race_rival(
+        &mut self,
+        make: RivalFactory,
+        f: &dyn Integrand,
+        target: &Target,
+        started: Instant,
+        length: &TrainingLength,
+        before: u64,
+    ) -> Result<Raced> {
+        let pace = Pace {
+            training_seconds: length.slow_seconds_left(),
+            integrand_seconds_per_eval: length.integrand_seconds_per_eval(),
+            evals: self.trained_evals - before,
+        };
+        let seed = self.config.seed ^ RACE_SEED_SALT;
+        let mut rival = make(self.flow().dim(), seed, self.config.train_on)?;
+        let (comm, progress) = (&self.comm, &mut self.progress);
+        race(&mut *rival, f, target, started, pace, comm, progress)
     }
 
     /// [`crate::integrate::Integrator::check_target`]: the least training the rule may stop at,
@@ -160,9 +169,9 @@ impl NisIntegrator {
             max_batches.min(horizon),
             max_seconds,
         );
-        let races = self.races();
+        let rival = self.rival_to_race();
         let probes = self.probes_masks();
-        if races || probes {
+        if rival.is_some() || probes {
             length.pause_after_probe();
         }
         let mut before = self.trained_evals;
@@ -171,16 +180,8 @@ impl NisIntegrator {
         // flow starts afresh.
         let mut spent = 0;
         if length.paused() {
-            if races {
-                let pace = Pace {
-                    training_seconds: length.slow_seconds_left(),
-                    integrand_seconds_per_eval: length.integrand_seconds_per_eval(),
-                    evals: self.trained_evals - before,
-                };
-                let seed = self.config.seed ^ RACE_SEED_SALT;
-                let mut rival = crate::integrate::rival(dim, seed, self.config.train_on)?;
-                let (comm, progress) = (&self.comm, &mut self.progress);
-                match race(&mut *rival, f, target, started, pace, comm, progress)? {
+            if let Some(make) = rival {
+                match self.race_rival(make, f, target, started, &length, before)? {
                     Raced::Won(result) => return Ok(Trained::Answered(result)),
                     Raced::Lost { evals } => spent += evals,
                 }
@@ -194,7 +195,7 @@ impl NisIntegrator {
                 // A smooth integrand: the codes' fewer layers learn it as well, in less time.
                 // The probe's batches are spent, not used; training starts afresh.
                 spent += self.trained_evals - before;
-                self.switch_to_codes()?;
+                self.relayout(Masks::Codes)?;
                 before = self.trained_evals;
                 length = TrainingLength::new(*target, anneal, beta_from, left, seconds_left);
             }
