@@ -176,6 +176,8 @@ struct Loader {
     materials: Vec<Material>,
     bsdf_ids: HashMap<String, usize>,
     shapes: Vec<Shape>,
+    /// The shapes of each `shapegroup`, with their lines, by id.
+    shape_groups: HashMap<String, Vec<(usize, Shape)>>,
     environment: Option<Rgb>,
     camera: Option<Camera>,
     settings: RenderSettings,

@@ -1,5 +1,7 @@
 //! Shapes: `obj`, `ply` and `serialized` meshes, Mitsuba's `rectangle`, `cube`, `disk`,
-//! `cylinder` (`p0`, `p1`, `radius`) and `sphere`, each with its BSDF (inline or by reference) and area emitter. A mesh file that is missing
+//! `cylinder` (`p0`, `p1`, `radius`) and `sphere`, each with its BSDF (inline or by reference) and area emitter;
+//! Mitsuba's `shapegroup` and `instance`, flattened: each instance adds copies of its group's
+//! shapes placed by its `to_world` (a sphere only by a similarity). A mesh file that is missing
 //! is an error, or, with [`LoadOptions::drop_missing_meshes`](super::LoadOptions), a warning
 //! and the shape left out (public snapshots of scenes sometimes lack their largest files).
 
@@ -15,8 +17,158 @@ use crate::spectrum::Role;
 
 impl Loader {
     pub(super) fn shape(&mut self, el: &Element) -> LoadResult<()> {
+        match el.attr("type") {
+            Some("shapegroup") => {
+                let id = el.required("id")?.to_string();
+                let group = self.shape_group(el)?;
+                self.shape_groups.insert(id, group);
+                Ok(())
+            }
+            Some("instance") => self.instance(el),
+            _ => {
+                if let Some(shape) = self.one_shape(el)? {
+                    self.shapes.push(shape);
+                }
+                Ok(())
+            }
+        }
+    }
+
+    /// A `shapegroup`'s shapes, each with its line, read once and placed by each `instance`.
+    /// Mitsuba 3 refuses an emitter, a nested `shapegroup` and an `instance` in a group.
+    fn shape_group(&mut self, el: &Element) -> LoadResult<Vec<(usize, Shape)>> {
+        let mut shapes = Vec::new();
+        for c in el
+            .children
+            .iter()
+            .filter(|c| !PROPERTY_TAGS.contains(&c.name.as_str()))
+        {
+            if c.name != "shape" {
+                return unsupported(c, "shape inside a shapegroup");
+            }
+            match c.attr("type") {
+                Some("shapegroup") => {
+                    return Err(err::<()>(
+                        c.line,
+                        "a shapegroup cannot be nested in a shapegroup (Mitsuba 3 refuses it)",
+                    )
+                    .unwrap_err()
+                    .into())
+                }
+                Some("instance") => {
+                    return Err(err::<()>(
+                        c.line,
+                        "an instance cannot be nested in a shapegroup (Mitsuba 3 refuses it)",
+                    )
+                    .unwrap_err()
+                    .into())
+                }
+                _ => {}
+            }
+            if let Some(e) = c.children.iter().find(|e| e.name == "emitter") {
+                return Err(err::<()>(
+                    e.line,
+                    "a shape in a shapegroup cannot be an emitter (Mitsuba 3 does not instance emitters)",
+                )
+                .unwrap_err()
+                .into());
+            }
+            if let Some(shape) = self.one_shape(c)? {
+                shapes.push((c.line, shape));
+            }
+        }
+        Props::new(el)?.finish()?;
+        Ok(shapes)
+    }
+
+    /// An `instance`: copies of its shapegroup's shapes (a `<ref>` to one defined before, or
+    /// one nested in it), each placed by the instance's `to_world` after its own.
+    fn instance(&mut self, el: &Element) -> LoadResult<()> {
+        let p = Props::new(el)?;
+        let to_world = p.transform("to_world")?;
+        p.finish()?;
+        let mut group: Option<Vec<(usize, Shape)>> = None;
+        for c in el
+            .children
+            .iter()
+            .filter(|c| !PROPERTY_TAGS.contains(&c.name.as_str()))
+        {
+            if group.is_some() {
+                return Err(
+                    err::<()>(c.line, "an instance can have only one shapegroup")
+                        .unwrap_err()
+                        .into(),
+                );
+            }
+            group = Some(match (c.name.as_str(), c.attr("type")) {
+                ("ref", _) => {
+                    let id = c.required("id")?;
+                    let Some(g) = self.shape_groups.get(id) else {
+                        return Err(err::<()>(
+                            c.line,
+                            format!("no shapegroup with id '{id}' is defined before this point"),
+                        )
+                        .unwrap_err()
+                        .into());
+                    };
+                    g.clone()
+                }
+                ("shape", Some("shapegroup")) => self.shape_group(c)?,
+                _ => return unsupported(c, "a ref to a shapegroup inside an instance"),
+            });
+        }
+        let Some(group) = group else {
+            return Err(err::<()>(
+                el.line,
+                "an instance needs a <ref id=\"…\"/> to a shapegroup",
+            )
+            .unwrap_err()
+            .into());
+        };
+        let m3 = Mat3::from_mat4(to_world);
+        let scale = similarity_scale(m3);
+        let mirrored = m3.determinant() < 0.0;
+        for (line, mut shape) in group {
+            shape.geometry = match shape.geometry {
+                Geometry::Mesh(mut m) => {
+                    m.transform(&to_world);
+                    // Mitsuba turns an instance's normals as normals (not by the transformed
+                    // triangle's winding), so a mirroring instance keeps them pointing out.
+                    if mirrored {
+                        for f in &mut m.indices {
+                            f.swap(1, 2);
+                        }
+                    }
+                    Geometry::Mesh(m)
+                }
+                Geometry::Sphere(s) => {
+                    let Some(scale) = scale else {
+                        return Err(err::<()>(
+                            el.line,
+                            format!(
+                                "this instance's to_world does not scale uniformly, so it cannot \
+                                 place the sphere of line {line} (an ellipsoid)"
+                            ),
+                        )
+                        .unwrap_err()
+                        .into());
+                    };
+                    Geometry::Sphere(Sphere {
+                        center: to_world.transform_point3(s.center),
+                        radius: s.radius * scale,
+                        inward: s.inward,
+                    })
+                }
+            };
+            self.shapes.push(shape);
+        }
+        Ok(())
+    }
+
+    /// One shape with its material and emission (`None`: a missing mesh left out).
+    fn one_shape(&mut self, el: &Element) -> LoadResult<Option<Shape>> {
         let Some(geometry) = self.geometry(el)? else {
-            return Ok(());
+            return Ok(None);
         };
         let (material, emission) = self.shape_children(el)?;
         let material = match material {
@@ -30,12 +182,11 @@ impl Loader {
                 self.materials.len() - 1
             }
         };
-        self.shapes.push(Shape {
+        Ok(Some(Shape {
             geometry,
             material,
             emission,
-        });
-        Ok(())
+        }))
     }
 
     /// A shape's geometry: its `type` with its properties, transformed to world space, its
@@ -143,17 +294,13 @@ impl Loader {
             "sphere" => {
                 let center = p.point("center", Vec3::ZERO)?;
                 let radius = p.float("radius", 1.0)?;
-                let m3 = Mat3::from_mat4(to_world);
-                let scale = m3.x_axis.length();
-                if (m3.y_axis.length() - scale).abs() > 1e-4 * scale
-                    || (m3.z_axis.length() - scale).abs() > 1e-4 * scale
-                {
+                let Some(scale) = similarity_scale(Mat3::from_mat4(to_world)) else {
                     return Err(
                         err::<()>(el.line, "a sphere's to_world must scale uniformly")
                             .unwrap_err()
                             .into(),
                     );
-                }
+                };
                 Geometry::Sphere(Sphere {
                     center: to_world.transform_point3(center),
                     radius: radius * scale,
@@ -244,4 +391,20 @@ impl Loader {
         }
         Ok((material, emission))
     }
+}
+
+/// The scale of a similarity (a rotation, possibly mirrored, times a uniform scale); `None`
+/// for any other linear map (a non-uniform scale, a shear), which turns a sphere into an
+/// ellipsoid.
+fn similarity_scale(m: Mat3) -> Option<f32> {
+    let g = m.transpose() * m;
+    let s2 = (g.x_axis.x + g.y_axis.y + g.z_axis.z) / 3.0;
+    let tol = 2e-4 * s2;
+    let off = [g.x_axis.y, g.x_axis.z, g.y_axis.z];
+    let diag = [g.x_axis.x, g.y_axis.y, g.z_axis.z];
+    let ok = s2 > 0.0
+        && s2.is_finite()
+        && diag.iter().all(|d| (d - s2).abs() <= tol)
+        && off.iter().all(|o| o.abs() <= tol);
+    ok.then(|| s2.sqrt())
 }
