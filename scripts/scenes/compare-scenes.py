@@ -4,7 +4,7 @@ their image means: the check that a published scene reads as Mitsuba reads it.
 
 Mitsuba 3 refuses some files as published (a Mitsuba 0.4 `<lookAt>`, a guiding paper's
 integrator plugin, a Mitsuba 0.5 `sunsky`): those are handed to it upgraded the way nis reads
-them (camelCase names to snake_case, `lookAt`, `srgb` colours, other integrators as `path`,
+them (camelCase names to snake_case, `lookAt`, `srgb` colours, a wrapper integrator (`moment`) as the one it holds, other integrators as `path`,
 0.x's mipmapped bitmap filters as bilinear and its bitmap `gamma`, a 0.5 sunsky's frame, scales and sun radius as
 `upgrade_sunsky` says), which says the same thing in Mitsuba 3's words. Shapes whose mesh files are missing are left out for both renderers.
 
@@ -96,6 +96,11 @@ def upgrade(root, base):
             if e.tag == "shape" and f is not None and not any(
                     (d / f.get("value")).exists() for d in folders):
                 parent.remove(e)
+            # A wrapper (`moment`, `aov`) as nis reads it: the integrator it holds.
+            while e.tag == "integrator" and len(e.findall("integrator")) == 1:
+                inner = e.find("integrator")
+                parent[list(parent).index(e)] = inner
+                e = inner
     for e in root.iter():
         if legacy:
             if e.tag == "lookAt":
