@@ -343,4 +343,8 @@ mod emitter_tests;
 #[cfg(test)]
 mod rough_tests;
 #[cfg(test)]
+mod shape_tests;
+#[cfg(test)]
+mod sunsky_tests;
+#[cfg(test)]
 mod tests;
