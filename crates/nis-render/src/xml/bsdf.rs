@@ -8,6 +8,7 @@
 use std::sync::Arc;
 
 use super::dom::{err, Element, XmlError};
+use super::fail;
 use super::props::{ior, Props, PROPERTY_TAGS};
 use super::texture::{check_not_attribute, check_scalar};
 use super::{unsupported, LoadResult, Loader};
@@ -46,12 +47,7 @@ impl Loader {
                     None => luminance(p.rgb("opacity", Rgb::splat(0.5))?),
                 };
                 if !(0.0..=1.0).contains(&opacity) {
-                    return Err(err::<()>(
-                        el.line,
-                        format!("mask opacity {opacity} must be in [0, 1]"),
-                    )
-                    .unwrap_err()
-                    .into());
+                    return fail(el.line, format!("mask opacity {opacity} must be in [0, 1]"));
                 }
                 p.finish()?;
                 let mut m = self.nested_bsdf(el)?;
@@ -66,14 +62,12 @@ impl Loader {
             "normalmap" => return self.normalmap(el),
             "principledthin" | "hair" | "pplastic" | "measured" | "polarizer" | "retarder"
             | "circular" => {
-                return Err(err::<()>(
+                return fail(
                     el.line,
                     format!(
                         "the BSDF <bsdf type=\"{kind}\"> is not supported (supported: {SUPPORTED})"
                     ),
                 )
-                .unwrap_err()
-                .into())
             }
             _ => {}
         }
@@ -133,22 +127,18 @@ impl Loader {
                 let eta = dielectric_eta(&p, "polypropylene")?;
                 let rough = if kind == "roughplastic" {
                     if eta == 1.0 {
-                        return Err(err::<()>(
+                        return fail(
                             el.line,
                             "a rough plastic's indices of refraction must differ",
-                        )
-                        .unwrap_err()
-                        .into());
+                        );
                     }
                     let dist = microfacet(&mut c, el, false)?;
                     if dist.is_anisotropic() {
                         // As Mitsuba 3's roughplastic, whose coating tables are isotropic.
-                        return Err(err::<()>(
+                        return fail(
                             el.line,
                             "a rough plastic's roughness is isotropic (alpha_u = alpha_v)",
-                        )
-                        .unwrap_err()
-                        .into());
+                        );
                     }
                     Some(dist)
                 } else {
@@ -170,12 +160,10 @@ impl Loader {
         p.finish()?;
         let Colours { slots, used, .. } = c;
         if let Some((name, _)) = textures.iter().find(|(n, _)| !used.contains(&n.as_str())) {
-            return Err(err::<()>(
+            return fail(
                 el.line,
                 format!("parameter '{name}' of <bsdf type=\"{kind}\"> cannot be a texture here"),
-            )
-            .unwrap_err()
-            .into());
+            );
         }
         let mut m = Material::new(bsdf);
         m.textures = slots;
@@ -191,12 +179,10 @@ impl Loader {
         p.finish()?;
         let textures: Vec<&Element> = el.children.iter().filter(|c| c.name == "texture").collect();
         let [texture] = textures.as_slice() else {
-            return Err(err::<()>(
+            return fail(
                 el.line,
                 "<bsdf type=\"bumpmap\"> needs exactly one <texture> (the height)",
-            )
-            .unwrap_err()
-            .into());
+            );
         };
         let texture = if texture.attr("type") == Some("scale") {
             let q = Props::new(texture)?;
@@ -208,11 +194,7 @@ impl Loader {
                 .filter(|c| c.name == "texture")
                 .collect();
             let [inner] = inner.as_slice() else {
-                return Err(
-                    err::<()>(texture.line, "a scale texture needs one nested <texture>")
-                        .unwrap_err()
-                        .into(),
-                );
+                return fail(texture.line, "a scale texture needs one nested <texture>");
             };
             self.texture(inner)?
         } else {
@@ -236,32 +218,26 @@ impl Loader {
         let p = Props::new(el)?;
         for name in ["flip_invalid_normals", "use_shadowing_function"] {
             if !p.boolean(name, true)? {
-                return Err(err::<()>(
+                return fail(
                     el.line,
                     format!("a normalmap with {name} false is not supported"),
-                )
-                .unwrap_err()
-                .into());
+                );
             }
         }
         p.finish()?;
         let Some((_, texture)) = textures.into_iter().find(|(n, _)| n == "normalmap") else {
-            return Err(err::<()>(
+            return fail(
                 el.line,
                 "<bsdf type=\"normalmap\"> needs <texture name=\"normalmap\">",
-            )
-            .unwrap_err()
-            .into());
+            );
         };
         check_not_attribute(&texture, el.line, "a normal map")?;
         let mut m = self.nested_bsdf(el)?;
         if m.bump.is_some() {
-            return Err(err::<()>(
+            return fail(
                 el.line,
                 "a normalmap around a bump or normal map is not supported",
-            )
-            .unwrap_err()
-            .into());
+            );
         }
         m.bump = Some(Bump {
             texture,
@@ -285,18 +261,14 @@ impl Loader {
             .collect();
         match inner.as_slice() {
             [c] if c.name == "bsdf" || c.name == "ref" => self.child_bsdf(c),
-            [_, _] if kind == "twosided" => Err(err::<()>(
+            [_, _] if kind == "twosided" => fail(
                 el.line,
                 "a twosided BSDF with different front and back BSDFs is not supported",
-            )
-            .unwrap_err()
-            .into()),
-            _ => Err(err::<()>(
+            ),
+            _ => fail(
                 el.line,
                 format!("<bsdf type=\"{kind}\"> needs exactly one nested <bsdf> (or <ref>)"),
-            )
-            .unwrap_err()
-            .into()),
+            ),
         }
     }
 }
@@ -317,12 +289,10 @@ impl Loader {
         let id = c.required("id")?;
         match self.bsdf_ids.get(id) {
             Some(&i) => Ok(self.materials[i].clone()),
-            None => Err(err::<()>(
+            None => fail(
                 c.line,
                 format!("no bsdf with id '{id}' is defined before this point"),
-            )
-            .unwrap_err()
-            .into()),
+            ),
         }
     }
 
@@ -341,21 +311,17 @@ impl Loader {
             }
             (None, Some(w)) => w,
             (None, None) => {
-                return Err(err::<()>(
+                return fail(
                     el.line,
                     "a blendbsdf needs its weight: <float name=\"weight\"> or a texture",
                 )
-                .unwrap_err()
-                .into())
             }
         };
         if !weight.is_finite() {
-            return Err(err::<()>(
+            return fail(
                 el.line,
                 format!("blendbsdf weight {weight} is not a number"),
-            )
-            .unwrap_err()
-            .into());
+            );
         }
         p.finish()?;
         let inner: Vec<&Element> = el
@@ -364,12 +330,10 @@ impl Loader {
             .filter(|c| !(PROPERTY_TAGS.contains(&c.name.as_str()) || is_named_texture(c)))
             .collect();
         let [a, b] = inner.as_slice() else {
-            return Err(err::<()>(
+            return fail(
                 el.line,
                 "a blendbsdf needs exactly two nested <bsdf> (or <ref>)",
-            )
-            .unwrap_err()
-            .into());
+            );
         };
         let mut parts = Vec::new();
         for c in [a, b] {
@@ -378,22 +342,18 @@ impl Loader {
             }
             let m = self.child_bsdf(c)?;
             if !m.textures.is_empty() || m.opacity < 1.0 || m.bump.is_some() {
-                return Err(err::<()>(
+                return fail(
                     c.line,
                     "a textured, masked or bump-mapped BSDF inside a blendbsdf is not supported",
-                )
-                .unwrap_err()
-                .into());
+                );
             }
             parts.push(m);
         }
         if parts[0].two_sided != parts[1].two_sided {
-            return Err(err::<()>(
+            return fail(
                 el.line,
                 "a blendbsdf of a two-sided and a one-sided BSDF is not supported",
-            )
-            .unwrap_err()
-            .into());
+            );
         }
         let two_sided = parts[0].two_sided;
         let [first, second]: [Material; 2] = parts.try_into().expect("two parts");

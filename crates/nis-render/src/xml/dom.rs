@@ -37,12 +37,17 @@ pub struct XmlError {
     pub message: String,
 }
 
-/// Shorthand for an error at `line`.
-pub fn err<T>(line: usize, message: impl Into<String>) -> Result<T, XmlError> {
-    Err(XmlError {
+/// The error `message` at `line`.
+pub fn error_at(line: usize, message: impl Into<String>) -> XmlError {
+    XmlError {
         line,
         message: message.into(),
-    })
+    }
+}
+
+/// Shorthand for an error at `line`.
+pub fn err<T>(line: usize, message: impl Into<String>) -> Result<T, XmlError> {
+    Err(error_at(line, message))
 }
 
 fn line_of(text: &str, pos: usize) -> usize {

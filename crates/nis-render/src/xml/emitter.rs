@@ -7,7 +7,9 @@ use std::sync::Arc;
 
 use glam::{Mat3, Vec2, Vec3};
 
-use super::dom::{err, Element};
+use super::dom::error_at;
+use super::dom::Element;
+use super::fail;
 use super::props::{Props, PROPERTY_TAGS};
 use super::sensor::{focal_length_fov, fov_axis};
 use super::{unsupported, LoadResult, Loader};
@@ -51,18 +53,14 @@ impl Loader {
         let p = Props::new(c)?;
         match kind {
             "constant" | "envmap" | "sunsky" if self.environment.is_some() || self.environment_map.is_some() => {
-                return Err(err::<()>(c.line, "only one environment emitter (constant, envmap or sunsky) is supported")
-                    .unwrap_err()
-                    .into());
+                return fail(c.line, "only one environment emitter (constant, envmap or sunsky) is supported");
             }
             "constant" => {
                 self.environment = Some(p.spectrum("radiance", Rgb::ONE, Role::Emission)?);
             }
             "envmap" => {
                 let Some(file) = p.string("filename")? else {
-                    return Err(err::<()>(c.line, "<emitter type=\"envmap\"> needs <string name=\"filename\">")
-                        .unwrap_err()
-                        .into());
+                    return fail(c.line, "<emitter type=\"envmap\"> needs <string name=\"filename\">");
                 };
                 let scale = p.float("scale", 1.0)?;
                 let to_world = Mat3::from_mat4(p.transform("to_world")?);
@@ -72,7 +70,7 @@ impl Loader {
                 p.ignore(&["cache", "sampling_weight", "filter_type", "mis_compensation"]);
                 let path = self.resolve(file);
                 let image = Bitmap::load(&path, raw, FilterMode::Bilinear, WrapMode::Repeat)
-                    .map_err(|e| err::<()>(c.line, e.to_string()).unwrap_err())?;
+                    .map_err(|e| error_at(c.line, e.to_string()))?;
                 match EnvMap::new(image, scale, to_world) {
                     Some(map) => self.environment_map = Some(EnvironmentLight::Map(map)),
                     None => self
@@ -88,9 +86,7 @@ impl Loader {
                     false => p.transform("to_world")?.transform_vector3(Vec3::Z),
                 };
                 let Some(direction) = direction.try_normalize() else {
-                    return Err(err::<()>(c.line, "a directional emitter needs a non-zero direction")
-                        .unwrap_err()
-                        .into());
+                    return fail(c.line, "a directional emitter needs a non-zero direction");
                 };
                 self.delta.push(DeltaLight::Directional(DirectionalLight {
                     direction,
@@ -102,9 +98,7 @@ impl Loader {
                 let cutoff = p.float("cutoff_angle", 20.0)?;
                 let beam = p.float("beam_width", cutoff * 0.75)?;
                 if !(cutoff > 0.0 && cutoff <= 180.0 && beam > 0.0 && beam < cutoff) {
-                    return Err(err::<()>(c.line, format!("a spot needs 0 < beam_width ({beam}) < cutoff_angle ({cutoff}) ≤ 180 degrees"))
-                        .unwrap_err()
-                        .into());
+                    return fail(c.line, format!("a spot needs 0 < beam_width ({beam}) < cutoff_angle ({cutoff}) ≤ 180 degrees"));
                 }
                 // It sits at to_world's origin and shines along its local +z.
                 let to_world = p.transform("to_world")?;
@@ -113,9 +107,7 @@ impl Loader {
                     .try_normalize()
                     .filter(|_| linear.determinant() != 0.0)
                 else {
-                    return Err(err::<()>(c.line, "a spot's to_world has no direction")
-                        .unwrap_err()
-                        .into());
+                    return fail(c.line, "a spot's to_world has no direction");
                 };
                 self.delta.push(DeltaLight::Spot(SpotLight {
                     position: to_world.transform_point3(Vec3::ZERO),
@@ -136,9 +128,7 @@ impl Loader {
                 // `position`, or to_world's origin (Mitsuba refuses both).
                 let position = match (p.by_name.contains_key("position"), p.by_name.contains_key("to_world")) {
                     (true, true) => {
-                        return Err(err::<()>(c.line, "give a point emitter either position or to_world, not both")
-                            .unwrap_err()
-                            .into())
+                        return fail(c.line, "give a point emitter either position or to_world, not both")
                     }
                     (true, false) => p.point("position", Vec3::ZERO)?,
                     (false, _) => p.transform("to_world")?.transform_point3(Vec3::ZERO),
@@ -147,12 +137,8 @@ impl Loader {
             }
             "sunsky" => self.sunsky(c, &p)?,
             "sky" | "sun" => {
-                return Err(err::<()>(
-                    c.line,
-                    format!("the emitter <emitter type=\"{kind}\"> is not supported yet (supported: constant, envmap, sunsky, directional, point, spot, projector, area inside a shape)"),
-                )
-                .unwrap_err()
-                .into())
+                return fail(c.line,
+                    format!("the emitter <emitter type=\"{kind}\"> is not supported yet (supported: constant, envmap, sunsky, directional, point, spot, projector, area inside a shape)"))
             }
             _ => return unsupported(c, "constant, envmap, sunsky, directional, point, spot, projector; area inside a shape"),
         }
@@ -165,8 +151,7 @@ impl Loader {
 /// `focal_length` of 50mm along the diagonal) over the irradiance texture's aspect (a colour's
 /// is 1, as Mitsuba's constant texture has resolution 1 × 1).
 fn projector(c: &Element, p: &Props, texture: Option<Arc<Texture>>) -> LoadResult<ProjectorLight> {
-    let fail =
-        |m: String| -> LoadResult<ProjectorLight> { Err(err::<()>(c.line, m).unwrap_err().into()) };
+    let fail = |m: String| -> LoadResult<ProjectorLight> { fail(c.line, m) };
     let irradiance = match texture {
         Some(_) => Rgb::ONE,
         None => p.spectrum("irradiance", Rgb::ONE, Role::Emission)?,

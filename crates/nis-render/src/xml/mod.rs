@@ -39,7 +39,7 @@ use crate::scene::{RenderSettings, Scene};
 use crate::shape::Shape;
 use crate::texture::{Bitmap, Texture};
 use crate::Error;
-use dom::{err, Element, XmlError};
+use dom::{Element, XmlError};
 use props::Props;
 
 /// How a scene is loaded, beyond what its file says.
@@ -161,6 +161,11 @@ impl From<XmlError> for LoadError {
 
 type LoadResult<T> = Result<T, LoadError>;
 
+/// A reader's error `message` at `line`, as a [`LoadResult`].
+fn fail<T>(line: usize, message: impl Into<String>) -> LoadResult<T> {
+    Err(dom::error_at(line, message).into())
+}
+
 /// The [`LoadOptions`] the reader of each element sees.
 #[derive(Default)]
 struct LoaderOptions {
@@ -208,12 +213,10 @@ fn unsupported<T>(el: &Element, supported: &str) -> LoadResult<T> {
         Some(t) => format!("<{} type=\"{t}\">", el.name),
         None => format!("<{}>", el.name),
     };
-    Err(err::<()>(
+    fail(
         el.line,
         format!("unsupported element {what} (supported: {supported})"),
     )
-    .unwrap_err()
-    .into())
 }
 
 impl Loader {
@@ -266,9 +269,7 @@ impl Loader {
             }
         }
         let Some(camera) = self.camera.take() else {
-            return Err(err::<()>(root.line, "the scene has no <sensor>")
-                .unwrap_err()
-                .into());
+            return fail(root.line, "the scene has no <sensor>");
         };
         let mut scene = Scene::new(
             camera,

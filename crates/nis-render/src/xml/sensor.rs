@@ -2,7 +2,9 @@
 //! whose tonemapping does not change the linear image), reconstruction filter and sampler
 //! (any type: only its `sample_count` matters to an unbiased renderer).
 
-use super::dom::{err, Element};
+use super::dom::error_at;
+use super::dom::Element;
+use super::fail;
 use super::props::{Props, PROPERTY_TAGS};
 use super::{out_of_range, unsupported, LoadResult, Loader, MAX_FILM_PIXELS, MAX_FILM_SIDE};
 use crate::camera::{Camera, FovAxis, Projection};
@@ -15,9 +17,7 @@ impl Loader {
             return unsupported(el, "perspective, thinlens, orthographic");
         }
         if self.camera.is_some() {
-            return Err(err::<()>(el.line, "only one <sensor> is supported")
-                .unwrap_err()
-                .into());
+            return fail(el.line, "only one <sensor> is supported");
         }
         let p = Props::new(el)?;
         let projection = projection(el, &p, kind)?;
@@ -30,24 +30,20 @@ impl Loader {
         };
         let (fov, fov_axis) = match (p.float_opt("fov")?, focal) {
             (Some(_), Some(_)) => {
-                return Err(err::<()>(
+                return fail(
                     el.line,
                     "give the sensor either fov or focal_length, not both",
                 )
-                .unwrap_err()
-                .into())
             }
             (Some(fov), None) => (fov, fov_axis(el, &p)?),
             (None, _) if projection == Projection::Orthographic => (40.0, fov_axis(el, &p)?),
             (None, f) => (focal_length_fov(el, f)?, FovAxis::Diagonal),
         };
         if !(fov > 0.0 && fov < 180.0) {
-            return Err(err::<()>(
+            return fail(
                 el.line,
                 format!("the field of view must be between 0 and 180 degrees, got {fov}"),
-            )
-            .unwrap_err()
-            .into());
+            );
         }
         let to_world = p.transform("to_world")?;
         p.ignore(&["near_clip", "far_clip", "shutter_open", "shutter_close"]);
@@ -118,24 +114,18 @@ impl Loader {
             "burn",
         ]);
         if f.by_name.contains_key("crop_width") || f.by_name.contains_key("crop_offset_x") {
-            return Err(err::<()>(
+            return fail(
                 c.line,
                 "crop windows (crop_width, crop_offset_x, …) are not supported",
-            )
-            .unwrap_err()
-            .into());
+            );
         }
         f.finish()?;
         if !(1..=MAX_FILM_SIDE).contains(&width)
             || !(1..=MAX_FILM_SIDE).contains(&height)
             || width * height > MAX_FILM_PIXELS
         {
-            return Err(err::<()>(
-                c.line,
-                format!("film of {width}×{height} pixels: each side must be 1..={MAX_FILM_SIDE} and the film at most {MAX_FILM_PIXELS} pixels"),
-            )
-            .unwrap_err()
-            .into());
+            return fail(c.line,
+                format!("film of {width}×{height} pixels: each side must be 1..={MAX_FILM_SIDE} and the film at most {MAX_FILM_PIXELS} pixels"));
         }
         // Mitsuba's default filter is the Gaussian of standard deviation ½.
         let mut filter = FilterKind::Gaussian { stddev: 0.5 };
@@ -150,7 +140,7 @@ impl Loader {
             filter = rfilter(r)?;
         }
         self.settings.filter = Filter::new(filter)
-            .map_err(|m| err::<()>(c.line, format!("reconstruction filter: {m}")).unwrap_err())?;
+            .map_err(|m| error_at(c.line, format!("reconstruction filter: {m}")))?;
         Ok((width, height))
     }
 }
@@ -192,12 +182,10 @@ fn projection(el: &Element, p: &Props, kind: &str) -> LoadResult<Projection> {
     Ok(match kind {
         "thinlens" => {
             let Some(aperture_radius) = p.float_opt("aperture_radius")? else {
-                return Err(err::<()>(
+                return fail(
                     el.line,
                     "a thinlens sensor needs <float name=\"aperture_radius\">",
-                )
-                .unwrap_err()
-                .into());
+                );
             };
             let far = p.float("far_clip", 1e4)?;
             let focus_distance = p.float("focus_distance", far)?;
@@ -206,12 +194,10 @@ fn projection(el: &Element, p: &Props, kind: &str) -> LoadResult<Projection> {
                 ("focus_distance", focus_distance),
             ] {
                 if !(v.is_finite() && v > 0.0) {
-                    return Err(err::<()>(
+                    return fail(
                         el.line,
                         format!("the thinlens sensor's {name} must be a positive number, got {v}"),
-                    )
-                    .unwrap_err()
-                    .into());
+                    );
                 }
             }
             Projection::ThinLens {
@@ -232,11 +218,7 @@ pub(super) fn fov_axis(el: &Element, p: &Props) -> LoadResult<FovAxis> {
         "diagonal" => FovAxis::Diagonal,
         "smaller" => FovAxis::Smaller,
         "larger" => FovAxis::Larger,
-        other => {
-            return Err(err::<()>(el.line, format!("unknown fov_axis '{other}'"))
-                .unwrap_err()
-                .into())
-        }
+        other => return fail(el.line, format!("unknown fov_axis '{other}'")),
     })
 }
 
@@ -252,12 +234,10 @@ pub(super) fn focal_length_fov(el: &Element, f: Option<&str>) -> LoadResult<f32>
         .ok()
         .filter(|mm| mm.is_finite() && *mm > 0.0)
     else {
-        return Err(err::<()>(
+        return fail(
             el.line,
             format!("focal_length '{f}' is not a positive length in mm"),
-        )
-        .unwrap_err()
-        .into());
+        );
     };
     Ok(2.0
         * ((36f32 * 36.0 + 24.0 * 24.0).sqrt() / (2.0 * mm))

@@ -7,7 +7,8 @@
 
 use glam::{Mat3, Vec3};
 
-use super::dom::{err, Element, XmlError};
+use super::dom::{Element, XmlError};
+use super::fail;
 use super::props::{Props, PROPERTY_TAGS};
 use super::{out_of_range, unsupported, LoadError, LoadResult, Loader};
 use crate::bsdf::{Bsdf, Material};
@@ -48,30 +49,22 @@ impl Loader {
             }
             match c.attr("type") {
                 Some("shapegroup") => {
-                    return Err(err::<()>(
+                    return fail(
                         c.line,
                         "a shapegroup cannot be nested in a shapegroup (Mitsuba 3 refuses it)",
                     )
-                    .unwrap_err()
-                    .into())
                 }
                 Some("instance") => {
-                    return Err(err::<()>(
+                    return fail(
                         c.line,
                         "an instance cannot be nested in a shapegroup (Mitsuba 3 refuses it)",
                     )
-                    .unwrap_err()
-                    .into())
                 }
                 _ => {}
             }
             if let Some(e) = c.children.iter().find(|e| e.name == "emitter") {
-                return Err(err::<()>(
-                    e.line,
-                    "a shape in a shapegroup cannot be an emitter (Mitsuba 3 does not instance emitters)",
-                )
-                .unwrap_err()
-                .into());
+                return fail(e.line,
+                    "a shape in a shapegroup cannot be an emitter (Mitsuba 3 does not instance emitters)");
             }
             if let Some(shape) = self.one_shape(c)? {
                 shapes.push((c.line, shape));
@@ -94,22 +87,16 @@ impl Loader {
             .filter(|c| !PROPERTY_TAGS.contains(&c.name.as_str()))
         {
             if group.is_some() {
-                return Err(
-                    err::<()>(c.line, "an instance can have only one shapegroup")
-                        .unwrap_err()
-                        .into(),
-                );
+                return fail(c.line, "an instance can have only one shapegroup");
             }
             group = Some(match (c.name.as_str(), c.attr("type")) {
                 ("ref", _) => {
                     let id = c.required("id")?;
                     let Some(g) = self.shape_groups.get(id) else {
-                        return Err(err::<()>(
+                        return fail(
                             c.line,
                             format!("no shapegroup with id '{id}' is defined before this point"),
-                        )
-                        .unwrap_err()
-                        .into());
+                        );
                     };
                     g.clone()
                 }
@@ -118,12 +105,10 @@ impl Loader {
             });
         }
         let Some(group) = group else {
-            return Err(err::<()>(
+            return fail(
                 el.line,
                 "an instance needs a <ref id=\"…\"/> to a shapegroup",
-            )
-            .unwrap_err()
-            .into());
+            );
         };
         let m3 = Mat3::from_mat4(to_world);
         let scale = similarity_scale(m3);
@@ -143,15 +128,13 @@ impl Loader {
                 }
                 Geometry::Sphere(s) => {
                     let Some(scale) = scale else {
-                        return Err(err::<()>(
+                        return fail(
                             el.line,
                             format!(
                                 "this instance's to_world does not scale uniformly, so it cannot \
                                  place the sphere of line {line} (an ellipsoid)"
                             ),
-                        )
-                        .unwrap_err()
-                        .into());
+                        );
                     };
                     Geometry::Sphere(Sphere {
                         center: to_world.transform_point3(s.center),
@@ -274,20 +257,13 @@ impl Loader {
                 let p0 = p.point("p0", Vec3::ZERO)?;
                 let p1 = p.point("p1", Vec3::Z)?;
                 if !(radius > 0.0 && radius.is_finite()) {
-                    return Err(err::<()>(
+                    return fail(
                         el.line,
                         format!("a cylinder's radius = {radius} must be positive"),
-                    )
-                    .unwrap_err()
-                    .into());
+                    );
                 }
                 if !((p1 - p0).length() > 0.0 && (p1 - p0).is_finite()) {
-                    return Err(err::<()>(
-                        el.line,
-                        "a cylinder's p0 and p1 must be distinct points",
-                    )
-                    .unwrap_err()
-                    .into());
+                    return fail(el.line, "a cylinder's p0 and p1 must be distinct points");
                 }
                 Geometry::Mesh(TriangleMesh::cylinder(p0, p1, radius, &to_world))
             }
@@ -295,11 +271,7 @@ impl Loader {
                 let center = p.point("center", Vec3::ZERO)?;
                 let radius = p.float("radius", 1.0)?;
                 let Some(scale) = similarity_scale(Mat3::from_mat4(to_world)) else {
-                    return Err(
-                        err::<()>(el.line, "a sphere's to_world must scale uniformly")
-                            .unwrap_err()
-                            .into(),
-                    );
+                    return fail(el.line, "a sphere's to_world must scale uniformly");
                 };
                 Geometry::Sphere(Sphere {
                     center: to_world.transform_point3(center),
@@ -357,9 +329,7 @@ impl Loader {
         {
             match c.name.as_str() {
                 "bsdf" | "ref" if material.is_some() => {
-                    return Err(err::<()>(c.line, "a shape can have only one bsdf")
-                        .unwrap_err()
-                        .into())
+                    return fail(c.line, "a shape can have only one bsdf")
                 }
                 "bsdf" => {
                     let m = self.bsdf(c)?;
@@ -369,12 +339,10 @@ impl Loader {
                 "ref" => {
                     let id = c.required("id")?;
                     let Some(&i) = self.bsdf_ids.get(id) else {
-                        return Err(err::<()>(
+                        return fail(
                             c.line,
                             format!("no bsdf with id '{id}' is defined before this point"),
-                        )
-                        .unwrap_err()
-                        .into());
+                        );
                     };
                     material = Some(i);
                 }

@@ -7,7 +7,8 @@
 
 use glam::{Mat3, Vec3};
 
-use super::dom::{err, Element};
+use super::dom::error_at;
+use super::dom::Element;
 use super::props::Props;
 use super::{LoadError, LoadResult, Loader};
 use crate::geometry::Rgb;
@@ -29,7 +30,7 @@ const TIME_AND_PLACE: [&str; 9] = [
 ];
 
 fn error(line: usize, message: impl Into<String>) -> LoadError {
-    err::<()>(line, message).unwrap_err().into()
+    error_at(line, message).into()
 }
 
 impl Loader {

@@ -7,7 +7,9 @@ use std::sync::Arc;
 
 use glam::{Mat3, Mat4, Vec3};
 
+use super::dom::error_at;
 use super::dom::{err, Element, XmlError};
+use super::fail;
 use super::props::Props;
 use super::{unsupported, LoadError, LoadResult, Loader};
 use crate::geometry::Rgb;
@@ -31,12 +33,10 @@ impl Loader {
         let texture = match kind {
             "bitmap" => {
                 let Some(file) = p.string("filename")? else {
-                    return Err(err::<()>(
+                    return fail(
                         el.line,
                         "<texture type=\"bitmap\"> needs <string name=\"filename\">",
-                    )
-                    .unwrap_err()
-                    .into());
+                    );
                 };
                 let filter = match p.string("filter_type")?.unwrap_or("bilinear") {
                     "bilinear" => FilterMode::Bilinear,
@@ -44,12 +44,10 @@ impl Loader {
                     // Mitsuba 0.x's mipmapped filters, without the mipmap.
                     "ewa" | "trilinear" => FilterMode::Bilinear,
                     other => {
-                        return Err(err::<()>(
+                        return fail(
                             el.line,
                             format!("unknown filter_type '{other}' (bilinear, nearest)"),
                         )
-                        .unwrap_err()
-                        .into())
                     }
                 };
                 let wrap_name = p
@@ -64,27 +62,23 @@ impl Loader {
                     // Mitsuba 0.x: outside the image is black or white; clamping is nearest.
                     "zero" | "one" => WrapMode::Clamp,
                     other => {
-                        return Err(err::<()>(
+                        return fail(
                             el.line,
                             format!("unknown wrap_mode '{other}' (repeat, mirror, clamp)"),
                         )
-                        .unwrap_err()
-                        .into())
                     }
                 };
                 // Mitsuba 0.x's `gamma` (−1: sRGB, 1: linear), Mitsuba 3's `raw`; any other
                 // power has no Mitsuba 3 reading.
                 let gamma = p.float("gamma", -1.0)?;
                 if gamma != -1.0 && gamma != 1.0 {
-                    return Err(err::<()>(
+                    return fail(
                         el.line,
                         format!(
                             "bitmap gamma {gamma} is not supported: -1 (sRGB) or 1 (linear, \
                              Mitsuba 3's raw)"
                         ),
-                    )
-                    .unwrap_err()
-                    .into());
+                    );
                 }
                 let raw = p.boolean("raw", false)? || gamma == 1.0;
                 let path = self.resolve(file);
@@ -94,7 +88,7 @@ impl Loader {
                     None => {
                         let b = Arc::new(
                             Bitmap::load(&path, raw, filter, wrap)
-                                .map_err(|e| err::<()>(el.line, e.to_string()).unwrap_err())?,
+                                .map_err(|e| error_at(el.line, e.to_string()))?,
                         );
                         self.bitmaps.insert(key, b.clone());
                         b
@@ -117,33 +111,27 @@ impl Loader {
                     vector: true,
                 },
                 None => {
-                    return Err(err::<()>(
+                    return fail(
                         el.line,
                         "<texture type=\"rawconstant\"> needs a <float> or <vector> \"value\"",
                     )
-                    .unwrap_err()
-                    .into())
                 }
             },
             "mesh_attribute" => {
                 let Some(name) = p.string("name")? else {
-                    return Err(err::<()>(
+                    return fail(
                         el.line,
                         "<texture type=\"mesh_attribute\"> needs <string name=\"name\">",
-                    )
-                    .unwrap_err()
-                    .into());
+                    );
                 };
                 // Mitsuba 3 checks for either word anywhere in the name.
                 if !name.contains("vertex_") && !name.contains("face_") {
-                    return Err(err::<()>(
+                    return fail(
                         el.line,
                         format!(
                             "mesh attribute name '{name}' must start with \"vertex_\" or \"face_\""
                         ),
-                    )
-                    .unwrap_err()
-                    .into());
+                    );
                 }
                 Texture::MeshAttribute {
                     name: name.to_string(),
@@ -173,26 +161,17 @@ impl Loader {
                     match self.textures.get(id) {
                         Some(t) => t.clone(),
                         None => {
-                            return Err(LoadError::Xml(
-                                err::<()>(
-                                    c.line,
-                                    format!(
-                                        "no texture with id '{id}' is defined before this point"
-                                    ),
-                                )
-                                .unwrap_err(),
-                            ))
+                            return Err(LoadError::Xml(error_at(
+                                c.line,
+                                format!("no texture with id '{id}' is defined before this point"),
+                            )))
                         }
                     }
                 }
                 _ => continue,
             };
             if out.iter().any(|(n, _)| n == name) {
-                return Err(
-                    err::<()>(c.line, format!("parameter '{name}' is given twice"))
-                        .unwrap_err()
-                        .into(),
-                );
+                return fail(c.line, format!("parameter '{name}' is given twice"));
             }
             out.push((name.to_string(), texture));
         }
