@@ -27,6 +27,7 @@ pub mod nis;
 mod race;
 mod result;
 pub mod settings;
+mod strategies;
 mod target;
 pub mod uniform;
 pub mod unweight;

@@ -1,8 +1,8 @@
 //! A learning method races a cheaper one to a precision target: NIS races VEGAS+ (issue 40,
-//! "training length that pays for itself"). A strategy of the road to a target: the learner
-//! calls [`race`] with what its first batches measured, and the rival is any [`Rival`], built by
-//! the [`RivalFactory`] the learner was handed ([`super::integrator`] hands NIS VEGAS+'s), so
-//! neither method imports the other.
+//! "training length that pays for itself"). A strategy of a learner's road to a target: the road
+//! (`strategies.rs`) calls [`race`] with what the learner's first batches measured, and the
+//! rival is any [`Rival`], built by the [`RivalFactory`] the learner was handed
+//! ([`super::integrator`] hands NIS VEGAS+'s), so neither method imports the other.
 //!
 //! A flow pays for its training on integrands whose shape a separable map cannot follow; on a
 //! cheap, nearly separable one VEGAS+ reaches a target in less time than a flow takes to anneal.

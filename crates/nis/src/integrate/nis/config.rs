@@ -79,7 +79,7 @@ pub struct NisConfig {
     /// Integrating an untrained flow of binary masks to a precision target, NIS switches to the
     /// codes' fewer coupling layers (`flow.masks`) when the tempered weights of its first batches
     /// show a smooth integrand, on which the codes learn as well in less time; their batches
-    /// are spent, and training starts afresh (`integrate/nis/to_target.rs`). Peaked and
+    /// are spent, and training starts afresh (`integrate/strategies.rs`). Peaked and
     /// multi-modal integrands keep the binary masks, which miss modes less often. The probe's
     /// batches count against `max_evals` and `max_seconds`. No effect on budgets, on a trained
     /// flow, with `couplings` set or without annealing; the keyword `masks` turns it off

@@ -23,6 +23,7 @@ use rand_pcg::Pcg64Mcg;
 
 use super::estimate::iid_iteration;
 use super::race::RivalFactory;
+use super::strategies::learn_to;
 use super::{
     check_budget, check_dim, evaluate, report, Accumulator, Integrand, IntegrationResult,
     Integrator, Method, Progress, Target,
@@ -434,7 +435,7 @@ impl Integrator for NisIntegrator {
     }
 
     fn integrate_to(&mut self, f: &dyn Integrand, target: &Target) -> Result<IntegrationResult> {
-        in_pool(|| self.run_to(f, target))
+        in_pool(|| learn_to(self, f, target))
     }
 
     fn check_target(&self, target: &Target) -> Result<()> {

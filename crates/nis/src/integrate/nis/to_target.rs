@@ -1,6 +1,8 @@
-//! NIS to a precision target ([`crate::integrate::Integrator::integrate_to`]): training whose
-//! length the rule of [`super::training_length`] decides, then a final phase whose iterations a
-//! [`Pursuit`] plans, each with its share fixed before it is drawn (`integrate::target`). The
+//! NIS to a precision target ([`crate::integrate::Integrator::integrate_to`]), its part of a
+//! learner's road (`integrate/strategies.rs`, which races VEGAS+ and switches the layout between
+//! the probe and the rest): training whose length the rule of [`super::training_length`]
+//! decides, then a final phase whose iterations a [`Pursuit`] plans, each with its share fixed
+//! before it is drawn (`integrate::target`). The
 //! training batches do not enter the estimate here (their shares would need the final phase's
 //! size in advance); they predict it.
 
@@ -17,7 +19,8 @@ use crate::flow::mask::{default_layers, Masks};
 use crate::flow::mixture::{DefensiveMixture, Record};
 use crate::flow::{Density, Flow};
 use crate::integrate::estimate::iid_iteration;
-use crate::integrate::race::{race, Pace, Raced, RivalFactory, RACE_SEED_SALT};
+use crate::integrate::race::{Pace, RivalFactory};
+use crate::integrate::strategies::{Lane, Learning, Probed};
 use crate::integrate::target::{drive, Prior, Pursuit, Step, Stepper};
 use crate::integrate::{
     check_dim, report, Accumulator, Integrand, IntegrationResult, Iteration, Progress, Target,
@@ -28,49 +31,6 @@ use crate::integrate::{
 const HORIZON_BATCHES: usize = 1000;
 
 impl NisIntegrator {
-    /// What builds the rival a run to a target races (`integrate/race.rs`), if it races one:
-    /// [`super::NisConfig::race_vegas`], a rival handed in, an untrained flow.
-    fn rival_to_race(&self) -> Option<RivalFactory> {
-        self.rival
-            .filter(|_| self.config.race_vegas && self.trained_evals == 0)
-    }
-
-    /// Whether a run to a target probes for a smooth integrand to switch to the codes
-    /// ([`super::NisConfig::auto_masks`]): an untrained flow of binary masks, where the codes
-    /// have fewer layers, annealed (the probe reads the tempered weights' ESS, 1 at β = 1).
-    fn probes_masks(&self) -> bool {
-        let flow = &self.config.flow;
-        let dim = self.flow().dim();
-        self.config.auto_masks
-            && self.trained_evals == 0
-            && self.config.anneal_from < 1.0
-            && flow.masks == Masks::Binary
-            && flow.couplings == 0
-            && default_layers(dim, Masks::Codes) < default_layers(dim, Masks::Binary)
-    }
-
-    /// Races the rival `make` builds (its own seed) with the pace that `length` measured over
-    /// the first batches, those since `before` evaluations of training.
-    fn race_rival(
-        &mut self,
-        make: RivalFactory,
-        f: &dyn Integrand,
-        target: &Target,
-        started: Instant,
-        length: &TrainingLength,
-        before: u64,
-    ) -> Result<Raced> {
-        let pace = Pace {
-            training_seconds: length.slow_seconds_left(),
-            integrand_seconds_per_eval: length.integrand_seconds_per_eval(),
-            evals: self.trained_evals - before,
-        };
-        let seed = self.config.seed ^ RACE_SEED_SALT;
-        let mut rival = make(self.flow().dim(), seed, self.config.train_on)?;
-        let (comm, progress) = (&self.comm, &mut self.progress);
-        race(&mut *rival, f, target, started, pace, comm, progress)
-    }
-
     /// [`crate::integrate::Integrator::check_target`]: the least training the rule may stop at,
     /// within `train_fraction` of `max_evals`, and one final iteration must fit.
     pub(super) fn check_target_plan(&self, target: &Target) -> Result<()> {
@@ -92,23 +52,6 @@ impl NisIntegrator {
     fn least_final(&self) -> u64 {
         let iters = self.config.final_iterations as u64;
         FinalPlan::new(&self.config, self.flow().dim(), 0).least * iters
-    }
-
-    /// [`crate::integrate::Integrator::integrate_to`] for NIS: training whose length the rule
-    /// decides ([`NisIntegrator::train_to`]), unless VEGAS+ wins its race, then the final phase.
-    pub(super) fn run_to(
-        &mut self,
-        f: &dyn Integrand,
-        target: &Target,
-    ) -> Result<IntegrationResult> {
-        let started = Instant::now();
-        check_dim(f, self.flow().dim())?;
-        self.config.train_on.check(f.components())?;
-        self.check_target_plan(target)?;
-        match self.train_to(f, target, started)? {
-            Trained::Answered(result) => Ok(*result),
-            Trained::Spent { evals, length } => self.final_to(f, target, started, evals, &length),
-        }
     }
 
     /// An error before any evaluation when `max_seconds` cannot pay for one batch of the flow
@@ -135,78 +78,6 @@ impl NisIntegrator {
             )));
         }
         Ok(())
-    }
-
-    /// Trains for as long as the rule of [`TrainingLength`] says it pays, within
-    /// `train_fraction` of the limits; races VEGAS+ and probes for the codes' masks after the
-    /// first batches when those strategies are on.
-    fn train_to(
-        &mut self,
-        f: &dyn Integrand,
-        target: &Target,
-        started: Instant,
-    ) -> Result<Trained> {
-        self.check_seconds(target)?;
-        let dim = self.flow().dim();
-        let batch = self.config.batch as u64;
-        let share = self.config.train_fraction;
-        // Training batches within `share` of `evals`.
-        let batches_in = |evals: u64| ((evals as f64 * share) as u64 / batch) as usize;
-        let max_batches = batches_in(target.max_evals);
-        let anneal = anneal_batches(dim);
-        let horizon = HORIZON_BATCHES.max(2 * anneal + SETTLE_BATCHES);
-        let max_seconds = target.max_seconds.map_or(f64::INFINITY, |s| s * share);
-        // A flow trained before (loaded, or trained by hand) starts at β = 1.
-        let beta_from = if self.trained_evals == 0 {
-            self.config.anneal_from
-        } else {
-            1.0
-        };
-        let mut length = TrainingLength::new(
-            *target,
-            anneal,
-            beta_from,
-            max_batches.min(horizon),
-            max_seconds,
-        );
-        let rival = self.rival_to_race();
-        let probes = self.probes_masks();
-        if rival.is_some() || probes {
-            length.pause_after_probe();
-        }
-        let mut before = self.trained_evals;
-        self.train_keeping_for(f, max_batches.min(horizon), None, Some(&mut length))?;
-        // Evaluations spent and not used: VEGAS+'s when it loses the race, the probe's when the
-        // flow starts afresh.
-        let mut spent = 0;
-        if length.paused() {
-            if let Some(make) = rival {
-                match self.race_rival(make, f, target, started, &length, before)? {
-                    Raced::Won(result) => return Ok(Trained::Answered(result)),
-                    Raced::Lost { evals } => spent += evals,
-                }
-            }
-            let room = target.max_evals.saturating_sub(spent);
-            let left = batches_in(room)
-                .min(horizon)
-                .saturating_sub(length.batches());
-            let seconds_left = max_seconds - length.seconds();
-            if probes && length.smooth() && length.room_to_restart(left, seconds_left) {
-                // A smooth integrand: the codes' fewer layers learn it as well, in less time.
-                // The probe's batches are spent, not used; training starts afresh.
-                spent += self.trained_evals - before;
-                self.relayout(Masks::Codes)?;
-                before = self.trained_evals;
-                length = TrainingLength::new(*target, anneal, beta_from, left, seconds_left);
-            }
-            if left > 0 {
-                self.train_keeping_for(f, left, None, Some(&mut length))?;
-            }
-        }
-        Ok(Trained::Spent {
-            evals: self.trained_evals - before + spent,
-            length: Box::new(length),
-        })
     }
 
     /// The final phase after `trained` evaluations of training that `length` measured: its
@@ -274,16 +145,177 @@ impl NisIntegrator {
     }
 }
 
-/// How the training of a run to a target ended.
-enum Trained {
-    /// VEGAS+ won the race: its result is the answer.
-    Answered(Box<IntegrationResult>),
-    /// The final phase follows: the evaluations spent so far (those not used included) and
-    /// what the training measured.
-    Spent {
-        evals: u64,
-        length: Box<TrainingLength>,
-    },
+/// A run to a target's training so far, between the road's strategies
+/// (`integrate/strategies.rs`): the rule that measures it and decides its length, and the
+/// limits it trains within.
+pub(crate) struct Training {
+    length: TrainingLength,
+    target: Target,
+    /// The integrator's trained evaluations when this layout's training began, and those it
+    /// has trained since.
+    before: u64,
+    trained: u64,
+    /// Evaluations spent and not used: VEGAS+'s when it loses the race, the probe's when the
+    /// flow starts afresh.
+    spent: u64,
+    /// `train_fraction`, the batch size, the most batches and the training's share of
+    /// `max_seconds`.
+    share: f64,
+    batch: u64,
+    horizon: usize,
+    max_seconds: f64,
+    /// Batches of annealing, and the tempered target's first exponent.
+    anneal: usize,
+    beta_from: f64,
+}
+
+impl Training {
+    /// The batches and seconds left to train after the pause, `spent` evaluations of a rival
+    /// counted against `max_evals`.
+    fn left(&self, spent: u64) -> (usize, f64) {
+        let room = self.target.max_evals.saturating_sub(spent);
+        let batches = batches_within(room, self.share, self.batch).min(self.horizon);
+        let batches = batches.saturating_sub(self.length.batches());
+        (batches, self.max_seconds - self.length.seconds())
+    }
+}
+
+/// Training batches of `batch` evaluations within `share` of `evals`.
+fn batches_within(evals: u64, share: f64, batch: u64) -> usize {
+    ((evals as f64 * share) as u64 / batch) as usize
+}
+
+impl Probed for Training {
+    fn paused(&self) -> bool {
+        self.length.paused()
+    }
+
+    fn pace(&self) -> Pace {
+        Pace {
+            training_seconds: self.length.slow_seconds_left(),
+            integrand_seconds_per_eval: self.length.integrand_seconds_per_eval(),
+            evals: self.trained,
+        }
+    }
+
+    fn smooth(&self) -> bool {
+        self.length.smooth()
+    }
+
+    fn room_to_restart(&self, spent: u64) -> bool {
+        let (batches, seconds) = self.left(spent);
+        self.length.room_to_restart(batches, seconds)
+    }
+}
+
+/// NIS on the road to a target: trains for as long as the rule of [`TrainingLength`] says it
+/// pays, within `train_fraction` of the limits, pausing after the probe's batches for the
+/// strategies; the cheaper layout is the codes' masks.
+impl Learning for NisIntegrator {
+    type Training = Training;
+
+    /// [`super::NisConfig::race_vegas`], a rival handed in, an untrained flow.
+    fn rival(&self) -> Option<RivalFactory> {
+        self.rival
+            .filter(|_| self.config.race_vegas && self.trained_evals == 0)
+    }
+
+    /// [`super::NisConfig::auto_masks`]: an untrained flow of binary masks, where the codes
+    /// have fewer layers, annealed (the probe reads the tempered weights' ESS, 1 at β = 1).
+    fn may_relayout(&self) -> bool {
+        let flow = &self.config.flow;
+        let dim = self.flow().dim();
+        self.config.auto_masks
+            && self.trained_evals == 0
+            && self.config.anneal_from < 1.0
+            && flow.masks == Masks::Binary
+            && flow.couplings == 0
+            && default_layers(dim, Masks::Codes) < default_layers(dim, Masks::Binary)
+    }
+
+    fn train_first(&mut self, f: &dyn Integrand, target: &Target, pause: bool) -> Result<Training> {
+        check_dim(f, self.flow().dim())?;
+        self.config.train_on.check(f.components())?;
+        self.check_target_plan(target)?;
+        self.check_seconds(target)?;
+        let share = self.config.train_fraction;
+        let batch = self.config.batch as u64;
+        let anneal = anneal_batches(self.flow().dim());
+        let horizon = HORIZON_BATCHES.max(2 * anneal + SETTLE_BATCHES);
+        let batches = batches_within(target.max_evals, share, batch).min(horizon);
+        let max_seconds = target.max_seconds.map_or(f64::INFINITY, |s| s * share);
+        // A flow trained before (loaded, or trained by hand) starts at β = 1.
+        let beta_from = if self.trained_evals == 0 {
+            self.config.anneal_from
+        } else {
+            1.0
+        };
+        let mut training = Training {
+            length: TrainingLength::new(*target, anneal, beta_from, batches, max_seconds),
+            target: *target,
+            before: self.trained_evals,
+            trained: 0,
+            spent: 0,
+            share,
+            batch,
+            horizon,
+            max_seconds,
+            anneal,
+            beta_from,
+        };
+        if pause {
+            training.length.pause_after_probe();
+        }
+        self.train_keeping_for(f, batches, None, Some(&mut training.length))?;
+        training.trained = self.trained_evals - training.before;
+        Ok(training)
+    }
+
+    fn lane(&mut self) -> Lane<'_> {
+        Lane {
+            dim: self.flow().dim(),
+            seed: self.config.seed,
+            train_on: self.config.train_on,
+            comm: &self.comm,
+            progress: &mut self.progress,
+        }
+    }
+
+    fn train_rest(
+        &mut self,
+        f: &dyn Integrand,
+        training: &mut Training,
+        spent: u64,
+        relayout: bool,
+    ) -> Result<()> {
+        let (left, seconds_left) = training.left(spent);
+        training.spent += spent;
+        if relayout {
+            // The probe's batches are spent, not used; training starts afresh.
+            training.spent += training.trained;
+            self.relayout(Masks::Codes)?;
+            training.before = self.trained_evals;
+            let (target, anneal, beta_from) =
+                (training.target, training.anneal, training.beta_from);
+            training.length = TrainingLength::new(target, anneal, beta_from, left, seconds_left);
+        }
+        if left > 0 {
+            self.train_keeping_for(f, left, None, Some(&mut training.length))?;
+        }
+        training.trained = self.trained_evals - training.before;
+        Ok(())
+    }
+
+    fn estimate(
+        &mut self,
+        f: &dyn Integrand,
+        target: &Target,
+        started: Instant,
+        training: Training,
+    ) -> Result<IntegrationResult> {
+        let evals = training.trained + training.spent;
+        self.final_to(f, target, started, evals, &training.length)
+    }
 }
 
 /// The final phase's iterations: the frozen sampler's weights, stratified in the latent space

@@ -131,9 +131,10 @@ impl TrainingLength {
         }
     }
 
-    /// Stops training once, after [`PROBE_BATCHES`] batches, so that the caller can race VEGAS+
-    /// with [`TrainingLength::slow_seconds_left`] known and look for a smooth integrand
-    /// ([`TrainingLength::smooth`]); the next batch goes on as if it had not stopped.
+    /// Stops training once, after [`PROBE_BATCHES`] batches, so that the road's strategies
+    /// (`integrate/strategies.rs`) can race VEGAS+ with [`TrainingLength::slow_seconds_left`]
+    /// known and look for a smooth integrand ([`TrainingLength::smooth`]); the next batch goes
+    /// on as if it had not stopped.
     pub(super) fn pause_after_probe(&mut self) {
         self.pause = true;
     }
@@ -144,7 +145,7 @@ impl TrainingLength {
     }
 
     /// Whether the probe's batches show a smooth integrand: their tempered weights' median ESS
-    /// fraction reaches [`SMOOTH_ESS`], where a cheaper flow is as good (`to_target.rs`).
+    /// fraction reaches [`SMOOTH_ESS`], where a cheaper flow is as good (`integrate/strategies.rs`).
     /// A batch whose weights are all zero (no point hit f) counts as far from smooth.
     pub(super) fn smooth(&self) -> bool {
         if self.ess.len() < PROBE_BATCHES {
