@@ -129,3 +129,116 @@ fn race_rival<L: Learning>(
         lane.progress,
     )
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A learner that records what the road asks of it; its probe pauses when asked and shows
+    /// `smooth`, with room to restart unless a rival spent evaluations.
+    struct Fake {
+        relayouts: bool,
+        smooth: bool,
+        paused: Option<bool>,
+        rest: Option<(u64, bool)>,
+        comm: Comm,
+        progress: Option<Box<dyn Progress>>,
+    }
+
+    struct FakeTraining {
+        paused: bool,
+        smooth: bool,
+    }
+
+    impl Probed for FakeTraining {
+        fn paused(&self) -> bool {
+            self.paused
+        }
+        fn pace(&self) -> Pace {
+            Pace {
+                training_seconds: 1.0,
+                integrand_seconds_per_eval: None,
+                evals: 0,
+            }
+        }
+        fn smooth(&self) -> bool {
+            self.smooth
+        }
+        fn room_to_restart(&self, spent: u64) -> bool {
+            spent == 0
+        }
+    }
+
+    impl Learning for Fake {
+        type Training = FakeTraining;
+        fn rival(&self) -> Option<RivalFactory> {
+            None
+        }
+        fn may_relayout(&self) -> bool {
+            self.relayouts
+        }
+        fn train_first(
+            &mut self,
+            _: &dyn Integrand,
+            _: &Target,
+            pause: bool,
+        ) -> Result<FakeTraining> {
+            self.paused = Some(pause);
+            Ok(FakeTraining {
+                paused: pause,
+                smooth: self.smooth,
+            })
+        }
+        fn lane(&mut self) -> Lane<'_> {
+            Lane {
+                dim: 1,
+                seed: 0,
+                train_on: TrainOn::default(),
+                comm: &self.comm,
+                progress: &mut self.progress,
+            }
+        }
+        fn train_rest(
+            &mut self,
+            _: &dyn Integrand,
+            _: &mut FakeTraining,
+            spent: u64,
+            relayout: bool,
+        ) -> Result<()> {
+            self.rest = Some((spent, relayout));
+            Ok(())
+        }
+        fn estimate(
+            &mut self,
+            _: &dyn Integrand,
+            _: &Target,
+            _: Instant,
+            _: FakeTraining,
+        ) -> Result<IntegrationResult> {
+            Ok(IntegrationResult::default())
+        }
+    }
+
+    fn run(relayouts: bool, smooth: bool) -> Fake {
+        let mut fake = Fake {
+            relayouts,
+            smooth,
+            paused: None,
+            rest: None,
+            comm: Comm::default(),
+            progress: None,
+        };
+        learn_to(&mut fake, &|x: &[f64]| x[0], &Target::rel(1e-2)).unwrap();
+        fake
+    }
+
+    #[test]
+    fn a_learner_without_strategies_trains_once_and_a_smooth_probe_switches_its_layout() {
+        let plain = run(false, true);
+        assert_eq!((plain.paused, plain.rest), (Some(false), None));
+        let rough = run(true, false);
+        assert_eq!((rough.paused, rough.rest), (Some(true), Some((0, false))));
+        let smooth = run(true, true);
+        assert_eq!((smooth.paused, smooth.rest), (Some(true), Some((0, true))));
+    }
+}
