@@ -5,11 +5,12 @@
 //! what each batch teaches them, and many channels cost one flow's memory. Its first layer's
 //! context columns are a learned embedding of the part.
 //!
-//! Training is NIS's (Müller et al. 2019, Sec. 3.2): on-policy steps of the KL or χ² loss, the
-//! tempered target |h_p|^β over the first half of the first training, the learning rate decayed
-//! over its steps and the estimate drawn from an average of the weights. Half of a batch's points
-//! go to the parts equally, half in proportion to their running ∫|h_p|, and each part's targets
-//! are divided by that integral, so each conditional density learns its own normalised target.
+//! Training is NIS's, in its one loop (`nis/flow_training.rs`; Müller et al. 2019, Sec. 3.2):
+//! on-policy steps of the KL or χ² loss, the tempered target |h_p|^β over the first half of the
+//! first training, the learning rate decayed over its steps and the estimate drawn from an
+//! average of the weights. Half of a batch's points go to the parts equally, half in proportion
+//! to their running ∫|h_p|, and each part's targets are divided by that integral, so each
+//! conditional density learns its own normalised target.
 //! After training, each part gets an NIS integrator of its own around the flow at its context
 //! ([`Flow::at_context`]: the context's share of every first layer folded into its biases), so
 //! the estimate, the events and saving are a flow per part's, unbiased as NIS's are.
@@ -21,9 +22,8 @@ use super::allocation::allocate;
 use crate::comm::Comm;
 use crate::error::Result;
 use crate::flow::{Density, Flow, FlowConfig};
-use crate::integrate::nis::{anneal_beta, schedule, NisConfig, NisIntegrator, TrainingMemory};
+use crate::integrate::nis::{Batches, FlowTraining, NisConfig, NisIntegrator, TrainingMemory};
 use crate::kernels::in_pool;
-use crate::nn::ParamAverage;
 use crate::train::Learner;
 
 /// Salts of the training stream and of the training memories' choices ("shtr", "shme").
@@ -37,11 +37,9 @@ pub(super) type BlockFn<'a> = dyn Fn(&[usize], &[f64]) -> Result<Vec<f64>> + Syn
 pub(super) struct SharedFlow {
     config: NisConfig,
     flow: Flow,
-    learner: Learner,
+    /// The optimiser, its schedule and the weights' moving average.
+    training: FlowTraining,
     parts: usize,
-    average: Option<ParamAverage>,
-    /// Whether the first training has set the learning-rate schedule.
-    scheduled: bool,
     trained: u64,
     /// Each part's Σ|h_p|/q over its training points and their count: every batch's mean is
     /// unbiased for ∫|h_p| whatever q was, so their pooled mean is the running integral.
@@ -67,10 +65,8 @@ impl SharedFlow {
         Ok(SharedFlow {
             config: config.clone(),
             flow,
-            learner,
+            training: FlowTraining::new(learner),
             parts,
-            average: None,
-            scheduled: false,
             trained: 0,
             mass: vec![(0.0, 0.0); parts],
             train_rng: Pcg64Mcg::seed_from_u64(config.seed ^ TRAIN_SALT),
@@ -83,45 +79,11 @@ impl SharedFlow {
     /// Runs data-parallel over the ranks of `comm`: each rank draws its share of every part's
     /// points from streams of its own, and the steps average the ranks' gradients.
     pub(super) fn set_comm(&mut self, comm: Comm) {
-        self.learner.set_comm(comm.clone());
+        self.training.set_comm(comm.clone());
         self.train_rng = Pcg64Mcg::seed_from_u64(comm.stream_seed(self.config.seed ^ TRAIN_SALT));
         self.memory_rng = Pcg64Mcg::seed_from_u64(comm.stream_seed(self.config.seed ^ MEMORY_SALT));
         self.memories.iter_mut().for_each(TrainingMemory::clear);
         self.comm = comm;
-    }
-
-    /// Part `p`'s running ∫|h_p| (0 until a point saw it).
-    fn scale(&self, p: usize) -> f64 {
-        let (sum, n) = self.mass[p];
-        if n > 0.0 {
-            sum / n
-        } else {
-            0.0
-        }
-    }
-
-    /// Points per part of a batch of `batch` (over all ranks): half of them equally, half in
-    /// proportion to the running ∫|h_p| (all equally while none is known), each at least one,
-    /// by largest remainders (`allocation::allocate`). The equal half keeps a part that no point has found yet sampled,
-    /// so that it can be found.
-    fn batch_counts(&self, batch: usize) -> Vec<usize> {
-        let p = self.parts;
-        let scales: Vec<f64> = (0..p).map(|i| self.scale(i)).collect();
-        let total: f64 = scales.iter().sum();
-        let share: Vec<f64> = scales
-            .iter()
-            .map(|s| {
-                if total > 0.0 {
-                    0.5 / p as f64 + 0.5 * s / total
-                } else {
-                    1.0 / p as f64
-                }
-            })
-            .collect();
-        allocate(batch as u64, 1, &share)
-            .into_iter()
-            .map(|n| n as usize)
-            .collect()
     }
 
     /// Trains on `evals` evaluations of the parts, in whole batches of NIS's batch size (or two
@@ -133,99 +95,24 @@ impl SharedFlow {
         if steps == 0 {
             return Ok(0);
         }
-        if !self.scheduled {
-            // One Adam step per batch (no replay).
-            let params = self.flow.params();
-            self.average = schedule(&self.config, &mut self.learner, steps, steps, params)?;
-            self.scheduled = true;
-        }
-        if let Some(a) = &self.average {
-            a.resume(&mut [self.flow.params_mut()]);
-        }
-        let anneal = (self.trained == 0 && steps > 1).then_some(steps as f64 / 2.0);
         self.memories.iter_mut().for_each(TrainingMemory::clear);
-        let trained = in_pool(|| self.steps(h, steps, batch, anneal));
-        if let Some(a) = &mut self.average {
-            a.use_average(&mut [self.flow.params_mut()]);
-        }
+        let untrained = self.trained == 0;
+        let mut batches = SharedBatches {
+            flow: &mut self.flow,
+            h,
+            batch,
+            parts: self.parts,
+            mass: &mut self.mass,
+            train_rng: &mut self.train_rng,
+            memories: &mut self.memories,
+            memory_rng: &mut self.memory_rng,
+            comm: &self.comm,
+            trained: &mut self.trained,
+        };
+        // One Adam step per batch (no replay).
+        let training = &mut self.training;
+        let trained = in_pool(|| training.train(&self.config, steps, 1, untrained, &mut batches));
         trained.map(|()| (steps * batch) as u64)
-    }
-
-    /// `steps` training batches of `batch` points (see [`SharedFlow::train`]).
-    fn steps(
-        &mut self,
-        h: &BlockFn,
-        steps: usize,
-        batch: usize,
-        anneal: Option<f64>,
-    ) -> Result<()> {
-        let dim = self.flow.dim();
-        for step in 0..steps {
-            let beta = anneal.map_or(1.0, |span| anneal_beta(&self.config, step, span));
-            self.learner.set_temperature(beta);
-            // This rank's share of every part's points, the parts' rows one after the other.
-            let counts: Vec<usize> = self
-                .batch_counts(batch)
-                .iter()
-                .map(|&n| self.comm.share(n as u64) as usize)
-                .collect();
-            let ctx: Vec<f32> = (0..self.parts)
-                .flat_map(|p| contexts(self.parts, p, counts[p]))
-                .collect();
-            let n: usize = counts.iter().sum();
-            let drawn = self
-                .flow
-                .sample_for_training(n, Some(&ctx), &mut self.train_rng);
-            let evaluated = drawn.and_then(|s| {
-                let x64: Vec<f64> = s.x.iter().map(|&v| v as f64).collect();
-                Ok((s, h(&counts, &x64)?))
-            });
-            let (samples, hx) = self.comm.check(evaluated)?;
-            // Each part's points join its memory, and its Σ|h|/q and count over the ranks its
-            // running integral.
-            let mut sums = vec![0.0; 2 * self.parts];
-            let mut start = 0;
-            for (p, &m) in counts.iter().enumerate() {
-                let rows = start..start + m;
-                let x = &samples.x[start * dim..(start + m) * dim];
-                self.memories[p].observe(
-                    x,
-                    &samples.log_q[rows.clone()],
-                    &hx[rows.clone()],
-                    1,
-                    &mut self.memory_rng,
-                );
-                sums[2 * p] = rows.map(|i| hx[i].abs() * (-samples.log_q[i]).exp()).sum();
-                sums[2 * p + 1] = m as f64;
-                start += m;
-            }
-            self.comm.sum_f64(&mut sums);
-            for (p, m) in self.mass.iter_mut().enumerate() {
-                m.0 += sums[2 * p];
-                m.1 += sums[2 * p + 1];
-            }
-            let mut target = Vec::with_capacity(n);
-            for (p, &m) in counts.iter().enumerate() {
-                let s = self.scale(p);
-                let first = target.len();
-                target.extend(hx[first..first + m].iter().map(|v| {
-                    if s > 0.0 {
-                        v.abs() / s
-                    } else {
-                        0.0
-                    }
-                }));
-            }
-            self.trained += batch as u64;
-            if self.comm.any(target.iter().any(|t| *t != 0.0)) {
-                self.learner
-                    .step_on_policy(&mut self.flow, &samples, &target)?;
-            }
-            if let Some(a) = &mut self.average {
-                a.add(&[self.flow.params()]);
-            }
-        }
-        Ok(())
     }
 
     /// Part `p`'s own NIS integrator: the flow at its context ([`Flow::at_context`]), which
@@ -245,6 +132,124 @@ impl SharedFlow {
     }
 }
 
+/// The shared flow's training batches: every part's points, its share of each batch following
+/// the parts' running integrals, its targets divided by its own.
+struct SharedBatches<'a, 'h> {
+    flow: &'a mut Flow,
+    h: &'a BlockFn<'h>,
+    /// Points of a batch (over all ranks), and the parts.
+    batch: usize,
+    parts: usize,
+    mass: &'a mut [(f64, f64)],
+    train_rng: &'a mut Pcg64Mcg,
+    memories: &'a mut [TrainingMemory],
+    memory_rng: &'a mut Pcg64Mcg,
+    comm: &'a Comm,
+    trained: &'a mut u64,
+}
+
+impl Batches for SharedBatches<'_, '_> {
+    fn flow(&mut self) -> &mut Flow {
+        self.flow
+    }
+
+    fn learn(&mut self, _: usize, _: f64, learner: &mut Learner) -> Result<bool> {
+        let dim = self.flow.dim();
+        // This rank's share of every part's points, the parts' rows one after the other.
+        let counts: Vec<usize> = batch_counts(self.mass, self.batch)
+            .iter()
+            .map(|&n| self.comm.share(n as u64) as usize)
+            .collect();
+        let ctx: Vec<f32> = (0..self.parts)
+            .flat_map(|p| contexts(self.parts, p, counts[p]))
+            .collect();
+        let n: usize = counts.iter().sum();
+        let drawn = self.flow.sample_for_training(n, Some(&ctx), self.train_rng);
+        let h = self.h;
+        let evaluated = drawn.and_then(|s| {
+            let x64: Vec<f64> = s.x.iter().map(|&v| v as f64).collect();
+            Ok((s, h(&counts, &x64)?))
+        });
+        let (samples, hx) = self.comm.check(evaluated)?;
+        // Each part's points join its memory, and its Σ|h|/q and count over the ranks its
+        // running integral.
+        let mut sums = vec![0.0; 2 * self.parts];
+        let mut start = 0;
+        for (p, &m) in counts.iter().enumerate() {
+            let rows = start..start + m;
+            let x = &samples.x[start * dim..(start + m) * dim];
+            self.memories[p].observe(
+                x,
+                &samples.log_q[rows.clone()],
+                &hx[rows.clone()],
+                1,
+                self.memory_rng,
+            );
+            sums[2 * p] = rows.map(|i| hx[i].abs() * (-samples.log_q[i]).exp()).sum();
+            sums[2 * p + 1] = m as f64;
+            start += m;
+        }
+        self.comm.sum_f64(&mut sums);
+        for (p, m) in self.mass.iter_mut().enumerate() {
+            m.0 += sums[2 * p];
+            m.1 += sums[2 * p + 1];
+        }
+        let mut target = Vec::with_capacity(n);
+        for (p, &m) in counts.iter().enumerate() {
+            let s = scale(self.mass, p);
+            let first = target.len();
+            target.extend(hx[first..first + m].iter().map(
+                |v| {
+                    if s > 0.0 {
+                        v.abs() / s
+                    } else {
+                        0.0
+                    }
+                },
+            ));
+        }
+        *self.trained += self.batch as u64;
+        if self.comm.any(target.iter().any(|t| *t != 0.0)) {
+            learner.step_on_policy(self.flow, &samples, &target)?;
+        }
+        Ok(true)
+    }
+}
+
+/// Part `p`'s running ∫|h_p| from the parts' `mass` (0 until a point saw it).
+fn scale(mass: &[(f64, f64)], p: usize) -> f64 {
+    let (sum, n) = mass[p];
+    if n > 0.0 {
+        sum / n
+    } else {
+        0.0
+    }
+}
+
+/// Points per part of a batch of `batch` (over all ranks), from the parts' `mass`: half of them
+/// equally, half in proportion to the running ∫|h_p| (all equally while none is known), each at
+/// least one, by largest remainders (`allocation::allocate`). The equal half keeps a part that
+/// no point has found yet sampled, so that it can be found.
+fn batch_counts(mass: &[(f64, f64)], batch: usize) -> Vec<usize> {
+    let p = mass.len();
+    let scales: Vec<f64> = (0..p).map(|i| scale(mass, i)).collect();
+    let total: f64 = scales.iter().sum();
+    let share: Vec<f64> = scales
+        .iter()
+        .map(|s| {
+            if total > 0.0 {
+                0.5 / p as f64 + 0.5 * s / total
+            } else {
+                1.0 / p as f64
+            }
+        })
+        .collect();
+    allocate(batch as u64, 1, &share)
+        .into_iter()
+        .map(|n| n as usize)
+        .collect()
+}
+
 /// The one-hot contexts of `n` points of part `p` of `parts`.
 fn contexts(parts: usize, p: usize, n: usize) -> Vec<f32> {
     let mut c = vec![0.0; n * parts];
@@ -262,15 +267,15 @@ mod tests {
     fn batch_counts_follow_the_parts_integrals_and_starve_none() {
         let mut s = SharedFlow::new(2, 4, &NisConfig::default()).unwrap();
         // Equal while nothing is known.
-        assert_eq!(s.batch_counts(256), vec![64; 4]);
+        assert_eq!(batch_counts(&s.mass, 256), vec![64; 4]);
         s.mass = vec![(6.0, 1.0), (2.0, 1.0), (0.0, 1.0), (0.0, 0.0)];
-        let c = s.batch_counts(256);
+        let c = batch_counts(&s.mass, 256);
         assert_eq!(c.iter().sum::<usize>(), 256);
         // 252 spare points: 1/8 each, and 3/8 and 1/8 more by mass; plus one each, and the
         // last point to the first of the equal remainders.
         assert_eq!(c, vec![127, 64, 33, 32]);
         // More parts than points: one each, the batch grows to two per part in `train`.
         let s = SharedFlow::new(2, 300, &NisConfig::default()).unwrap();
-        assert!(s.batch_counts(600).iter().all(|n| *n == 2));
+        assert!(batch_counts(&s.mass, 600).iter().all(|n| *n == 2));
     }
 }

@@ -34,13 +34,13 @@ use crate::flow::mask::Masks;
 use crate::flow::mixture::{DefensiveMixture, MixtureBatch, Record};
 use crate::flow::{Density, Flow, FlowConfig};
 use crate::kernels::in_pool;
-use crate::nn::ParamAverage;
 use crate::train::Learner;
+pub(crate) use flow_training::{Batches, FlowTraining};
 pub(crate) use memory::TrainingMemory;
 use reuse::TrainingPieces;
-pub(crate) use training::{anneal_beta, schedule};
 
 mod config;
+mod flow_training;
 mod memory;
 mod post_stratified;
 mod reuse;
@@ -60,15 +60,10 @@ pub struct NisIntegrator {
     /// The sampler: the flow in its defensive mixture with the uniform density
     /// (`uniform_fraction`); training steps its flow.
     sampler: DefensiveMixture<Flow>,
-    learner: Learner,
+    /// The optimiser, its schedule and the weights' moving average (`flow_training.rs`).
+    training: FlowTraining,
     /// Evaluations spent training so far (over all calls, and before saving).
     trained_evals: u64,
-    /// Whether this object has set the learning-rate schedule (its first training does).
-    scheduled: bool,
-    /// The moving average of the flow's weights (`NisConfig::average_span`), set up with the
-    /// learning-rate schedule by the first training unless the span is 0: between trainings
-    /// the flow holds the average, and this the last training step's weights.
-    average: Option<ParamAverage>,
     streams: Streams,
     /// The points of the latest training, to check the final sampler against.
     memory: TrainingMemory,
@@ -143,7 +138,7 @@ impl NisIntegrator {
     /// Runs data-parallel over the ranks of `comm` from now on (see [`Integrator::set_comm`]):
     /// restarts the random streams as this rank's streams of the seed.
     pub fn set_comm(&mut self, comm: Comm) {
-        self.learner.set_comm(comm.clone());
+        self.training.set_comm(comm.clone());
         self.memory.clear();
         self.comm = comm;
         self.set_seed(self.config.seed);
@@ -170,12 +165,10 @@ impl NisIntegrator {
         let mut learner = Learner::new(flow.param_count(), config.loss, config.adam)?;
         learner.set_comm(self.comm.clone());
         self.sampler = DefensiveMixture::new(flow, config.uniform_fraction)?;
-        self.learner = learner;
+        self.training = FlowTraining::new(learner);
         self.config = config;
         self.memory = TrainingMemory::new(dim);
-        self.average = None;
         self.trained_evals = 0;
-        self.scheduled = false;
         Ok(())
     }
 
@@ -380,12 +373,10 @@ impl NisIntegrator {
         Ok(NisIntegrator {
             streams: Streams::new(config.seed),
             memory: TrainingMemory::new(sampler.density.dim()),
-            average: None,
             config,
             sampler,
-            learner,
+            training: FlowTraining::new(learner),
             trained_evals,
-            scheduled: false,
             comm: Comm::default(),
             progress: None,
             rival: None,

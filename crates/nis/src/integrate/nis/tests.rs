@@ -99,8 +99,8 @@ fn averaging_the_weights_leaves_the_training_alone() {
     for round in 1..=2 {
         plain.train(&f, 640).unwrap();
         averaged.train(&f, 640).unwrap();
-        assert!(plain.average.is_none());
-        let a = averaged.average.as_ref().unwrap();
+        assert!(plain.training.average().is_none());
+        let a = averaged.training.average().unwrap();
         assert_eq!(a.steps(), 10 * round);
         assert_eq!(a.iterate(), plain.flow().params());
         assert_ne!(averaged.flow().params(), plain.flow().params());
