@@ -4,7 +4,8 @@
 //! rival ([`race`], `race.rs`), whose answer ends it, and switching the learner to a cheaper
 //! layout on a smooth integrand, which starts its training afresh. Then the learner trains on
 //! and estimates. The learner ([`Learning`]) only measures, trains and estimates when told; the
-//! choices are made here, so it names neither a rival nor a strategy.
+//! choices are made here, and the rival is whatever its [`RivalFactory`] builds, so no method
+//! imports another.
 
 use std::time::Instant;
 
