@@ -1,8 +1,8 @@
 #!/usr/bin/env bash
 # Same numbers before and after a reshaping: runs a fixed set of `nis integrate --json` cases
-# (budgets, precision targets bounded by max_evals, channels, signs, every method) with the
-# given binary and writes each result, without its timings, to OUTDIR/N.json; a digest per
-# case goes to stdout. Compare two binaries with `diff -r OUT_BEFORE OUT_AFTER`.
+# (budgets, precision targets bounded by max_evals, channels and their shared flow, signs,
+# NIS's switch to the codes' masks, every method) with the given binary and writes each result,
+# without its timings, to OUTDIR/N.json; a digest per case goes to stdout. Compare two binaries with `diff -r OUT_BEFORE OUT_AFTER`.
 #
 #   scripts/test/same-numbers.sh target/release/nis /tmp/after
 #
@@ -43,6 +43,8 @@ resonances-4d --channels --method vegas --rel-err 1e-2 --max-evals 2000000
 resonances-4d --channels --method uniform --rel-err 3e-2 --max-evals 2000000
 gauss-pm --method vegas --signs split --abs-err 1e-3 --max-evals 300000
 camel --dim 4 --method nis --rel-err 1e-2 --max-evals 300000 --nis-config {"race_vegas":false}
+gauss --dim 8 --method nis --rel-err 1e-2 --max-evals 250000 --nis-config {"race_vegas":false}
+dalitz --channels --method nis --evals 300000
 camel --dim 2 --method nis --rel-err 1e-3
 gauss --dim 8 --method nis --rel-err 1e-2 --max-evals 3000000
 peaks --dim 4 --method nis --rel-err 1e-2 --max-evals 3000000
