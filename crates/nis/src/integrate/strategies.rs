@@ -134,14 +134,75 @@ fn race_rival<L: Learning>(
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::integrate::race::{Pursued, Race, Rival};
+    use crate::integrate::{Integrator, Method, Stop};
 
-    /// A learner that records what the road asks of it; its probe pauses when asked and shows
-    /// `smooth`, with room to restart unless a rival spent evaluations.
+    /// A rival that answers at once with no warning in one dimension, and gives up after 500
+    /// evaluations in more.
+    struct FakeRival {
+        dim: usize,
+    }
+
+    fn fake_rival(dim: usize, _: u64, _: TrainOn) -> Result<Box<dyn Rival>> {
+        Ok(Box::new(FakeRival { dim }))
+    }
+
+    impl Integrator for FakeRival {
+        fn method(&self) -> Method {
+            Method::Vegas
+        }
+        fn dim(&self) -> usize {
+            self.dim
+        }
+        fn integrate(&mut self, _: &dyn Integrand, _: u64) -> Result<IntegrationResult> {
+            unreachable!("a rival only races")
+        }
+        fn integrate_to(&mut self, _: &dyn Integrand, _: &Target) -> Result<IntegrationResult> {
+            unreachable!("a rival only races")
+        }
+        fn check_target(&self, _: &Target) -> Result<()> {
+            Ok(())
+        }
+        fn set_progress(&mut self, _: Option<Box<dyn Progress>>) {}
+        fn set_comm(&mut self, _: Comm) {}
+    }
+
+    impl Rival for FakeRival {
+        fn warm_up_evals(&self, _: &Target) -> u64 {
+            0
+        }
+        fn race_to(
+            &mut self,
+            _: &dyn Integrand,
+            _: &Target,
+            _: Instant,
+            _: u64,
+            _: Race,
+        ) -> Result<Pursued> {
+            if self.dim > 1 {
+                return Ok(Pursued::GaveUp { evals: 500 });
+            }
+            Ok(Pursued::Done(Box::new(IntegrationResult {
+                value: 1.0,
+                stop: Some(Stop::Target),
+                ..IntegrationResult::default()
+            })))
+        }
+        fn take_progress(&mut self) -> Option<Box<dyn Progress>> {
+            None
+        }
+    }
+
+    /// A learner in `dim` dimensions that records what the road asks of it; its probe pauses
+    /// when asked and shows `smooth`, with room to restart unless a rival spent evaluations.
     struct Fake {
+        dim: usize,
+        rival: Option<RivalFactory>,
         relayouts: bool,
         smooth: bool,
         paused: Option<bool>,
         rest: Option<(u64, bool)>,
+        estimated: bool,
         comm: Comm,
         progress: Option<Box<dyn Progress>>,
     }
@@ -158,7 +219,7 @@ mod tests {
         fn pace(&self) -> Pace {
             Pace {
                 training_seconds: 1.0,
-                integrand_seconds_per_eval: None,
+                integrand_seconds_per_eval: Some(0.0),
                 evals: 0,
             }
         }
@@ -173,7 +234,7 @@ mod tests {
     impl Learning for Fake {
         type Training = FakeTraining;
         fn rival(&self) -> Option<RivalFactory> {
-            None
+            self.rival
         }
         fn may_relayout(&self) -> bool {
             self.relayouts
@@ -192,7 +253,7 @@ mod tests {
         }
         fn lane(&mut self) -> Lane<'_> {
             Lane {
-                dim: 1,
+                dim: self.dim,
                 seed: 0,
                 train_on: TrainOn::default(),
                 comm: &self.comm,
@@ -216,30 +277,49 @@ mod tests {
             _: Instant,
             _: FakeTraining,
         ) -> Result<IntegrationResult> {
+            self.estimated = true;
             Ok(IntegrationResult::default())
         }
     }
 
-    fn run(relayouts: bool, smooth: bool) -> Fake {
+    fn run(dim: usize, rival: bool, relayouts: bool, smooth: bool) -> (Fake, IntegrationResult) {
         let mut fake = Fake {
+            dim,
+            rival: rival.then_some(fake_rival as RivalFactory),
             relayouts,
             smooth,
             paused: None,
             rest: None,
+            estimated: false,
             comm: Comm::default(),
             progress: None,
         };
-        learn_to(&mut fake, &|x: &[f64]| x[0], &Target::rel(1e-2)).unwrap();
-        fake
+        let r = learn_to(&mut fake, &|x: &[f64]| x[0], &Target::rel(1e-2)).unwrap();
+        (fake, r)
     }
 
     #[test]
     fn a_learner_without_strategies_trains_once_and_a_smooth_probe_switches_its_layout() {
-        let plain = run(false, true);
+        let (plain, _) = run(1, false, false, true);
         assert_eq!((plain.paused, plain.rest), (Some(false), None));
-        let rough = run(true, false);
+        assert!(plain.estimated);
+        let (rough, _) = run(1, false, true, false);
         assert_eq!((rough.paused, rough.rest), (Some(true), Some((0, false))));
-        let smooth = run(true, true);
+        let (smooth, _) = run(1, false, true, true);
         assert_eq!((smooth.paused, smooth.rest), (Some(true), Some((0, true))));
+    }
+
+    #[test]
+    fn a_won_race_answers_and_a_lost_one_counts_the_rivals_evaluations() {
+        let (won, r) = run(1, true, true, true);
+        assert_eq!(
+            (won.paused, won.rest, won.estimated),
+            (Some(true), None, false)
+        );
+        assert_eq!(r.answered_by, Some(Method::Vegas));
+        // The rival's 500 evaluations leave no room to restart here.
+        let (lost, r) = run(2, true, true, true);
+        assert_eq!((lost.rest, lost.estimated), (Some((500, false)), true));
+        assert_eq!(r.answered_by, None);
     }
 }
