@@ -110,6 +110,13 @@ impl PyIntegrationResult {
         self.r.pareto_k_limit
     }
 
+    /// How probable a largest weight as small as the one seen is under the tail k̂ was fitted
+    /// to: below 0.001 the weights end within the sample and k̂ does not warn (NaN without a fit).
+    #[getter]
+    fn tail_end_p(&self) -> f64 {
+        self.r.tail_end_p
+    }
+
     /// Effective sample size (Σ|w|)²/Σw² of the final phase's weights.
     #[getter]
     fn ess(&self) -> f64 {

@@ -84,6 +84,8 @@ def test_a_numpy_integrand_agrees_with_the_exact_value_and_the_result_reads_well
     assert math.isclose(r.cov, r.sdev**2)
     # k̂ warns above 0.5 + 1.645·1.5/√M, M = 3√n tail weights: 0.58–0.61 for 2·10⁴–10⁵ weights.
     assert 0.55 < r.pareto_k_limit < 0.65 and r.pareto_k < r.pareto_k_limit
+    # The probability of a largest weight as small as the one seen under the fitted tail.
+    assert 0 <= r.tail_end_p <= 1
     text = str(r)
     # The 10 groups of the training batches that join the estimate (reuse_training 0.5 by
     # default), then the final phase's 10 iterations: the pieces the χ²/dof compares.

@@ -59,6 +59,11 @@ class IntegrationResult:
         """The k̂ above which the result warns: 0.5 plus 1.645 standard errors of a k̂ fitted to
         this tail (a one-sided test at 5 % that k > 0.5; inf when k̂ cannot be fitted)."""
     @property
+    def tail_end_p(self) -> float:
+        """How probable a largest weight as small as the one seen is under the tail k̂ was
+        fitted to: below 0.001 the weights end within the sample and k̂ does not warn (NaN
+        without a fit)."""
+    @property
     def ess(self) -> float:
         """Effective sample size (Σ|w|)²/Σw² of the final phase's weights."""
     @property

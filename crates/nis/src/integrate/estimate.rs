@@ -177,6 +177,7 @@ impl Accumulator {
             },
             pareto_k: reliability.pareto_k,
             pareto_k_limit: reliability.pareto_k_limit,
+            tail_end_p: reliability.tail_end_p,
             ess: reliability.ess,
             var_rel_err: reliability.var_rel_err,
             seconds: started.elapsed().as_secs_f64(),

@@ -38,6 +38,12 @@ pub struct IntegrationResult {
     /// `null` in JSON without a fit).
     #[serde(default)]
     pub pareto_k_limit: f64,
+    /// How probable a largest tail weight as small as the one seen is under the tail k̂ was
+    /// fitted to: below [`TAIL_END_P`](super::diagnostics::TAIL_END_P) the weights end within the
+    /// sample and k̂ does not warn ([`diagnostics`](super::diagnostics); `null` in JSON without a
+    /// fit).
+    #[serde(default)]
+    pub tail_end_p: f64,
     /// Effective sample size (Σ|w|)²/Σw² of the weights that make the estimate.
     #[serde(default)]
     pub ess: f64,
@@ -124,6 +130,7 @@ impl IntegrationResult {
         super::diagnostics::Reliability {
             pareto_k: self.pareto_k,
             pareto_k_limit: self.pareto_k_limit,
+            tail_end_p: self.tail_end_p,
             ess: self.ess,
             var_rel_err: self.var_rel_err,
         }

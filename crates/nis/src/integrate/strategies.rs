@@ -1,11 +1,10 @@
-//! The choices on a learner's road to a target (issue 52, "one road to a target"). A method
-//! that learns its sampler (NIS) trains a few batches as a probe and pauses; between the probe
-//! and the rest of its training the road runs the strategies that may change the run: racing a
-//! rival ([`race`], `race.rs`), whose answer ends it, and switching the learner to a cheaper
-//! layout on a smooth integrand, which starts its training afresh. Then the learner trains on
-//! and estimates. The learner ([`Learning`]) only measures, trains and estimates when told; the
-//! choices are made here, and the rival is whatever its [`RivalFactory`] builds, so no method
-//! imports another.
+//! The choices on a learner's road to a target. A method that learns its sampler (NIS) trains a few
+//! batches as a probe and pauses; between the probe and the rest of its training the road runs the
+//! strategies that may change the run: racing a rival ([`race`], `race.rs`), whose answer ends it,
+//! and switching the learner to a cheaper layout on a smooth integrand, which starts its training
+//! afresh. Then the learner trains on and estimates. The learner ([`Learning`]) only measures,
+//! trains and estimates when told; the choices are made here, and the rival is whatever its
+//! [`RivalFactory`] builds, so no method imports another.
 
 use std::time::Instant;
 

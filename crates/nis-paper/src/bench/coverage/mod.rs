@@ -12,7 +12,7 @@ use std::path::{Path, PathBuf};
 use nis::integrands::{self, Builtin, SUITE};
 use nis::integrate::{
     integrator, Convergence, Method, Settings, CHI2_LIMIT, DIVERGENCE_LIMIT, HOLE_LIMIT,
-    MISSING_MASS_LIMIT, PARETO_K_LIMIT, PARETO_K_Z,
+    MISSING_MASS_LIMIT, PARETO_K_LIMIT, PARETO_K_Z, TAIL_END_P,
 };
 use nis::loss::Loss;
 use plotters::prelude::*;
@@ -126,6 +126,10 @@ pub struct Run {
     /// tail: such runs are judged by [`PARETO_K_LIMIT`] alone).
     #[serde(default)]
     pub pareto_k_limit: Option<f64>,
+    /// Where the tail ends ([`nis::integrate::diagnostics::TAIL_END_P`]; `None` without a fit and
+    /// in caches from before the check: such runs are judged by k̂ and its limit alone).
+    #[serde(default)]
+    pub tail_end_p: Option<f64>,
     /// Effective sample size.
     pub ess: f64,
     /// The relative error of the variance estimate (`None` where undefined).
@@ -198,6 +202,7 @@ impl Run {
             chi2: r.chi2_per_dof.is_finite().then_some(r.chi2_per_dof),
             pareto_k: r.pareto_k.is_finite().then_some(r.pareto_k),
             pareto_k_limit: r.pareto_k_limit.is_finite().then_some(r.pareto_k_limit),
+            tail_end_p: r.tail_end_p.is_finite().then_some(r.tail_end_p),
             ess: r.ess,
             var_rel_err: r.var_rel_err.is_finite().then_some(r.var_rel_err),
             seconds: r.seconds,
@@ -206,10 +211,12 @@ impl Run {
         }
     }
 
-    /// Whether its k̂ warns: above its limit ([`nis::integrate::diagnostics::pareto_k_threshold`]).
+    /// Whether its k̂ warns: above its limit ([`nis::integrate::diagnostics::pareto_k_threshold`])
+    /// with a tail that does not end within the sample (as the result's own warning).
     pub fn k_warns(&self) -> bool {
         let limit = self.pareto_k_limit.unwrap_or(PARETO_K_LIMIT);
-        self.pareto_k.is_some_and(|k| k > limit)
+        let ended = self.tail_end_p.is_some_and(|p| p < TAIL_END_P);
+        self.pareto_k.is_some_and(|k| k > limit) && !ended
     }
 
     /// How many standard errors of k̂ it lies above [`PARETO_K_LIMIT`] (the test's statistic;
@@ -340,8 +347,9 @@ pub fn run_cell(f: &Builtin, method: &str, budget: Budget) -> Cell {
 }
 
 /// What a cached run records: raised when the warnings read a figure older caches lack (2: the
-/// k̂ limit of each run's own tail), so that such a cache is run anew instead of misjudged.
-const RECORD: u32 = 2;
+/// k̂ limit of each run's own tail; 3: where the tail ends), so that such a cache is run anew
+/// instead of misjudged.
+const RECORD: u32 = 3;
 
 /// As [`RECORD`], for the channel cells alone (2: χ² of the parts together, not any part's).
 const CHANNEL_RECORD: u32 = 2;

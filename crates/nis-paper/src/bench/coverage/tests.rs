@@ -10,6 +10,7 @@ fn run_of(value: f64, std_err: f64, k: Option<f64>) -> Run {
         chi2: Some(1.0),
         pareto_k: k,
         pareto_k_limit: None,
+        tail_end_p: None,
         ess: 1.0,
         var_rel_err: None,
         seconds: 0.0,
@@ -138,4 +139,21 @@ fn a_channel_cell_converges_while_fewer_than_half_its_runs_have_a_part_diverging
     assert_eq!(warning_labels(&r, "NIS-χ²"), ["χ²"]);
     r.chi2 = Some(2.0);
     assert!(warning_labels(&r, "NIS-χ²").is_empty());
+}
+
+#[test]
+fn a_tail_that_ends_within_the_sample_does_not_flag_the_run() {
+    let mut r = run_of(1.0, 0.1, Some(0.9));
+    r.pareto_k_limit = Some(0.58);
+    assert!(r.k_warns(), "no tail-end figure: judged by k̂ alone");
+    r.tail_end_p = Some(0.5);
+    assert!(r.k_warns(), "the largest weight is where the tail reaches");
+    r.tail_end_p = Some(TAIL_END_P / 10.0);
+    assert!(
+        !r.k_warns(),
+        "the weights stop far short of the fitted tail"
+    );
+    r.pareto_k = Some(0.5);
+    r.tail_end_p = Some(0.5);
+    assert!(!r.k_warns(), "below its limit");
 }

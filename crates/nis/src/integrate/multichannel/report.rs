@@ -127,6 +127,7 @@ impl<'a> Sums<'a> {
             },
             pareto_k: pooled.pareto_k,
             pareto_k_limit: pooled.pareto_k_limit,
+            tail_end_p: pooled.tail_end_p,
             ess: pooled.ess,
             var_rel_err: f64::NAN,
             seconds: started.elapsed().as_secs_f64(),

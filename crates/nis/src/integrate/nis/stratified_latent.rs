@@ -20,8 +20,9 @@
 //! points of iterations before t; the iterations are pooled with weights fixed by their sizes.
 //! So each iteration's error has mean zero given the past (a martingale difference), the pooled
 //! estimate is unbiased, and its variance is the sum of the iterations' (stratified) variances.
-//! The per-point weights handed to the reliability figures (k̂, ESS, unweighting efficiency) are
-//! those whose plain mean is the stratified estimate, as VEGAS+ hands them.
+//! The reliability figures (k̂, ESS, unweighting efficiency) see the sampler's own weights
+//! f/q_mix, not the stratified estimate's N·V_h/n_h-scaled ones, which would measure the
+//! allocation.
 
 use rand::Rng;
 use rand_pcg::Pcg64Mcg;
