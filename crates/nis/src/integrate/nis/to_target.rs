@@ -148,7 +148,7 @@ impl NisIntegrator {
 /// A run to a target's training so far, between the road's strategies
 /// (`integrate/strategies.rs`): the rule that measures it and decides its length, and the
 /// limits it trains within.
-pub(crate) struct Training {
+pub(crate) struct TargetTraining {
     length: TrainingLength,
     target: Target,
     /// The integrator's trained evaluations when this layout's training began, and those it
@@ -169,7 +169,7 @@ pub(crate) struct Training {
     beta_from: f64,
 }
 
-impl Training {
+impl TargetTraining {
     /// The batches and seconds left to train after the pause, `spent` evaluations of a rival
     /// counted against `max_evals`.
     fn left(&self, spent: u64) -> (usize, f64) {
@@ -185,7 +185,7 @@ fn batches_within(evals: u64, share: f64, batch: u64) -> usize {
     ((evals as f64 * share) as u64 / batch) as usize
 }
 
-impl Probed for Training {
+impl Probed for TargetTraining {
     fn paused(&self) -> bool {
         self.length.paused()
     }
@@ -212,7 +212,7 @@ impl Probed for Training {
 /// pays, within `train_fraction` of the limits, pausing after the probe's batches for the
 /// strategies; the cheaper layout is the codes' masks.
 impl Learning for NisIntegrator {
-    type Training = Training;
+    type Training = TargetTraining;
 
     /// [`super::NisConfig::race_vegas`], a rival handed in, an untrained flow.
     fn rival(&self) -> Option<RivalFactory> {
@@ -233,7 +233,12 @@ impl Learning for NisIntegrator {
             && default_layers(dim, Masks::Codes) < default_layers(dim, Masks::Binary)
     }
 
-    fn train_first(&mut self, f: &dyn Integrand, target: &Target, pause: bool) -> Result<Training> {
+    fn train_first(
+        &mut self,
+        f: &dyn Integrand,
+        target: &Target,
+        pause: bool,
+    ) -> Result<TargetTraining> {
         check_dim(f, self.flow().dim())?;
         self.config.train_on.check(f.components())?;
         self.check_target_plan(target)?;
@@ -250,7 +255,7 @@ impl Learning for NisIntegrator {
         } else {
             1.0
         };
-        let mut training = Training {
+        let mut training = TargetTraining {
             length: TrainingLength::new(*target, anneal, beta_from, batches, max_seconds),
             target: *target,
             before: self.trained_evals,
@@ -284,7 +289,7 @@ impl Learning for NisIntegrator {
     fn train_rest(
         &mut self,
         f: &dyn Integrand,
-        training: &mut Training,
+        training: &mut TargetTraining,
         spent: u64,
         relayout: bool,
     ) -> Result<()> {
@@ -311,7 +316,7 @@ impl Learning for NisIntegrator {
         f: &dyn Integrand,
         target: &Target,
         started: Instant,
-        training: Training,
+        training: TargetTraining,
     ) -> Result<IntegrationResult> {
         let evals = training.trained + training.spent;
         self.final_to(f, target, started, evals, &training.length)
