@@ -402,8 +402,8 @@ fn signed_events_carry_their_sign_in_the_right_share() {
 #[test]
 fn a_shared_flow_covers_and_learns_every_channel() {
     // One flow conditioned on the channel, over 10 seeds: at least 8 within 2σ (as above), none
-    // beyond 5σ, and well below the classic estimator's variance (0.61 per evaluation at 10⁶,
-    // docs/results/integration.md), so every channel's density was learnt.
+    // beyond 5σ, and well below the classic estimator's variance (run below on the same
+    // budget), so every channel's density was learnt.
     let shared = MultiChannelConfig {
         shared_flow: true,
         ..MultiChannelConfig::default()
