@@ -111,7 +111,8 @@ impl PyIntegrationResult {
     }
 
     /// How probable a largest weight as small as the one seen is under the tail k̂ was fitted
-    /// to: below 0.001 the weights end within the sample and k̂ does not warn (NaN without a fit).
+    /// to: below 0.001 the weights end within the sample, and k̂ does not warn if `var_rel_err`
+    /// is at most 0.1 too (NaN without a fit).
     #[getter]
     fn tail_end_p(&self) -> f64 {
         self.r.tail_end_p

@@ -61,8 +61,8 @@ class IntegrationResult:
     @property
     def tail_end_p(self) -> float:
         """How probable a largest weight as small as the one seen is under the tail k̂ was
-        fitted to: below 0.001 the weights end within the sample and k̂ does not warn (NaN
-        without a fit)."""
+        fitted to: below 0.001 the weights end within the sample, and k̂ does not warn if
+        ``var_rel_err`` is at most 0.1 too (NaN without a fit)."""
     @property
     def ess(self) -> float:
         """Effective sample size (Σ|w|)²/Σw² of the final phase's weights."""

@@ -37,7 +37,7 @@ pub use build::{integrator, Settings};
 pub use convergence::{
     Convergence, ConvergenceWarning, DIVERGENCE_LIMIT, HOLE_LIMIT, MISSING_MASS_LIMIT,
 };
-pub use diagnostics::{Reliability, PARETO_K_LIMIT, PARETO_K_Z, TAIL_END_P};
+pub use diagnostics::{Reliability, PARETO_K_LIMIT, PARETO_K_Z, SETTLED_VAR_REL_ERR, TAIL_END_P};
 pub use estimate::{Accumulator, CHI2_LIMIT};
 pub use integrand::{check_dim, evaluate, points_per_task, Integrand, TrainOn, VectorFn};
 pub(crate) use integrator::{check_budget, report};

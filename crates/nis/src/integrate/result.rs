@@ -40,8 +40,9 @@ pub struct IntegrationResult {
     pub pareto_k_limit: f64,
     /// How probable a largest tail weight as small as the one seen is under the tail k̂ was
     /// fitted to: below [`TAIL_END_P`](super::diagnostics::TAIL_END_P) the weights end within the
-    /// sample and k̂ does not warn ([`diagnostics`](super::diagnostics); `null` in JSON without a
-    /// fit).
+    /// sample, and k̂ does not warn if `var_rel_err` is settled too
+    /// ([`Reliability::k_warns`](super::diagnostics::Reliability::k_warns); `null` in JSON
+    /// without a fit).
     #[serde(default)]
     pub tail_end_p: f64,
     /// Effective sample size (Σ|w|)²/Σw² of the weights that make the estimate.

@@ -12,7 +12,7 @@ use std::path::{Path, PathBuf};
 use nis::integrands::{self, Builtin, SUITE};
 use nis::integrate::{
     integrator, Convergence, Method, Settings, CHI2_LIMIT, DIVERGENCE_LIMIT, HOLE_LIMIT,
-    MISSING_MASS_LIMIT, PARETO_K_LIMIT, PARETO_K_Z, TAIL_END_P,
+    MISSING_MASS_LIMIT, PARETO_K_LIMIT, PARETO_K_Z, SETTLED_VAR_REL_ERR, TAIL_END_P,
 };
 use nis::loss::Loss;
 use plotters::prelude::*;
@@ -212,11 +212,13 @@ impl Run {
     }
 
     /// Whether its k̂ warns: above its limit ([`nis::integrate::diagnostics::pareto_k_threshold`])
-    /// with a tail that does not end within the sample (as the result's own warning).
+    /// unless its tail ends within the sample with a settled variance estimate (as the result's
+    /// own warning, [`nis::integrate::diagnostics::Reliability::k_warns`]).
     pub fn k_warns(&self) -> bool {
         let limit = self.pareto_k_limit.unwrap_or(PARETO_K_LIMIT);
-        let ended = self.tail_end_p.is_some_and(|p| p < TAIL_END_P);
-        self.pareto_k.is_some_and(|k| k > limit) && !ended
+        let settled = self.tail_end_p.is_some_and(|p| p < TAIL_END_P)
+            && self.var_rel_err.is_some_and(|v| v <= SETTLED_VAR_REL_ERR);
+        self.pareto_k.is_some_and(|k| k > limit) && !settled
     }
 
     /// How many standard errors of k̂ it lies above [`PARETO_K_LIMIT`] (the test's statistic;
@@ -351,8 +353,9 @@ pub fn run_cell(f: &Builtin, method: &str, budget: Budget) -> Cell {
 /// instead of misjudged.
 const RECORD: u32 = 3;
 
-/// As [`RECORD`], for the channel cells alone (2: χ² of the parts together, not any part's).
-const CHANNEL_RECORD: u32 = 2;
+/// As [`RECORD`], for the channel cells alone (2: χ² of the parts together, not any part's; 3:
+/// the pooled variance estimate's relative error).
+const CHANNEL_RECORD: u32 = 3;
 
 /// The cache file of a cell, named by the cell and by a hash of the default settings of every
 /// method and of [`RECORD`], so that cells run under other defaults (a training batch, an

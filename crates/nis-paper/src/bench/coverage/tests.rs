@@ -142,7 +142,7 @@ fn a_channel_cell_converges_while_fewer_than_half_its_runs_have_a_part_diverging
 }
 
 #[test]
-fn a_tail_that_ends_within_the_sample_does_not_flag_the_run() {
+fn a_tail_that_ends_with_a_settled_variance_does_not_flag_the_run() {
     let mut r = run_of(1.0, 0.1, Some(0.9));
     r.pareto_k_limit = Some(0.58);
     assert!(r.k_warns(), "no tail-end figure: judged by k̂ alone");
@@ -150,9 +150,16 @@ fn a_tail_that_ends_within_the_sample_does_not_flag_the_run() {
     assert!(r.k_warns(), "the largest weight is where the tail reaches");
     r.tail_end_p = Some(TAIL_END_P / 10.0);
     assert!(
-        !r.k_warns(),
-        "the weights stop far short of the fitted tail"
+        r.k_warns(),
+        "the tail ends, but no variance error says it is settled"
     );
+    r.var_rel_err = Some(SETTLED_VAR_REL_ERR * 2.0);
+    assert!(
+        r.k_warns(),
+        "the tail ends, but the variance estimate is uncertain"
+    );
+    r.var_rel_err = Some(SETTLED_VAR_REL_ERR / 2.0);
+    assert!(!r.k_warns(), "the tail ends and the variance is settled");
     r.pareto_k = Some(0.5);
     r.tail_end_p = Some(0.5);
     assert!(!r.k_warns(), "below its limit");

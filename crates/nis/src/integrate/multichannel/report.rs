@@ -129,7 +129,7 @@ impl<'a> Sums<'a> {
             pareto_k_limit: pooled.pareto_k_limit,
             tail_end_p: pooled.tail_end_p,
             ess: pooled.ess,
-            var_rel_err: f64::NAN,
+            var_rel_err: pooled.var_rel_err,
             seconds: started.elapsed().as_secs_f64(),
             warnings: self.warnings,
             convergence,
