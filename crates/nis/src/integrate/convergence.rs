@@ -215,7 +215,8 @@ impl Convergence {
 
 /// The missing mass, in standard errors of the result, above which a result warns: beyond it
 /// the part of ∫|f| that the estimate could not see would move the answer by more than its error
-/// bar. Chosen by the sweep of limits in docs/results/robustness.md (issue-55 section).
+/// bar. Chosen by the sweep of limits in docs/results/robustness.md, "The k̂ warning as a
+/// test".
 pub const MISSING_MASS_LIMIT: f64 = 1.0;
 
 /// The shift ([`Convergence::recalled_shift`], in error bars) above which a result warns of a
@@ -223,11 +224,12 @@ pub const MISSING_MASS_LIMIT: f64 = 1.0;
 /// bars holds at most σ/s of ∫|f| (Cauchy–Schwarz on the weights' second moment), so a point
 /// there is no evidence of missing mass by itself; a hole this deep is rare in converged flows
 /// and common where a peak was dropped. Chosen by the sweep of limits in
-/// docs/results/robustness.md (issue-55 section).
+/// docs/results/robustness.md, "The k̂ warning as a test".
 pub const HOLE_LIMIT: f64 = 100.0;
 
 /// The divergence above which a result warns: its estimate then rests on fewer than a quarter of
-/// its points. Chosen by the sweep of limits in docs/results/robustness.md (issue-40 section).
+/// its points. Chosen by the sweep of limits in docs/results/robustness.md, "The k̂ warning as
+/// a test".
 pub const DIVERGENCE_LIMIT: f64 = 3.0;
 
 #[cfg(test)]
