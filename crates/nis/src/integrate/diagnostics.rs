@@ -58,10 +58,10 @@ pub fn pareto_k_threshold(tail: usize) -> f64 {
     PARETO_K_LIMIT + PARETO_K_Z * (1.0 + PARETO_K_LIMIT) / (tail as f64).sqrt()
 }
 
-/// Below this probability of the largest tail weight under the fitted tail ([`Reliability::tail_end_p`])
-/// the tail ends within the sample: a test at 0.1 % that the fit reaches as far as its own
-/// largest weight, so a true tail of shape k̂ is taken for one that ends about once in a
-/// thousand runs (measured in the tests below).
+/// Below this probability of the largest tail weight under the fitted tail
+/// ([`Reliability::tail_end_p`]) the tail ends within the sample: a test at 0.1 % that the fit
+/// reaches as far as its own largest weight, so a true tail of shape k̂ is taken for one that
+/// ends about once in a thousand runs (measured in the tests below).
 pub const TAIL_END_P: f64 = 1e-3;
 
 /// The largest relative error of the variance estimate ([`Reliability::var_rel_err`]) at which
@@ -210,7 +210,8 @@ pub struct Reliability {
     pub pareto_k_limit: f64,
     /// The probability, under the tail k̂ was fitted to, that the largest of its weights is no
     /// larger than the largest seen: below [`TAIL_END_P`] the weights stop short of where such
-    /// a tail reaches, and k̂ does not warn (`NaN` without a fit).
+    /// a tail reaches, and k̂ does not warn if `var_rel_err` is settled too
+    /// ([`Reliability::k_warns`]; `NaN` without a fit).
     pub tail_end_p: f64,
     /// (Σ|w|)²/Σw².
     pub ess: f64,
