@@ -69,7 +69,7 @@ pub fn integrator(method: Method, dim: usize, settings: &Settings) -> Result<Box
 
 /// The rival a learning method races to a target (`race.rs`), handed to the NIS integrators
 /// [`integrator`] builds: VEGAS+ with its defaults but `seed` and `train_on`.
-pub(crate) fn rival(dim: usize, seed: u64, train_on: TrainOn) -> Result<Box<dyn Rival>> {
+fn rival(dim: usize, seed: u64, train_on: TrainOn) -> Result<Box<dyn Rival>> {
     let config = vegas::VegasConfig {
         seed,
         train_on,

@@ -11,8 +11,8 @@ use std::path::{Path, PathBuf};
 
 use nis::integrands::{self, Builtin, SUITE};
 use nis::integrate::{
-    integrator, Convergence, Method, Settings, CHI2_LIMIT, DIVERGENCE_LIMIT, HOLE_LIMIT,
-    MISSING_MASS_LIMIT, PARETO_K_LIMIT, PARETO_K_Z, SETTLED_VAR_REL_ERR, TAIL_END_P,
+    integrator, Convergence, Method, Reliability, Settings, CHI2_LIMIT, DIVERGENCE_LIMIT,
+    HOLE_LIMIT, MISSING_MASS_LIMIT, PARETO_K_LIMIT, PARETO_K_Z,
 };
 use nis::loss::Loss;
 use plotters::prelude::*;
@@ -211,14 +211,19 @@ impl Run {
         }
     }
 
-    /// Whether its k̂ warns: above its limit ([`nis::integrate::diagnostics::pareto_k_threshold`])
-    /// unless its tail ends within the sample with a settled variance estimate (as the result's
-    /// own warning, [`nis::integrate::diagnostics::Reliability::k_warns`]).
+    /// Whether its k̂ warns, by the result's own rule ([`Reliability::k_warns`]) on its figures:
+    /// a figure the cache lacks is NaN, which neither warns nor quiets (a run without its own
+    /// limit is judged by [`PARETO_K_LIMIT`]).
     pub fn k_warns(&self) -> bool {
-        let limit = self.pareto_k_limit.unwrap_or(PARETO_K_LIMIT);
-        let settled = self.tail_end_p.is_some_and(|p| p < TAIL_END_P)
-            && self.var_rel_err.is_some_and(|v| v <= SETTLED_VAR_REL_ERR);
-        self.pareto_k.is_some_and(|k| k > limit) && !settled
+        let nan = f64::NAN;
+        Reliability {
+            pareto_k: self.pareto_k.unwrap_or(nan),
+            pareto_k_limit: self.pareto_k_limit.unwrap_or(PARETO_K_LIMIT),
+            tail_end_p: self.tail_end_p.unwrap_or(nan),
+            ess: self.ess,
+            var_rel_err: self.var_rel_err.unwrap_or(nan),
+        }
+        .k_warns()
     }
 
     /// How many standard errors of k̂ it lies above [`PARETO_K_LIMIT`] (the test's statistic;

@@ -1,6 +1,7 @@
 //! The coverage bench's statistics, warnings, cache and section.
 
 use super::*;
+use nis::integrate::{SETTLED_VAR_REL_ERR, TAIL_END_P};
 
 fn run_of(value: f64, std_err: f64, k: Option<f64>) -> Run {
     Run {

@@ -22,8 +22,7 @@ pub(super) fn combine(
     for (&(k, sign), r) in index.iter().zip(results) {
         sums.add(k, sign, r);
     }
-    let abs_total: f64 = results.iter().map(|r| r.value.abs()).sum();
-    sums.finish(abs_total, n_eval, started)
+    sums.finish(n_eval, started)
 }
 
 /// The parts' estimates summed as [`combine`] adds them, in their order.
@@ -42,7 +41,8 @@ struct Sums<'a> {
     estimate_evals: u64,
     /// Every part's weights scaled by 1/n: each its point's share of the sum F.
     tails: Vec<(&'a WeightTail, f64)>,
-    /// The unweighting trials Σ |F_p| / efficiency_p.
+    /// Σ |F_p| over the parts, and the unweighting trials Σ |F_p| / efficiency_p.
+    abs_total: f64,
     trials: f64,
     missing: Missing,
 }
@@ -66,6 +66,7 @@ impl<'a> Sums<'a> {
             chi2_dof: 0.0,
             estimate_evals: 0,
             tails: Vec::with_capacity(parts),
+            abs_total: 0.0,
             trials: 0.0,
             missing: Missing::default(),
         }
@@ -90,6 +91,7 @@ impl<'a> Sums<'a> {
         if let Some(t) = &r.tail {
             self.tails.push((t, 1.0 / t.count().max(1) as f64));
         }
+        self.abs_total += r.value.abs();
         if r.unweighting_efficiency > 0.0 {
             self.trials += r.value.abs() / r.unweighting_efficiency;
         }
@@ -97,9 +99,8 @@ impl<'a> Sums<'a> {
         self.missing.add(r);
     }
 
-    /// The result of the sums: `abs_total` is Σ |F_p| over the parts, `n_eval` every
-    /// evaluation spent.
-    fn finish(mut self, abs_total: f64, n_eval: u64, started: Instant) -> IntegrationResult {
+    /// The result of the sums, `n_eval` every evaluation spent.
+    fn finish(mut self, n_eval: u64, started: Instant) -> IntegrationResult {
         let mut report = self.report;
         report.std_errs.iter_mut().for_each(|v| *v = v.sqrt());
         if self.split {
@@ -121,7 +122,7 @@ impl<'a> Sums<'a> {
             n_eval,
             rel_var_per_eval: self.estimate_evals as f64 * var / (value * value),
             unweighting_efficiency: if self.trials > 0.0 {
-                abs_total / self.trials
+                self.abs_total / self.trials
             } else {
                 0.0
             },

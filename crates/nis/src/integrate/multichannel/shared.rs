@@ -101,18 +101,18 @@ impl SharedFlow {
             flow: &mut self.flow,
             h,
             batch,
-            parts: self.parts,
             mass: &mut self.mass,
             train_rng: &mut self.train_rng,
             memories: &mut self.memories,
             memory_rng: &mut self.memory_rng,
             comm: &self.comm,
-            trained: &mut self.trained,
         };
         // One Adam step per batch (no replay).
         let training = &mut self.training;
-        let trained = in_pool(|| training.train(&self.config, steps, 1, untrained, &mut batches));
-        trained.map(|()| (steps * batch) as u64)
+        in_pool(|| training.train(&self.config, steps, 1, untrained, &mut batches))?;
+        let spent = (steps * batch) as u64;
+        self.trained += spent;
+        Ok(spent)
     }
 
     /// Part `p`'s own NIS integrator: the flow at its context ([`Flow::at_context`]), which
@@ -137,15 +137,14 @@ impl SharedFlow {
 struct SharedBatches<'a, 'h> {
     flow: &'a mut Flow,
     h: &'a BlockFn<'h>,
-    /// Points of a batch (over all ranks), and the parts.
+    /// Points of a batch (over all ranks).
     batch: usize,
-    parts: usize,
+    /// Each part's running ∫|h_p| (its length is the parts').
     mass: &'a mut [(f64, f64)],
     train_rng: &'a mut Pcg64Mcg,
     memories: &'a mut [TrainingMemory],
     memory_rng: &'a mut Pcg64Mcg,
     comm: &'a Comm,
-    trained: &'a mut u64,
 }
 
 impl Batches for SharedBatches<'_, '_> {
@@ -160,8 +159,9 @@ impl Batches for SharedBatches<'_, '_> {
             .iter()
             .map(|&n| self.comm.share(n as u64) as usize)
             .collect();
-        let ctx: Vec<f32> = (0..self.parts)
-            .flat_map(|p| contexts(self.parts, p, counts[p]))
+        let parts = self.mass.len();
+        let ctx: Vec<f32> = (0..parts)
+            .flat_map(|p| contexts(parts, p, counts[p]))
             .collect();
         let n: usize = counts.iter().sum();
         let drawn = self.flow.sample_for_training(n, Some(&ctx), self.train_rng);
@@ -173,7 +173,7 @@ impl Batches for SharedBatches<'_, '_> {
         let (samples, hx) = self.comm.check(evaluated)?;
         // Each part's points join its memory, and its Σ|h|/q and count over the ranks its
         // running integral.
-        let mut sums = vec![0.0; 2 * self.parts];
+        let mut sums = vec![0.0; 2 * parts];
         let mut start = 0;
         for (p, &m) in counts.iter().enumerate() {
             let rows = start..start + m;
@@ -208,7 +208,6 @@ impl Batches for SharedBatches<'_, '_> {
                 },
             ));
         }
-        *self.trained += self.batch as u64;
         if self.comm.any(target.iter().any(|t| *t != 0.0)) {
             learner.step_on_policy(self.flow, &samples, &target)?;
         }
