@@ -56,15 +56,16 @@ impl Material {
             bump: None,
         };
         for (slot, t) in &self.textures {
-            let v = t.eval_at(uv, attributes);
+            // The colour, evaluated only for the slots that take one.
+            let v = || t.eval_at(uv, attributes);
             match (slot, &mut m.bsdf) {
                 (Slot::Opacity, _) => m.opacity = t.eval_scalar_at(uv, attributes).clamp(0.0, 1.0),
                 (Slot::BlendWeight, Bsdf::Blend(b)) => {
                     b.weight = t.eval_scalar_at(uv, attributes).clamp(0.0, 1.0)
                 }
-                (Slot::Reflectance, Bsdf::Diffuse { reflectance }) => *reflectance = v,
-                (Slot::Reflectance, Bsdf::Plastic(p)) => p.diffuse_reflectance = v,
-                (Slot::Reflectance, Bsdf::Principled(p)) => p.base_color = v,
+                (Slot::Reflectance, Bsdf::Diffuse { reflectance }) => *reflectance = v(),
+                (Slot::Reflectance, Bsdf::Plastic(p)) => p.diffuse_reflectance = v(),
+                (Slot::Reflectance, Bsdf::Principled(p)) => p.base_color = v(),
                 (
                     Slot::Alpha | Slot::AlphaU | Slot::AlphaV,
                     Bsdf::RoughConductor { dist, .. } | Bsdf::RoughDielectric { dist, .. },
@@ -102,8 +103,8 @@ impl Material {
                         specular_reflectance,
                         ..
                     },
-                ) => *specular_reflectance = v,
-                (Slot::SpecularReflectance, Bsdf::Plastic(p)) => p.specular_reflectance = v,
+                ) => *specular_reflectance = v(),
+                (Slot::SpecularReflectance, Bsdf::Plastic(p)) => p.specular_reflectance = v(),
                 (
                     Slot::SpecularTransmittance,
                     Bsdf::Dielectric {
@@ -118,7 +119,7 @@ impl Material {
                         specular_transmittance,
                         ..
                     },
-                ) => *specular_transmittance = v,
+                ) => *specular_transmittance = v(),
                 _ => {}
             }
         }

@@ -11,7 +11,7 @@ use super::dom::error_at;
 use super::dom::{err, Element, XmlError};
 use super::fail;
 use super::props::Props;
-use super::{unsupported, LoadError, LoadResult, Loader};
+use super::{unsupported, LoadResult, Loader};
 use crate::geometry::Rgb;
 use crate::texture::{Bitmap, FilterMode, Texture, WrapMode};
 
@@ -161,10 +161,10 @@ impl Loader {
                     match self.textures.get(id) {
                         Some(t) => t.clone(),
                         None => {
-                            return Err(LoadError::Xml(error_at(
+                            return super::fail(
                                 c.line,
                                 format!("no texture with id '{id}' is defined before this point"),
-                            )))
+                            )
                         }
                     }
                 }
