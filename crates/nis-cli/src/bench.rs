@@ -20,6 +20,24 @@ pub fn run_flow(
     Ok(())
 }
 
+/// `nis bench flow --device cuda`: the reference flows on the GPU against the CPU.
+#[cfg(feature = "cuda")]
+pub fn run_flow_gpu(batches: &[usize]) -> Result<(), Box<dyn std::error::Error>> {
+    let md = nis_paper::bench::flow_gpu::run(batches, 5, &mut |row| eprint!("{row}"))?;
+    println!("{md}");
+    Ok(())
+}
+
+/// Without the `cuda` feature: says how to get it.
+#[cfg(not(feature = "cuda"))]
+pub fn run_flow_gpu(_batches: &[usize]) -> Result<(), Box<dyn std::error::Error>> {
+    Err(
+        "this nis was built without the GPU back end: build it with `cargo build --release \
+         --features cuda` (CUDA itself is loaded at run time)"
+            .into(),
+    )
+}
+
 /// `nis bench integrate`: the suite × methods at one budget; Markdown tables.
 pub fn run_integrate(
     options: &nis_paper::bench::integrate::Options,

@@ -87,6 +87,13 @@ enum BenchCommand {
         /// Markdown file the results go to.
         #[arg(long, default_value = "docs/results/integration.md")]
         docs: PathBuf,
+        /// `cuda`: sampling and density of the reference flows on the GPU against every CPU core
+        /// (needs a build with `--features cuda` and an NVIDIA driver); prints, writes nothing.
+        #[arg(long, default_value = "cpu", value_parser = ["cpu", "cuda"])]
+        device: String,
+        /// Batch sizes of the GPU benchmark.
+        #[arg(long, value_delimiter = ',', default_value = "65536,1048576")]
+        gpu_batches: Vec<usize>,
     },
     /// The built-in suite with plain MC, VEGAS+, NIS-PQ/KL, NIS-PQ/χ², NIS-RQ/KL and NIS-PQ/KL
     /// with i.i.d. latents at one budget, medians over seeds.
@@ -205,10 +212,16 @@ fn main() -> ExitCode {
         }
         Command::Compare(args) => render::run_compare(&args),
         Command::Bench(BenchCommand::Flow {
+            device,
+            gpu_batches,
+            ..
+        }) if device == "cuda" => bench::run_flow_gpu(&gpu_batches),
+        Command::Bench(BenchCommand::Flow {
             batch,
             torch,
             only,
             docs,
+            ..
         }) => bench::run_flow(batch, torch, only.as_deref(), &docs),
         Command::Bench(BenchCommand::Integrate {
             evals,

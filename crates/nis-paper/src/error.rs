@@ -12,6 +12,10 @@ pub enum Error {
     /// An error of the path tracer (scenes, images, guides).
     #[error(transparent)]
     Render(#[from] nis_render::Error),
+    /// An error of the GPU back end (no GPU, out of GPU memory, a flow it does not run).
+    #[cfg(feature = "cuda")]
+    #[error(transparent)]
+    Gpu(#[from] nis_cuda::GpuError),
     /// A setting that describes no valid experiment.
     #[error("invalid configuration: {0}")]
     Config(String),

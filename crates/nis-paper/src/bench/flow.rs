@@ -16,12 +16,13 @@ use super::time;
 use crate::error::{Error, Result};
 use crate::report;
 
-struct Reference {
-    name: &'static str,
-    config: FlowConfig,
+pub(crate) struct Reference {
+    pub name: &'static str,
+    pub config: FlowConfig,
 }
 
-fn references() -> Vec<Reference> {
+/// The reference flows R1 and R2.
+pub(crate) fn references() -> Vec<Reference> {
     vec![
         Reference {
             name: "R1: D=2, PQ-32, 2 couplings, MLP 3×256",

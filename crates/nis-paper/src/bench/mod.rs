@@ -22,6 +22,8 @@ pub mod coverage;
 pub mod density;
 pub mod fit_image;
 pub mod flow;
+#[cfg(feature = "cuda")]
+pub mod flow_gpu;
 pub mod guiding;
 pub mod integrate;
 pub mod memory;

@@ -78,6 +78,16 @@ impl Coupling {
         &self.mlp
     }
 
+    /// The 1-D transform of each B dimension.
+    pub fn transform(&self) -> TransformKind {
+        self.transform
+    }
+
+    /// How x_A enters the conditioner.
+    pub fn encoding(&self) -> OneBlob {
+        self.encoding
+    }
+
     /// The conditioner's first layer's share of the context: its weights' rows for the context
     /// inputs of `context_dim` features (`[context_dim, out]` row-major), and its biases.
     pub(crate) fn context_share<'a>(

@@ -1,0 +1,254 @@
+//! The coupling flow on the GPU: sampling with ln q and the log-density, batch-major, every layer
+//! on the device. Per coupling: the one-blob code of x_A (a kernel), the conditioner's dense
+//! layers (cuBLAS SGEMM, then a bias-and-ReLU kernel), the transforms of x_B (a kernel, one
+//! thread per row, adding ln C' to the row's ln q in f64) — the CPU flow's arithmetic
+//! (`nis::flow::coupling`), so both give the same numbers to f32 rounding.
+
+use cudarc::cublas::sys::cublasOperation_t;
+use cudarc::cublas::{Gemm, GemmConfig};
+use cudarc::driver::{CudaSlice, PushKernelArg};
+use nis::flow::Flow;
+
+use crate::error::GpuError;
+use crate::gpu::{grid, Gpu};
+use crate::plan::Plan;
+
+/// Points and their ln q, on the device.
+pub struct DeviceSamples {
+    /// Row-major points, `n × D`.
+    pub x: CudaSlice<f32>,
+    /// ln q of each point.
+    pub log_q: CudaSlice<f64>,
+}
+
+/// One coupling's index lists on the device.
+struct Indices {
+    a: CudaSlice<i32>,
+    b: CudaSlice<i32>,
+}
+
+/// A [`Flow`]'s copy on a GPU. Its weights are the flow's at the time of the copy.
+pub struct GpuFlow<'g> {
+    gpu: &'g Gpu,
+    plan: Plan,
+    params: CudaSlice<f32>,
+    indices: Vec<Indices>,
+}
+
+impl std::fmt::Debug for GpuFlow<'_> {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("GpuFlow")
+            .field("dim", &self.plan.dim)
+            .field("couplings", &self.plan.steps.len())
+            .finish()
+    }
+}
+
+impl<'g> GpuFlow<'g> {
+    /// Copies `flow` onto `gpu`; an error where the flow uses what the GPU does not run.
+    pub fn new(gpu: &'g Gpu, flow: &Flow) -> Result<GpuFlow<'g>, GpuError> {
+        let plan = Plan::of(flow)?;
+        let stream = &gpu.stream;
+        let params = stream.clone_htod(&plan.params)?;
+        // A one-element list stands for an empty one: the driver allocates no zero-length buffer.
+        let upload = |v: &[i32]| stream.clone_htod(if v.is_empty() { &[0][..] } else { v });
+        let indices = plan
+            .steps
+            .iter()
+            .map(|s| {
+                Ok(Indices {
+                    a: upload(&s.a)?,
+                    b: upload(&s.b)?,
+                })
+            })
+            .collect::<Result<_, GpuError>>()?;
+        Ok(GpuFlow {
+            gpu,
+            plan,
+            params,
+            indices,
+        })
+    }
+
+    /// The dimension D.
+    pub fn dim(&self) -> usize {
+        self.plan.dim
+    }
+
+    /// `n` points drawn from the flow with their ln q, left on the device. The latents are the
+    /// counter-based stream `seed` (kernels/flow.cuh, `nis_uniform_at`): the same seed gives the
+    /// same points on a given card.
+    pub fn sample(&self, n: usize, seed: u64) -> Result<DeviceSamples, GpuError> {
+        let len = n
+            .checked_mul(self.plan.dim)
+            .ok_or_else(|| GpuError::InvalidInput(format!("{n} points overflow")))?;
+        let stream = &self.gpu.stream;
+        let mut x = stream.alloc_zeros::<f32>(len.max(1))?;
+        let (count, seed) = (len as u64, seed);
+        let mut launch = stream.launch_builder(&self.gpu.kernels.uniform);
+        launch.arg(&mut x).arg(&count).arg(&seed);
+        // SAFETY: the kernel writes `count` floats into `x`, which holds at least that many.
+        unsafe { launch.launch(grid(len)?) }?;
+        let log_q = self.run(&mut x, n, true)?;
+        Ok(DeviceSamples { x, log_q })
+    }
+
+    /// The points of the latents `z` (`n × D`, row-major, in [0, 1]) and their ln q, on the host:
+    /// the flow's inverse as [`nis::Bijection::inverse`] computes it (with ln q = −its log-det).
+    pub fn sample_latents(&self, z: &[f32]) -> Result<(Vec<f32>, Vec<f64>), GpuError> {
+        let n = self.check_points(z, "latents")?;
+        let stream = &self.gpu.stream;
+        let mut x = stream.clone_htod(z)?;
+        let log_q = self.run(&mut x, n, true)?;
+        Ok((stream.clone_dtoh(&x)?, stream.clone_dtoh(&log_q)?))
+    }
+
+    /// ln q(x) of each row of `x` (`n × D`, row-major, in [0, 1]).
+    pub fn log_density(&self, x: &[f32]) -> Result<Vec<f64>, GpuError> {
+        let n = self.check_points(x, "points")?;
+        let stream = &self.gpu.stream;
+        let mut u = stream.clone_htod(x)?;
+        let log_q = self.run(&mut u, n, false)?;
+        Ok(stream.clone_dtoh(&log_q)?)
+    }
+
+    /// ln q of the `n` rows already on the device in `x`.
+    pub fn log_density_device(
+        &self,
+        x: &CudaSlice<f32>,
+        n: usize,
+    ) -> Result<CudaSlice<f64>, GpuError> {
+        if x.len() < n * self.plan.dim {
+            return Err(GpuError::InvalidInput(format!(
+                "{n} points of dimension {} need {} values, the buffer holds {}",
+                self.plan.dim,
+                n * self.plan.dim,
+                x.len()
+            )));
+        }
+        let mut u = self.gpu.stream.clone_dtod(x)?;
+        self.run(&mut u, n, false)
+    }
+
+    /// Checks that `v` holds whole rows of finite values in [0, 1]; returns the row count.
+    fn check_points(&self, v: &[f32], what: &str) -> Result<usize, GpuError> {
+        let d = self.plan.dim;
+        if v.is_empty() || v.len() % d != 0 {
+            return Err(GpuError::InvalidInput(format!(
+                "{what}: {} values are not a positive number of rows of {d}",
+                v.len()
+            )));
+        }
+        if let Some(i) = v.iter().position(|t| !(0.0..=1.0).contains(t)) {
+            return Err(GpuError::InvalidInput(format!(
+                "{what}: value {i} is {}, outside [0, 1]",
+                v[i]
+            )));
+        }
+        Ok(v.len() / d)
+    }
+
+    /// Runs every coupling over the `n` rows of `u` in place (latent to data when `inverse`);
+    /// returns ln q per row.
+    fn run(
+        &self,
+        u: &mut CudaSlice<f32>,
+        n: usize,
+        inverse: bool,
+    ) -> Result<CudaSlice<f64>, GpuError> {
+        let gpu = self.gpu;
+        let stream = &gpu.stream;
+        let mut log_q = stream.alloc_zeros::<f64>(n.max(1))?;
+        // Two buffers of the widest activation, each layer reading one and writing the other.
+        let widest = self
+            .plan
+            .steps
+            .iter()
+            .flat_map(|s| s.dense.iter().map(|d| d.outputs).chain([s.encoded()]))
+            .max()
+            .unwrap_or(1)
+            .max(1);
+        let mut bufs = [
+            stream.alloc_zeros::<f32>(n * widest)?,
+            stream.alloc_zeros::<f32>(n * widest)?,
+        ];
+        let (rows, dim, inv) = (n as i64, self.plan.dim as i32, inverse as i32);
+        for l in self.plan.order(inverse) {
+            let step = &self.plan.steps[l];
+            let idx = &self.indices[l];
+            let enc = step.encoded();
+            if enc > 0 {
+                let (na, k) = (step.a.len() as i32, step.blob_bins as i32);
+                let mut launch = stream.launch_builder(&gpu.kernels.encode);
+                launch
+                    .arg(&*u)
+                    .arg(&dim)
+                    .arg(&idx.a)
+                    .arg(&na)
+                    .arg(&k)
+                    .arg(&mut bufs[0])
+                    .arg(&rows);
+                // SAFETY: the kernel reads n rows of u and writes n × enc values into bufs[0].
+                unsafe { launch.launch(grid(n * enc)?) }?;
+            }
+            let mut cur = 0;
+            for (j, d) in step.dense.iter().enumerate() {
+                let (src, dst) = if cur == 0 {
+                    let [a, b] = &mut bufs;
+                    (&*a, b)
+                } else {
+                    let [a, b] = &mut bufs;
+                    (&*b, a)
+                };
+                let mut y = dst.slice_mut(0..n * d.outputs);
+                if d.inputs > 0 {
+                    // Row-major Y[n, o] = X[n, i]·W[i, o] is column-major Yᵀ = Wᵀ·Xᵀ.
+                    let w = self
+                        .params
+                        .slice(d.weights..d.weights + d.inputs * d.outputs);
+                    let x = src.slice(0..n * d.inputs);
+                    let cfg = GemmConfig {
+                        transa: cublasOperation_t::CUBLAS_OP_N,
+                        transb: cublasOperation_t::CUBLAS_OP_N,
+                        m: d.outputs as i32,
+                        n: n as i32,
+                        k: d.inputs as i32,
+                        alpha: 1.0f32,
+                        lda: d.outputs as i32,
+                        ldb: d.inputs as i32,
+                        beta: 0.0f32,
+                        ldc: d.outputs as i32,
+                    };
+                    // SAFETY: the views hold exactly the shapes the config names.
+                    unsafe { gpu.blas.gemm(cfg, &w, &x, &mut y) }?;
+                } else {
+                    stream.memset_zeros(&mut y)?;
+                }
+                let bias = self.params.slice(d.biases..d.biases + d.outputs);
+                let (o, relu) = (d.outputs as i32, (j + 1 < step.dense.len()) as i32);
+                let mut launch = stream.launch_builder(&gpu.kernels.bias_act);
+                launch.arg(&mut y).arg(&bias).arg(&rows).arg(&o).arg(&relu);
+                // SAFETY: y holds n × o values, bias o.
+                unsafe { launch.launch(grid(n * d.outputs)?) }?;
+                cur = 1 - cur;
+            }
+            let out = &bufs[cur];
+            let (kind, bins, nb) = (step.kind as i32, step.bins as i32, step.b.len() as i32);
+            let mut launch = stream.launch_builder(&gpu.kernels.coupling);
+            launch
+                .arg(&kind)
+                .arg(&bins)
+                .arg(&inv)
+                .arg(out)
+                .arg(&mut *u)
+                .arg(&mut log_q)
+                .arg(&rows)
+                .arg(&dim)
+                .arg(&idx.b)
+                .arg(&nb);
+            // SAFETY: out holds n rows of nb × np parameters; u n rows of dim; log_q n values.
+            unsafe { launch.launch(grid(n)?) }?;
+        }
+        Ok(log_q)
+    }
+}

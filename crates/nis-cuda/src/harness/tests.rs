@@ -1,0 +1,318 @@
+//! The kernels' bodies on the CPU against nis's transforms, encoding and flow.
+
+use super::*;
+use crate::plan::{Kind, Plan};
+use nis::flow::{Flow, FlowConfig};
+use nis::nn::encoding::OneBlob;
+use nis::transform::{Quadratic, RationalQuadratic};
+use nis::{Bijection, Density, Transform, TransformKind};
+use rand::{Rng, SeedableRng};
+use rand_pcg::Pcg64Mcg;
+
+/// Standard-normal-ish parameters of scale `s` (a sum of uniforms: enough to bend a spline hard).
+fn params(n: usize, s: f32, rng: &mut Pcg64Mcg) -> Vec<f32> {
+    (0..n)
+        .map(|_| s * ((0..4).map(|_| rng.random::<f32>()).sum::<f32>() - 2.0) * 1.7)
+        .collect()
+}
+
+/// Points to test at: random ones and both ends.
+fn points(rng: &mut Pcg64Mcg) -> Vec<f64> {
+    let mut t: Vec<f64> = (0..200).map(|_| rng.random::<f32>() as f64).collect();
+    t.extend([0.0, 1.0, 1e-7, 1.0 - 1e-7]);
+    t
+}
+
+fn pq(p: &[f32], k: usize, t: f64, inverse: bool) -> (f64, f64) {
+    let mut ld = 0.0;
+    // SAFETY: p holds the 2k + 1 parameters the kernel reads.
+    let y = unsafe { nis_cpu_pq(p.as_ptr(), k as c_int, t as f32, inverse as c_int, &mut ld) };
+    (y as f64, ld)
+}
+
+fn rq(p: &[f32], k: usize, t: f64, inverse: bool) -> (f64, f64) {
+    let mut ld = 0.0;
+    // SAFETY: p holds the 3k + 1 parameters the kernel reads.
+    let y = unsafe { nis_cpu_rq(p.as_ptr(), k as c_int, t, inverse as c_int, &mut ld) };
+    (y, ld)
+}
+
+/// An inverse against the Rust transform's: y's rounding `dy` moves x by dy/C'(x), and ln C' by
+/// its slope there times that move, on top of its own rounding `dld`.
+fn check_inverse(
+    t: &impl Transform,
+    p: &[f32],
+    (x, ld): (f64, f64),
+    (x_r, ld_r): (f64, f64),
+    dy: f64,
+    dld: f64,
+) {
+    let tol_x = dy * (-ld_r).exp().max(1.0);
+    assert!(
+        (x - x_r).abs() <= tol_x,
+        "x {x} vs {x_r} (tolerance {tol_x})"
+    );
+    let h = 1e-4;
+    let at = |v: f64| t.forward(p, v.clamp(0.0, 1.0)).1;
+    let slope = ((at(x_r + h) - ld_r).abs()).max((ld_r - at(x_r - h)).abs()) / h;
+    let tol_ld = dld + slope * tol_x;
+    assert!(
+        (ld - ld_r).abs() <= tol_ld,
+        "ln C' {ld} vs {ld_r} (tolerance {tol_ld})"
+    );
+}
+
+#[test]
+fn piecewise_quadratic_matches_the_rust_transform() {
+    let mut rng = Pcg64Mcg::seed_from_u64(1);
+    for k in [1, 2, 5, 16, 32, 256] {
+        let t = Quadratic { bins: k };
+        for _ in 0..5 {
+            let p = params(t.param_count(), 1.5, &mut rng);
+            for x in points(&mut rng) {
+                // Both compute in f32 (knots summed in another order): a few ulps of y, and ln C'
+                // to the f32 rounding of the densities.
+                let (y, ld) = pq(&p, k, x, false);
+                let (y_r, ld_r) = t.forward(&p, x);
+                assert!((y - y_r).abs() < 2e-6, "K={k} x={x}: y {y} vs {y_r}");
+                assert!(
+                    (ld - ld_r).abs() < 2e-5,
+                    "K={k} x={x}: ln C' {ld} vs {ld_r}"
+                );
+                let (xi, ld_i) = pq(&p, k, y_r, true);
+                let (x_r, ld_ir) = t.inverse(&p, y_r);
+                check_inverse(&t, &p, (xi, ld_i), (x_r, ld_ir), 2e-6, 2e-5);
+            }
+        }
+    }
+}
+
+#[test]
+fn rational_quadratic_matches_the_rust_transform() {
+    let mut rng = Pcg64Mcg::seed_from_u64(2);
+    for k in [1, 2, 5, 16, 256] {
+        let t = RationalQuadratic { bins: k };
+        for _ in 0..5 {
+            let p = params(t.param_count(), 1.5, &mut rng);
+            for x in points(&mut rng) {
+                // f64 throughout; the knot derivatives' softplus in f32 (libm's expf/log1pf
+                // against nis's polynomial exp): a few f32 ulps of d, relative.
+                let (y, ld) = rq(&p, k, x, false);
+                let (y_r, ld_r) = t.forward(&p, x);
+                assert!((y - y_r).abs() < 1e-6, "K={k} x={x}: y {y} vs {y_r}");
+                assert!(
+                    (ld - ld_r).abs() < 1e-5,
+                    "K={k} x={x}: ln C' {ld} vs {ld_r}"
+                );
+                let (xi, ld_i) = rq(&p, k, y_r, true);
+                let (x_r, ld_ir) = t.inverse(&p, y_r);
+                check_inverse(&t, &p, (xi, ld_i), (x_r, ld_ir), 1e-6, 1e-5);
+            }
+        }
+    }
+}
+
+#[test]
+fn one_blob_matches_the_rust_encoding() {
+    for k in [1, 3, 16, 32] {
+        let enc = OneBlob { bins: k };
+        for s in [0.0f32, 0.013, 0.5, 0.77, 1.0] {
+            let mut e = vec![0.0; k];
+            enc.encode(&[s], &mut e);
+            for (j, &e_j) in e.iter().enumerate() {
+                // SAFETY: plain arithmetic.
+                let g = unsafe { nis_cpu_one_blob(s, k as c_int, j as c_int) };
+                assert!((g - e_j).abs() < 1e-6, "k={k} s={s} j={j}: {g} vs {e_j}");
+            }
+        }
+    }
+}
+
+#[test]
+fn the_counter_stream_is_uniform_and_seeded() {
+    let n = 200_000u64;
+    // SAFETY: plain arithmetic.
+    let u: Vec<f64> = (0..n)
+        .map(|i| unsafe { nis_cpu_uniform(7, i) } as f64)
+        .collect();
+    assert!(u.iter().all(|&v| (0.0..1.0).contains(&v)));
+    // Mean 1/2 and variance 1/12, each within 5 standard errors.
+    let mean = u.iter().sum::<f64>() / n as f64;
+    assert!(
+        (mean - 0.5).abs() < 5.0 * (1.0 / 12.0 / n as f64).sqrt(),
+        "mean {mean}"
+    );
+    let var = u.iter().map(|v| (v - mean).powi(2)).sum::<f64>() / n as f64;
+    // Var of (U − ½)² is 1/180.
+    assert!(
+        (var - 1.0 / 12.0).abs() < 5.0 * (1.0 / 180.0 / n as f64).sqrt(),
+        "var {var}"
+    );
+    // Neighbouring counters uncorrelated: lag-1 correlation within 5/√n.
+    let c = u
+        .windows(2)
+        .map(|w| (w[0] - 0.5) * (w[1] - 0.5))
+        .sum::<f64>()
+        / (n - 1) as f64;
+    assert!(
+        (c * 12.0).abs() < 5.0 / (n as f64).sqrt(),
+        "lag-1 correlation {}",
+        c * 12.0
+    );
+    // Another seed, another stream; the same seed, the same numbers.
+    // SAFETY: plain arithmetic.
+    let other: Vec<f32> = (0..64).map(|i| unsafe { nis_cpu_uniform(8, i) }).collect();
+    assert!(
+        other
+            .iter()
+            .zip(&u)
+            .filter(|(a, b)| **a as f64 == **b)
+            .count()
+            < 2
+    );
+    // SAFETY: plain arithmetic.
+    assert_eq!(unsafe { nis_cpu_uniform(7, 12345) } as f64, u[12345]);
+}
+
+/// The GPU's plan of `flow` run on the CPU with the harness's kernels and a plain matrix
+/// product: what `GpuFlow::run` launches, step by step. Returns ln q per row.
+fn run_plan(plan: &Plan, u: &mut [f32], inverse: bool) -> Vec<f64> {
+    let n = u.len() / plan.dim;
+    let mut log_q = vec![0.0f64; n];
+    for l in plan.order(inverse) {
+        let s = &plan.steps[l];
+        let mut act: Vec<f32> = (0..n)
+            .flat_map(|r| {
+                s.a.iter()
+                    .flat_map(move |&a| (0..s.blob_bins).map(move |j| (r, a, j)))
+            })
+            // SAFETY: plain arithmetic.
+            .map(|(r, a, j)| unsafe {
+                nis_cpu_one_blob(
+                    u[r * plan.dim + a as usize],
+                    s.blob_bins as c_int,
+                    j as c_int,
+                )
+            })
+            .collect();
+        for (j, d) in s.dense.iter().enumerate() {
+            let w = &plan.params[d.weights..d.weights + d.inputs * d.outputs];
+            let b = &plan.params[d.biases..d.biases + d.outputs];
+            let mut y = vec![0.0f32; n * d.outputs];
+            for r in 0..n {
+                for o in 0..d.outputs {
+                    let dot: f32 = (0..d.inputs)
+                        .map(|i| act[r * d.inputs + i] * w[i * d.outputs + o])
+                        .sum();
+                    let v = dot + b[o];
+                    y[r * d.outputs + o] = if j + 1 < s.dense.len() { v.max(0.0) } else { v };
+                }
+            }
+            act = y;
+        }
+        // SAFETY: act holds n rows of |B| × np parameters, u n rows of dim, log_q n values.
+        unsafe {
+            nis_cpu_coupling(
+                s.kind as c_int,
+                s.bins as c_int,
+                inverse as c_int,
+                act.as_ptr(),
+                u.as_mut_ptr(),
+                log_q.as_mut_ptr(),
+                n as i64,
+                plan.dim as c_int,
+                s.b.as_ptr(),
+                s.b.len() as c_int,
+            )
+        };
+    }
+    log_q
+}
+
+/// A flow whose output layers are not zero (a new flow is the identity).
+fn bent_flow(config: FlowConfig, seed: u64) -> Flow {
+    let mut flow = Flow::new(config).unwrap();
+    let mut rng = Pcg64Mcg::seed_from_u64(seed);
+    // A flow on [0, 1] has conditioners without inputs: only the biases bend it.
+    let scale = if flow.dim() == 1 { 1.0 } else { 0.05 };
+    for p in flow.params_mut() {
+        *p += scale * (2.0 * rng.random::<f32>() - 1.0);
+    }
+    flow
+}
+
+#[test]
+fn the_plan_on_the_cpu_is_the_flow() {
+    let configs = [
+        FlowConfig {
+            transform: TransformKind::Quadratic { bins: 8 },
+            hidden_width: 16,
+            hidden_layers: 2,
+            blob_bins: 8,
+            ..FlowConfig::new(5)
+        },
+        FlowConfig {
+            transform: TransformKind::RationalQuadratic { bins: 6 },
+            hidden_width: 16,
+            hidden_layers: 1,
+            blob_bins: 4,
+            ..FlowConfig::new(3)
+        },
+        FlowConfig {
+            transform: TransformKind::Quadratic { bins: 4 },
+            ..FlowConfig::new(1)
+        },
+    ];
+    for (c, config) in configs.into_iter().enumerate() {
+        let flow = bent_flow(config, c as u64);
+        let plan = Plan::of(&flow).unwrap();
+        let mut rng = Pcg64Mcg::seed_from_u64(10 + c as u64);
+        let z: Vec<f32> = (0..300 * flow.dim()).map(|_| rng.random::<f32>()).collect();
+        // Sampling: the flow's inverse, ln q = −its log-det.
+        let (x_ref, ld_ref) = flow.inverse(&z, None).unwrap();
+        let mut x = z.clone();
+        let log_q = run_plan(&plan, &mut x, true);
+        let bent = ld_ref.iter().map(|l| l.abs()).fold(0.0, f64::max);
+        assert!(
+            bent > 0.05,
+            "config {c}: the test flow is too close to the identity"
+        );
+        for r in 0..log_q.len() {
+            assert!((log_q[r] + ld_ref[r]).abs() < 1e-4, "config {c} row {r}");
+        }
+        for (a, b) in x.iter().zip(&x_ref) {
+            assert!((a - b).abs() < 1e-5, "config {c}: {a} vs {b}");
+        }
+        // Density: the flow's log_density at those points.
+        let lq_ref = flow.log_density(&x_ref, None).unwrap();
+        let mut u = x_ref.clone();
+        let lq = run_plan(&plan, &mut u, false);
+        for (a, b) in lq.iter().zip(&lq_ref) {
+            assert!((a - b).abs() < 1e-4, "config {c}: ln q {a} vs {b}");
+        }
+    }
+}
+
+#[test]
+fn the_plan_names_what_the_gpu_does_not_run() {
+    let affine = Flow::new(FlowConfig {
+        transform: TransformKind::Affine,
+        ..FlowConfig::new(2)
+    })
+    .unwrap();
+    assert!(matches!(
+        Plan::of(&affine),
+        Err(crate::GpuError::Unsupported(m)) if m.contains("Affine")
+    ));
+    let conditioned = Flow::new(FlowConfig {
+        context_dim: 3,
+        ..FlowConfig::new(2)
+    })
+    .unwrap();
+    assert!(matches!(
+        Plan::of(&conditioned),
+        Err(crate::GpuError::Unsupported(_))
+    ));
+    let pq = Plan::of(&Flow::new(FlowConfig::new(2)).unwrap()).unwrap();
+    assert_eq!(pq.steps[0].kind, Kind::Quadratic);
+}

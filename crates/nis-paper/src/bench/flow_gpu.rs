@@ -1,0 +1,76 @@
+//! `nis bench flow --device cuda`: sampling with ln q and the log-density of the reference flows
+//! on the GPU (crates/nis-cuda), against the same flow's sampling on every CPU core of the same
+//! machine, timed in one run.
+
+use std::time::Instant;
+
+use nis::flow::{Density, Flow};
+use rand::{Rng, SeedableRng};
+use rand_pcg::Pcg64Mcg;
+
+use super::flow::references;
+use super::time;
+use crate::error::Result;
+
+/// Median seconds of `reps` runs of `f` after two warm-up runs; `f` returns when the GPU is done.
+fn time_gpu(reps: usize, mut f: impl FnMut() -> Result<()>) -> Result<f64> {
+    f()?;
+    f()?;
+    let mut t = Vec::with_capacity(reps);
+    for _ in 0..reps {
+        let s = Instant::now();
+        f()?;
+        t.push(s.elapsed().as_secs_f64());
+    }
+    t.sort_by(f64::total_cmp);
+    Ok(t[reps / 2])
+}
+
+/// Runs the benchmark at each batch size; returns the Markdown table, `log` sees each row.
+pub fn run(batches: &[usize], reps: usize, log: &mut dyn FnMut(&str)) -> Result<String> {
+    let gpu = nis_cuda::Gpu::open(0)?;
+    let threads = rayon::current_num_threads();
+    let mut md = format!(
+        "GPU: {}; CPU: {threads} threads. Samples/s, median of {reps} runs after two warm-ups; \
+         the GPU's points and ln q stay on the device (timed to the stream's end). Output \
+         layers perturbed by ±0.01 so that the splines are not the identity.\n\n\
+         | config | batch | GPU sample + ln q | GPU ln q of points | CPU sample + ln q | GPU / CPU (sample) |\n\
+         |---|---:|---:|---:|---:|---:|\n",
+        gpu.name()
+    );
+    for r in references() {
+        let mut flow = Flow::new(r.config.clone())?;
+        let mut rng = Pcg64Mcg::seed_from_u64(0);
+        for p in flow.params_mut() {
+            *p += 0.01 * (2.0 * rng.random::<f32>() - 1.0);
+        }
+        let on = nis_cuda::GpuFlow::new(&gpu, &flow)?;
+        for &n in batches {
+            let mut seed = 0;
+            let sample = time_gpu(reps, || {
+                seed += 1;
+                on.sample(n, seed)?;
+                Ok(gpu.synchronize()?)
+            })?;
+            let points = on.sample(n, 12345)?;
+            let density = time_gpu(reps, || {
+                on.log_density_device(&points.x, n)?;
+                Ok(gpu.synchronize()?)
+            })?;
+            let cpu = time(reps.min(3), || {
+                flow.sample(n, None, &mut rng).expect("sampling");
+            });
+            let row = format!(
+                "| {} | {n} | {:.3e} | {:.3e} | {:.3e} | {:.0}× |\n",
+                r.name,
+                n as f64 / sample,
+                n as f64 / density,
+                n as f64 / cpu,
+                cpu / sample
+            );
+            log(&row);
+            md.push_str(&row);
+        }
+    }
+    Ok(md)
+}
