@@ -241,6 +241,168 @@ NIS_HD double nis_rq(const float* p, int k, double t, int inverse, double* log_d
     return out;
 }
 
+// ---- Reverse mode of the transforms (nis::transform, `backward`) -----------------------------
+
+// From ∂L/∂out of the floored softmax and its output, ∂L/∂logits (f32 gradients).
+NIS_HD void nis_softmax_floor_backward_f(const float* out, const float* g_out, int k, float floor,
+                                         float* g_logits) {
+    float base = floor / (float)k;
+    float inv = 1.0f / (1.0f - floor);
+    float dot = -0.0f;
+    for (int i = 0; i < k; ++i) dot += (out[i] - base) * inv * g_out[i];
+    for (int j = 0; j < k; ++j) g_logits[j] = (out[j] - base) * (g_out[j] - dot);
+}
+
+NIS_HD void nis_softmax_floor_backward_d(const double* out, const double* g_out, int k,
+                                         double floor, float* g_logits) {
+    double base = floor / (double)k;
+    double inv = 1.0 / (1.0 - floor);
+    double dot = -0.0;
+    for (int i = 0; i < k; ++i) dot += (out[i] - base) * inv * g_out[i];
+    for (int j = 0; j < k; ++j) g_logits[j] = (float)((out[j] - base) * (g_out[j] - dot));
+}
+
+// Piecewise-quadratic at the data-side point x: writes ∂L/∂p (2k + 1 values) for L with
+// ∂L/∂y = g_y and ∂L/∂ln C' = g_ld; returns ∂L/∂x. In f32, as the Rust transform.
+NIS_HD float nis_pq_backward(const float* p, int k, float x, float g_y, float g_ld, float* g_p) {
+    float w[NIS_MAX_BINS], v[NIS_MAX_BINS + 1], e[NIS_MAX_BINS + 1];
+    float g_w[NIS_MAX_BINS], g_v[NIS_MAX_BINS + 1];
+    nis_softmax_floor_f(p, k, NIS_PQ_MIN_W, w);
+    const float* lv = p + k;
+    float m = lv[0];
+    for (int j = 1; j <= k; ++j) m = fmaxf(m, lv[j]);
+    for (int j = 0; j <= k; ++j) e[j] = nis_exp(lv[j] - m);
+    float norm = -0.0f;
+    for (int i = 0; i < k; ++i) norm += 0.5f * (e[i] + e[i + 1]) * w[i];
+    float scale = (1.0f - NIS_PQ_MIN_V) / norm;
+    for (int j = 0; j <= k; ++j) v[j] = NIS_PQ_MIN_V + scale * e[j];
+    float xt = 0.0f;
+    for (int i = 0; i < k; ++i) xt += w[i];
+    for (int i = 0; i < k; ++i) g_w[i] = 0.0f;
+    for (int j = 0; j <= k; ++j) g_v[j] = 0.0f;
+    float edge, cdf;
+    float xs = x * xt;
+    int b = nis_pq_locate(w, v, k, xs, 0, &edge, &cdf);
+    float wb = w[b];
+    float alpha = nis_clamp01f((xs - edge) / wb);
+    float v0 = v[b], v1 = v[b + 1], dv = v1 - v0;
+    float q = v0 + alpha * dv;
+    float g_q = g_ld / q;
+    float g_alpha = g_y * wb * q + g_q * dv;
+    g_v[b] += g_y * wb * (alpha - 0.5f * alpha * alpha) + g_q * (1.0f - alpha);
+    g_v[b + 1] += g_y * wb * 0.5f * alpha * alpha + g_q * alpha;
+    g_w[b] += g_y * alpha * (v0 + 0.5f * alpha * dv);
+    float g_x = g_alpha / wb;
+    float g_edge = -g_alpha / wb;
+    g_w[b] -= g_alpha * alpha / wb;
+    for (int i = 0; i < b; ++i) {
+        float t = 0.5f * g_y * w[i];
+        g_v[i] += t;
+        g_v[i + 1] += t;
+        g_w[i] += g_y * 0.5f * (v[i] + v[i + 1]) + g_edge;
+    }
+    float sv = -0.0f;
+    for (int j = 0; j <= k; ++j) sv += g_v[j] * e[j];
+    sv = sv * scale / norm;
+    for (int i = 0; i < k; ++i) g_w[i] -= sv * 0.5f * (e[i] + e[i + 1]);
+    for (int j = 0; j <= k; ++j) {
+        float left = j > 0 ? w[j - 1] : 0.0f;
+        float right = j < k ? w[j] : 0.0f;
+        float dn = 0.5f * (left + right);
+        g_p[k + j] = (g_v[j] * scale - sv * dn) * e[j];
+    }
+    nis_softmax_floor_backward_f(w, g_w, k, NIS_PQ_MIN_W, g_p);
+    return g_x;
+}
+
+// Rational-quadratic at the data-side point x, as nis_pq_backward (f64 inside, 3k + 1 values).
+NIS_HD double nis_rq_backward(const float* p, int k, double x, double g_y, double g_ld,
+                              float* g_p) {
+    double w[NIS_MAX_BINS], h[NIS_MAX_BINS], hs[NIS_MAX_BINS];
+    double g_w[NIS_MAX_BINS], g_hh[NIS_MAX_BINS];
+    nis_softmax_floor_d(p, k, NIS_RQ_MIN_W, w);
+    nis_softmax_floor_d(p + k, k, 0.0, hs);
+    for (int i = 0; i < k; ++i) h[i] = NIS_RQ_MIN_SLOPE * w[i] + (1.0 - NIS_RQ_MIN_SLOPE) * hs[i];
+    const float shift = (float)log(exp(1.0 - NIS_RQ_MIN_D) - 1.0);
+    for (int i = 0; i < k; ++i) g_w[i] = g_hh[i] = 0.0;
+    int b = 0;
+    double x0 = 0.0;
+    while (b + 1 < k && x >= x0 + w[b]) {
+        x0 += w[b];
+        ++b;
+    }
+    float u0 = p[2 * k + b] + shift, u1 = p[2 * k + b + 1] + shift;
+    double d0 = (double)(fmaxf(u0, 0.0f) + nis_ln_1p_unit(nis_exp(-fabsf(u0)))) + NIS_RQ_MIN_D;
+    double d1 = (double)(fmaxf(u1, 0.0f) + nis_ln_1p_unit(nis_exp(-fabsf(u1)))) + NIS_RQ_MIN_D;
+    double wb = w[b], hb = h[b], s = hb / wb;
+    double xi = nis_clamp01((x - x0) / wb);
+    double t = xi * (1.0 - xi);
+    double num = hb * (s * xi * xi + d0 * t);
+    double den = s + (d1 + d0 - 2.0 * s) * t;
+    double dnum = d1 * xi * xi + 2.0 * s * t + d0 * (1.0 - xi) * (1.0 - xi);
+    double g_s = 0.0, g_h = 0.0, g_d0 = 0.0, g_d1 = 0.0, g_xi = 0.0, g_t = 0.0;
+    double g_num = g_y / den;
+    double g_den = -g_y * num / (den * den);
+    g_s += 2.0 * g_ld / s;
+    double g_dnum = g_ld / dnum;
+    g_den -= 2.0 * g_ld / den;
+    g_h += g_num * (s * xi * xi + d0 * t);
+    g_s += g_num * hb * xi * xi;
+    g_d0 += g_num * hb * t;
+    g_xi += g_num * hb * 2.0 * s * xi;
+    g_t += g_num * hb * d0;
+    g_s += g_den * (1.0 - 2.0 * t);
+    g_d0 += g_den * t;
+    g_d1 += g_den * t;
+    g_t += g_den * (d1 + d0 - 2.0 * s);
+    g_d1 += g_dnum * xi * xi;
+    g_xi += g_dnum * (2.0 * d1 * xi - 2.0 * d0 * (1.0 - xi));
+    g_s += g_dnum * 2.0 * t;
+    g_t += g_dnum * 2.0 * s;
+    g_d0 += g_dnum * (1.0 - xi) * (1.0 - xi);
+    g_xi += g_t * (1.0 - 2.0 * xi);
+    g_h += g_s / wb;
+    double g_w_b = -g_s * hb / (wb * wb) - g_xi * xi / wb;
+    double g_x = g_xi / wb;
+    double g_x0 = -g_xi / wb;
+    for (int i = 0; i < b; ++i) {
+        g_w[i] += g_x0;
+        g_hh[i] += g_y;
+    }
+    g_hh[b] += g_h;
+    g_w[b] += g_w_b;
+    double g_soft[NIS_MAX_BINS];
+    for (int i = 0; i < k; ++i) {
+        g_w[i] += NIS_RQ_MIN_SLOPE * g_hh[i];
+        g_soft[i] = (1.0 - NIS_RQ_MIN_SLOPE) * g_hh[i];
+    }
+    nis_softmax_floor_backward_d(w, g_w, k, NIS_RQ_MIN_W, g_p);
+    nis_softmax_floor_backward_d(hs, g_soft, k, 0.0, g_p + k);
+    for (int j = 0; j <= k; ++j) g_p[2 * k + j] = 0.0f;
+    double sig0 = (double)(1.0f / (1.0f + nis_exp(-(p[2 * k + b] + shift))));
+    double sig1 = (double)(1.0f / (1.0f + nis_exp(-(p[2 * k + b + 1] + shift))));
+    g_p[2 * k + b] = (float)(g_d0 * sig0);
+    g_p[2 * k + b + 1] = (float)(g_d1 * sig1);
+    return g_x;
+}
+
+// One-blob's reverse mode for one scalar: ∂L/∂s = Σ_j ∂L/∂e_j · e_j · k²((j + ½)/k − s).
+NIS_HD float nis_one_blob_backward(float s, int k, const float* e, const float* g_e) {
+    float kf = (float)k, k2 = kf * kf, g = 0.0f;
+    for (int j = 0; j < k; ++j) g += g_e[j] * e[j] * k2 * (((float)j + 0.5f) / kf - s);
+    return g;
+}
+
+// Adam's update of one parameter (nis::kernels::elementwise::adam); lr_t carries the bias
+// corrections and the decay, grad_scale the clipping.
+NIS_HD void nis_adam_one(float* p, float g, float* m, float* v, float lr_t, float beta1,
+                         float beta2, float eps, float grad_scale) {
+    float gi = g * grad_scale;
+    *m = beta1 * *m + (1.0f - beta1) * gi;
+    *v = beta2 * *v + (1.0f - beta2) * gi * gi;
+    *p -= lr_t * *m / (sqrtf(*v) + eps);
+}
+
 // ---- One coupling's transforms for one row ----------------------------------------------------
 
 // Transforms the B dimensions `b[0..nb)` of row r of `u` (dim values a row) with the
@@ -262,6 +424,25 @@ NIS_HD void nis_coupling_row(int kind, int bins, int inverse, const float* out, 
         ld_row += ld;
     }
     log_q[r] += ld_row;
+}
+
+// Reverse mode of one coupling's transforms for row r: `input` is the layer's data-side input,
+// g_u holds ∂L/∂(layer output) on entry and ∂L/∂(layer input) for the B dimensions on exit,
+// g_ld is ∂L/∂ln C' of the row; ∂L/∂(conditioner output) goes to g_out (laid out as out).
+NIS_HD void nis_coupling_backward_row(int kind, int bins, const float* out, const float* input,
+                                      float* g_u, const float* g_ld, float* g_out, long long r,
+                                      int dim, const int* b, int nb) {
+    int np = kind == 0 ? 2 * bins + 1 : 3 * bins + 1;
+    for (int k = 0; k < nb; ++k) {
+        long long at = (r * nb + k) * (long long)np;
+        long long i = r * dim + b[k];
+        if (kind == 0) {
+            g_u[i] = nis_pq_backward(out + at, bins, input[i], g_u[i], g_ld[r], g_out + at);
+        } else {
+            g_u[i] = (float)nis_rq_backward(out + at, bins, (double)input[i], (double)g_u[i],
+                                            (double)g_ld[r], g_out + at);
+        }
+    }
 }
 
 #ifdef NIS_GPU
@@ -297,6 +478,51 @@ extern "C" __global__ void nis_coupling(int kind, int bins, int inverse, const f
                                         const int* b, int nb) {
     long long r = (long long)blockIdx.x * blockDim.x + threadIdx.x;
     if (r < rows) nis_coupling_row(kind, bins, inverse, out, u, log_q, r, dim, b, nb);
+}
+
+extern "C" __global__ void nis_coupling_backward(int kind, int bins, const float* out,
+                                                 const float* input, float* g_u,
+                                                 const float* g_ld, float* g_out, long long rows,
+                                                 int dim, const int* b, int nb) {
+    long long r = (long long)blockIdx.x * blockDim.x + threadIdx.x;
+    if (r < rows) nis_coupling_backward_row(kind, bins, out, input, g_u, g_ld, g_out, r, dim, b, nb);
+}
+
+// Adds the encoding's share to ∂L/∂u for each A dimension: one thread per (row, A dimension).
+extern "C" __global__ void nis_encode_backward(const float* input, int dim, const int* a, int na,
+                                               int k, const float* enc, const float* g_enc,
+                                               int width, float* g_u, long long rows) {
+    long long i = (long long)blockIdx.x * blockDim.x + threadIdx.x;
+    if (i >= rows * na) return;
+    long long r = i / na;
+    int ai = (int)(i - r * na);
+    long long at = r * width + (long long)ai * k;
+    g_u[r * dim + a[ai]] += nis_one_blob_backward(input[r * dim + a[ai]], k, enc + at, g_enc + at);
+}
+
+// ∂L/∂(pre-activation) of a ReLU layer from ∂L/∂(activation) and the activation.
+extern "C" __global__ void nis_relu_backward(float* g, const float* act, long long n) {
+    long long i = (long long)blockIdx.x * blockDim.x + threadIdx.x;
+    if (i < n && !(act[i] > 0.0f)) g[i] = 0.0f;
+}
+
+// Σ g² of each block of `chunk` values, in f64 and in a fixed order (a deterministic norm).
+extern "C" __global__ void nis_sum_squares(const float* g, long long n, long long chunk,
+                                           double* partial) {
+    long long c = (long long)blockIdx.x * blockDim.x + threadIdx.x;
+    long long lo = c * chunk;
+    if (lo >= n) return;
+    long long hi = lo + chunk < n ? lo + chunk : n;
+    double s = 0.0;
+    for (long long i = lo; i < hi; ++i) s += (double)g[i] * (double)g[i];
+    partial[c] = s;
+}
+
+extern "C" __global__ void nis_adam(float* p, const float* g, float* m, float* v, long long n,
+                                    float lr_t, float beta1, float beta2, float eps,
+                                    float grad_scale) {
+    long long i = (long long)blockIdx.x * blockDim.x + threadIdx.x;
+    if (i < n) nis_adam_one(p + i, g[i], m + i, v + i, lr_t, beta1, beta2, eps, grad_scale);
 }
 
 extern "C" __global__ void nis_fill_f64(double* v, long long n, double value) {

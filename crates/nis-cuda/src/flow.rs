@@ -22,17 +22,17 @@ pub struct DeviceSamples {
 }
 
 /// One coupling's index lists on the device.
-struct Indices {
-    a: CudaSlice<i32>,
-    b: CudaSlice<i32>,
+pub(crate) struct Indices {
+    pub a: CudaSlice<i32>,
+    pub b: CudaSlice<i32>,
 }
 
 /// A [`Flow`]'s copy on a GPU. Its weights are the flow's at the time of the copy.
 pub struct GpuFlow<'g> {
-    gpu: &'g Gpu,
-    plan: Plan,
-    params: CudaSlice<f32>,
-    indices: Vec<Indices>,
+    pub(crate) gpu: &'g Gpu,
+    pub(crate) plan: Plan,
+    pub(crate) params: CudaSlice<f32>,
+    pub(crate) indices: Vec<Indices>,
 }
 
 impl std::fmt::Debug for GpuFlow<'_> {
@@ -131,7 +131,7 @@ impl<'g> GpuFlow<'g> {
     }
 
     /// Checks that `v` holds whole rows of finite values in [0, 1]; returns the row count.
-    fn check_points(&self, v: &[f32], what: &str) -> Result<usize, GpuError> {
+    pub(crate) fn check_points(&self, v: &[f32], what: &str) -> Result<usize, GpuError> {
         let d = self.plan.dim;
         if v.is_empty() || v.len() % d != 0 {
             return Err(GpuError::InvalidInput(format!(

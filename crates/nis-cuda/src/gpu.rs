@@ -48,6 +48,11 @@ pub(crate) struct Kernels {
     pub encode: CudaFunction,
     pub bias_act: CudaFunction,
     pub coupling: CudaFunction,
+    pub coupling_backward: CudaFunction,
+    pub encode_backward: CudaFunction,
+    pub relu_backward: CudaFunction,
+    pub sum_squares: CudaFunction,
+    pub adam: CudaFunction,
 }
 
 /// A GPU ready to run flows: context, stream, cuBLAS handle, kernels.
@@ -136,6 +141,11 @@ impl Gpu {
             encode: module.load_function("nis_encode")?,
             bias_act: module.load_function("nis_bias_act")?,
             coupling: module.load_function("nis_coupling")?,
+            coupling_backward: module.load_function("nis_coupling_backward")?,
+            encode_backward: module.load_function("nis_encode_backward")?,
+            relu_backward: module.load_function("nis_relu_backward")?,
+            sum_squares: module.load_function("nis_sum_squares")?,
+            adam: module.load_function("nis_adam")?,
         };
         let name = ctx.name()?;
         Ok(Gpu {

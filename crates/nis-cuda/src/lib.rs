@@ -21,7 +21,9 @@ mod flow;
 mod gpu;
 pub mod harness;
 mod plan;
+mod train;
 
 pub use error::GpuError;
 pub use flow::{DeviceSamples, GpuFlow};
 pub use gpu::Gpu;
+pub use train::{BatchEstimate, GpuAdam, GpuTrainer};

@@ -3,8 +3,10 @@
 //! (`--ignored`) on the device machine. The first test runs everywhere.
 
 use nis::flow::{Flow, FlowConfig};
+use nis::loss::Loss;
+use nis::nn::AdamConfig;
 use nis::{Bijection, Density, TransformKind};
-use nis_cuda::{Gpu, GpuError, GpuFlow};
+use nis_cuda::{Gpu, GpuError, GpuFlow, GpuTrainer};
 use rand::{Rng, SeedableRng};
 use rand_pcg::Pcg64Mcg;
 
@@ -171,4 +173,92 @@ fn bad_input_and_exhausted_memory_are_errors() {
     }
     let ok = on.sample(1000, 0).unwrap();
     assert_eq!(gpu.stream().clone_dtoh(&ok.log_q).unwrap().len(), 1000);
+}
+
+#[test]
+#[ignore = "needs a CUDA GPU: scripts/device/check.sh"]
+fn gpu_gradient_is_the_cpu_gradient() {
+    let gpu = gpu();
+    for (c, (name, config)) in configs().into_iter().enumerate() {
+        let flow = bent_flow(config, 50 + c as u64);
+        let on = GpuFlow::new(&gpu, &flow).unwrap();
+        let mut rng = Pcg64Mcg::seed_from_u64(60 + c as u64);
+        let n = 4096;
+        let x: Vec<f32> = (0..n * flow.dim()).map(|_| rng.random::<f32>()).collect();
+        let w: Vec<f32> = (0..n).map(|_| rng.random::<f32>() / n as f32).collect();
+        let eval = flow.log_density_for_training(&x, None).unwrap();
+        let g_cpu = flow.backward(&eval.tape, &w).unwrap();
+        let stream = gpu.stream();
+        let g = on
+            .gradient(
+                &stream.clone_htod(&x).unwrap(),
+                &stream.clone_htod(&w).unwrap(),
+                n,
+            )
+            .unwrap();
+        let g: Vec<f32> = stream.clone_dtoh(&g).unwrap();
+        let scale = g_cpu.iter().fold(0.0f32, |m, v| m.max(v.abs())) as f64;
+        let worst = g
+            .iter()
+            .zip(&g_cpu)
+            .map(|(a, b)| (a - b).abs() as f64)
+            .fold(0.0, f64::max);
+        println!(
+            "{name}: gradient differs by {:.1e} of its largest component",
+            worst / scale
+        );
+        // f32 sums over 4096 rows in cuBLAS's order against the CPU's chunked order.
+        assert!(worst <= 1e-3 * scale, "{name}: {worst} of {scale}");
+    }
+}
+
+#[test]
+#[ignore = "needs a CUDA GPU: scripts/device/check.sh"]
+fn gpu_training_learns_a_peak_and_estimates_it() {
+    let gpu = gpu();
+    // A Gaussian peak of width 0.1 at (0.3, 0.6): ∫ over the square to 1e-6.
+    let peak = |x: &[f32]| -> f64 {
+        let d0 = (x[0] as f64 - 0.3) / 0.1;
+        let d1 = (x[1] as f64 - 0.6) / 0.1;
+        (-(d0 * d0 + d1 * d1) / 2.0).exp() / (2.0 * std::f64::consts::PI * 0.01)
+    };
+    let flow = Flow::new(FlowConfig::new(2)).unwrap();
+    let on = GpuFlow::new(&gpu, &flow).unwrap();
+    let adam = AdamConfig {
+        learning_rate: 3e-3,
+        ..AdamConfig::default()
+    };
+    let mut trainer = GpuTrainer::new(on, Loss::Kl, adam).unwrap();
+    let mut f = |x: &[f32], out: &mut [f64]| {
+        for (o, p) in out.iter_mut().zip(x.chunks(2)) {
+            *o = peak(p);
+        }
+    };
+    let first = trainer.step(1 << 14, 1, &mut f).unwrap();
+    let mut last = first;
+    for step in 2..300 {
+        last = trainer.step(1 << 14, step, &mut f).unwrap();
+    }
+    let (rv0, rv1) = (
+        first.variance / first.mean.powi(2),
+        last.variance / last.mean.powi(2),
+    );
+    println!("relative variance per point: {rv0:.3} → {rv1:.4}");
+    assert!(
+        rv1 < 0.05 * rv0,
+        "training did not learn the peak: {rv0} → {rv1}"
+    );
+    // The trained flow's estimate covers the truth (1 to 1e-6) within 5 standard errors.
+    let n = 1 << 20;
+    let est = trainer.step(n, 10_000, &mut f).unwrap();
+    let se = (est.variance / n as f64).sqrt();
+    assert!((est.mean - 1.0).abs() < 5.0 * se, "{} ± {se}", est.mean);
+    // The trained weights drive the CPU flow to the same densities.
+    let mut cpu = flow.clone();
+    cpu.params_mut()
+        .copy_from_slice(&trainer.flow.params().unwrap());
+    let x = [0.3f32, 0.6, 0.9, 0.1];
+    let lq_cpu = cpu.log_density(&x, None).unwrap();
+    let lq_gpu = trainer.flow.log_density(&x).unwrap();
+    assert!((lq_cpu[0] - lq_gpu[0]).abs() < 1e-3 && (lq_cpu[1] - lq_gpu[1]).abs() < 1e-3);
 }

@@ -4,6 +4,7 @@ use super::*;
 use crate::plan::{Kind, Plan};
 use nis::flow::{Flow, FlowConfig};
 use nis::nn::encoding::OneBlob;
+use nis::nn::{Adam, AdamConfig};
 use nis::transform::{Quadratic, RationalQuadratic};
 use nis::{Bijection, Density, Transform, TransformKind};
 use rand::{Rng, SeedableRng};
@@ -315,4 +316,315 @@ fn the_plan_names_what_the_gpu_does_not_run() {
     ));
     let pq = Plan::of(&Flow::new(FlowConfig::new(2)).unwrap()).unwrap();
     assert_eq!(pq.steps[0].kind, Kind::Quadratic);
+}
+
+/// Largest |a − b| over the largest |b| (or 1): a relative difference of two gradients.
+fn rel_diff(a: &[f32], b: &[f32]) -> f64 {
+    let scale = b.iter().fold(1.0f64, |m, &v| m.max((v as f64).abs()));
+    a.iter()
+        .zip(b)
+        .map(|(&x, &y)| (x as f64 - y as f64).abs())
+        .fold(0.0, f64::max)
+        / scale
+}
+
+#[test]
+fn transform_gradients_match_the_rust_transforms() {
+    let mut rng = Pcg64Mcg::seed_from_u64(3);
+    for k in [1, 2, 5, 16, 32] {
+        let (pq_t, rq_t) = (Quadratic { bins: k }, RationalQuadratic { bins: k });
+        for _ in 0..5 {
+            let p = params(pq_t.param_count(), 1.5, &mut rng);
+            let pr = params(rq_t.param_count(), 1.5, &mut rng);
+            for x in points(&mut rng) {
+                let (g_y, g_ld) = (rng.random::<f64>() - 0.5, rng.random::<f64>() - 0.5);
+                let mut g = vec![0.0f32; p.len()];
+                let mut g_r = vec![0.0f32; p.len()];
+                // SAFETY: p and g hold the 2k + 1 values the kernel reads and writes.
+                let gx = unsafe {
+                    nis_cpu_pq_backward(
+                        p.as_ptr(),
+                        k as c_int,
+                        x as f32,
+                        g_y as f32,
+                        g_ld as f32,
+                        g.as_mut_ptr(),
+                    )
+                };
+                let gx_r = pq_t.backward(&p, x, g_y, g_ld, &mut g_r);
+                // The same f32 operations in the same order: rounding apart, the same numbers.
+                assert!(
+                    rel_diff(&g, &g_r) < 1e-5,
+                    "PQ K={k} x={x}: {g:?} vs {g_r:?}"
+                );
+                assert!(
+                    (gx as f64 - gx_r).abs() <= 1e-5 * gx_r.abs().max(1.0),
+                    "PQ K={k} x={x}: ∂x {gx} vs {gx_r}"
+                );
+                let mut g = vec![0.0f32; pr.len()];
+                let mut g_r = vec![0.0f32; pr.len()];
+                // SAFETY: pr and g hold the 3k + 1 values the kernel reads and writes.
+                let gx = unsafe {
+                    nis_cpu_rq_backward(pr.as_ptr(), k as c_int, x, g_y, g_ld, g.as_mut_ptr())
+                };
+                let gx_r = rq_t.backward(&pr, x, g_y, g_ld, &mut g_r);
+                assert!(
+                    rel_diff(&g, &g_r) < 1e-6,
+                    "RQ K={k} x={x}: {g:?} vs {g_r:?}"
+                );
+                assert!(
+                    (gx - gx_r).abs() <= 1e-9 * gx_r.abs().max(1.0),
+                    "RQ K={k} x={x}: ∂x {gx} vs {gx_r}"
+                );
+            }
+        }
+    }
+}
+
+#[test]
+fn one_blob_gradient_matches_the_rust_encoding() {
+    let mut rng = Pcg64Mcg::seed_from_u64(4);
+    for k in [1, 3, 16, 32] {
+        let enc = OneBlob { bins: k };
+        for _ in 0..20 {
+            let s: f32 = rng.random();
+            let mut e = vec![0.0; k];
+            enc.encode(&[s], &mut e);
+            let g_e: Vec<f32> = (0..k).map(|_| rng.random::<f32>() - 0.5).collect();
+            let mut g_s = [0.0f32];
+            enc.backward(&[s], &e, &g_e, &mut g_s);
+            // SAFETY: e and g_e hold k values.
+            let g = unsafe { nis_cpu_one_blob_backward(s, k as c_int, e.as_ptr(), g_e.as_ptr()) };
+            assert!(
+                (g - g_s[0]).abs() <= 1e-5 * g_s[0].abs().max(1.0),
+                "k={k} s={s}: {g} vs {}",
+                g_s[0]
+            );
+        }
+    }
+}
+
+#[test]
+fn adam_matches_the_rust_optimiser() {
+    let config = AdamConfig {
+        learning_rate: 3e-3,
+        decay: 0.99,
+        ..AdamConfig::default()
+    };
+    let mut rng = Pcg64Mcg::seed_from_u64(5);
+    let n = 1000;
+    let mut p: Vec<f32> = (0..n).map(|_| rng.random::<f32>() - 0.5).collect();
+    let mut p_r = p.clone();
+    let (mut m, mut v) = (vec![0.0f32; n], vec![0.0f32; n]);
+    let mut adam = Adam::new(config, n).unwrap();
+    for t in 1..=5i32 {
+        let g: Vec<f32> = (0..n).map(|_| rng.random::<f32>() - 0.5).collect();
+        adam.step(&mut p_r, &g).unwrap();
+        // The step size as Adam::step forms it on the host: decayed rate, bias corrections.
+        let lr = config.learning_rate * config.decay.powf((t - 1) as f32);
+        let lr_t = lr * (1.0 - config.beta2.powi(t)).sqrt() / (1.0 - config.beta1.powi(t));
+        // SAFETY: every buffer holds n values.
+        unsafe {
+            nis_cpu_adam(
+                p.as_mut_ptr(),
+                g.as_ptr(),
+                m.as_mut_ptr(),
+                v.as_mut_ptr(),
+                n as i64,
+                lr_t,
+                config.beta1,
+                config.beta2,
+                config.eps,
+                1.0,
+            )
+        };
+    }
+    assert_eq!(p, p_r);
+}
+
+/// Row-major `[n, o]` = `[n, i]`·`[i, o]`, plainly.
+fn matmul(x: &[f32], w: &[f32], n: usize, i: usize, o: usize) -> Vec<f32> {
+    let mut y = vec![0.0f32; n * o];
+    for r in 0..n {
+        for c in 0..o {
+            y[r * o + c] = (0..i).map(|t| x[r * i + t] * w[t * o + c]).sum();
+        }
+    }
+    y
+}
+
+/// The gradient of −Σ w ln q through the plan, as `GpuFlow::gradient` computes it (the same
+/// sweep, with the harness's kernels and plain matrix products).
+fn gradient_plan(plan: &Plan, x: &[f32], w: &[f32]) -> Vec<f32> {
+    let (dim, n) = (plan.dim, w.len());
+    let mut u = x.to_vec();
+    let mut log_q = vec![0.0f64; n];
+    // (input, encoding, activations) per coupling.
+    let mut tapes = Vec::new();
+    for s in &plan.steps {
+        let input = u.clone();
+        let enc: Vec<f32> = (0..n)
+            .flat_map(|r| {
+                s.a.iter()
+                    .flat_map(move |&a| (0..s.blob_bins).map(move |j| (r, a, j)))
+            })
+            // SAFETY: plain arithmetic.
+            .map(|(r, a, j)| unsafe {
+                nis_cpu_one_blob(
+                    input[r * dim + a as usize],
+                    s.blob_bins as c_int,
+                    j as c_int,
+                )
+            })
+            .collect();
+        let mut acts: Vec<Vec<f32>> = Vec::new();
+        for (j, d) in s.dense.iter().enumerate() {
+            let src = if j == 0 { &enc } else { &acts[j - 1] };
+            let wts = &plan.params[d.weights..d.weights + d.inputs * d.outputs];
+            let mut y = matmul(src, wts, n, d.inputs, d.outputs);
+            for (t, v) in y.iter_mut().enumerate() {
+                *v += plan.params[d.biases + t % d.outputs];
+                if j + 1 < s.dense.len() {
+                    *v = v.max(0.0);
+                }
+            }
+            acts.push(y);
+        }
+        // SAFETY: the buffers hold n rows of their widths.
+        unsafe {
+            nis_cpu_coupling(
+                s.kind as c_int,
+                s.bins as c_int,
+                0,
+                acts.last().unwrap().as_ptr(),
+                u.as_mut_ptr(),
+                log_q.as_mut_ptr(),
+                n as i64,
+                dim as c_int,
+                s.b.as_ptr(),
+                s.b.len() as c_int,
+            )
+        };
+        tapes.push((input, enc, acts));
+    }
+    let g_ld: Vec<f32> = w.iter().map(|v| -v).collect();
+    let mut g_u = vec![0.0f32; n * dim];
+    let mut grads = vec![0.0f32; plan.params.len()];
+    for (l, s) in plan.steps.iter().enumerate().rev() {
+        let (input, enc, acts) = &tapes[l];
+        let out_w = s.dense.last().unwrap().outputs;
+        let mut delta = vec![0.0f32; n * out_w];
+        // SAFETY: the buffers hold n rows of their widths.
+        unsafe {
+            nis_cpu_coupling_backward(
+                s.kind as c_int,
+                s.bins as c_int,
+                acts.last().unwrap().as_ptr(),
+                input.as_ptr(),
+                g_u.as_mut_ptr(),
+                g_ld.as_ptr(),
+                delta.as_mut_ptr(),
+                n as i64,
+                dim as c_int,
+                s.b.as_ptr(),
+                s.b.len() as c_int,
+            )
+        };
+        let want_input = l > 0 && !s.a.is_empty();
+        for (j, d) in s.dense.iter().enumerate().rev() {
+            let src = if j == 0 { enc } else { &acts[j - 1] };
+            for t in 0..d.inputs {
+                for c in 0..d.outputs {
+                    grads[d.weights + t * d.outputs + c] = (0..n)
+                        .map(|r| src[r * d.inputs + t] * delta[r * d.outputs + c])
+                        .sum();
+                }
+            }
+            for c in 0..d.outputs {
+                grads[d.biases + c] = (0..n).map(|r| delta[r * d.outputs + c]).sum();
+            }
+            if d.inputs == 0 || (j == 0 && !want_input) {
+                continue;
+            }
+            let wts = &plan.params[d.weights..d.weights + d.inputs * d.outputs];
+            let mut prev = vec![0.0f32; n * d.inputs];
+            for r in 0..n {
+                for t in 0..d.inputs {
+                    prev[r * d.inputs + t] = (0..d.outputs)
+                        .map(|c| delta[r * d.outputs + c] * wts[t * d.outputs + c])
+                        .sum();
+                }
+            }
+            if j > 0 {
+                for (g, a) in prev.iter_mut().zip(&acts[j - 1]) {
+                    if *a <= 0.0 {
+                        *g = 0.0;
+                    }
+                }
+                delta = prev;
+            } else {
+                let k = s.blob_bins;
+                for r in 0..n {
+                    for (ai, &a) in s.a.iter().enumerate() {
+                        let at = r * d.inputs + ai * k;
+                        // SAFETY: enc and prev hold k values from `at`.
+                        g_u[r * dim + a as usize] += unsafe {
+                            nis_cpu_one_blob_backward(
+                                input[r * dim + a as usize],
+                                k as c_int,
+                                enc[at..].as_ptr(),
+                                prev[at..].as_ptr(),
+                            )
+                        };
+                    }
+                }
+            }
+        }
+    }
+    grads
+}
+
+#[test]
+fn the_plans_gradient_is_the_flows() {
+    let configs = [
+        FlowConfig {
+            transform: TransformKind::Quadratic { bins: 6 },
+            hidden_width: 12,
+            hidden_layers: 2,
+            blob_bins: 5,
+            ..FlowConfig::new(4)
+        },
+        FlowConfig {
+            transform: TransformKind::RationalQuadratic { bins: 5 },
+            hidden_width: 10,
+            hidden_layers: 1,
+            blob_bins: 4,
+            ..FlowConfig::new(3)
+        },
+        FlowConfig {
+            transform: TransformKind::Quadratic { bins: 4 },
+            ..FlowConfig::new(1)
+        },
+    ];
+    for (c, config) in configs.into_iter().enumerate() {
+        let flow = bent_flow(config, 20 + c as u64);
+        let plan = Plan::of(&flow).unwrap();
+        let mut rng = Pcg64Mcg::seed_from_u64(30 + c as u64);
+        let n = 64;
+        let x: Vec<f32> = (0..n * flow.dim()).map(|_| rng.random::<f32>()).collect();
+        let w: Vec<f32> = (0..n).map(|_| rng.random::<f32>()).collect();
+        let eval = flow.log_density_for_training(&x, None).unwrap();
+        let g_ref = flow.backward(&eval.tape, &w).unwrap();
+        let g = gradient_plan(&plan, &x, &w);
+        let d = rel_diff(&g, &g_ref);
+        // f32 sums in other orders over 64 rows: a few 1e-6 of the largest component.
+        assert!(
+            d < 1e-4,
+            "config {c}: gradients differ by {d:e} of the largest"
+        );
+        assert!(
+            g_ref.iter().any(|v| v.abs() > 1e-3),
+            "config {c}: a vanishing gradient"
+        );
+    }
 }

@@ -5,6 +5,9 @@
 use std::time::Instant;
 
 use nis::flow::{Density, Flow};
+use nis::loss::Loss;
+use nis::nn::AdamConfig;
+use nis::train::Trainer;
 use rand::{Rng, SeedableRng};
 use rand_pcg::Pcg64Mcg;
 
@@ -34,8 +37,10 @@ pub fn run(batches: &[usize], reps: usize, log: &mut dyn FnMut(&str)) -> Result<
         "GPU: {}; CPU: {threads} threads. Samples/s, median of {reps} runs after two warm-ups; \
          the GPU's points and ln q stay on the device (timed to the stream's end). Output \
          layers perturbed by ±0.01 so that the splines are not the identity.\n\n\
-         | config | batch | GPU sample + ln q | GPU ln q of points | CPU sample + ln q | GPU / CPU (sample) |\n\
-         |---|---:|---:|---:|---:|---:|\n",
+         The training step is on-policy KL with f = x₀ + 0.1 evaluated on the host (the GPU's \
+         points copied out, the weights in), Adam on the device.\n\n\
+         | config | batch | GPU sample + ln q | GPU ln q of points | CPU sample + ln q | GPU / CPU (sample) | GPU train step | CPU train step | GPU / CPU (train) |\n\
+         |---|---:|---:|---:|---:|---:|---:|---:|---:|\n",
         gpu.name()
     );
     for r in references() {
@@ -60,13 +65,42 @@ pub fn run(batches: &[usize], reps: usize, log: &mut dyn FnMut(&str)) -> Result<
             let cpu = time(reps.min(3), || {
                 flow.sample(n, None, &mut rng).expect("sampling");
             });
+            let dim = flow.dim();
+            let mut trainer = nis_cuda::GpuTrainer::new(
+                nis_cuda::GpuFlow::new(&gpu, &flow)?,
+                Loss::Kl,
+                AdamConfig::default(),
+            )?;
+            let mut f = |x: &[f32], out: &mut [f64]| {
+                for (o, p) in out.iter_mut().zip(x.chunks(dim)) {
+                    *o = p[0] as f64 + 0.1;
+                }
+            };
+            let mut step_seed = 1_000_000;
+            let train = time_gpu(reps, || {
+                step_seed += 1;
+                trainer.step(n, step_seed, &mut f)?;
+                Ok(gpu.synchronize()?)
+            })?;
+            let mut cpu_trainer = Trainer::new(flow.clone(), Loss::Kl, AdamConfig::default())?;
+            let cpu_train = time(reps.min(3), || {
+                let s = cpu_trainer
+                    .flow()
+                    .sample_for_training(n, None, &mut rng)
+                    .expect("sampling");
+                let v: Vec<f64> = s.x.chunks(dim).map(|p| p[0] as f64 + 0.1).collect();
+                cpu_trainer.step_on_policy(&s, &v).expect("training step");
+            });
             let row = format!(
-                "| {} | {n} | {:.3e} | {:.3e} | {:.3e} | {:.0}× |\n",
+                "| {} | {n} | {:.3e} | {:.3e} | {:.3e} | {:.0}× | {:.3e} | {:.3e} | {:.0}× |\n",
                 r.name,
                 n as f64 / sample,
                 n as f64 / density,
                 n as f64 / cpu,
-                cpu / sample
+                cpu / sample,
+                n as f64 / train,
+                n as f64 / cpu_train,
+                cpu_train / train
             );
             log(&row);
             md.push_str(&row);

@@ -1,0 +1,448 @@
+//! The training step on the GPU: the score-function gradient of L = −Σ_i w_i ln q(x_i; θ) (the
+//! KL, χ² and NLL losses differ only in w, DESIGN.md "Learning from Monte Carlo samples") through
+//! the whole stack, as `nis::Density::backward` computes it on the CPU, and Adam.
+//!
+//! The pass runs data to latent and keeps each coupling's input and its conditioner's
+//! activations (the tape); the reverse sweep runs latent to data: the transforms' reverse mode
+//! (a kernel per coupling), the conditioner's (SGEMMs for ∂L/∂W = Xᵀ·δ, ∂L/∂X = δ·Wᵀ, and
+//! ∂L/∂b = δᵀ·1, so every sum has cuBLAS's fixed order), and the encoding's.
+
+use cudarc::cublas::sys::cublasOperation_t::{CUBLAS_OP_N, CUBLAS_OP_T};
+use cudarc::cublas::{Gemm, GemmConfig};
+use cudarc::driver::{CudaSlice, CudaView, CudaViewMut, PushKernelArg};
+use nis::nn::AdamConfig;
+
+use crate::error::GpuError;
+use crate::flow::GpuFlow;
+use crate::gpu::grid;
+
+/// One coupling's share of the tape: its data-side input, its conditioner's input (the
+/// encoding) and each dense layer's output (after the ReLU for hidden layers).
+struct LayerTape {
+    input: CudaSlice<f32>,
+    encoded: Option<CudaSlice<f32>>,
+    acts: Vec<CudaSlice<f32>>,
+}
+
+/// Column-major SGEMM C = op(A)·op(B) (row-major callers pass transposed roles).
+#[allow(clippy::too_many_arguments)]
+fn gemm(
+    flow: &GpuFlow<'_>,
+    (ta, tb): (bool, bool),
+    (m, n, k): (usize, usize, usize),
+    a: &CudaView<'_, f32>,
+    lda: usize,
+    b: &CudaView<'_, f32>,
+    ldb: usize,
+    c: &mut CudaViewMut<'_, f32>,
+    ldc: usize,
+) -> Result<(), GpuError> {
+    let op = |t| if t { CUBLAS_OP_T } else { CUBLAS_OP_N };
+    let cfg = GemmConfig {
+        transa: op(ta),
+        transb: op(tb),
+        m: m as i32,
+        n: n as i32,
+        k: k as i32,
+        alpha: 1.0f32,
+        lda: lda as i32,
+        ldb: ldb as i32,
+        beta: 0.0f32,
+        ldc: ldc as i32,
+    };
+    // SAFETY: the callers' views hold the shapes the config names.
+    unsafe { flow.gpu.blas.gemm(cfg, a, b, c) }?;
+    Ok(())
+}
+
+impl GpuFlow<'_> {
+    /// The gradient of L = −Σ_i w_i ln q(x_i; θ) with respect to the flow's parameters (laid out
+    /// as `nis::Density::params`), at the `n` points on the device in `x` with the weights `w`
+    /// (one per point, on the device). Returns the gradient, on the device.
+    pub fn gradient(
+        &self,
+        x: &CudaSlice<f32>,
+        w: &CudaSlice<f32>,
+        n: usize,
+    ) -> Result<CudaSlice<f32>, GpuError> {
+        let dim = self.plan.dim;
+        if x.len() < n * dim || w.len() < n || n == 0 {
+            return Err(GpuError::InvalidInput(format!(
+                "{n} points of dimension {dim} with their weights: got {} values and {} weights",
+                x.len(),
+                w.len()
+            )));
+        }
+        let stream = &self.gpu.stream;
+        let k = &self.gpu.kernels;
+        let (rows, dim_i) = (n as i64, dim as i32);
+        // The forward pass, data to latent, keeping the tape.
+        let mut u = stream.clone_dtod(x)?;
+        let mut log_q = stream.alloc_zeros::<f64>(n)?;
+        let mut tapes = Vec::with_capacity(self.plan.steps.len());
+        for (l, step) in self.plan.steps.iter().enumerate() {
+            let idx = &self.indices[l];
+            let input = stream.clone_dtod(&u)?;
+            let enc_w = step.encoded();
+            let encoded = if enc_w > 0 {
+                let mut enc = stream.alloc_zeros::<f32>(n * enc_w)?;
+                let (na, kb) = (step.a.len() as i32, step.blob_bins as i32);
+                let mut launch = stream.launch_builder(&k.encode);
+                launch
+                    .arg(&u)
+                    .arg(&dim_i)
+                    .arg(&idx.a)
+                    .arg(&na)
+                    .arg(&kb)
+                    .arg(&mut enc)
+                    .arg(&rows);
+                // SAFETY: reads n rows of u, writes n × enc_w values.
+                unsafe { launch.launch(grid(n * enc_w)?) }?;
+                Some(enc)
+            } else {
+                None
+            };
+            let mut acts: Vec<CudaSlice<f32>> = Vec::with_capacity(step.dense.len());
+            for (j, d) in step.dense.iter().enumerate() {
+                let mut y = stream.alloc_zeros::<f32>(n * d.outputs)?;
+                if d.inputs > 0 {
+                    let src = if j == 0 {
+                        encoded
+                            .as_ref()
+                            .expect("a layer with inputs has an encoding")
+                    } else {
+                        &acts[j - 1]
+                    };
+                    let wv = self
+                        .params
+                        .slice(d.weights..d.weights + d.inputs * d.outputs);
+                    let xv = src.slice(0..n * d.inputs);
+                    let mut yv = y.slice_mut(0..n * d.outputs);
+                    // Row-major Y = X·W is column-major Yᵀ = Wᵀ·Xᵀ.
+                    gemm(
+                        self,
+                        (false, false),
+                        (d.outputs, n, d.inputs),
+                        &wv,
+                        d.outputs,
+                        &xv,
+                        d.inputs,
+                        &mut yv,
+                        d.outputs,
+                    )?;
+                }
+                let bias = self.params.slice(d.biases..d.biases + d.outputs);
+                let (o, relu) = (d.outputs as i32, (j + 1 < step.dense.len()) as i32);
+                let mut launch = stream.launch_builder(&k.bias_act);
+                launch.arg(&mut y).arg(&bias).arg(&rows).arg(&o).arg(&relu);
+                // SAFETY: y holds n × o values, bias o.
+                unsafe { launch.launch(grid(n * d.outputs)?) }?;
+                acts.push(y);
+            }
+            let out = acts.last().expect("a conditioner has an output layer");
+            let (kind, bins, nb, inv) = (
+                step.kind as i32,
+                step.bins as i32,
+                step.b.len() as i32,
+                0i32,
+            );
+            let mut launch = stream.launch_builder(&k.coupling);
+            launch
+                .arg(&kind)
+                .arg(&bins)
+                .arg(&inv)
+                .arg(out)
+                .arg(&mut u)
+                .arg(&mut log_q)
+                .arg(&rows)
+                .arg(&dim_i)
+                .arg(&idx.b)
+                .arg(&nb);
+            // SAFETY: as in GpuFlow::run.
+            unsafe { launch.launch(grid(n)?) }?;
+            tapes.push(LayerTape {
+                input,
+                encoded,
+                acts,
+            });
+        }
+        // ∂L/∂ln C' of every row is −w; ∂L/∂u starts at zero (the latent's density is constant).
+        let g_ld = {
+            let host: Vec<f32> = stream.clone_dtoh(&w.slice(0..n))?;
+            stream.clone_htod(&host.iter().map(|v| -v).collect::<Vec<f32>>())?
+        };
+        let mut g_u = stream.alloc_zeros::<f32>(n * dim)?;
+        let mut grads = stream.alloc_zeros::<f32>(self.plan.params.len().max(1))?;
+        let ones = stream.clone_htod(&vec![1.0f32; n])?;
+        for (l, step) in self.plan.steps.iter().enumerate().rev() {
+            let idx = &self.indices[l];
+            let tape = &tapes[l];
+            let out_w = step.dense.last().map_or(0, |d| d.outputs);
+            let mut delta = stream.alloc_zeros::<f32>(n * out_w)?;
+            let (kind, bins, nb) = (step.kind as i32, step.bins as i32, step.b.len() as i32);
+            let mut launch = stream.launch_builder(&k.coupling_backward);
+            launch
+                .arg(&kind)
+                .arg(&bins)
+                .arg(tape.acts.last().expect("an output layer"))
+                .arg(&tape.input)
+                .arg(&mut g_u)
+                .arg(&g_ld)
+                .arg(&mut delta)
+                .arg(&rows)
+                .arg(&dim_i)
+                .arg(&idx.b)
+                .arg(&nb);
+            // SAFETY: the tape's buffers hold n rows of their widths; delta n × out_w.
+            unsafe { launch.launch(grid(n)?) }?;
+            // The first coupling's input is the fixed x: no gradient is needed below it.
+            let want_input = l > 0 && !step.a.is_empty();
+            for (j, d) in step.dense.iter().enumerate().rev() {
+                if d.inputs > 0 {
+                    let src = if j == 0 {
+                        tape.encoded
+                            .as_ref()
+                            .expect("a layer with inputs has an encoding")
+                    } else {
+                        &tape.acts[j - 1]
+                    };
+                    // ∂L/∂W (row-major [in, out]) = Xᵀ·δ: column-major (δᵀ)·X.
+                    let dv = delta.slice(0..n * d.outputs);
+                    let xv = src.slice(0..n * d.inputs);
+                    let mut gw = grads.slice_mut(d.weights..d.weights + d.inputs * d.outputs);
+                    gemm(
+                        self,
+                        (false, true),
+                        (d.outputs, d.inputs, n),
+                        &dv,
+                        d.outputs,
+                        &xv,
+                        d.inputs,
+                        &mut gw,
+                        d.outputs,
+                    )?;
+                }
+                {
+                    // ∂L/∂b = δᵀ·1.
+                    let dv = delta.slice(0..n * d.outputs);
+                    let ov = ones.slice(0..n);
+                    let mut gb = grads.slice_mut(d.biases..d.biases + d.outputs);
+                    gemm(
+                        self,
+                        (false, false),
+                        (d.outputs, 1, n),
+                        &dv,
+                        d.outputs,
+                        &ov,
+                        n,
+                        &mut gb,
+                        d.outputs,
+                    )?;
+                }
+                if d.inputs == 0 || (j == 0 && !want_input) {
+                    continue;
+                }
+                // ∂L/∂X = δ·Wᵀ: column-major (Wᵀ)ᵀ·δᵀ, Wᵀ being W as stored, [out, in].
+                let mut prev = stream.alloc_zeros::<f32>(n * d.inputs)?;
+                {
+                    let wv = self
+                        .params
+                        .slice(d.weights..d.weights + d.inputs * d.outputs);
+                    let dv = delta.slice(0..n * d.outputs);
+                    let mut pv = prev.slice_mut(0..n * d.inputs);
+                    gemm(
+                        self,
+                        (true, false),
+                        (d.inputs, n, d.outputs),
+                        &wv,
+                        d.outputs,
+                        &dv,
+                        d.outputs,
+                        &mut pv,
+                        d.inputs,
+                    )?;
+                }
+                if j > 0 {
+                    let len = (n * d.inputs) as i64;
+                    let mut launch = stream.launch_builder(&k.relu_backward);
+                    launch.arg(&mut prev).arg(&tape.acts[j - 1]).arg(&len);
+                    // SAFETY: both hold n × inputs values.
+                    unsafe { launch.launch(grid(n * d.inputs)?) }?;
+                    delta = prev;
+                } else {
+                    let enc = tape
+                        .encoded
+                        .as_ref()
+                        .expect("a layer with inputs has an encoding");
+                    let (na, kb, width) =
+                        (step.a.len() as i32, step.blob_bins as i32, d.inputs as i32);
+                    let mut launch = stream.launch_builder(&k.encode_backward);
+                    launch
+                        .arg(&tape.input)
+                        .arg(&dim_i)
+                        .arg(&idx.a)
+                        .arg(&na)
+                        .arg(&kb)
+                        .arg(enc)
+                        .arg(&prev)
+                        .arg(&width)
+                        .arg(&mut g_u)
+                        .arg(&rows);
+                    // SAFETY: one thread per (row, A dimension), within the buffers' rows.
+                    unsafe { launch.launch(grid(n * step.a.len())?) }?;
+                }
+            }
+        }
+        Ok(grads)
+    }
+}
+
+/// Adam on the device (`nis::nn::Adam`'s update: clipping by the gradient's norm, summed in
+/// f64 in a fixed order, bias corrections and decay formed on the host).
+pub struct GpuAdam {
+    config: AdamConfig,
+    m: CudaSlice<f32>,
+    v: CudaSlice<f32>,
+    step: u64,
+}
+
+/// Values per partial sum of the gradient's norm.
+const NORM_CHUNK: usize = 4096;
+
+impl GpuAdam {
+    /// Adam for the parameters of `flow`.
+    pub fn new(flow: &GpuFlow<'_>, config: AdamConfig) -> Result<GpuAdam, GpuError> {
+        config
+            .validate()
+            .map_err(|e| GpuError::InvalidInput(e.to_string()))?;
+        let n = flow.plan.params.len().max(1);
+        let stream = &flow.gpu.stream;
+        Ok(GpuAdam {
+            config,
+            m: stream.alloc_zeros(n)?,
+            v: stream.alloc_zeros(n)?,
+            step: 0,
+        })
+    }
+
+    /// One update of `flow`'s parameters with the gradient `grad`; returns the gradient's norm.
+    pub fn step(&mut self, flow: &mut GpuFlow<'_>, grad: &CudaSlice<f32>) -> Result<f64, GpuError> {
+        let gpu = flow.gpu;
+        let stream = &gpu.stream;
+        let n = flow.plan.params.len();
+        if grad.len() < n {
+            return Err(GpuError::InvalidInput(format!(
+                "a gradient of {} values for {n} parameters",
+                grad.len()
+            )));
+        }
+        let chunks = n.div_ceil(NORM_CHUNK).max(1);
+        let mut partial = stream.alloc_zeros::<f64>(chunks)?;
+        let (len, chunk) = (n as i64, NORM_CHUNK as i64);
+        let mut launch = stream.launch_builder(&gpu.kernels.sum_squares);
+        launch.arg(grad).arg(&len).arg(&chunk).arg(&mut partial);
+        // SAFETY: one thread per chunk of the n gradient values.
+        unsafe { launch.launch(grid(chunks)?) }?;
+        let norm = stream.clone_dtoh(&partial)?.iter().sum::<f64>().sqrt();
+        if !norm.is_finite() {
+            return Err(GpuError::InvalidInput(format!(
+                "the gradient's norm is {norm}"
+            )));
+        }
+        let c = self.config;
+        let scale = match c.clip_norm {
+            Some(limit) if norm > limit as f64 => (limit as f64 / norm) as f32,
+            _ => 1.0f32,
+        };
+        let lr = c.learning_rate * c.decay.powf(self.step as f32);
+        self.step += 1;
+        let t = self.step as i32;
+        let lr_t = lr * (1.0 - c.beta2.powi(t)).sqrt() / (1.0 - c.beta1.powi(t));
+        let mut launch = stream.launch_builder(&gpu.kernels.adam);
+        launch
+            .arg(&mut flow.params)
+            .arg(grad)
+            .arg(&mut self.m)
+            .arg(&mut self.v)
+            .arg(&len)
+            .arg(&lr_t)
+            .arg(&c.beta1)
+            .arg(&c.beta2)
+            .arg(&c.eps)
+            .arg(&scale);
+        // SAFETY: all four buffers hold at least n values.
+        unsafe { launch.launch(grid(n)?) }?;
+        Ok(norm)
+    }
+}
+
+impl GpuFlow<'_> {
+    /// The flow's parameters, copied to the host (as `nis::Density::params`).
+    pub fn params(&self) -> Result<Vec<f32>, GpuError> {
+        Ok(self.gpu.stream.clone_dtoh(&self.params)?)
+    }
+}
+
+/// One training batch's Monte Carlo estimate of ∫ f: the mean of f/q and its variance.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct BatchEstimate {
+    pub mean: f64,
+    pub variance: f64,
+}
+
+/// A flow on the GPU learning an integrand evaluated on the host: each step draws a batch on
+/// the device, hands its points to `f`, forms the loss's weights in f64 (`nis::loss::weights`,
+/// normalised by their sum, as the CPU trainer does), and takes one Adam step.
+pub struct GpuTrainer<'g> {
+    pub flow: GpuFlow<'g>,
+    adam: GpuAdam,
+    loss: nis::loss::Loss,
+}
+
+impl<'g> GpuTrainer<'g> {
+    /// A trainer of `flow` minimising `loss` with Adam.
+    pub fn new(
+        flow: GpuFlow<'g>,
+        loss: nis::loss::Loss,
+        adam: AdamConfig,
+    ) -> Result<GpuTrainer<'g>, GpuError> {
+        let adam = GpuAdam::new(&flow, adam)?;
+        Ok(GpuTrainer { flow, adam, loss })
+    }
+
+    /// One step on `n` fresh points of stream `seed`; `f` gets the points (`n × D`, row-major)
+    /// and writes the integrand's values. Returns the batch's estimate of ∫ f.
+    pub fn step(
+        &mut self,
+        n: usize,
+        seed: u64,
+        f: &mut dyn FnMut(&[f32], &mut [f64]),
+    ) -> Result<BatchEstimate, GpuError> {
+        let stream = self.flow.gpu.stream.clone();
+        let s = self.flow.sample(n, seed)?;
+        let x: Vec<f32> = stream.clone_dtoh(&s.x)?;
+        let log_q: Vec<f64> = stream.clone_dtoh(&s.log_q)?;
+        let mut values = vec![0.0f64; n];
+        f(&x[..n * self.flow.dim()], &mut values);
+        if let Some(i) = values.iter().position(|v| !v.is_finite()) {
+            return Err(GpuError::InvalidInput(format!(
+                "the integrand is {} at point {i}",
+                values[i]
+            )));
+        }
+        let ratio: Vec<f64> = values
+            .iter()
+            .zip(&log_q)
+            .map(|(v, l)| v * (-l).exp())
+            .collect();
+        let mean = ratio.iter().sum::<f64>() / n as f64;
+        let variance =
+            ratio.iter().map(|r| (r - mean).powi(2)).sum::<f64>() / (n.max(2) - 1) as f64;
+        let w = nis::loss::weights(self.loss, &values, &log_q, &log_q)
+            .map_err(|e| GpuError::InvalidInput(e.to_string()))?;
+        let w = stream.clone_htod(&w.w)?;
+        let grad = self.flow.gradient(&s.x, &w, n)?;
+        self.adam.step(&mut self.flow, &grad)?;
+        Ok(BatchEstimate { mean, variance })
+    }
+}
