@@ -35,15 +35,15 @@ export LD_LIBRARY_PATH="$libs:${LD_LIBRARY_PATH:-}"
 
 status=0
 echo "== GPU tests" | tee "$OUT/tests.txt"
-timeout 240 "$BIN/gpu-tests" --include-ignored --nocapture --test-threads 1 2>&1 | tee -a "$OUT/tests.txt" || status=1
+timeout 150 "$BIN/gpu-tests" --include-ignored --nocapture --test-threads 1 2>&1 | tee -a "$OUT/tests.txt" || status=1
 
 echo "== nis bench flow --device cuda" | tee "$OUT/bench.txt"
-timeout 180 "$BIN/nis" bench flow --device cuda 2>/dev/null | tee -a "$OUT/bench.txt" || status=1
+timeout 150 "$BIN/nis" bench flow --device cuda 2>/dev/null | tee -a "$OUT/bench.txt" || status=1
 
 if [ "${SKIP_TORCH:-0}" != 1 ]; then
   echo "== PyTorch on the same card" | tee "$OUT/torch.txt"
-  for c in R1 R2; do
-    NIS_TORCH_NO_VENV=1 timeout 240 python3 scripts/bench/bench-torch.py --device cuda --config "$c" \
+  for c in ${TORCH_CONFIGS:-R1 R2}; do
+    NIS_TORCH_NO_VENV=1 timeout ${TORCH_TIMEOUT:-150} python3 scripts/bench/bench-torch.py --device cuda --config "$c" \
       --batches 65536,1048576 --compile 2>&1 | tee -a "$OUT/torch.txt" || status=1
   done
 fi

@@ -83,7 +83,8 @@ impl<'g> GpuFlow<'g> {
             .checked_mul(self.plan.dim)
             .ok_or_else(|| GpuError::InvalidInput(format!("{n} points overflow")))?;
         let stream = &self.gpu.stream;
-        let mut x = stream.alloc_zeros::<f32>(len.max(1))?;
+        // SAFETY: the uniform kernel writes every value before anything reads it.
+        let mut x = unsafe { stream.alloc::<f32>(len.max(1)) }?;
         let (count, seed) = (len as u64, seed);
         let mut launch = stream.launch_builder(&self.gpu.kernels.uniform);
         launch.arg(&mut x).arg(&count).arg(&seed);
@@ -168,10 +169,14 @@ impl<'g> GpuFlow<'g> {
             .max()
             .unwrap_or(1)
             .max(1);
-        let mut bufs = [
-            stream.alloc_zeros::<f32>(n * widest)?,
-            stream.alloc_zeros::<f32>(n * widest)?,
-        ];
+        // SAFETY: each layer writes the part of a buffer it hands on (encoding, SGEMM, or a
+        // memset for a layer without inputs) before the next reads it.
+        let mut bufs = unsafe {
+            [
+                stream.alloc::<f32>(n * widest)?,
+                stream.alloc::<f32>(n * widest)?,
+            ]
+        };
         let (rows, dim, inv) = (n as i64, self.plan.dim as i32, inverse as i32);
         for l in self.plan.order(inverse) {
             let step = &self.plan.steps[l];

@@ -85,7 +85,8 @@ impl GpuFlow<'_> {
             let input = stream.clone_dtod(&u)?;
             let enc_w = step.encoded();
             let encoded = if enc_w > 0 {
-                let mut enc = stream.alloc_zeros::<f32>(n * enc_w)?;
+                // SAFETY: the encoding kernel writes all n × enc_w values.
+                let mut enc = unsafe { stream.alloc::<f32>(n * enc_w) }?;
                 let (na, kb) = (step.a.len() as i32, step.blob_bins as i32);
                 let mut launch = stream.launch_builder(&k.encode);
                 launch
@@ -178,7 +179,8 @@ impl GpuFlow<'_> {
             let idx = &self.indices[l];
             let tape = &tapes[l];
             let out_w = step.dense.last().map_or(0, |d| d.outputs);
-            let mut delta = stream.alloc_zeros::<f32>(n * out_w)?;
+            // SAFETY: the transforms' reverse mode writes every parameter's gradient of every row.
+            let mut delta = unsafe { stream.alloc::<f32>(n * out_w) }?;
             let (kind, bins, nb) = (step.kind as i32, step.bins as i32, step.b.len() as i32);
             let mut launch = stream.launch_builder(&k.coupling_backward);
             launch
@@ -243,7 +245,8 @@ impl GpuFlow<'_> {
                     continue;
                 }
                 // ∂L/∂X = δ·Wᵀ: column-major (Wᵀ)ᵀ·δᵀ, Wᵀ being W as stored, [out, in].
-                let mut prev = stream.alloc_zeros::<f32>(n * d.inputs)?;
+                // SAFETY: the SGEMM below writes all of it.
+                let mut prev = unsafe { stream.alloc::<f32>(n * d.inputs) }?;
                 {
                     let wv = self
                         .params
