@@ -37,6 +37,23 @@ status=0
 echo "== GPU tests" | tee "$OUT/tests.txt"
 timeout 150 "$BIN/gpu-tests" --include-ignored --nocapture --test-threads 1 2>&1 | tee -a "$OUT/tests.txt" || status=1
 
+if [ "${SANITIZE:-0}" = 1 ]; then
+  # Out-of-bounds accesses and races of the kernels, on the tests that compare with the CPU.
+  echo "== compute-sanitizer (memcheck)" | tee "$OUT/sanitizer.txt"
+  timeout 120 compute-sanitizer --tool memcheck --error-exitcode 9 "$BIN/gpu-tests" --include-ignored \
+    --test-threads 1 gpu_gradient_is_the_cpu_gradient gpu_and_cpu_give_the_same 2>&1 \
+    | tail -15 | tee -a "$OUT/sanitizer.txt" || status=1
+fi
+
+if [ "${PROFILE:-0}" = 1 ]; then
+  # Per-kernel GPU time of R2's first sampling calls at 2^20 points (Nsight Compute).
+  echo "== ncu, R2 sampling at 2^20" | tee "$OUT/profile.txt"
+  timeout 150 ncu --clock-control none --launch-count 130 --print-summary per-kernel \
+    --metrics gpu__time_duration.sum "$BIN/nis" bench flow --device cuda --only R2 \
+    --gpu-batches 1048576 2>/dev/null | grep -E "^  [a-zA-Z_]|gpu__time_duration" \
+    | tee -a "$OUT/profile.txt" || status=1
+fi
+
 echo "== nis bench flow --device cuda" | tee "$OUT/bench.txt"
 timeout 150 "$BIN/nis" bench flow --device cuda 2>/dev/null | tee -a "$OUT/bench.txt" || status=1
 

@@ -22,15 +22,21 @@ pub fn run_flow(
 
 /// `nis bench flow --device cuda`: the reference flows on the GPU against the CPU.
 #[cfg(feature = "cuda")]
-pub fn run_flow_gpu(batches: &[usize]) -> Result<(), Box<dyn std::error::Error>> {
-    let md = nis_paper::bench::flow_gpu::run(batches, 5, &mut |row| eprint!("{row}"))?;
+pub fn run_flow_gpu(
+    batches: &[usize],
+    only: Option<&str>,
+) -> Result<(), Box<dyn std::error::Error>> {
+    let md = nis_paper::bench::flow_gpu::run(batches, 5, only, &mut |row| eprint!("{row}"))?;
     println!("{md}");
     Ok(())
 }
 
 /// Without the `cuda` feature: says how to get it.
 #[cfg(not(feature = "cuda"))]
-pub fn run_flow_gpu(_batches: &[usize]) -> Result<(), Box<dyn std::error::Error>> {
+pub fn run_flow_gpu(
+    _batches: &[usize],
+    _only: Option<&str>,
+) -> Result<(), Box<dyn std::error::Error>> {
     Err(
         "this nis was built without the GPU back end: build it with `cargo build --release \
          --features cuda` (CUDA itself is loaded at run time)"

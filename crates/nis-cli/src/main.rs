@@ -214,8 +214,9 @@ fn main() -> ExitCode {
         Command::Bench(BenchCommand::Flow {
             device,
             gpu_batches,
+            only,
             ..
-        }) if device == "cuda" => bench::run_flow_gpu(&gpu_batches),
+        }) if device == "cuda" => bench::run_flow_gpu(&gpu_batches, only.as_deref()),
         Command::Bench(BenchCommand::Flow {
             batch,
             torch,

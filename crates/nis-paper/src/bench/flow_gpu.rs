@@ -30,7 +30,13 @@ fn time_gpu(reps: usize, mut f: impl FnMut() -> Result<()>) -> Result<f64> {
 }
 
 /// Runs the benchmark at each batch size; returns the Markdown table, `log` sees each row.
-pub fn run(batches: &[usize], reps: usize, log: &mut dyn FnMut(&str)) -> Result<String> {
+/// With `only`, just the reference flows whose name starts with it.
+pub fn run(
+    batches: &[usize],
+    reps: usize,
+    only: Option<&str>,
+    log: &mut dyn FnMut(&str),
+) -> Result<String> {
     let gpu = nis_cuda::Gpu::open(0)?;
     let threads = rayon::current_num_threads();
     let mut md = format!(
@@ -43,7 +49,10 @@ pub fn run(batches: &[usize], reps: usize, log: &mut dyn FnMut(&str)) -> Result<
          |---|---:|---:|---:|---:|---:|---:|---:|---:|\n",
         gpu.name()
     );
-    for r in references() {
+    for r in references()
+        .into_iter()
+        .filter(|r| only.is_none_or(|o| r.name.starts_with(o)))
+    {
         let mut flow = Flow::new(r.config.clone())?;
         let mut rng = Pcg64Mcg::seed_from_u64(0);
         for p in flow.params_mut() {
