@@ -50,8 +50,8 @@ if [ "${PROFILE:-0}" = 1 ]; then
   echo "== ncu, R2 sampling at 2^20" | tee "$OUT/profile.txt"
   timeout 150 ncu --clock-control none --launch-count 130 --print-summary per-kernel \
     --metrics gpu__time_duration.sum "$BIN/nis" bench flow --device cuda --only R2 \
-    --gpu-batches 1048576 2>/dev/null | grep -E "^  [a-zA-Z_]|gpu__time_duration" \
-    | tee -a "$OUT/profile.txt" || status=1
+    --gpu-batches 1048576 >>"$OUT/profile.txt" 2>&1 || status=1
+  grep -E "nis_|gemm|Kernel|duration" "$OUT/profile.txt" | head -40
 fi
 
 echo "== nis bench flow --device cuda" | tee "$OUT/bench.txt"
