@@ -63,54 +63,52 @@ fn check_inverse(
     );
 }
 
-#[test]
-fn piecewise_quadratic_matches_the_rust_transform() {
-    let mut rng = Pcg64Mcg::seed_from_u64(1);
-    for k in [1, 2, 5, 16, 32, 256] {
-        let t = Quadratic { bins: k };
+/// The kernel `kernel(p, bins, t, inverse)` against the Rust transform `make(bins)` at random
+/// parameters and points, both directions: y within `dy`, ln C' within `dld`.
+fn matches_transform<T: Transform>(
+    make: impl Fn(usize) -> T,
+    kernel: fn(&[f32], usize, f64, bool) -> (f64, f64),
+    bins: &[usize],
+    seed: u64,
+    (dy, dld): (f64, f64),
+) {
+    let mut rng = Pcg64Mcg::seed_from_u64(seed);
+    for &k in bins {
+        let t = make(k);
         for _ in 0..5 {
             let p = params(t.param_count(), 1.5, &mut rng);
             for x in points(&mut rng) {
-                // Both compute in f32 (knots summed in another order): a few ulps of y, and ln C'
-                // to the f32 rounding of the densities.
-                let (y, ld) = pq(&p, k, x, false);
+                let (y, ld) = kernel(&p, k, x, false);
                 let (y_r, ld_r) = t.forward(&p, x);
-                assert!((y - y_r).abs() < 2e-6, "K={k} x={x}: y {y} vs {y_r}");
-                assert!(
-                    (ld - ld_r).abs() < 2e-5,
-                    "K={k} x={x}: ln C' {ld} vs {ld_r}"
-                );
-                let (xi, ld_i) = pq(&p, k, y_r, true);
+                assert!((y - y_r).abs() < dy, "K={k} x={x}: y {y} vs {y_r}");
+                assert!((ld - ld_r).abs() < dld, "K={k} x={x}: ln C' {ld} vs {ld_r}");
+                let (xi, ld_i) = kernel(&p, k, y_r, true);
                 let (x_r, ld_ir) = t.inverse(&p, y_r);
-                check_inverse(&t, &p, (xi, ld_i), (x_r, ld_ir), 2e-6, 2e-5);
+                check_inverse(&t, &p, (xi, ld_i), (x_r, ld_ir), dy, dld);
             }
         }
     }
 }
 
 #[test]
+fn piecewise_quadratic_matches_the_rust_transform() {
+    // Both compute in f32 with the same exponential (the knots summed in the lanes' order on
+    // the Rust side): a few ulps of y, and ln C' to the f32 rounding of the densities.
+    let bins = [1, 2, 5, 16, 32, 256];
+    matches_transform(|k| Quadratic { bins: k }, pq, &bins, 1, (2e-6, 2e-5));
+}
+
+#[test]
 fn rational_quadratic_matches_the_rust_transform() {
-    let mut rng = Pcg64Mcg::seed_from_u64(2);
-    for k in [1, 2, 5, 16, 256] {
-        let t = RationalQuadratic { bins: k };
-        for _ in 0..5 {
-            let p = params(t.param_count(), 1.5, &mut rng);
-            for x in points(&mut rng) {
-                // f64 throughout; the knot derivatives' softplus in f32 (libm's expf/log1pf
-                // against nis's polynomial exp): a few f32 ulps of d, relative.
-                let (y, ld) = rq(&p, k, x, false);
-                let (y_r, ld_r) = t.forward(&p, x);
-                assert!((y - y_r).abs() < 1e-6, "K={k} x={x}: y {y} vs {y_r}");
-                assert!(
-                    (ld - ld_r).abs() < 1e-5,
-                    "K={k} x={x}: ln C' {ld} vs {ld_r}"
-                );
-                let (xi, ld_i) = rq(&p, k, y_r, true);
-                let (x_r, ld_ir) = t.inverse(&p, y_r);
-                check_inverse(&t, &p, (xi, ld_i), (x_r, ld_ir), 1e-6, 1e-5);
-            }
-        }
-    }
+    // f64 throughout, from the same f32 exponentials and softplus.
+    let bins = [1, 2, 5, 16, 256];
+    matches_transform(
+        |k| RationalQuadratic { bins: k },
+        rq,
+        &bins,
+        2,
+        (1e-6, 1e-5),
+    );
 }
 
 #[test]
