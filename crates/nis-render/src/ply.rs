@@ -35,23 +35,27 @@ struct Face {
     extra: Vec<f32>,
 }
 
-/// The vertex properties nis reads itself.
-const VERTEX_PROPERTIES: [&str; 14] = [
-    "x",
-    "y",
-    "z",
-    "nx",
-    "ny",
-    "nz",
-    "u",
-    "s",
-    "texture_u",
-    "texture_s",
-    "v",
-    "t",
-    "texture_v",
-    "texture_t",
-];
+/// What a vertex property nis reads itself sets; any other is an attribute's column.
+enum Role {
+    Position(usize),
+    Normal(usize),
+    Uv(usize),
+}
+
+/// The role of the vertex property `name`, if nis reads it itself.
+fn vertex_role(name: &str) -> Option<Role> {
+    Some(match name {
+        "x" => Role::Position(0),
+        "y" => Role::Position(1),
+        "z" => Role::Position(2),
+        "nx" => Role::Normal(0),
+        "ny" => Role::Normal(1),
+        "nz" => Role::Normal(2),
+        "u" | "s" | "texture_u" | "texture_s" => Role::Uv(0),
+        "v" | "t" | "texture_v" | "texture_t" => Role::Uv(1),
+        _ => return None,
+    })
+}
 
 /// Any numeric PLY scalar as `f64`.
 fn scalar(p: &Property) -> Option<f64> {
@@ -78,20 +82,18 @@ impl PropertyAccess for Vertex {
             return PropertyAccessResult::Ignored;
         };
         let v = v as f32;
-        match name {
-            "x" => self.p[0] = v,
-            "y" => self.p[1] = v,
-            "z" => self.p[2] = v,
-            "nx" | "ny" | "nz" => {
-                self.n[usize::from(name.as_bytes()[1] - b'x')] = v;
+        match vertex_role(name) {
+            Some(Role::Position(i)) => self.p[i] = v,
+            Some(Role::Normal(i)) => {
+                self.n[i] = v;
                 self.has_n = true;
             }
-            "u" | "s" | "texture_u" | "texture_s" => {
-                self.uv[0] = v;
-                self.has_uv = true;
+            Some(Role::Uv(i)) => {
+                self.uv[i] = v;
+                // The first coordinate marks a vertex that has texture coordinates.
+                self.has_uv |= i == 0;
             }
-            "v" | "t" | "texture_v" | "texture_t" => self.uv[1] = v,
-            _ => self.extra.push(v),
+            None => self.extra.push(v),
         }
         PropertyAccessResult::Set
     }
@@ -187,44 +189,42 @@ pub fn load(path: &Path) -> Result<TriangleMesh, Error> {
                 .collect()
         })
     };
-    let mut attributes = Vec::new();
-    let vertex_columns = columns("vertex", &|name| VERTEX_PROPERTIES.contains(&name));
-    for (name, cols) in attribute_groups("vertex_", &vertex_columns) {
-        let mut values = Vec::with_capacity(n * cols.len());
-        for v in &vertices {
-            for &c in &cols {
-                values.push(
-                    *v.extra
-                        .get(c)
-                        .ok_or_else(|| fail(format!("a vertex lacks {name}")))?,
-                );
-            }
-        }
-        attributes.push(MeshAttribute {
-            name,
-            dim: cols.len(),
-            values,
-        });
-    }
-    let face_columns = columns("face", &|_| false);
-    for (name, cols) in attribute_groups("face_", &face_columns) {
-        let mut values = Vec::with_capacity(face_of.len() * cols.len());
-        for &j in &face_of {
-            for &c in &cols {
-                values.push(
-                    *faces[j]
-                        .extra
-                        .get(c)
-                        .ok_or_else(|| fail(format!("a face lacks {name}")))?,
-                );
-            }
-        }
-        attributes.push(MeshAttribute {
-            name,
-            dim: cols.len(),
-            values,
-        });
-    }
+    // Each attribute's values, row after row, from the rows' other properties (`extra`).
+    let gather = |kind: &str, what: &str, cols: &[String], rows: &[&[f32]]| {
+        attribute_groups(kind, cols)
+            .into_iter()
+            .map(|(name, cols)| {
+                let mut values = Vec::with_capacity(rows.len() * cols.len());
+                for row in rows {
+                    for &c in &cols {
+                        values.push(
+                            *row.get(c)
+                                .ok_or_else(|| fail(format!("a {what} lacks {name}")))?,
+                        );
+                    }
+                }
+                Ok(MeshAttribute {
+                    name,
+                    dim: cols.len(),
+                    values,
+                })
+            })
+            .collect::<Result<Vec<_>, Error>>()
+    };
+    let vertex_rows: Vec<&[f32]> = vertices.iter().map(|v| v.extra.as_slice()).collect();
+    let face_rows: Vec<&[f32]> = face_of.iter().map(|&j| faces[j].extra.as_slice()).collect();
+    let mut attributes = gather(
+        "vertex_",
+        "vertex",
+        &columns("vertex", &|name| vertex_role(name).is_some()),
+        &vertex_rows,
+    )?;
+    attributes.extend(gather(
+        "face_",
+        "face",
+        &columns("face", &|_| false),
+        &face_rows,
+    )?);
     if indices.is_empty() {
         return Err(fail("the file has no triangles".into()));
     }
