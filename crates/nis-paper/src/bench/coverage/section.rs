@@ -257,10 +257,9 @@ pub(super) fn warning_summary(cells: &[Cell], budgets: &[Budget]) -> String {
          flags in the converged cells and in all, and the share of the runs beyond 4σ it catches \
          (a run may carry several); then the runs without any warning, their 2σ coverage \
          against the binomial 95% band for their number, and how many of them lie beyond 4σ \
-         (unreachable ones in brackets); last, the same coverage over the converged cells \
-         alone.\n\n\
-         | budget | method | converged cells | flags within 2σ, converged: any · χ² · k̂ · divergence · missing mass · hole | flags within 2σ, all | catches beyond 4σ (of n) | unwarned | unwarned 2σ | band | unwarned beyond 4σ | unwarned in converged cells: n · 2σ · band |\n\
-         |---|---|---|---|---|---|---|---|---|---|---|\n",
+         (unreachable ones in brackets).\n\n\
+         | budget | method | converged cells | flags within 2σ, converged: any · χ² · k̂ · divergence · missing mass · hole | flags within 2σ, all | catches beyond 4σ (of n) | unwarned | unwarned 2σ | band | unwarned beyond 4σ |\n\
+         |---|---|---|---|---|---|---|---|---|---|\n",
     );
     for &b in budgets {
         for method in METHODS {
@@ -309,33 +308,16 @@ pub(super) fn warning_summary(cells: &[Cell], budgets: &[Budget]) -> String {
                     format!("{joined} ({})", pick.len())
                 }
             };
-            type Run<'a> = (f64, Vec<&'a str>, bool);
-            fn unwarned<'r, 'a>(rs: &'r [Run<'a>]) -> Vec<&'r Run<'a>> {
-                rs.iter().filter(|(_, l, _)| l.is_empty()).collect()
-            }
-            let coverage = |q: &[&Run]| {
-                q.iter().filter(|(p, _, _)| p.abs() <= 2.0).count() as f64 / q.len().max(1) as f64
-            };
-            let quiet = unwarned(&all);
-            let cover = coverage(&quiet);
+            let quiet: Vec<&(f64, Vec<&str>, bool)> =
+                all.iter().filter(|(_, l, _)| l.is_empty()).collect();
+            let cover = quiet.iter().filter(|(p, _, _)| p.abs() <= 2.0).count() as f64
+                / quiet.len().max(1) as f64;
             let (lo, hi) = band(NOMINAL2, quiet.len());
-            let quiet_conv = unwarned(&in_conv);
-            let converged_cover = if quiet_conv.is_empty() {
-                "–".to_string()
-            } else {
-                let (lo, hi) = band(NOMINAL2, quiet_conv.len());
-                format!(
-                    "{} · {:.3} · {lo:.3}–{:.3}",
-                    quiet_conv.len(),
-                    coverage(&quiet_conv),
-                    hi.min(1.0)
-                )
-            };
             let quiet_far = quiet.iter().filter(|(p, _, _)| p.abs() > 4.0).count();
             let quiet_far_unreachable =
                 quiet.iter().filter(|(p, _, u)| p.abs() > 4.0 && *u).count();
             md.push_str(&format!(
-                "| {} | {method} | {} of {} | {} | {} | {} | {} | {cover:.3} | {lo:.3}–{:.3} | {quiet_far} ({quiet_far_unreachable}) | {converged_cover} |\n",
+                "| {} | {method} | {} of {} | {} | {} | {} | {} | {cover:.3} | {lo:.3}–{:.3} | {quiet_far} ({quiet_far_unreachable}) |\n",
                 b.evals,
                 conv.len(),
                 here.len(),
