@@ -5,7 +5,7 @@
 set -euo pipefail
 cd "$(dirname "$0")/../.."
 cargo build --release -p nis-cli --features cuda
-exe=$(cargo test --release -p nis-cuda --test gpu --no-run --message-format=json 2>/dev/null \
+exe=$(cargo test --release -p nis-cuda --test gpu --no-run --message-format=json \
   | python3 -c 'import json,sys
 for l in sys.stdin:
     m = json.loads(l)

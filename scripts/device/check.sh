@@ -38,9 +38,13 @@ echo "== GPU tests" | tee "$OUT/tests.txt"
 timeout 150 "$BIN/gpu-tests" --include-ignored --nocapture --test-threads 1 2>&1 | tee -a "$OUT/tests.txt" || status=1
 
 if [ "${SANITIZE:-0}" = 1 ]; then
-  # Out-of-bounds accesses and races of the kernels, on the tests that compare with the CPU.
+  # Out-of-bounds and misaligned accesses of the kernels (memcheck), then reads of memory never
+  # written (initcheck), on the tests that compare with the CPU.
   echo "== compute-sanitizer (memcheck)" | tee "$OUT/sanitizer.txt"
   timeout 120 compute-sanitizer --tool memcheck --error-exitcode 9 "$BIN/gpu-tests" --include-ignored \
+    --test-threads 1 gpu_gradient_is_the_cpu_gradient gpu_and_cpu_give_the_same 2>&1 \
+    | tail -15 | tee -a "$OUT/sanitizer.txt" || status=1
+  timeout 120 compute-sanitizer --tool initcheck --error-exitcode 9 "$BIN/gpu-tests" --include-ignored \
     --test-threads 1 gpu_gradient_is_the_cpu_gradient gpu_and_cpu_give_the_same 2>&1 \
     | tail -15 | tee -a "$OUT/sanitizer.txt" || status=1
 fi
@@ -55,7 +59,7 @@ if [ "${PROFILE:-0}" = 1 ]; then
 fi
 
 echo "== nis bench flow --device cuda" | tee "$OUT/bench.txt"
-timeout 150 "$BIN/nis" bench flow --device cuda 2>/dev/null | tee -a "$OUT/bench.txt" || status=1
+timeout 150 "$BIN/nis" bench flow --device cuda 2>"$OUT/bench.err" | tee -a "$OUT/bench.txt" || status=1
 
 if [ "${SKIP_TORCH:-0}" != 1 ]; then
   echo "== PyTorch on the same card" | tee "$OUT/torch.txt"

@@ -39,7 +39,7 @@ pub fn run_flow_gpu(
 ) -> Result<(), Box<dyn std::error::Error>> {
     Err(
         "this nis was built without the GPU back end: build it with `cargo build --release \
-         --features cuda` (CUDA itself is loaded at run time)"
+         -p nis-cli --features cuda` (CUDA itself is loaded at run time)"
             .into(),
     )
 }

@@ -87,8 +87,9 @@ enum BenchCommand {
         /// Markdown file the results go to.
         #[arg(long, default_value = "docs/results/integration.md")]
         docs: PathBuf,
-        /// `cuda`: sampling and density of the reference flows on the GPU against every CPU core
-        /// (needs a build with `--features cuda` and an NVIDIA driver); prints, writes nothing.
+        /// `cuda`: sampling, density and a training step of the reference flows on the GPU against
+        /// every CPU core (needs a build with `--features cuda` and an NVIDIA driver); prints the
+        /// table and writes nothing (`--batch`, `--torch` and `--docs` are the CPU run's).
         #[arg(long, default_value = "cpu", value_parser = ["cpu", "cuda"])]
         device: String,
         /// Batch sizes of the GPU benchmark.

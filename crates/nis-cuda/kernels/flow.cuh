@@ -1,8 +1,10 @@
 // The coupling flow's elementwise kernels, written once for two compilers: NVRTC builds the
-// `__global__` kernels at the end for the GPU; the C++ harness (harness.cpp, built by the crate's
+// `__global__` kernels at the end for the GPU; the C harness (harness.c, built by the crate's
 // build script with `cc`) runs the same per-thread bodies on the CPU in the tests, against the
 // Rust transforms of `nis::transform`. The arithmetic follows those transforms step by step:
 // piecewise-quadratic in f32 with ln C' in f64, rational-quadratic in f64 from f32 parameters.
+// NVRTC fuses multiply-adds (its default) where the harness and Rust do not: the GPU's numbers
+// differ from theirs by rounding.
 #ifndef NIS_FLOW_CUH
 #define NIS_FLOW_CUH
 
@@ -50,7 +52,8 @@ NIS_HD unsigned int nis_float_to_bits(float f) {
 }
 
 // e^x in f32 as nis::kernels::elementwise::exp computes it (Cody–Waite reduction, degree-6
-// Taylor polynomial, the exponent put back through the bits), so both sides give one number.
+// Taylor polynomial, the exponent put back through the bits): the same operations as the Rust
+// side, not libm's or the GPU's own exponential.
 NIS_HD float nis_exp(float x) {
     x = fminf(fmaxf(x, -87.0f), 88.0f);
     const float shifter = 12582912.0f;
@@ -523,11 +526,6 @@ extern "C" __global__ void nis_adam(float* p, const float* g, float* m, float* v
                                     float grad_scale) {
     long long i = (long long)blockIdx.x * blockDim.x + threadIdx.x;
     if (i < n) nis_adam_one(p + i, g[i], m + i, v + i, lr_t, beta1, beta2, eps, grad_scale);
-}
-
-extern "C" __global__ void nis_fill_f64(double* v, long long n, double value) {
-    long long i = (long long)blockIdx.x * blockDim.x + threadIdx.x;
-    if (i < n) v[i] = value;
 }
 #endif
 #endif

@@ -79,9 +79,7 @@ impl<'g> GpuFlow<'g> {
     /// counter-based stream `seed` (kernels/flow.cuh, `nis_uniform_at`): the same seed gives the
     /// same points on a given card.
     pub fn sample(&self, n: usize, seed: u64) -> Result<DeviceSamples, GpuError> {
-        let len = n
-            .checked_mul(self.plan.dim)
-            .ok_or_else(|| GpuError::InvalidInput(format!("{n} points overflow")))?;
+        let len = self.values_of(n)?;
         let stream = &self.gpu.stream;
         // SAFETY: the uniform kernel writes every value before anything reads it.
         let mut x = unsafe { stream.alloc::<f32>(len.max(1)) }?;
@@ -119,16 +117,41 @@ impl<'g> GpuFlow<'g> {
         x: &CudaSlice<f32>,
         n: usize,
     ) -> Result<CudaSlice<f64>, GpuError> {
-        if x.len() < n * self.plan.dim {
+        let len = self.values_of(n)?;
+        if x.len() < len {
             return Err(GpuError::InvalidInput(format!(
-                "{n} points of dimension {} need {} values, the buffer holds {}",
+                "{n} points of dimension {} need {len} values, the buffer holds {}",
                 self.plan.dim,
-                n * self.plan.dim,
                 x.len()
             )));
         }
         let mut u = self.gpu.stream.clone_dtod(x)?;
         self.run(&mut u, n, false)
+    }
+
+    /// The number of values of `n` points: an error for none, or for more than the kernels
+    /// and the dense layers' 32-bit sizes address.
+    pub(crate) fn values_of(&self, n: usize) -> Result<usize, GpuError> {
+        let widest = self
+            .plan
+            .steps
+            .iter()
+            .flat_map(|s| s.dense.iter().map(|d| d.outputs).chain([s.encoded()]))
+            .chain([self.plan.dim])
+            .max()
+            .unwrap_or(1);
+        if n == 0 || i32::try_from(n).is_err() || n.checked_mul(widest).is_none() {
+            return Err(GpuError::InvalidInput(format!(
+                "a batch of {n} points: at least 1 and at most {} on the GPU",
+                i32::MAX
+            )));
+        }
+        Ok(n * self.plan.dim)
+    }
+
+    /// The flow's parameters, copied to the host (laid out as `nis::Density::params`).
+    pub fn params(&self) -> Result<Vec<f32>, GpuError> {
+        Ok(self.gpu.stream.clone_dtoh(&self.params)?)
     }
 
     /// Checks that `v` holds whole rows of finite values in [0, 1]; returns the row count.
@@ -146,7 +169,9 @@ impl<'g> GpuFlow<'g> {
                 v[i]
             )));
         }
-        Ok(v.len() / d)
+        let n = v.len() / d;
+        self.values_of(n)?;
+        Ok(n)
     }
 
     /// Runs every coupling over the `n` rows of `u` in place (latent to data when `inverse`);

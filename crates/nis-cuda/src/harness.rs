@@ -68,4 +68,6 @@ extern "C" {
 }
 
 #[cfg(test)]
+mod plan_tests;
+#[cfg(test)]
 mod tests;

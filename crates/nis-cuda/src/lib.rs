@@ -16,14 +16,18 @@
 //! # Ok::<(), nis_cuda::GpuError>(())
 //! ```
 
+mod adam;
 mod error;
 mod flow;
 mod gpu;
+#[doc(hidden)]
 pub mod harness;
 mod plan;
 mod train;
+mod trainer;
 
+pub use adam::GpuAdam;
 pub use error::GpuError;
 pub use flow::{DeviceSamples, GpuFlow};
 pub use gpu::Gpu;
-pub use train::{BatchEstimate, GpuAdam, GpuTrainer};
+pub use trainer::{BatchEstimate, GpuTrainer};

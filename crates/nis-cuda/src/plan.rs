@@ -7,6 +7,11 @@ use nis::{Density, TransformKind};
 
 use crate::error::GpuError;
 
+/// The largest bin count the kernels hold (kernels/flow.cuh, `NIS_MAX_BINS`).
+const MAX_BINS: usize = 256;
+// The kernels' knot arrays must hold every spline nis builds.
+const _: () = assert!(nis::transform::MAX_BINS <= MAX_BINS);
+
 /// The transform kinds the kernels know (kernels/flow.cuh's `kind`).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub(crate) enum Kind {
@@ -72,6 +77,24 @@ impl Plan {
                 }
             };
             let dims = &c.mlp().dims;
+            // The kernels read these shapes blindly: check them here, where a bad one is an error.
+            let np = match kind {
+                Kind::Quadratic => 2 * bins + 1,
+                Kind::RationalQuadratic => 3 * bins + 1,
+            };
+            let encoded = c.a().len() * c.encoding().bins;
+            if dims.len() < 2
+                || dims[0] != encoded
+                || dims[dims.len() - 1] != c.b().len() * np
+                || bins > MAX_BINS
+            {
+                return Err(GpuError::Unsupported(format!(
+                    "a coupling whose conditioner ({dims:?}) does not match its {} encoded inputs \
+                     and {} transformed dimensions of {bins} bins (at most {MAX_BINS})",
+                    encoded,
+                    c.b().len()
+                )));
+            }
             let mut at = c.param_range().start;
             let mut dense = Vec::new();
             for w in dims.windows(2) {

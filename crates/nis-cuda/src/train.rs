@@ -1,6 +1,6 @@
 //! The training step on the GPU: the score-function gradient of L = −Σ_i w_i ln q(x_i; θ) (the
-//! KL, χ² and NLL losses differ only in w, DESIGN.md "Learning from Monte Carlo samples") through
-//! the whole stack, as `nis::Density::backward` computes it on the CPU, and Adam.
+//! KL, χ² and NLL losses differ only in the weights w, `nis::loss::weights`) through the whole
+//! stack, as `nis::Density::backward` computes it on the CPU (Adam, which applies it: adam.rs).
 //!
 //! The pass runs data to latent and keeps each coupling's input and its conditioner's
 //! activations (the tape); the reverse sweep runs latent to data: the transforms' reverse mode
@@ -10,7 +10,6 @@
 use cudarc::cublas::sys::cublasOperation_t::{CUBLAS_OP_N, CUBLAS_OP_T};
 use cudarc::cublas::{Gemm, GemmConfig};
 use cudarc::driver::{CudaSlice, CudaView, CudaViewMut, PushKernelArg};
-use nis::nn::AdamConfig;
 
 use crate::error::GpuError;
 use crate::flow::GpuFlow;
@@ -66,7 +65,8 @@ impl GpuFlow<'_> {
         n: usize,
     ) -> Result<CudaSlice<f32>, GpuError> {
         let dim = self.plan.dim;
-        if x.len() < n * dim || w.len() < n || n == 0 {
+        let len = self.values_of(n)?;
+        if x.len() < len || w.len() < n {
             return Err(GpuError::InvalidInput(format!(
                 "{n} points of dimension {dim} with their weights: got {} values and {} weights",
                 x.len(),
@@ -297,155 +297,5 @@ impl GpuFlow<'_> {
             }
         }
         Ok(grads)
-    }
-}
-
-/// Adam on the device (`nis::nn::Adam`'s update: clipping by the gradient's norm, summed in
-/// f64 in a fixed order, bias corrections and decay formed on the host).
-pub struct GpuAdam {
-    config: AdamConfig,
-    m: CudaSlice<f32>,
-    v: CudaSlice<f32>,
-    step: u64,
-}
-
-/// Values per partial sum of the gradient's norm.
-const NORM_CHUNK: usize = 4096;
-
-impl GpuAdam {
-    /// Adam for the parameters of `flow`.
-    pub fn new(flow: &GpuFlow<'_>, config: AdamConfig) -> Result<GpuAdam, GpuError> {
-        config
-            .validate()
-            .map_err(|e| GpuError::InvalidInput(e.to_string()))?;
-        let n = flow.plan.params.len().max(1);
-        let stream = &flow.gpu.stream;
-        Ok(GpuAdam {
-            config,
-            m: stream.alloc_zeros(n)?,
-            v: stream.alloc_zeros(n)?,
-            step: 0,
-        })
-    }
-
-    /// One update of `flow`'s parameters with the gradient `grad`; returns the gradient's norm.
-    pub fn step(&mut self, flow: &mut GpuFlow<'_>, grad: &CudaSlice<f32>) -> Result<f64, GpuError> {
-        let gpu = flow.gpu;
-        let stream = &gpu.stream;
-        let n = flow.plan.params.len();
-        if grad.len() < n {
-            return Err(GpuError::InvalidInput(format!(
-                "a gradient of {} values for {n} parameters",
-                grad.len()
-            )));
-        }
-        let chunks = n.div_ceil(NORM_CHUNK).max(1);
-        let mut partial = stream.alloc_zeros::<f64>(chunks)?;
-        let (len, chunk) = (n as i64, NORM_CHUNK as i64);
-        let mut launch = stream.launch_builder(&gpu.kernels.sum_squares);
-        launch.arg(grad).arg(&len).arg(&chunk).arg(&mut partial);
-        // SAFETY: one thread per chunk of the n gradient values.
-        unsafe { launch.launch(grid(chunks)?) }?;
-        let norm = stream.clone_dtoh(&partial)?.iter().sum::<f64>().sqrt();
-        if !norm.is_finite() {
-            return Err(GpuError::InvalidInput(format!(
-                "the gradient's norm is {norm}"
-            )));
-        }
-        let c = self.config;
-        let scale = match c.clip_norm {
-            Some(limit) if norm > limit as f64 => (limit as f64 / norm) as f32,
-            _ => 1.0f32,
-        };
-        let lr = c.learning_rate * c.decay.powf(self.step as f32);
-        self.step += 1;
-        let t = self.step as i32;
-        let lr_t = lr * (1.0 - c.beta2.powi(t)).sqrt() / (1.0 - c.beta1.powi(t));
-        let mut launch = stream.launch_builder(&gpu.kernels.adam);
-        launch
-            .arg(&mut flow.params)
-            .arg(grad)
-            .arg(&mut self.m)
-            .arg(&mut self.v)
-            .arg(&len)
-            .arg(&lr_t)
-            .arg(&c.beta1)
-            .arg(&c.beta2)
-            .arg(&c.eps)
-            .arg(&scale);
-        // SAFETY: all four buffers hold at least n values.
-        unsafe { launch.launch(grid(n)?) }?;
-        Ok(norm)
-    }
-}
-
-impl GpuFlow<'_> {
-    /// The flow's parameters, copied to the host (as `nis::Density::params`).
-    pub fn params(&self) -> Result<Vec<f32>, GpuError> {
-        Ok(self.gpu.stream.clone_dtoh(&self.params)?)
-    }
-}
-
-/// One training batch's Monte Carlo estimate of ∫ f: the mean of f/q and its variance.
-#[derive(Clone, Copy, Debug, PartialEq)]
-pub struct BatchEstimate {
-    pub mean: f64,
-    pub variance: f64,
-}
-
-/// A flow on the GPU learning an integrand evaluated on the host: each step draws a batch on
-/// the device, hands its points to `f`, forms the loss's weights in f64 (`nis::loss::weights`,
-/// normalised by their sum, as the CPU trainer does), and takes one Adam step.
-pub struct GpuTrainer<'g> {
-    pub flow: GpuFlow<'g>,
-    adam: GpuAdam,
-    loss: nis::loss::Loss,
-}
-
-impl<'g> GpuTrainer<'g> {
-    /// A trainer of `flow` minimising `loss` with Adam.
-    pub fn new(
-        flow: GpuFlow<'g>,
-        loss: nis::loss::Loss,
-        adam: AdamConfig,
-    ) -> Result<GpuTrainer<'g>, GpuError> {
-        let adam = GpuAdam::new(&flow, adam)?;
-        Ok(GpuTrainer { flow, adam, loss })
-    }
-
-    /// One step on `n` fresh points of stream `seed`; `f` gets the points (`n × D`, row-major)
-    /// and writes the integrand's values. Returns the batch's estimate of ∫ f.
-    pub fn step(
-        &mut self,
-        n: usize,
-        seed: u64,
-        f: &mut dyn FnMut(&[f32], &mut [f64]),
-    ) -> Result<BatchEstimate, GpuError> {
-        let stream = self.flow.gpu.stream.clone();
-        let s = self.flow.sample(n, seed)?;
-        let x: Vec<f32> = stream.clone_dtoh(&s.x)?;
-        let log_q: Vec<f64> = stream.clone_dtoh(&s.log_q)?;
-        let mut values = vec![0.0f64; n];
-        f(&x[..n * self.flow.dim()], &mut values);
-        if let Some(i) = values.iter().position(|v| !v.is_finite()) {
-            return Err(GpuError::InvalidInput(format!(
-                "the integrand is {} at point {i}",
-                values[i]
-            )));
-        }
-        let ratio: Vec<f64> = values
-            .iter()
-            .zip(&log_q)
-            .map(|(v, l)| v * (-l).exp())
-            .collect();
-        let mean = ratio.iter().sum::<f64>() / n as f64;
-        let variance =
-            ratio.iter().map(|r| (r - mean).powi(2)).sum::<f64>() / (n.max(2) - 1) as f64;
-        let w = nis::loss::weights(self.loss, &values, &log_q, &log_q)
-            .map_err(|e| GpuError::InvalidInput(e.to_string()))?;
-        let w = stream.clone_htod(&w.w)?;
-        let grad = self.flow.gradient(&s.x, &w, n)?;
-        self.adam.step(&mut self.flow, &grad)?;
-        Ok(BatchEstimate { mean, variance })
     }
 }

@@ -1,6 +1,6 @@
-//! `nis bench flow --device cuda`: sampling with ln q and the log-density of the reference flows
-//! on the GPU (crates/nis-cuda), against the same flow's sampling on every CPU core of the same
-//! machine, timed in one run.
+//! `nis bench flow --device cuda`: sampling with ln q, the log-density and an on-policy training
+//! step of the reference flows on the GPU (crates/nis-cuda), against the same flow's sampling and
+//! training step on every CPU core of the same machine, timed in one run.
 
 use std::time::Instant;
 
@@ -37,17 +37,24 @@ pub fn run(
     only: Option<&str>,
     log: &mut dyn FnMut(&str),
 ) -> Result<String> {
+    if reps == 0 {
+        return Err(crate::error::Error::Config(
+            "the GPU benchmark needs at least one timed run".into(),
+        ));
+    }
     let gpu = nis_cuda::Gpu::open(0)?;
     let threads = rayon::current_num_threads();
     let mut md = format!(
-        "GPU: {}; CPU: {threads} threads. Samples/s, median of {reps} runs after two warm-ups; \
-         the GPU's points and ln q stay on the device (timed to the stream's end). Output \
-         layers perturbed by ±0.01 so that the splines are not the identity.\n\n\
+        "GPU: {}; CPU: {threads} threads. Samples/s: on the GPU the median of {reps} runs after \
+         two warm-ups, its points and ln q left on the device (timed to the stream's end); on the \
+         CPU the median of {} after one. Every parameter perturbed by up to ±0.01 (uniform) so \
+         that the splines are not the identity.\n\n\
          The training step is on-policy KL with f = x₀ + 0.1 evaluated on the host (the GPU's \
          points copied out, the weights in), Adam on the device.\n\n\
          | config | batch | GPU sample + ln q | GPU ln q of points | CPU sample + ln q | GPU / CPU (sample) | GPU train step | CPU train step | GPU / CPU (train) |\n\
          |---|---:|---:|---:|---:|---:|---:|---:|---:|\n",
-        gpu.name()
+        gpu.name(),
+        reps.min(3)
     );
     for r in references()
         .into_iter()

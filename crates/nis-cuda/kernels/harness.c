@@ -1,8 +1,6 @@
-// The CPU side of flow.cuh: the same per-thread bodies the GPU kernels run, exported for the
-// crate's tests (src/harness.rs), which check them against nis's Rust transforms.
+// The CPU side of flow.cuh, in C: the same per-thread bodies the GPU kernels run, exported for
+// the crate's tests (src/harness.rs), which check them against nis's Rust transforms.
 #include "flow.cuh"
-
-extern "C" {
 
 float nis_cpu_uniform(uint64_t seed, uint64_t i) { return nis_uniform_at(seed, i); }
 
@@ -50,5 +48,4 @@ void nis_cpu_coupling(int kind, int bins, int inverse, const float* out, float* 
     for (long long r = 0; r < rows; ++r) {
         nis_coupling_row(kind, bins, inverse, out, u, log_q, r, dim, b, nb);
     }
-}
 }
