@@ -457,22 +457,27 @@ extern "C" __global__ void nis_uniform(float* u, nis_u64 n, nis_u64 seed) {
 }
 
 // The conditioner's input of `rows` rows: the one-blob code of each A dimension (k bins each).
+// Launched on a 2-D grid, blocks of 8 rows × 32 columns (a warp writes 32 neighbours of a row):
+// no 64-bit division per value.
 extern "C" __global__ void nis_encode(const float* u, int dim, const int* a, int na, int k,
                                       float* enc, long long rows) {
-    long long i = (long long)blockIdx.x * blockDim.x + threadIdx.x;
-    long long width = (long long)na * k;
-    if (i >= rows * width) return;
-    long long r = i / width;
-    int c = (int)(i - r * width), ai = c / k, j = c - ai * k;
-    enc[i] = nis_one_blob(u[r * dim + a[ai]], k, j);
+    long long r = (long long)blockIdx.x * blockDim.y + threadIdx.y;
+    int c = blockIdx.y * blockDim.x + threadIdx.x;
+    int width = na * k;
+    if (r >= rows || c >= width) return;
+    int ai = c / k;
+    enc[r * width + c] = nis_one_blob(u[r * dim + a[ai]], k, c - ai * k);
 }
 
-// y += bias (broadcast over rows), then ReLU when relu != 0; y row-major [rows, o].
+// y += bias (broadcast over rows), then ReLU when relu != 0; y row-major [rows, o]. The same
+// 2-D grid as nis_encode: the column is the bias's index.
 extern "C" __global__ void nis_bias_act(float* y, const float* bias, long long rows, int o,
                                         int relu) {
-    long long i = (long long)blockIdx.x * blockDim.x + threadIdx.x;
-    if (i >= rows * o) return;
-    float v = y[i] + bias[i % o];
+    long long r = (long long)blockIdx.x * blockDim.y + threadIdx.y;
+    int c = blockIdx.y * blockDim.x + threadIdx.x;
+    if (r >= rows || c >= o) return;
+    long long i = r * o + c;
+    float v = y[i] + bias[c];
     y[i] = relu ? fmaxf(v, 0.0f) : v;
 }
 

@@ -4,8 +4,6 @@
 //! thread per row, adding ln C' to the row's ln q in f64) — the CPU flow's arithmetic
 //! (`nis::flow::coupling`), so both give the same numbers to f32 rounding.
 
-use cudarc::cublas::sys::cublasOperation_t;
-use cudarc::cublas::{Gemm, GemmConfig};
 use cudarc::driver::{CudaSlice, PushKernelArg};
 use nis::flow::Flow;
 
@@ -182,9 +180,8 @@ impl<'g> GpuFlow<'g> {
         n: usize,
         inverse: bool,
     ) -> Result<CudaSlice<f64>, GpuError> {
-        let gpu = self.gpu;
-        let stream = &gpu.stream;
-        let mut log_q = stream.alloc_zeros::<f64>(n.max(1))?;
+        let stream = &self.gpu.stream;
+        let mut log_q = stream.alloc_zeros::<f64>(n)?;
         // Two buffers of the widest activation, each layer reading one and writing the other.
         let widest = self
             .plan
@@ -202,82 +199,24 @@ impl<'g> GpuFlow<'g> {
                 stream.alloc::<f32>(n * widest)?,
             ]
         };
-        let (rows, dim, inv) = (n as i64, self.plan.dim as i32, inverse as i32);
         for l in self.plan.order(inverse) {
             let step = &self.plan.steps[l];
-            let idx = &self.indices[l];
             let enc = step.encoded();
             if enc > 0 {
-                let (na, k) = (step.a.len() as i32, step.blob_bins as i32);
-                let mut launch = stream.launch_builder(&gpu.kernels.encode);
-                launch
-                    .arg(&*u)
-                    .arg(&dim)
-                    .arg(&idx.a)
-                    .arg(&na)
-                    .arg(&k)
-                    .arg(&mut bufs[0])
-                    .arg(&rows);
-                // SAFETY: the kernel reads n rows of u and writes n × enc values into bufs[0].
-                unsafe { launch.launch(grid(n * enc)?) }?;
+                self.encode(l, u, &mut bufs[0].slice_mut(0..n * enc), n)?;
             }
             let mut cur = 0;
             for (j, d) in step.dense.iter().enumerate() {
-                let (src, dst) = if cur == 0 {
-                    let [a, b] = &mut bufs;
-                    (&*a, b)
-                } else {
-                    let [a, b] = &mut bufs;
-                    (&*b, a)
-                };
-                let mut y = dst.slice_mut(0..n * d.outputs);
-                if d.inputs > 0 {
-                    // Row-major Y[n, o] = X[n, i]·W[i, o] is column-major Yᵀ = Wᵀ·Xᵀ.
-                    let w = self
-                        .params
-                        .slice(d.weights..d.weights + d.inputs * d.outputs);
-                    let x = src.slice(0..n * d.inputs);
-                    let cfg = GemmConfig {
-                        transa: cublasOperation_t::CUBLAS_OP_N,
-                        transb: cublasOperation_t::CUBLAS_OP_N,
-                        m: d.outputs as i32,
-                        n: n as i32,
-                        k: d.inputs as i32,
-                        alpha: 1.0f32,
-                        lda: d.outputs as i32,
-                        ldb: d.inputs as i32,
-                        beta: 0.0f32,
-                        ldc: d.outputs as i32,
-                    };
-                    // SAFETY: the views hold exactly the shapes the config names.
-                    unsafe { gpu.blas.gemm(cfg, &w, &x, &mut y) }?;
-                } else {
-                    stream.memset_zeros(&mut y)?;
-                }
-                let bias = self.params.slice(d.biases..d.biases + d.outputs);
-                let (o, relu) = (d.outputs as i32, (j + 1 < step.dense.len()) as i32);
-                let mut launch = stream.launch_builder(&gpu.kernels.bias_act);
-                launch.arg(&mut y).arg(&bias).arg(&rows).arg(&o).arg(&relu);
-                // SAFETY: y holds n × o values, bias o.
-                unsafe { launch.launch(grid(n * d.outputs)?) }?;
+                let [a, b] = &mut bufs;
+                let (src, dst) = if cur == 0 { (&*a, b) } else { (&*b, a) };
+                let relu = j + 1 < step.dense.len();
+                let x = src.slice(0..n * d.inputs);
+                self.dense(d, relu, &x, &mut dst.slice_mut(0..n * d.outputs), n)?;
                 cur = 1 - cur;
             }
-            let out = &bufs[cur];
-            let (kind, bins, nb) = (step.kind as i32, step.bins as i32, step.b.len() as i32);
-            let mut launch = stream.launch_builder(&gpu.kernels.coupling);
-            launch
-                .arg(&kind)
-                .arg(&bins)
-                .arg(&inv)
-                .arg(out)
-                .arg(&mut *u)
-                .arg(&mut log_q)
-                .arg(&rows)
-                .arg(&dim)
-                .arg(&idx.b)
-                .arg(&nb);
-            // SAFETY: out holds n rows of nb × np parameters; u n rows of dim; log_q n values.
-            unsafe { launch.launch(grid(n)?) }?;
+            let out_w = step.dense.last().map_or(0, |d| d.outputs);
+            let out = bufs[cur].slice(0..n * out_w);
+            self.transform(l, &out, u, &mut log_q, n, inverse)?;
         }
         Ok(log_q)
     }

@@ -189,3 +189,24 @@ pub(crate) fn grid(n: usize) -> Result<LaunchConfig, GpuError> {
         shared_mem_bytes: 0,
     })
 }
+
+/// A launch over a row-major `rows × cols` matrix, one thread a value: blocks of 8 rows × 32
+/// columns on a 2-D grid (rows along x, columns along y).
+pub(crate) fn grid_2d(rows: usize, cols: usize) -> Result<LaunchConfig, GpuError> {
+    let bx = u32::try_from(rows.div_ceil(8).max(1))
+        .ok()
+        .filter(|&b| b < 1 << 31);
+    let by = u32::try_from(cols.div_ceil(32).max(1))
+        .ok()
+        .filter(|&b| b <= 65_535);
+    match (bx, by) {
+        (Some(bx), Some(by)) => Ok(LaunchConfig {
+            grid_dim: (bx, by, 1),
+            block_dim: (32, 8, 1),
+            shared_mem_bytes: 0,
+        }),
+        _ => Err(GpuError::InvalidInput(format!(
+            "a {rows} × {cols} matrix does not fit one launch"
+        ))),
+    }
+}

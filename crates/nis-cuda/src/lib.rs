@@ -22,6 +22,7 @@ mod flow;
 mod gpu;
 #[doc(hidden)]
 pub mod harness;
+mod layer;
 mod plan;
 mod train;
 mod trainer;

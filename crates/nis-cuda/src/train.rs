@@ -81,86 +81,37 @@ impl GpuFlow<'_> {
         let mut log_q = stream.alloc_zeros::<f64>(n)?;
         let mut tapes = Vec::with_capacity(self.plan.steps.len());
         for (l, step) in self.plan.steps.iter().enumerate() {
-            let idx = &self.indices[l];
             let input = stream.clone_dtod(&u)?;
             let enc_w = step.encoded();
             let encoded = if enc_w > 0 {
-                // SAFETY: the encoding kernel writes all n × enc_w values.
+                // SAFETY: the encoding writes all n × enc_w values.
                 let mut enc = unsafe { stream.alloc::<f32>(n * enc_w) }?;
-                let (na, kb) = (step.a.len() as i32, step.blob_bins as i32);
-                let mut launch = stream.launch_builder(&k.encode);
-                launch
-                    .arg(&u)
-                    .arg(&dim_i)
-                    .arg(&idx.a)
-                    .arg(&na)
-                    .arg(&kb)
-                    .arg(&mut enc)
-                    .arg(&rows);
-                // SAFETY: reads n rows of u, writes n × enc_w values.
-                unsafe { launch.launch(grid(n * enc_w)?) }?;
+                self.encode(l, &u, &mut enc.slice_mut(0..n * enc_w), n)?;
                 Some(enc)
             } else {
                 None
             };
             let mut acts: Vec<CudaSlice<f32>> = Vec::with_capacity(step.dense.len());
             for (j, d) in step.dense.iter().enumerate() {
-                let mut y = stream.alloc_zeros::<f32>(n * d.outputs)?;
-                if d.inputs > 0 {
-                    let src = if j == 0 {
-                        encoded
-                            .as_ref()
-                            .expect("a layer with inputs has an encoding")
-                    } else {
-                        &acts[j - 1]
-                    };
-                    let wv = self
-                        .params
-                        .slice(d.weights..d.weights + d.inputs * d.outputs);
-                    let xv = src.slice(0..n * d.inputs);
-                    let mut yv = y.slice_mut(0..n * d.outputs);
-                    // Row-major Y = X·W is column-major Yᵀ = Wᵀ·Xᵀ.
-                    gemm(
-                        self,
-                        (false, false),
-                        (d.outputs, n, d.inputs),
-                        &wv,
-                        d.outputs,
-                        &xv,
-                        d.inputs,
-                        &mut yv,
-                        d.outputs,
-                    )?;
-                }
-                let bias = self.params.slice(d.biases..d.biases + d.outputs);
-                let (o, relu) = (d.outputs as i32, (j + 1 < step.dense.len()) as i32);
-                let mut launch = stream.launch_builder(&k.bias_act);
-                launch.arg(&mut y).arg(&bias).arg(&rows).arg(&o).arg(&relu);
-                // SAFETY: y holds n × o values, bias o.
-                unsafe { launch.launch(grid(n * d.outputs)?) }?;
+                // SAFETY: the SGEMM (or, without inputs, a memset) writes all of it.
+                let mut y = unsafe { stream.alloc::<f32>(n * d.outputs) }?;
+                let src = if j == 0 {
+                    encoded.as_ref()
+                } else {
+                    acts.last()
+                };
+                let relu = j + 1 < step.dense.len();
+                // A layer without inputs reads nothing: any buffer stands for its empty input.
+                let x = src.unwrap_or(&u).slice(0..n * d.inputs);
+                self.dense(d, relu, &x, &mut y.slice_mut(0..n * d.outputs), n)?;
                 acts.push(y);
             }
-            let out = acts.last().expect("a conditioner has an output layer");
-            let (kind, bins, nb, inv) = (
-                step.kind as i32,
-                step.bins as i32,
-                step.b.len() as i32,
-                0i32,
-            );
-            let mut launch = stream.launch_builder(&k.coupling);
-            launch
-                .arg(&kind)
-                .arg(&bins)
-                .arg(&inv)
-                .arg(out)
-                .arg(&mut u)
-                .arg(&mut log_q)
-                .arg(&rows)
-                .arg(&dim_i)
-                .arg(&idx.b)
-                .arg(&nb);
-            // SAFETY: as in GpuFlow::run.
-            unsafe { launch.launch(grid(n)?) }?;
+            let out_w = step.dense.last().map_or(0, |d| d.outputs);
+            let out = acts
+                .last()
+                .ok_or_else(|| GpuError::Unsupported("a conditioner without layers".into()))?
+                .slice(0..n * out_w);
+            self.transform(l, &out, &mut u, &mut log_q, n, false)?;
             tapes.push(LayerTape {
                 input,
                 encoded,
