@@ -168,8 +168,14 @@ fn bad_input_and_exhausted_memory_are_errors() {
         on.log_density(&[]),
         Err(GpuError::InvalidInput(_))
     ));
-    // 2³⁶ points of D = 3 need 768 GiB: the driver says no, and the GPU stays usable.
-    match on.sample(1 << 36, 0) {
+    // 2³⁶ points are more than a batch may hold: refused before anything runs.
+    assert!(matches!(
+        on.sample(1 << 36, 0),
+        Err(GpuError::InvalidInput(_))
+    ));
+    // 2³⁰ points of D = 3 need 520 GiB for each activation buffer: the driver says no, and the
+    // GPU stays usable.
+    match on.sample(1 << 30, 0) {
         Err(GpuError::Driver(m)) => assert!(m.contains("OUT_OF_MEMORY"), "{m}"),
         other => panic!("expected out of memory, got {:?}", other.map(|_| ())),
     }
