@@ -76,9 +76,10 @@ fn bent_flow(config: FlowConfig, seed: u64) -> Flow {
     flow
 }
 
-#[test]
-fn the_plan_on_the_cpu_is_the_flow() {
-    let configs = [
+/// Small flows of each kind the kernels run: piecewise-quadratic with two hidden layers,
+/// rational-quadratic with one, and D = 1 (conditioners without inputs).
+fn small_configs() -> [FlowConfig; 3] {
+    [
         FlowConfig {
             transform: TransformKind::Quadratic { bins: 8 },
             hidden_width: 16,
@@ -97,7 +98,12 @@ fn the_plan_on_the_cpu_is_the_flow() {
             transform: TransformKind::Quadratic { bins: 4 },
             ..FlowConfig::new(1)
         },
-    ];
+    ]
+}
+
+#[test]
+fn the_plan_on_the_cpu_is_the_flow() {
+    let configs = small_configs();
     for (c, config) in configs.into_iter().enumerate() {
         let flow = bent_flow(config, c as u64);
         let plan = Plan::of(&flow).unwrap();
@@ -296,26 +302,7 @@ fn gradient_plan(plan: &Plan, x: &[f32], w: &[f32]) -> Vec<f32> {
 
 #[test]
 fn the_plans_gradient_is_the_flows() {
-    let configs = [
-        FlowConfig {
-            transform: TransformKind::Quadratic { bins: 6 },
-            hidden_width: 12,
-            hidden_layers: 2,
-            blob_bins: 5,
-            ..FlowConfig::new(4)
-        },
-        FlowConfig {
-            transform: TransformKind::RationalQuadratic { bins: 5 },
-            hidden_width: 10,
-            hidden_layers: 1,
-            blob_bins: 4,
-            ..FlowConfig::new(3)
-        },
-        FlowConfig {
-            transform: TransformKind::Quadratic { bins: 4 },
-            ..FlowConfig::new(1)
-        },
-    ];
+    let configs = small_configs();
     for (c, config) in configs.into_iter().enumerate() {
         let flow = bent_flow(config, 20 + c as u64);
         let plan = Plan::of(&flow).unwrap();
