@@ -358,19 +358,13 @@ def serialized_v4(meshes):
 
 def ply_binary(mesh):
     """A binary little-endian PLY of (positions, normals, uvs, triangles); normals, uvs None."""
-    import struct
     positions, normals, uvs, triangles = mesh
-    props = ["x", "y", "z"] + (["nx", "ny", "nz"] if normals else []) + (["u", "v"] if uvs else [])
-    head = "ply\nformat binary_little_endian 1.0\n" + f"element vertex {len(positions)}\n"
-    head += "".join(f"property float {p}\n" for p in props)
-    head += f"element face {len(triangles)}\nproperty list uchar int vertex_indices\nend_header\n"
-    body = b""
-    for i, p in enumerate(positions):
-        row = list(p) + (list(normals[i]) if normals else []) + (list(uvs[i]) if uvs else [])
-        body += struct.pack(f"<{len(row)}f", *row)
-    for t in triangles:
-        body += struct.pack("<B3i", 3, *t)
-    return head.encode() + body
+    columns = (["nx", "ny", "nz"] if normals else []) + (["u", "v"] if uvs else [])
+    rows = [
+        (list(normals[i]) if normals else []) + (list(uvs[i]) if uvs else [])
+        for i in range(len(positions))
+    ]
+    return ply_attributes(positions, triangles, columns, rows, [], [[]] * len(triangles))
 
 
 def ply_attributes(positions, triangles, vertex_columns, vertex_rows, face_columns, face_rows):
