@@ -80,8 +80,8 @@ impl<'g> GpuFlow<'g> {
         let len = self.values_of(n)?;
         let stream = &self.gpu.stream;
         // SAFETY: the uniform kernel writes every value before anything reads it.
-        let mut x = unsafe { stream.alloc::<f32>(len.max(1)) }?;
-        let (count, seed) = (len as u64, seed);
+        let mut x = unsafe { stream.alloc::<f32>(len) }?;
+        let count = len as u64;
         let mut launch = stream.launch_builder(&self.gpu.kernels.uniform);
         launch.arg(&mut x).arg(&count).arg(&seed);
         // SAFETY: the kernel writes `count` floats into `x`, which holds at least that many.
@@ -130,14 +130,7 @@ impl<'g> GpuFlow<'g> {
     /// The number of values of `n` points: an error for none, or for more than the kernels
     /// and the dense layers' 32-bit sizes address.
     pub(crate) fn values_of(&self, n: usize) -> Result<usize, GpuError> {
-        let widest = self
-            .plan
-            .steps
-            .iter()
-            .flat_map(|s| s.dense.iter().map(|d| d.outputs).chain([s.encoded()]))
-            .chain([self.plan.dim])
-            .max()
-            .unwrap_or(1);
+        let widest = self.plan.widest().max(self.plan.dim);
         if n == 0 || i32::try_from(n).is_err() || n.checked_mul(widest).is_none() {
             return Err(GpuError::InvalidInput(format!(
                 "a batch of {n} points: at least 1 and at most {} on the GPU",
@@ -183,14 +176,7 @@ impl<'g> GpuFlow<'g> {
         let stream = &self.gpu.stream;
         let mut log_q = stream.alloc_zeros::<f64>(n)?;
         // Two buffers of the widest activation, each layer reading one and writing the other.
-        let widest = self
-            .plan
-            .steps
-            .iter()
-            .flat_map(|s| s.dense.iter().map(|d| d.outputs).chain([s.encoded()]))
-            .max()
-            .unwrap_or(1)
-            .max(1);
+        let widest = self.plan.widest();
         // SAFETY: each layer writes the part of a buffer it hands on (encoding, SGEMM, or a
         // memset for a layer without inputs) before the next reads it.
         let mut bufs = unsafe {

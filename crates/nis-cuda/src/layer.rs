@@ -1,7 +1,7 @@
 //! One coupling's launches, shared by every pass: the one-blob code of x_A, a dense layer of the
 //! conditioner (SGEMM, then bias and ReLU), and the transforms of x_B.
 
-use cudarc::cublas::sys::cublasOperation_t;
+use cudarc::cublas::sys::cublasOperation_t::{CUBLAS_OP_N, CUBLAS_OP_T};
 use cudarc::cublas::{Gemm, GemmConfig};
 use cudarc::driver::{CudaSlice, CudaView, CudaViewMut, PushKernelArg};
 
@@ -9,6 +9,37 @@ use crate::error::GpuError;
 use crate::flow::GpuFlow;
 use crate::gpu::{grid, grid_2d};
 use crate::plan::Dense;
+
+/// Column-major SGEMM C = op(A)·op(B) (row-major callers pass transposed roles).
+#[allow(clippy::too_many_arguments)]
+pub(crate) fn gemm(
+    flow: &GpuFlow<'_>,
+    (ta, tb): (bool, bool),
+    (m, n, k): (usize, usize, usize),
+    a: &CudaView<'_, f32>,
+    lda: usize,
+    b: &CudaView<'_, f32>,
+    ldb: usize,
+    c: &mut CudaViewMut<'_, f32>,
+    ldc: usize,
+) -> Result<(), GpuError> {
+    let op = |t| if t { CUBLAS_OP_T } else { CUBLAS_OP_N };
+    let cfg = GemmConfig {
+        transa: op(ta),
+        transb: op(tb),
+        m: m as i32,
+        n: n as i32,
+        k: k as i32,
+        alpha: 1.0f32,
+        lda: lda as i32,
+        ldb: ldb as i32,
+        beta: 0.0f32,
+        ldc: ldc as i32,
+    };
+    // SAFETY: the callers' views hold the shapes the config names.
+    unsafe { flow.gpu.blas.gemm(cfg, a, b, c) }?;
+    Ok(())
+}
 
 impl GpuFlow<'_> {
     /// The conditioner input of coupling `l` for the `n` rows of `u`: the one-blob code of each
@@ -57,20 +88,8 @@ impl GpuFlow<'_> {
             let w = self
                 .params
                 .slice(d.weights..d.weights + d.inputs * d.outputs);
-            let cfg = GemmConfig {
-                transa: cublasOperation_t::CUBLAS_OP_N,
-                transb: cublasOperation_t::CUBLAS_OP_N,
-                m: d.outputs as i32,
-                n: n as i32,
-                k: d.inputs as i32,
-                alpha: 1.0f32,
-                lda: d.outputs as i32,
-                ldb: d.inputs as i32,
-                beta: 0.0f32,
-                ldc: d.outputs as i32,
-            };
-            // SAFETY: the views hold exactly the shapes the config names.
-            unsafe { gpu.blas.gemm(cfg, &w, x, y) }?;
+            let (o, i) = (d.outputs, d.inputs);
+            gemm(self, (false, false), (o, n, i), &w, o, x, i, y, o)?;
         } else {
             gpu.stream.memset_zeros(y)?;
         }

@@ -3,7 +3,7 @@
 //! that the CPU harness's tests run the very plan the GPU runs.
 
 use nis::flow::Flow;
-use nis::{Density, TransformKind};
+use nis::{Density, Transform, TransformKind};
 
 use crate::error::GpuError;
 
@@ -78,10 +78,7 @@ impl Plan {
             };
             let dims = &c.mlp().dims;
             // The kernels read these shapes blindly: check them here, where a bad one is an error.
-            let np = match kind {
-                Kind::Quadratic => 2 * bins + 1,
-                Kind::RationalQuadratic => 3 * bins + 1,
-            };
+            let np = c.transform().param_count();
             let encoded = c.a().len() * c.encoding().bins;
             if dims.len() < 2
                 || dims[0] != encoded
@@ -123,6 +120,16 @@ impl Plan {
             steps,
             params,
         })
+    }
+
+    /// The widest activation of a row: every conditioner's encoded input and layer outputs.
+    pub fn widest(&self) -> usize {
+        self.steps
+            .iter()
+            .flat_map(|s| s.dense.iter().map(|d| d.outputs).chain([s.encoded()]))
+            .max()
+            .unwrap_or(1)
+            .max(1)
     }
 
     /// The steps in the order a pass runs them: data to latent (density) or back (sampling).

@@ -7,13 +7,12 @@
 //! (a kernel per coupling), the conditioner's (SGEMMs for ∂L/∂W = Xᵀ·δ, ∂L/∂X = δ·Wᵀ, and
 //! ∂L/∂b = δᵀ·1, so every sum has cuBLAS's fixed order), and the encoding's.
 
-use cudarc::cublas::sys::cublasOperation_t::{CUBLAS_OP_N, CUBLAS_OP_T};
-use cudarc::cublas::{Gemm, GemmConfig};
-use cudarc::driver::{CudaSlice, CudaView, CudaViewMut, PushKernelArg};
+use cudarc::driver::{CudaSlice, PushKernelArg};
 
 use crate::error::GpuError;
 use crate::flow::GpuFlow;
 use crate::gpu::grid;
+use crate::layer::gemm;
 
 /// One coupling's share of the tape: its data-side input, its conditioner's input (the
 /// encoding) and each dense layer's output (after the ReLU for hidden layers).
@@ -21,37 +20,6 @@ struct LayerTape {
     input: CudaSlice<f32>,
     encoded: Option<CudaSlice<f32>>,
     acts: Vec<CudaSlice<f32>>,
-}
-
-/// Column-major SGEMM C = op(A)·op(B) (row-major callers pass transposed roles).
-#[allow(clippy::too_many_arguments)]
-fn gemm(
-    flow: &GpuFlow<'_>,
-    (ta, tb): (bool, bool),
-    (m, n, k): (usize, usize, usize),
-    a: &CudaView<'_, f32>,
-    lda: usize,
-    b: &CudaView<'_, f32>,
-    ldb: usize,
-    c: &mut CudaViewMut<'_, f32>,
-    ldc: usize,
-) -> Result<(), GpuError> {
-    let op = |t| if t { CUBLAS_OP_T } else { CUBLAS_OP_N };
-    let cfg = GemmConfig {
-        transa: op(ta),
-        transb: op(tb),
-        m: m as i32,
-        n: n as i32,
-        k: k as i32,
-        alpha: 1.0f32,
-        lda: lda as i32,
-        ldb: ldb as i32,
-        beta: 0.0f32,
-        ldc: ldc as i32,
-    };
-    // SAFETY: the callers' views hold the shapes the config names.
-    unsafe { flow.gpu.blas.gemm(cfg, a, b, c) }?;
-    Ok(())
 }
 
 impl GpuFlow<'_> {

@@ -42,8 +42,6 @@ impl<'g> GpuTrainer<'g> {
         f: &mut dyn FnMut(&[f32], &mut [f64]),
     ) -> Result<BatchEstimate, GpuError> {
         let stream = self.flow.gpu.stream.clone();
-        // An empty or oversized batch is an error before anything runs.
-        self.flow.values_of(n)?;
         let s = self.flow.sample(n, seed)?;
         let x: Vec<f32> = stream.clone_dtoh(&s.x)?;
         let log_q: Vec<f64> = stream.clone_dtoh(&s.log_q)?;

@@ -49,6 +49,20 @@ pub(crate) fn references() -> Vec<Reference> {
     ]
 }
 
+/// The benchmark's integrand, f = x₀ + 0.1: cheap, so that a step times the flow.
+pub(crate) fn bench_integrand(x: &[f32]) -> f64 {
+    x[0] as f64 + 0.1
+}
+
+/// One on-policy KL step of `trainer` on `n` fresh points of the benchmark's integrand.
+pub(crate) fn train_step(trainer: &mut Trainer, n: usize, rng: &mut Pcg64Mcg) -> nis::Result<()> {
+    let dim = trainer.flow().dim();
+    let s = trainer.flow().sample_for_training(n, None, rng)?;
+    let f: Vec<f64> = s.x.chunks(dim).map(bench_integrand).collect();
+    trainer.step_on_policy(&s, &f)?;
+    Ok(())
+}
+
 /// The dense-layer shapes of a training step: (inputs, outputs, whether the backward pass needs
 /// the input gradient — everywhere but below the first layer's fixed input).
 fn dense_shapes(flow: &Flow) -> Vec<(usize, usize, bool)> {
@@ -144,14 +158,8 @@ pub fn flow(batch: usize, only: Option<&str>, log: &mut dyn FnMut(&str)) -> Resu
                     flow.sample(batch, None, &mut rng).expect("sampling");
                 });
                 let mut trainer = Trainer::new(flow.clone(), Loss::Kl, AdamConfig::default())?;
-                let dim = flow.dim();
                 let train_t = time(5, || {
-                    let s = trainer
-                        .flow()
-                        .sample_for_training(batch, None, &mut rng)
-                        .expect("sampling");
-                    let f: Vec<f64> = s.x.chunks(dim).map(|p| p[0] as f64 + 0.1).collect();
-                    trainer.step_on_policy(&s, &f).expect("training step");
+                    train_step(&mut trainer, batch, &mut rng).expect("training step");
                 });
                 Ok((sample_t, train_t, bare_gemm_seconds(&flow, batch, threads)))
             })?;

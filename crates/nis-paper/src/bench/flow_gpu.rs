@@ -11,7 +11,7 @@ use nis::train::Trainer;
 use rand::{Rng, SeedableRng};
 use rand_pcg::Pcg64Mcg;
 
-use super::flow::references;
+use super::flow::{bench_integrand, references, train_step};
 use super::time;
 use crate::error::Result;
 
@@ -89,7 +89,7 @@ pub fn run(
             )?;
             let mut f = |x: &[f32], out: &mut [f64]| {
                 for (o, p) in out.iter_mut().zip(x.chunks(dim)) {
-                    *o = p[0] as f64 + 0.1;
+                    *o = bench_integrand(p);
                 }
             };
             let mut step_seed = 1_000_000;
@@ -100,12 +100,7 @@ pub fn run(
             })?;
             let mut cpu_trainer = Trainer::new(flow.clone(), Loss::Kl, AdamConfig::default())?;
             let cpu_train = time(reps.min(3), || {
-                let s = cpu_trainer
-                    .flow()
-                    .sample_for_training(n, None, &mut rng)
-                    .expect("sampling");
-                let v: Vec<f64> = s.x.chunks(dim).map(|p| p[0] as f64 + 0.1).collect();
-                cpu_trainer.step_on_policy(&s, &v).expect("training step");
+                train_step(&mut cpu_trainer, n, &mut rng).expect("training step");
             });
             let row = format!(
                 "| {} | {n} | {:.3e} | {:.3e} | {:.3e} | {:.0}× | {:.3e} | {:.3e} | {:.0}× |\n",
