@@ -6,7 +6,8 @@ Mitsuba 3 refuses some files as published (a Mitsuba 0.4 `<lookAt>`, a guiding p
 integrator plugin, a Mitsuba 0.5 `sunsky`): those are handed to it upgraded the way nis reads
 them (camelCase names to snake_case, `lookAt`, `srgb` colours, a wrapper integrator (`moment`) as the one it holds, other integrators as `path`,
 0.x's mipmapped bitmap filters as bilinear and its bitmap `gamma`, a 0.5 sunsky's frame, scales and sun radius as
-`upgrade_sunsky` says), which says the same thing in Mitsuba 3's words. Shapes whose mesh files are missing are left out for both renderers.
+`upgrade_sunsky` says, a 0.x `roughdiffuse` as `diffuse`, 0.x film settings Mitsuba 3 lacks such as
+`gamma` and `banner` dropped), which says the same thing in Mitsuba 3's words. Shapes whose mesh files are missing are left out for both renderers.
 
     python3 -m venv target/mitsuba-venv && target/mitsuba-venv/bin/pip install mitsuba==3.9.1 numpy
     cargo build --release -p nis-cli
@@ -86,6 +87,11 @@ def upgrade_sunsky(e):
     t.insert(0, ET.Element("matrix", value=SKY_FRAME_0_5))
 
 
+# Mitsuba 0.x film properties (ldrfilm's tonemapping, the banner) that Mitsuba 3 lacks.
+FILM_0_X = ("gamma", "banner", "high_quality_edges", "attach_log", "tonemap_method", "exposure",
+            "key", "burn")
+
+
 def upgrade(root, base):
     """Mitsuba 0.x names to Mitsuba 3's, other integrators to path, missing meshes out."""
     legacy = int(root.get("version", "3").split(".")[0]) < 2
@@ -115,6 +121,18 @@ def upgrade(root, base):
                 for c in e:
                     if c.get("name") == "diffuse_reflectance":
                         c.set("name", "reflectance")
+            if e.tag == "bsdf" and e.get("type") == "roughdiffuse":
+                # Mitsuba 3 has no Oren-Nayar: a diffuse of the same reflectance, as nis reads it.
+                e.set("type", "diffuse")
+                for c in list(e):
+                    if c.get("name") in ("alpha", "use_fast_approx"):
+                        e.remove(c)
+            if e.tag == "film":
+                # 0.x film settings Mitsuba 3's hdrfilm refuses and nis ignores (xml/sensor.rs).
+                e.set("type", "hdrfilm")
+                for c in list(e):
+                    if c.get("name") in FILM_0_X:
+                        e.remove(c)
         if e.tag == "bsdf" and e.get("type") in ("conductor", "roughconductor"):
             # Mitsuba 0.x's exterior index, which Mitsuba 3 lacks: only air is expressible.
             for c in list(e):

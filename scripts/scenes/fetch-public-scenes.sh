@@ -15,6 +15,10 @@
 #       Bitterli's Mitsuba scenes (CC0, see each LICENSE.txt) and the practical-path-guiding
 #       torus, in Mitsuba 3 form, from a guiding lab's repository (its code GPL-3, not used;
 #       the snapshot lacks veach-ajar's three teapots: --drop-missing-meshes)
+#   data/scenes/dppm-scenes/scenes/{staircase,living-room,bathroom}
+#       Bitterli's 'The Wooden Staircase' (Wig42), 'The Grey & White Room' (Wig42) and
+#       'Contemporary Bathroom' (Mareck), CC BY 3.0 (see each LICENSE.txt), in Mitsuba 0.6 form,
+#       from a research group's scene collection (only these three folders are checked out)
 #
 # Then, e.g.:
 #   nis render data/scenes/practical-path-guiding/scenes/spaceship/spaceship.xml --spp 64
@@ -25,11 +29,12 @@
 set -euo pipefail
 cd "$(dirname "$0")/../.."
 
-# name | repository | commit | "sha256 path" checks
+# name | repository | commit | folders to check out (none: all)
 REPOS=(
   "practical-path-guiding|https://github.com/Tom94/practical-path-guiding|effbd1934a87bd7c471bb6981eea758fc4b72854"
   "mitsuba-data|https://github.com/mitsuba-renderer/mitsuba-data|01100fa9b0b154492061a92404f26dcd7b784dbb"
   "ppg-lab|https://github.com/takkasila/practical_path_guiding_lab|c4b6605b3c78dccaa5721275d96ef6cd30c0630c"
+  "dppm-scenes|https://github.com/hchoi405/dppm-scenes|8fdb2dcb3fe575bb04bc586fded35e81d76787d5|scenes/staircase scenes/living-room scenes/bathroom"
 )
 CHECKS=(
   "practical-path-guiding f29ece69d068191097766fcef98335eb71c394c577c1bf86363f9bafc28ad8c7 scenes/cbox/cbox.xml"
@@ -44,11 +49,14 @@ CHECKS=(
   "ppg-lab fbec3e990fd2529a55109a0abd4aba62b85299abeccf61100e00729ebf4d3f34 scenes/veach-bidir/scene.xml"
   "ppg-lab 5d8588d174d4468c3b4e3bcd5b1df486d775a9d082d97fb8da2ff4da886d2d09 scenes/veach-mis/scene.xml"
   "ppg-lab 31ab87422d663de98e0e652d10d145bab7f27fae327217318120f0fca7dde1ce scenes/torus/scene.xml"
+  "dppm-scenes c10b5734d2af1879d315f12ec2d19b78b22e260e79e54da06b93a3a382011341 scenes/staircase/scene.xml"
+  "dppm-scenes 3cb1e1fa594a3d6c228deb6f8af09cff6a55db070c459878b6a2f6241929e27d scenes/living-room/scene.xml"
+  "dppm-scenes b15d6db4e0a3b6669861b24f4d7f9ce767696f4d9ccc29ee8fc5cadfbe6a1131 scenes/bathroom/scene.xml"
 )
 
 mkdir -p data/scenes
 for entry in "${REPOS[@]}"; do
-  IFS='|' read -r name url commit <<<"$entry"
+  IFS='|' read -r name url commit folders <<<"$entry"
   dir="data/scenes/$name"
   if [ -d "$dir/.git" ] && [ "$(git -C "$dir" rev-parse HEAD)" = "$commit" ]; then
     echo "$name: at $commit"
@@ -57,6 +65,10 @@ for entry in "${REPOS[@]}"; do
   echo "$name: cloning $url at $commit"
   rm -rf "$dir"
   git clone --quiet --filter=blob:none --no-checkout "$url" "$dir"
+  if [ -n "$folders" ]; then
+    # shellcheck disable=SC2086 # the folders are words
+    git -C "$dir" sparse-checkout set $folders
+  fi
   git -C "$dir" checkout --quiet "$commit"
 done
 for check in "${CHECKS[@]}"; do

@@ -2,8 +2,10 @@
 //! Mitsuba 3 applies to files older than 2.0 (its `parser.cpp`, `upgrade_from_v1`: camelCase
 //! property names become snake_case, a diffuse BSDF's `diffuse_reflectance` its `reflectance`,
 //! `uoffset`/`uscale`… a `to_uv` transform), and what it leaves out: `<lookAt>` (0.4's
-//! spelling of `<lookat>`), `<srgb>` colours (gamma-encoded, decoded to linear `<rgb>`) and
-//! the `sunsky` emitter, which Mitsuba 3 redefined (see [`upgrade_sunsky`]).
+//! spelling of `<lookat>`), `<srgb>` colours (gamma-encoded, decoded to linear `<rgb>`), the
+//! `sunsky` emitter, which Mitsuba 3 redefined (see [`upgrade_sunsky`]), and `roughdiffuse`
+//! (Oren–Nayar), which Mitsuba 3 dropped: read as `diffuse` of the same reflectance, with a
+//! warning (Bitterli's living room has one, reflectance 0.1).
 
 use super::dom::{err, parse_vector, Element, XmlError};
 use crate::spectrum::srgb_to_linear;
@@ -87,6 +89,9 @@ pub fn upgrade(el: &mut Element, warnings: &mut Vec<(usize, String)>) -> Result<
     if el.name == "emitter" && el.attr("type") == Some("sunsky") {
         upgrade_sunsky(el, warnings)?;
     }
+    if el.name == "bsdf" && el.attr("type") == Some("roughdiffuse") {
+        upgrade_roughdiffuse(el, warnings);
+    }
     if uv.iter().any(Option::is_some) {
         let line = el.line;
         el.children.retain(|c| {
@@ -115,6 +120,33 @@ pub fn upgrade(el: &mut Element, warnings: &mut Vec<(usize, String)>) -> Result<
         });
     }
     Ok(())
+}
+
+/// A Mitsuba 0.x `roughdiffuse` as Mitsuba 3's `diffuse`: its reflectance kept, its roughness
+/// (`alpha`, `use_fast_approx`) dropped. Mitsuba 3 has no rough diffuse BSDF, so this is the
+/// scene Mitsuba 3 can render too; the rough surface's retro-reflection is lost.
+fn upgrade_roughdiffuse(el: &mut Element, warnings: &mut Vec<(usize, String)>) {
+    let alpha = el
+        .children
+        .iter()
+        .find(|c| c.attr("name") == Some("alpha"))
+        .and_then(|c| c.attr("value"))
+        .unwrap_or("0.2")
+        .to_string();
+    el.children
+        .retain(|c| !matches!(c.attr("name"), Some("alpha" | "use_fast_approx")));
+    for (k, v) in &mut el.attrs {
+        if k == "type" {
+            *v = "diffuse".into();
+        }
+    }
+    warnings.push((
+        el.line,
+        format!(
+            "Mitsuba 0.x roughdiffuse (Oren-Nayar, alpha {alpha}) read as diffuse of the same \
+             reflectance: Mitsuba 3 has no rough diffuse BSDF"
+        ),
+    ));
 }
 
 /// Mitsuba 0.5's apparent diameter of the sun, degrees (its `SUN_APP_RADIUS`).
@@ -277,6 +309,26 @@ mod tests {
         assert_eq!(tex.children[0].attr("name"), Some("to_uv"));
         assert_eq!(root.children[3].attr("name"), Some("to_world"));
         assert_eq!(root.children[3].children[0].name, "lookat");
+    }
+
+    #[test]
+    fn a_legacy_roughdiffuse_becomes_a_diffuse_of_its_reflectance() {
+        let mut root = super::super::dom::parse(
+            r#"<scene version="0.6.0"><bsdf type="roughdiffuse">
+                 <rgb name="reflectance" value="0.1, 0.2, 0.3"/><float name="alpha" value="1"/>
+                 <boolean name="useFastApprox" value="true"/>
+               </bsdf></scene>"#,
+        )
+        .unwrap();
+        let mut warnings = Vec::new();
+        upgrade(&mut root, &mut warnings).unwrap();
+        let b = &root.children[0];
+        assert_eq!(b.attr("type"), Some("diffuse"));
+        assert_eq!(b.children.len(), 1);
+        assert_eq!(b.children[0].attr("name"), Some("reflectance"));
+        assert_eq!(b.children[0].attr("value"), Some("0.1, 0.2, 0.3"));
+        assert_eq!(warnings.len(), 1);
+        assert!(warnings[0].1.contains("alpha 1"), "{warnings:?}");
     }
 
     #[test]
