@@ -25,6 +25,8 @@ struct UniformGuide {
     batch: usize,
     /// Bounces it serves (0: the trait's default, every bounce).
     bounces: u32,
+    /// The narrowest lobe it serves, radians (`None`: the trait's default).
+    lobe: Option<f32>,
 }
 
 impl Guide for UniformGuide {
@@ -74,6 +76,11 @@ impl Guide for UniformGuide {
         } else {
             self.bounces
         }
+    }
+
+    fn narrowest_lobe(&self) -> f32 {
+        self.lobe
+            .unwrap_or(nis_render::guiding::NARROWEST_LOBE_DEGREES.to_radians())
     }
 
     fn accumulate(&self, records: &[GuideRecord], statistics: &mut Vec<GuideRecord>) {
@@ -235,4 +242,45 @@ fn wavefront_batches_do_not_change_the_image() {
     assert!(images[0].iter().any(|p| p.max_element() > 0.0));
     assert_eq!(images[0], images[1]);
     assert_eq!(images[0], images[2]);
+}
+
+#[test]
+fn lobes_narrower_than_the_guide_serves_are_left_to_the_bsdf_and_stay_unbiased() {
+    // Two metal spheres under a sky: GGX α = 0.02 on the left (a lobe of 6.9°, narrower than
+    // the default's 22.5°), α = 0.3 on the right (84°).
+    let xml = r#"<scene version="3.0.0">
+        <sensor type="perspective">
+            <float name="fov" value="40"/>
+            <transform name="to_world"><lookat origin="0, 0, 6" target="0, 0, 0" up="0, 1, 0"/></transform>
+            <film type="hdrfilm"><integer name="width" value="12"/><integer name="height" value="8"/></film>
+        </sensor>
+        <emitter type="constant"><rgb name="radiance" value="1, 1, 1"/></emitter>
+        <shape type="rectangle">
+            <transform name="to_world"><scale value="10"/><rotate x="1" angle="-90"/><translate y="-1"/></transform>
+            <emitter type="area"><rgb name="radiance" value="2, 1, 0.5"/></emitter>
+        </shape>
+        <shape type="sphere"><point name="center" x="-1.2" y="0" z="0"/>
+            <bsdf type="roughconductor"><string name="distribution" value="ggx"/><float name="alpha" value="0.02"/></bsdf>
+        </shape>
+        <shape type="sphere"><point name="center" x="1.2" y="0" z="0"/>
+            <bsdf type="roughconductor"><string name="distribution" value="ggx"/><float name="alpha" value="0.3"/></bsdf>
+        </shape>
+    </scene>"#;
+    let scene = load_scene_str(xml, Path::new("."), "metals.xml", &[]).unwrap();
+    let mut guide = UniformGuide::default();
+    assert_unbiased(
+        &scene,
+        &mut guide,
+        "a guide that leaves the narrow lobe to the BSDF",
+    );
+    let left = |g: &UniformGuide| g.records.iter().filter(|r| r.vertex.p.x < 0.0).count();
+    let right = |g: &UniformGuide| g.records.iter().filter(|r| r.vertex.p.x > 0.0).count();
+    assert_eq!(left(&guide), 0);
+    assert!(right(&guide) > 100, "{}", right(&guide));
+    let mut every = UniformGuide {
+        lobe: Some(0.0),
+        ..UniformGuide::default()
+    };
+    mean_over_seeds(&scene, Strategy::Mis, &mut every, 2);
+    assert!(left(&every) > 100, "{}", left(&every));
 }

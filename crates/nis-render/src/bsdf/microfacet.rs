@@ -59,6 +59,19 @@ impl Microfacet {
         Self::new(MicrofacetKind::Ggx, alpha)
     }
 
+    /// The half-angle (radians) of the cone around the normal that holds 90% of the
+    /// microfacet normals (∫ D(m) cos θ_m dω over it is 0.9), along the rougher axis: the
+    /// lobe's width. Its tangent is 3α for GGX (`P(tan θ < t) = t²/(α² + t²)`) and
+    /// α√(ln 10) ≈ 1.52α for Beckmann (`1 − exp(−t²/α²)`): GGX's tails make it twice as wide.
+    pub fn cone_90(&self) -> f32 {
+        let alpha = self.alpha_u.max(self.alpha_v);
+        let k = match self.kind {
+            MicrofacetKind::Ggx => 3.0,
+            MicrofacetKind::Beckmann => std::f32::consts::LN_10.sqrt(),
+        };
+        (k * alpha).atan()
+    }
+
     /// Whether the roughness differs along `x` and `y`.
     pub fn is_anisotropic(&self) -> bool {
         self.alpha_u != self.alpha_v

@@ -315,6 +315,19 @@ impl Material {
 }
 
 impl Bsdf {
+    /// The half-angle (radians) of the cone around the mirror direction that holds about 90%
+    /// of the scattered light, for a BSDF that is one glossy lobe (a rough conductor or
+    /// dielectric: twice its [`Microfacet::cone_90`]); `None` for the rest (broad, delta, or a
+    /// mix with a broad part).
+    pub fn lobe_half_angle(&self) -> Option<f32> {
+        match self {
+            Bsdf::RoughConductor { dist, .. } | Bsdf::RoughDielectric { dist, .. } => {
+                Some(2.0 * dist.cone_90())
+            }
+            _ => None,
+        }
+    }
+
     /// Whether every lobe is a Dirac delta.
     pub fn is_delta(&self) -> bool {
         match self {

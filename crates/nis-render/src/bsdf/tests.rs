@@ -497,3 +497,49 @@ fn anisotropic_normals_project_to_unit_area_and_their_visible_ones_integrate_to_
         assert!(dist.d(m) < 0.5 * turned.d(m), "{kind:?}");
     }
 }
+
+#[test]
+fn the_ninety_percent_cone_holds_ninety_percent_of_the_microfacet_normals() {
+    // ∫ D(m) cos θ dω over the cone, by the midpoint rule in θ (D is isotropic here), and over
+    // the whole hemisphere (1: D is normalised per projected area).
+    let mass = |d: &Microfacet, theta_max: f32| -> f64 {
+        let steps = 200_000;
+        let h = f64::from(theta_max) / f64::from(steps);
+        (0..steps)
+            .map(|i| {
+                let t = (f64::from(i) + 0.5) * h;
+                let m = Vec3::new(t.sin() as f32, 0.0, t.cos() as f32);
+                f64::from(d.d(m)) * t.cos() * t.sin() * 2.0 * std::f64::consts::PI * h
+            })
+            .sum()
+    };
+    for d in [
+        Microfacet::ggx(0.02),
+        Microfacet::ggx(0.3),
+        beckmann(0.05),
+        beckmann(0.5),
+    ] {
+        let total = mass(&d, PI / 2.0);
+        assert!((total - 1.0).abs() < 2e-3, "{d:?}: {total}");
+        let inside = mass(&d, d.cone_90());
+        assert!((inside - 0.9).abs() < 2e-3, "{d:?}: {inside}");
+    }
+    // The wider axis sets an anisotropic lobe's cone.
+    let a = anisotropic(MicrofacetKind::Ggx, 0.05, 0.2);
+    assert_eq!(a.cone_90(), Microfacet::ggx(0.2).cone_90());
+    let lobe = |dist| Bsdf::RoughConductor {
+        dist,
+        eta: Vec3::ONE,
+        k: Vec3::ONE,
+        specular_reflectance: Vec3::ONE,
+    };
+    let half = lobe(Microfacet::ggx(0.02)).lobe_half_angle().unwrap();
+    assert!((half - 2.0 * 0.06f32.atan()).abs() < 1e-6, "{half}");
+    assert_eq!(
+        Bsdf::Diffuse {
+            reflectance: Vec3::ONE
+        }
+        .lobe_half_angle(),
+        None
+    );
+}

@@ -204,6 +204,16 @@ pub fn from_bytes<S: GuideStatistics>(bytes: &[u8]) -> Option<S> {
     postcard::from_bytes(bytes).ok()
 }
 
+/// The narrowest glossy lobe a guide serves by default ([`Guide::narrowest_lobe`]): the
+/// half-angle, in degrees, of the cone around the mirror direction that holds 90% of a rough
+/// conductor's or dielectric's scattering. Narrower lobes (metal and glass of roughness below
+/// about 0.066 in GGX or 0.13 in Beckmann) are left to BSDF sampling, which already follows
+/// them closely while the light varies little across them: a guide learned from a few samples
+/// per region rarely resolves them (the neural guide's 16 spline bins span 22.5° of azimuth
+/// each), and its share of the samples there only adds variance (docs/results/guiding.md,
+/// "Settings that set the guide's defaults", "Narrow lobes left to the BSDF").
+pub const NARROWEST_LOBE_DEGREES: f32 = 22.5;
+
 /// A directional sampling distribution over incident directions at path vertices, mixed with
 /// BSDF sampling, that may learn from finished paths.
 ///
@@ -338,6 +348,14 @@ pub trait Guide: Send + Sync {
     /// it is used. Every bounce by default.
     fn guided_bounces(&self) -> u32 {
         u32::MAX
+    }
+
+    /// The narrowest glossy lobe the guide serves, as the half-angle (radians) of its cone
+    /// ([`Bsdf::lobe_half_angle`](crate::bsdf::Bsdf::lobe_half_angle)): at a vertex whose BSDF
+    /// is narrower the path tracer samples the BSDF alone, as at a delta one (the vertex still
+    /// counts among [`Guide::guided_bounces`]). [`NARROWEST_LOBE_DEGREES`] by default.
+    fn narrowest_lobe(&self) -> f32 {
+        NARROWEST_LOBE_DEGREES.to_radians()
     }
 
     /// Whether the path tracer should collect [`GuideRecord`]s for this guide (costs time; off

@@ -5,7 +5,8 @@
 //! 1997, ch. 9) and Pharr et al. (*PBR* 4th ed., §13.4): at every non-delta vertex one light
 //! sample and one BSDF sample are taken and weighted with the power heuristic. A path guide
 //! replaces the BSDF sample by one from a guide–BSDF mixture at the vertices it serves (its
-//! first [`Guide::guided_bounces`] non-delta ones), and learns from those vertices alone; the
+//! first [`Guide::guided_bounces`] non-delta ones, but for lobes narrower than
+//! [`Guide::narrowest_lobe`]), and learns from those vertices alone; the
 //! weights stay those of light against BSDF sampling (see `PathTracer::sample_light`).
 //! Depth counting, `max_depth` and `rr_depth` follow Mitsuba 3's `path` integrator:
 //! `max_depth = 1` shows only directly visible emitters, `2` adds direct lighting, `-1` is
@@ -100,6 +101,14 @@ pub struct Wavefront<'a> {
     pub radiance: &'a mut [Rgb],
 }
 
+/// Which vertices the guide serves: non-delta ones among a path's first `bounces`, but for
+/// glossy lobes narrower than `narrowest_lobe` ([`Guide::narrowest_lobe`]).
+#[derive(Clone, Copy)]
+struct Served {
+    bounces: u32,
+    narrowest_lobe: f32,
+}
+
 /// A wavefront between bounces: its paths, the live ones, this bounce's vertices and the guide
 /// queries they make.
 struct WaveState<G: Guide + ?Sized> {
@@ -162,7 +171,10 @@ impl PathTracer {
         } = paths;
         assert!(rays.len() == rngs.len() && rays.len() == radiance.len());
         let want_records = records.is_some();
-        let guided_bounces = guide.guided_bounces();
+        let served = Served {
+            bounces: guide.guided_bounces(),
+            narrowest_lobe: guide.narrowest_lobe(),
+        };
         let mut wave = WaveState {
             paths: rays.iter().map(|&r| PathState::new(r)).collect(),
             live: (0..rays.len()).collect(),
@@ -170,7 +182,7 @@ impl PathTracer {
             batch: GuideBatch::<G>::new(),
         };
         while !wave.live.is_empty() {
-            self.intersect(scene, &mut wave, guided_bounces, stats);
+            self.intersect(scene, &mut wave, served, stats);
             // 2. Selection probabilities of the guide, for all guided vertices at once.
             wave.batch.select(guide);
             self.choose_techniques(scene, &mut wave, rngs, stats);
@@ -189,13 +201,12 @@ impl PathTracer {
     }
 
     /// Step 1 of a bounce in [`PathTracer::trace`]: intersects every live path's ray, collects emission, and sets up the
-    /// vertices that scatter; non-delta ones among a path's first `guided_bounces` join the
-    /// guide batch.
+    /// vertices that scatter; those the guide serves (`served`) join the guide batch.
     fn intersect<G: Guide + ?Sized>(
         &self,
         scene: &Scene,
         wave: &mut WaveState<G>,
-        guided_bounces: u32,
+        served: Served,
         stats: &mut PathStats,
     ) {
         let WaveState {
@@ -249,6 +260,12 @@ impl PathTracer {
                 transmissive: material.transmits(),
             };
             let delta = material.is_delta();
+            let guided = !delta
+                && path.bounces < served.bounces
+                && material
+                    .bsdf
+                    .lobe_half_angle()
+                    .is_none_or(|a| a >= served.narrowest_lobe);
             bounces.push(Bounce {
                 path: i,
                 wo: frame.to_local(wo_world),
@@ -258,7 +275,7 @@ impl PathTracer {
                 textured,
                 bump,
                 delta,
-                guided: (!delta && path.bounces < guided_bounces).then(|| batch.push(vertex)),
+                guided: guided.then(|| batch.push(vertex)),
                 alpha: 0.0,
                 technique: Technique::Pending,
             });

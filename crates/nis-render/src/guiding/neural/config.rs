@@ -10,6 +10,7 @@ use super::CONTEXT_SCALARS;
 use crate::guiding::directions::GuideFrame;
 #[cfg(doc)]
 use crate::guiding::Guide;
+use crate::guiding::NARROWEST_LOBE_DEGREES;
 
 /// Which divergence the guide minimises.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
@@ -75,6 +76,11 @@ pub struct NisGuideConfig {
     /// BSDF, from the camera ray's hit on); later ones sample the BSDF alone and make no
     /// training records. −1 serves every bounce.
     pub guided_bounces: i32,
+    /// The narrowest glossy lobe the guide serves, as the half-angle in degrees of the cone
+    /// around the mirror direction that holds 90% of a rough conductor's or dielectric's
+    /// scattering ([`Guide::narrowest_lobe`]); narrower lobes are left to BSDF sampling. 0
+    /// serves every lobe.
+    pub narrowest_lobe_degrees: f32,
     /// Seed of the weights and of the training batches.
     pub seed: u64,
 }
@@ -130,6 +136,12 @@ impl NisGuideConfig {
                 self.guided_bounces
             ));
         }
+        if !(0.0..=90.0).contains(&self.narrowest_lobe_degrees) {
+            return bad(format!(
+                "the narrowest lobe the guide serves is a half-angle in [0, 90] degrees, got {}",
+                self.narrowest_lobe_degrees
+            ));
+        }
         if self.min_steps > self.max_steps || self.max_steps > Self::MAX_STEPS {
             return bad(format!(
                 "Adam steps per pass: need min_steps ≤ max_steps ≤ {}, got {} and {}",
@@ -171,7 +183,8 @@ impl NisGuideConfig {
 impl Default for NisGuideConfig {
     /// The settings chosen by the studies in docs/results/guiding.md ("Settings that set the
     /// guide's defaults": the rows "Network size", "Smaller training batches", "Weight
-    /// average", "Records drawn by weight" and "Guiding the first bounces" give the numbers).
+    /// average", "Records drawn by weight", "Guiding the first bounces" and "Narrow lobes left
+    /// to the BSDF" give the numbers).
     fn default() -> Self {
         NisGuideConfig {
             loss: GuideLoss::Kl,
@@ -198,6 +211,7 @@ impl Default for NisGuideConfig {
             pick_by_weight: 0.5,
             // The first four bounces: lower error than guiding every bounce, in less time.
             guided_bounces: 4,
+            narrowest_lobe_degrees: NARROWEST_LOBE_DEGREES,
             seed: 0,
         }
     }

@@ -300,6 +300,10 @@ impl Guide for NisGuide {
         u32::try_from(self.config.guided_bounces).unwrap_or(u32::MAX)
     }
 
+    fn narrowest_lobe(&self) -> f32 {
+        self.config.narrowest_lobe_degrees.to_radians()
+    }
+
     fn wants_records(&self) -> bool {
         self.training
     }
