@@ -62,8 +62,10 @@ pub struct RenderArgs {
     /// Path guiding: `none` (unidirectional path tracing), `ppg` (practical path guiding's
     /// SD-tree), `gmm` (Gaussian mixtures after Vorba et al.) or `nis-kl` / `nis-chi2` (a
     /// normalizing flow trained while rendering, with the KL or χ² gradient). Guided renders
-    /// spend up to half of the samples on training passes of 1, 2, 4, … spp; the image is
-    /// the final pass's.
+    /// spend up to half of the samples on training passes of 1, 2, 4, … spp; the image
+    /// combines every pass, weighted by its inverse variance. The neural guide serves a path's
+    /// first four non-delta vertices (`guided_bounces`), the others every one; no guide serves a
+    /// glossy lobe narrower than 22.5° (the neural guide's `narrowest_lobe_degrees`).
     #[arg(long, default_value = "none", value_parser = GUIDES)]
     pub guide: String,
 
