@@ -349,3 +349,31 @@ fn pass_samples_cross_processes_whole() {
         crate::guiding::from_bytes(&crate::guiding::to_bytes(&PassSamples::default())).unwrap();
     assert_eq!((empty.seen, empty.cap, empty.samples.len()), (0, None, 0));
 }
+
+#[test]
+fn the_guide_leaves_lobes_narrower_than_its_setting_and_rejects_bad_ones() {
+    let bounds = Aabb {
+        min: Vec3::ZERO,
+        max: Vec3::ONE,
+    };
+    let guide = |narrowest_lobe_degrees| {
+        NisGuide::new(
+            bounds,
+            NisGuideConfig {
+                narrowest_lobe_degrees,
+                ..NisGuideConfig::default()
+            },
+        )
+    };
+    let default = NisGuide::new(bounds, NisGuideConfig::default()).unwrap();
+    assert_eq!(
+        default.narrowest_lobe(),
+        crate::guiding::NARROWEST_LOBE_DEGREES.to_radians()
+    );
+    assert_eq!(guide(0.0).unwrap().narrowest_lobe(), 0.0);
+    assert!((guide(90.0).unwrap().narrowest_lobe() - std::f32::consts::FRAC_PI_2).abs() < 1e-6);
+    for bad in [-1.0, 90.5, f32::NAN, f32::INFINITY] {
+        let e = guide(bad).err().expect("rejected");
+        assert!(e.to_string().contains("narrowest lobe"), "{e}");
+    }
+}
