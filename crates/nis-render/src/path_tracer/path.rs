@@ -116,7 +116,8 @@ pub(super) struct Bounce {
     /// Whether the material is a delta BSDF (no light sampling, never guided).
     pub(super) delta: bool,
     /// Index of the vertex in the step's guide batch (`None` where the guide does not serve
-    /// the vertex: at delta vertices, and beyond [`Guide::guided_bounces`]).
+    /// the vertex: at delta vertices, at lobes narrower than [`Guide::narrowest_lobe`], and
+    /// beyond [`Guide::guided_bounces`]).
     pub(super) guided: Option<usize>,
     /// Selection probability of the guide here.
     pub(super) alpha: f32,
