@@ -155,20 +155,22 @@ fn step_gradients_are_those_of_the_kl_loss() {
     }
 }
 
-#[test]
-fn the_guide_serves_a_positive_number_of_bounces_or_all() {
+/// A guide of `config` in the unit box (for the settings' checks).
+fn unit_box_guide(config: NisGuideConfig) -> nis::Result<NisGuide> {
     let bounds = Aabb {
         min: Vec3::ZERO,
         max: Vec3::ONE,
     };
+    NisGuide::new(bounds, config)
+}
+
+#[test]
+fn the_guide_serves_a_positive_number_of_bounces_or_all() {
     let guide = |guided_bounces| {
-        NisGuide::new(
-            bounds,
-            NisGuideConfig {
-                guided_bounces,
-                ..NisGuideConfig::default()
-            },
-        )
+        unit_box_guide(NisGuideConfig {
+            guided_bounces,
+            ..NisGuideConfig::default()
+        })
     };
     assert_eq!(guide(1).unwrap().guided_bounces(), 1);
     assert_eq!(guide(4).unwrap().guided_bounces(), 4);
@@ -352,20 +354,13 @@ fn pass_samples_cross_processes_whole() {
 
 #[test]
 fn the_guide_leaves_lobes_narrower_than_its_setting_and_rejects_bad_ones() {
-    let bounds = Aabb {
-        min: Vec3::ZERO,
-        max: Vec3::ONE,
-    };
     let guide = |narrowest_lobe_degrees| {
-        NisGuide::new(
-            bounds,
-            NisGuideConfig {
-                narrowest_lobe_degrees,
-                ..NisGuideConfig::default()
-            },
-        )
+        unit_box_guide(NisGuideConfig {
+            narrowest_lobe_degrees,
+            ..NisGuideConfig::default()
+        })
     };
-    let default = NisGuide::new(bounds, NisGuideConfig::default()).unwrap();
+    let default = unit_box_guide(NisGuideConfig::default()).unwrap();
     assert_eq!(
         default.narrowest_lobe(),
         crate::guiding::NARROWEST_LOBE_DEGREES.to_radians()
