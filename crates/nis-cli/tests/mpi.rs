@@ -444,3 +444,53 @@ fn targets_and_channels_run_alike_on_every_rank() {
         }
     }
 }
+
+#[test]
+#[ignore = "needs MPI: scripts/test/test-mpi.sh"]
+fn a_time_budget_ends_on_every_rank_after_the_same_passes() {
+    // Rank 0 sizes each rendering pass from its clock and tells the others, so that every rank
+    // traces the same samples and all stop after the same pass.
+    for (ranks, guide) in [(2, "none"), (3, "none"), (2, "nis-kl")] {
+        let out = tmp(&format!("timed-{ranks}-{guide}.exr"));
+        let args = [
+            "render",
+            "cornell-box",
+            "--seconds",
+            "1",
+            "--res",
+            "24",
+            "--guide",
+            guide,
+            "--out",
+        ];
+        let mut c = mpirun(ranks, &env_path("NIS_MPI_BIN"), &args);
+        let mut child = c
+            .arg(&out)
+            .stdout(Stdio::piped())
+            .stderr(Stdio::piped())
+            .spawn()
+            .expect("mpirun runs");
+        let started = Instant::now();
+        let status = loop {
+            if let Some(s) = child.try_wait().unwrap() {
+                break s;
+            }
+            if started.elapsed() > Duration::from_secs(60) {
+                let _ = child.kill();
+                panic!("{ranks} ranks, {guide}: a 1 s render still running after 60 s");
+            }
+            std::thread::sleep(Duration::from_millis(100));
+        };
+        let (mut stdout, mut stderr) = (String::new(), String::new());
+        std::io::Read::read_to_string(&mut child.stdout.take().unwrap(), &mut stdout).unwrap();
+        std::io::Read::read_to_string(&mut child.stderr.take().unwrap(), &mut stderr).unwrap();
+        assert!(status.success(), "{ranks} ranks, {guide}: {stdout}{stderr}");
+        let spp: u32 = stdout
+            .split(" spp in ")
+            .next()
+            .and_then(|s| s.rsplit(' ').next())
+            .and_then(|s| s.parse().ok())
+            .unwrap_or_else(|| panic!("no sample count in: {stdout}"));
+        assert!(spp > 1 && out.exists(), "{ranks} ranks, {guide}: {spp} spp");
+    }
+}

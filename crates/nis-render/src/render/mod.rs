@@ -47,15 +47,16 @@ pub use schedule::{training_schedule, TrainingSchedule};
 pub enum Budget {
     /// Exactly this many samples per pixel (in one pass, unless a guide trains first).
     Samples(u32),
-    /// One-sample passes until this many seconds have passed (at least one pass).
+    /// Passes until this many seconds have passed (at least one): a learning guide's are of
+    /// one sample, the others each take about half of the time left ([`schedule`]).
     Seconds(f64),
 }
 
 /// How the passes of a render are arranged.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub enum Schedule {
-    /// The whole budget renders the image: one pass of `n` samples per pixel, or one-sample
-    /// passes until the time is up, all averaged. A guide that wants records learns from every
+    /// The whole budget renders the image: one pass of `n` samples per pixel, or passes until
+    /// the time is up, all averaged. A guide that wants records learns from every
     /// pass after it ends (so several renders can train it).
     #[default]
     Plain,
@@ -279,7 +280,9 @@ impl Renderer<'_> {
     }
 
     /// Adds the passes of `budget` to `sums`, from sample index `first` on: one pass of `n` spp,
-    /// or one-spp passes until the time is up. With `learn`, the guide learns after every pass.
+    /// or passes until the time is up (of one spp for a guide that learns, else sized by
+    /// [`schedule::rendering_pass_spp`]). With `learn`, a guide that wants records learns after
+    /// every pass.
     /// `progress` gets the fraction of the passes done (of the time, for a time budget).
     /// Returns the samples per pixel added.
     fn passes<G: Guide + ?Sized>(
@@ -292,11 +295,19 @@ impl Renderer<'_> {
         progress: &(dyn Fn(f64) + Sync),
     ) -> u32 {
         let start = self.start;
+        let phase = Instant::now();
+        let learning = learn && guide.wants_records();
         let mut spp = 0u32;
         loop {
             let count = match budget {
                 Budget::Samples(n) => n,
-                Budget::Seconds(_) => 1,
+                Budget::Seconds(_) if learning => 1,
+                Budget::Seconds(t) => {
+                    let left = t - start.elapsed().as_secs_f64();
+                    let mine =
+                        schedule::rendering_pass_spp(spp, phase.elapsed().as_secs_f64(), left);
+                    self.rank0_decides(Some(mine)).unwrap_or(1)
+                }
             };
             let samples = first + spp..first + spp + count;
             self.pass(guide, samples, learn, sums, &|f| match budget {

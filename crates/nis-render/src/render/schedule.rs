@@ -3,6 +3,11 @@
 //! budget, then one final pass with the rest (at least half); every training pass doubles the
 //! data the next distribution is learned from. With a time budget the passes keep doubling while
 //! the next one, at the rate measured so far, ends within half of the time.
+//!
+//! The passes that only render (a plain render's, and the final phase's) with a time budget
+//! each take about half of the time left at the rate measured so far in their phase
+//! (`rendering_pass_spp`): a few large passes, which keep every thread busy, rather than
+//! one-sample passes whose last wave of the image leaves threads idle.
 
 use std::time::Instant;
 
@@ -71,9 +76,53 @@ impl TrainingPasses {
     }
 }
 
+/// The share of the time left that a rendering pass of a time budget is sized to take.
+const PASS_SHARE_OF_TIME_LEFT: f64 = 0.5;
+
+/// Samples per pixel of the next rendering pass of a time budget (see the module
+/// documentation), after `done` samples per pixel that took `seconds` in this phase, with
+/// `left` seconds left: one while there is no rate yet, then about
+/// [`PASS_SHARE_OF_TIME_LEFT`] of the time left, at least one.
+pub(super) fn rendering_pass_spp(done: u32, seconds: f64, left: f64) -> u32 {
+    // Also a NaN clock reading: no rate, or no time.
+    if done == 0 || seconds.is_nan() || seconds <= 0.0 || left.is_nan() || left <= 0.0 {
+        return 1;
+    }
+    let per_spp = seconds / f64::from(done);
+    // Bounded so that a clock that barely moved cannot ask for an absurd pass.
+    (left * PASS_SHARE_OF_TIME_LEFT / per_spp).clamp(1.0, f64::from(1u32 << 16)) as u32
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_rendering_pass_takes_half_of_the_time_left_at_the_measured_rate() {
+        // No rate yet: one sample.
+        assert_eq!(rendering_pass_spp(0, 0.0, 10.0), 1);
+        // 4 spp in 1 s, 10 s left: 5 s at 4 spp/s.
+        assert_eq!(rendering_pass_spp(4, 1.0, 10.0), 20);
+        // Less than a sample's time left, or none: still one, and the caller stops after it.
+        assert_eq!(rendering_pass_spp(4, 1.0, 0.1), 1);
+        assert_eq!(rendering_pass_spp(4, 1.0, -1.0), 1);
+        // A clock that did not move is bounded.
+        assert_eq!(rendering_pass_spp(4, 1e-300, 10.0), 1 << 16);
+        // The passes of a steady rate halve the time left until one sample is all that fits:
+        // a pass count logarithmic in the budget.
+        let (rate, budget) = (100.0, 10.0);
+        let (mut done, mut t, mut passes) = (0u32, 0.0, 0);
+        while t < budget {
+            let n = rendering_pass_spp(done, t, budget - t);
+            done += n;
+            t += f64::from(n) / rate;
+            passes += 1;
+        }
+        assert!(
+            (1000..=1002).contains(&done) && passes <= 14,
+            "{done} spp in {passes} passes"
+        );
+    }
 
     #[test]
     fn training_takes_doubling_passes_within_half_of_the_budget() {
