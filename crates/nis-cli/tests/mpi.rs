@@ -11,7 +11,7 @@
 //! plain path-traced image is bit-identical to the single-process one.
 
 use std::path::{Path, PathBuf};
-use std::process::{Command, Output, Stdio};
+use std::process::{Child, Command, ExitStatus, Output, Stdio};
 use std::time::{Duration, Instant};
 
 use serde_json::Value;
@@ -52,6 +52,21 @@ fn ok(mut c: Command) -> Output {
         String::from_utf8_lossy(&out.stderr)
     );
     out
+}
+
+/// `child`'s exit status; kills it and fails, naming `what`, if it still runs `limit` after
+/// `since`.
+fn wait_within(child: &mut Child, since: Instant, limit: Duration, what: &str) -> ExitStatus {
+    loop {
+        if let Some(s) = child.try_wait().unwrap() {
+            return s;
+        }
+        if since.elapsed() > limit {
+            let _ = child.kill();
+            panic!("{what} still running after {} s", limit.as_secs());
+        }
+        std::thread::sleep(Duration::from_millis(100));
+    }
 }
 
 /// The JSON result of one method, without its wall time.
@@ -250,16 +265,12 @@ fn a_rank_that_dies_ends_mpirun_within_30_s_without_a_partial_file() {
         .status()
         .unwrap()
         .success());
-    let status = loop {
-        if let Some(s) = child.try_wait().unwrap() {
-            break s;
-        }
-        if killed.elapsed() > Duration::from_secs(30) {
-            let _ = child.kill();
-            panic!("mpirun still running 30 s after a rank died");
-        }
-        std::thread::sleep(Duration::from_millis(100));
-    };
+    let status = wait_within(
+        &mut child,
+        killed,
+        Duration::from_secs(30),
+        "mpirun after a rank died",
+    );
     assert!(!status.success());
     let left: Vec<_> = std::fs::read_dir(path.parent().unwrap())
         .unwrap()
@@ -470,17 +481,8 @@ fn a_time_budget_ends_on_every_rank_after_the_same_passes() {
             .stderr(Stdio::piped())
             .spawn()
             .expect("mpirun runs");
-        let started = Instant::now();
-        let status = loop {
-            if let Some(s) = child.try_wait().unwrap() {
-                break s;
-            }
-            if started.elapsed() > Duration::from_secs(60) {
-                let _ = child.kill();
-                panic!("{ranks} ranks, {guide}: a 1 s render still running after 60 s");
-            }
-            std::thread::sleep(Duration::from_millis(100));
-        };
+        let what = format!("a 1 s render on {ranks} ranks, {guide},");
+        let status = wait_within(&mut child, Instant::now(), Duration::from_secs(60), &what);
         let (mut stdout, mut stderr) = (String::new(), String::new());
         std::io::Read::read_to_string(&mut child.stdout.take().unwrap(), &mut stdout).unwrap();
         std::io::Read::read_to_string(&mut child.stderr.take().unwrap(), &mut stderr).unwrap();
