@@ -168,23 +168,33 @@ fn delta_vertices_do_not_count_as_guided_bounces() {
     );
 }
 
+/// A Mitsuba 3 scene of `shapes` under a constant sky of `radiance`, seen by a camera of field
+/// of view `fov` degrees on the z axis at `z`, looking at the origin, with a film of `size`.
+fn under_a_sky((fov, z): (f32, f32), size: (u32, u32), radiance: &str, shapes: &str) -> String {
+    format!(
+        r#"<scene version="3.0.0">
+        <sensor type="perspective">
+            <float name="fov" value="{fov}"/>
+            <transform name="to_world"><lookat origin="0, 0, {z}" target="0, 0, 0" up="0, 1, 0"/></transform>
+            <film type="hdrfilm"><integer name="width" value="{}"/><integer name="height" value="{}"/></film>
+        </sensor>
+        <emitter type="constant"><rgb name="radiance" value="{radiance}"/></emitter>
+        {shapes}
+    </scene>"#,
+        size.0, size.1
+    )
+}
+
 #[test]
 fn diffuse_sphere_under_a_uniform_sky_reflects_albedo_times_sky() {
     // The camera sees only the sphere; a convex one-sided diffuse surface lit by a constant
     // environment reflects exactly albedo × radiance, whatever the strategy.
-    let xml = r#"<scene version="3.0.0">
-        <sensor type="perspective">
-            <float name="fov" value="10"/>
-            <transform name="to_world"><lookat origin="0, 0, 5" target="0, 0, 0" up="0, 1, 0"/></transform>
-            <film type="hdrfilm"><integer name="width" value="8"/><integer name="height" value="8"/></film>
-        </sensor>
-        <emitter type="constant"><rgb name="radiance" value="1, 2, 3"/></emitter>
-        <shape type="sphere">
+    let sphere = r#"<shape type="sphere">
             <float name="radius" value="1"/>
             <bsdf type="diffuse"><rgb name="reflectance" value="0.6, 0.5, 0.4"/></bsdf>
-        </shape>
-    </scene>"#;
-    let scene = load_scene_str(xml, Path::new("."), "sky.xml", &[]).unwrap();
+        </shape>"#;
+    let xml = under_a_sky((10.0, 5.0), (8, 8), "1, 2, 3", sphere);
+    let scene = load_scene_str(&xml, Path::new("."), "sky.xml", &[]).unwrap();
     let expected = [0.6, 1.0, 1.2];
     let check = |(mean, err): ([f64; 3], [f64; 3]), what: &str| {
         for c in 0..3 {
@@ -248,14 +258,7 @@ fn wavefront_batches_do_not_change_the_image() {
 fn lobes_narrower_than_the_guide_serves_are_left_to_the_bsdf_and_stay_unbiased() {
     // Two metal spheres under a sky: GGX α = 0.02 on the left (a lobe of 6.9°, narrower than
     // the default's 22.5°), α = 0.3 on the right (84°).
-    let xml = r#"<scene version="3.0.0">
-        <sensor type="perspective">
-            <float name="fov" value="40"/>
-            <transform name="to_world"><lookat origin="0, 0, 6" target="0, 0, 0" up="0, 1, 0"/></transform>
-            <film type="hdrfilm"><integer name="width" value="12"/><integer name="height" value="8"/></film>
-        </sensor>
-        <emitter type="constant"><rgb name="radiance" value="1, 1, 1"/></emitter>
-        <shape type="rectangle">
+    let shapes = r#"<shape type="rectangle">
             <transform name="to_world"><scale value="10"/><rotate x="1" angle="-90"/><translate y="-1"/></transform>
             <emitter type="area"><rgb name="radiance" value="2, 1, 0.5"/></emitter>
         </shape>
@@ -264,9 +267,9 @@ fn lobes_narrower_than_the_guide_serves_are_left_to_the_bsdf_and_stay_unbiased()
         </shape>
         <shape type="sphere"><point name="center" x="1.2" y="0" z="0"/>
             <bsdf type="roughconductor"><string name="distribution" value="ggx"/><float name="alpha" value="0.3"/></bsdf>
-        </shape>
-    </scene>"#;
-    let scene = load_scene_str(xml, Path::new("."), "metals.xml", &[]).unwrap();
+        </shape>"#;
+    let xml = under_a_sky((40.0, 6.0), (12, 8), "1, 1, 1", shapes);
+    let scene = load_scene_str(&xml, Path::new("."), "metals.xml", &[]).unwrap();
     let mut guide = UniformGuide::default();
     assert_unbiased(
         &scene,

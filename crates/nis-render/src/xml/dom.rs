@@ -229,6 +229,16 @@ impl Element {
             .map(|(_, v)| v.as_str())
     }
 
+    /// Set attribute `key` (that already exists) to `value`.
+    pub fn set_attr(&mut self, key: &str, value: impl Into<String>) {
+        let value = value.into();
+        for (k, v) in &mut self.attrs {
+            if k == key {
+                v.clone_from(&value);
+            }
+        }
+    }
+
     /// Value of a required attribute.
     pub fn required(&self, key: &str) -> Result<&str, XmlError> {
         self.attr(key).ok_or(XmlError {

@@ -54,17 +54,14 @@ pub fn upgrade(el: &mut Element, warnings: &mut Vec<(usize, String)>) -> Result<
         let v = parse_vector(el.required("value")?, el.line)?;
         let linear = v.to_array().map(srgb_to_linear);
         el.name = "rgb".into();
-        for (k, value) in &mut el.attrs {
-            if k == "value" {
-                *value = format!("{}, {}, {}", linear[0], linear[1], linear[2]);
-            }
-        }
+        el.set_attr(
+            "value",
+            format!("{}, {}, {}", linear[0], linear[1], linear[2]),
+        );
     }
     if el.name != "default" {
-        for (k, value) in &mut el.attrs {
-            if k == "name" {
-                *value = camel_to_snake(value);
-            }
+        if let Some(name) = el.attr("name").map(camel_to_snake) {
+            el.set_attr("name", name);
         }
     }
     let diffuse = el.name == "bsdf" && el.attr("type") == Some("diffuse");
@@ -72,10 +69,7 @@ pub fn upgrade(el: &mut Element, warnings: &mut Vec<(usize, String)>) -> Result<
     for c in &mut el.children {
         upgrade(c, warnings)?;
         if diffuse && c.attr("name") == Some("diffuse_reflectance") {
-            c.attrs
-                .iter_mut()
-                .filter(|(k, _)| k == "name")
-                .for_each(|(_, v)| *v = "reflectance".into());
+            c.set_attr("name", "reflectance");
         }
         if c.name == "float" {
             let slot = ["uoffset", "voffset", "uscale", "vscale"]
@@ -135,11 +129,7 @@ fn upgrade_roughdiffuse(el: &mut Element, warnings: &mut Vec<(usize, String)>) {
         .to_string();
     el.children
         .retain(|c| !matches!(c.attr("name"), Some("alpha" | "use_fast_approx")));
-    for (k, v) in &mut el.attrs {
-        if k == "type" {
-            *v = "diffuse".into();
-        }
-    }
+    el.set_attr("type", "diffuse");
     warnings.push((
         el.line,
         format!(
