@@ -143,6 +143,11 @@ fn a_guide_serving_the_first_bounce_only_leaves_the_image_unbiased_and_learns_th
     // Records from camera-ray hits only; a guide of every bounce also learns deeper.
     assert!(guide.records.len() > 1000);
     assert_eq!(beyond_first_hit(&scene, &guide.records), 0);
+    // A camera ray's hit receives the whole pixel's importance: throughput 1.
+    assert!(guide
+        .records
+        .iter()
+        .all(|r| (r.throughput - 1.0).abs() < 1e-6));
     let mut every = UniformGuide::default();
     mean_over_seeds(&scene, Strategy::Mis, &mut every, 2);
     let deeper = beyond_first_hit(&scene, &every.records);
@@ -151,6 +156,13 @@ fn a_guide_serving_the_first_bounce_only_leaves_the_image_unbiased_and_learns_th
         "{deeper} of {}",
         every.records.len()
     );
+    // Deeper vertices arrive with what the walls and the mixture's densities left of it.
+    assert!(every
+        .records
+        .iter()
+        .all(|r| r.throughput.is_finite() && r.throughput >= 0.0));
+    let attenuated = every.records.iter().filter(|r| r.throughput < 0.9).count();
+    assert!(attenuated >= deeper / 2, "{attenuated} of {deeper}");
 }
 
 #[test]

@@ -87,6 +87,7 @@ fn train_on_lobe(
                     bsdf_pdf: pdf,
                     bsdf_cos: Rgb::ONE,
                     radiance: Rgb::splat(l),
+                    throughput: 1.0,
                 }
             })
             .collect();

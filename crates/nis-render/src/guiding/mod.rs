@@ -141,6 +141,9 @@ pub struct GuideRecord {
     pub bsdf_cos: Rgb,
     /// Incident radiance estimate along `wi`.
     pub radiance: Rgb,
+    /// Luminance of the path's throughput on arrival at the vertex: how much of what the
+    /// vertex scatters reaches the image (1 at the camera ray's hit).
+    pub throughput: f32,
 }
 
 /// A direction drawn from a guide, with the solid-angle density it was drawn with.

@@ -100,6 +100,7 @@ fn records(positions: &[Vec3], n: usize, hemisphere: bool, seed: u64) -> Vec<Gui
                 bsdf_pdf: 0.0,
                 bsdf_cos: Vec3::ONE,
                 radiance: Vec3::splat(radiance(wi)),
+                throughput: 1.0,
             });
         }
     }

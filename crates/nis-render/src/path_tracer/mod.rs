@@ -21,7 +21,7 @@ use rand_pcg::Pcg32;
 
 use crate::bsdf::Material;
 use crate::bump::BumpShading;
-use crate::geometry::{offset_origin, Frame, Ray, Rgb, RAY_EPSILON};
+use crate::geometry::{luminance, offset_origin, Frame, Ray, Rgb, RAY_EPSILON};
 use crate::guiding::{Guide, GuideRecord, GuideVertex};
 use crate::sampling::power_heuristic;
 use crate::scene::{Scene, SurfaceHit, NO_LIGHT};
@@ -358,6 +358,7 @@ impl PathTracer {
                 continue;
             }
             let cos = b.frame.n.dot(scatter.wi).abs();
+            let arriving = luminance(path.beta);
             path.beta *= scatter.f * (cos / scatter.pdf);
             path.eta *= scatter.eta;
             if want_records && !scatter.delta && b.guided.is_some() {
@@ -369,6 +370,7 @@ impl PathTracer {
                         bsdf_pdf: scatter.bsdf_pdf,
                         bsdf_cos: scatter.f * cos,
                         radiance: Rgb::ZERO,
+                        throughput: arriving,
                     },
                     throughput: path.beta,
                 });

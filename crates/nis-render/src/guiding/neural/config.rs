@@ -51,6 +51,10 @@ pub struct NisGuideConfig {
     /// Training phases during which only the flow learns and the selection network keeps
     /// its initial ½ (an untrained flow would teach it to avoid the guide).
     pub selection_warmup: usize,
+    /// Whether a record weighs in by what its path brings to the image, `F` times the path's
+    /// throughput on arrival at the vertex, rather than by `F` alone: the networks then spend
+    /// themselves on the vertices the image depends on, not on deep ones near the lights.
+    pub weight_by_throughput: bool,
     /// Records per training step.
     pub batch: usize,
     /// Adam steps after a training pass, at least (and about one per `batch` new records).
@@ -199,6 +203,8 @@ impl Default for NisGuideConfig {
             selection_width: 16,
             min_selection: 0.05,
             selection_warmup: 1,
+            // Records weighted by the image's share in them: lower MAPE on most scenes.
+            weight_by_throughput: true,
             // Small batches: many more steps from the same records, so the guide learns sooner.
             batch: 256,
             min_steps: 40,

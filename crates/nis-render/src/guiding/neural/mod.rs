@@ -18,7 +18,11 @@
 //! counts, see [`crate::render::training_schedule`]) both networks take Adam steps on the
 //! records gathered so far. A record is a direction `ω` drawn at a vertex with mixture
 //! density `p_s(ω)`, and the product `F = L_i(ω)·f_s(ω_o, ω)·|cos θ|` the path found along it
-//! (luminance), the quantity the paper learns. With the current mixture density
+//! (luminance), the quantity the paper learns, here times the luminance of the path's
+//! throughput on arrival at the vertex ([`NisGuideConfig::weight_by_throughput`]): the share of
+//! the pixel the vertex's choice carries, so that the divergence is weighed over the vertices
+//! as the image weighs them, as guiding by image contribution does (Rath et al. 2023, "Focal
+//! Path Guiding"; Vorba and Křivánek 2016 weigh by the adjoint). With the current mixture density
 //! `q = c·p_flow + (1 − c)·p_bsdf`, the gradients are the paper's off-policy ones:
 //!
 //! * KL: `−E_{p_s}[(F/p_s)·∇ ln q]`,
@@ -311,7 +315,12 @@ impl Guide for NisGuide {
     fn accumulate(&self, records: &[GuideRecord], pass: &mut PassSamples) {
         let before = pass.samples.len();
         pass.samples.extend(records.iter().filter_map(|r| {
-            let f = luminance(r.radiance * r.bsdf_cos);
+            let f = luminance(r.radiance * r.bsdf_cos)
+                * if self.config.weight_by_throughput {
+                    r.throughput
+                } else {
+                    1.0
+                };
             let map = self.map(&r.vertex);
             // A direction off the map carries no light at an opaque vertex (its F is 0 up to
             // the rounding of the two frames).

@@ -4,6 +4,7 @@
 
 use super::records::{PassSamples, Sample};
 use super::*;
+use crate::geometry::Rgb;
 use crate::guiding::{PdfQuery, SampleQuery};
 use nis::flow::{Bijection, Density};
 use rand::{Rng, SeedableRng};
@@ -371,4 +372,40 @@ fn the_guide_leaves_lobes_narrower_than_its_setting_and_rejects_bad_ones() {
         let e = guide(bad).err().expect("rejected");
         assert!(e.to_string().contains("narrowest lobe"), "{e}");
     }
+}
+
+#[test]
+fn records_weigh_in_by_their_paths_throughput_when_set() {
+    // Two records alike but for the throughput their paths arrived with: their `F` differ by
+    // its factor, unless the guide weighs by `F` alone; a path that brings nothing is dropped.
+    let record = |throughput| GuideRecord {
+        vertex: GuideVertex {
+            p: Vec3::splat(0.5),
+            n: Vec3::Z,
+            wo: Vec3::Z,
+            transmissive: false,
+        },
+        wi: Vec3::new(0.0, 0.6, 0.8),
+        pdf: 0.4,
+        bsdf_pdf: 0.2,
+        bsdf_cos: Rgb::splat(0.3),
+        radiance: Rgb::new(1.0, 2.0, 3.0),
+        throughput,
+    };
+    let records = [record(1.0), record(0.25), record(0.0)];
+    let f_of = |weight_by_throughput| {
+        let guide = unit_box_guide(NisGuideConfig {
+            weight_by_throughput,
+            ..NisGuideConfig::default()
+        })
+        .unwrap();
+        let mut pass = PassSamples::default();
+        guide.accumulate(&records, &mut pass);
+        pass.samples.iter().map(|s| s.f).collect::<Vec<_>>()
+    };
+    let f = luminance(Rgb::new(1.0, 2.0, 3.0) * 0.3);
+    let weighted = f_of(true);
+    assert_eq!(weighted.len(), 2);
+    assert!((weighted[0] - f).abs() <= 1e-6 * f && (weighted[1] - 0.25 * f).abs() <= 1e-6 * f);
+    assert_eq!(f_of(false), vec![weighted[0]; 3]);
 }

@@ -341,6 +341,7 @@ mod tests {
             bsdf_pdf: 0.0,
             bsdf_cos: Vec3::ONE,
             radiance: Vec3::splat(radiance),
+            throughput: 1.0,
         }
     }
 
