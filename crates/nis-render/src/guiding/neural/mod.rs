@@ -20,9 +20,9 @@
 //! density `p_s(ω)`, and the product `F = L_i(ω)·f_s(ω_o, ω)·|cos θ|` the path found along it
 //! (luminance), the quantity the paper learns, here times the luminance of the path's
 //! throughput on arrival at the vertex ([`NisGuideConfig::weight_by_throughput`]): the share of
-//! the pixel the vertex's choice carries, so that the divergence is weighed over the vertices
-//! as the image weighs them, as guiding by image contribution does (Rath et al. 2023, "Focal
-//! Path Guiding"; Vorba and Křivánek 2016 weigh by the adjoint). With the current mixture density
+//! the pixel the vertex's choice carries (what a vertex's sampling adds to its pixel's error
+//! reaches the pixel scaled by that throughput), so the divergence is weighed over the
+//! vertices as the image weighs them. With the current mixture density
 //! `q = c·p_flow + (1 − c)·p_bsdf`, the gradients are the paper's off-policy ones:
 //!
 //! * KL: `−E_{p_s}[(F/p_s)·∇ ln q]`,
