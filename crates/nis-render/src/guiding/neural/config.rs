@@ -48,6 +48,11 @@ pub struct NisGuideConfig {
     pub selection_width: usize,
     /// Smallest selection probability of either technique.
     pub min_selection: f32,
+    /// Share λ of the χ² divergence in the selection network's loss, the rest being `loss`
+    /// (each part normalised by its batch's mean weight; the flow learns from `loss` alone):
+    /// χ² punishes the mixture's holes, BSDF samples where the guide's share is high and the
+    /// flow has little density, far harder than KL.
+    pub selection_chi2_share: f32,
     /// Training phases during which only the flow learns and the selection network keeps
     /// its initial ½ (an untrained flow would teach it to avoid the guide).
     pub selection_warmup: usize,
@@ -128,6 +133,12 @@ impl NisGuideConfig {
                 self.pick_by_weight
             ));
         }
+        if !(0.0..=1.0).contains(&self.selection_chi2_share) {
+            return bad(format!(
+                "the χ² share of the selection's loss must be in [0, 1], got {}",
+                self.selection_chi2_share
+            ));
+        }
         if !(0.0..=1.0).contains(&self.average_span) {
             return bad(format!(
                 "the weights' average needs a span in [0, 1], got {}",
@@ -202,6 +213,8 @@ impl Default for NisGuideConfig {
             context_bins: 8,
             selection_width: 16,
             min_selection: 0.05,
+            // A fifth χ² in the selection's loss: fewer fireflies from the flow's holes.
+            selection_chi2_share: 0.2,
             selection_warmup: 1,
             // Records weighted by the image's share in them: lower MAPE on most scenes.
             weight_by_throughput: true,

@@ -30,7 +30,10 @@
 //!
 //! with `∇_θ ln q = (c·p_flow/q)·∇_θ ln p_flow` for the flow's weights and
 //! `∂ ln q/∂c = (p_flow − p_bsdf)/q` for the selection network. The per-sample weights are
-//! normalised by their batch mean, which only rescales the step. Records of all training
+//! normalised by their batch mean, which only rescales the step. The selection network takes a
+//! share of its step from the χ² gradient whatever the loss
+//! ([`NisGuideConfig::selection_chi2_share`]): χ² punishes a high guide share where the flow
+//! has a hole far more than KL does, and such holes are where BSDF samples become fireflies. Records of all training
 //! passes stay in a bounded replay buffer (each is an unbiased sample of the same gradient,
 //! whatever mixture drew it), so early passes with few paths still get enough steps. A step's
 //! batch is drawn from the buffer with probabilities ∝ (F/p_s)^α, each record's weight divided

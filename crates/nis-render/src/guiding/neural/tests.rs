@@ -3,6 +3,7 @@
 //! settings and its records' wire format.
 
 use super::records::{PassSamples, Sample};
+use super::training::StepGradients;
 use super::*;
 use crate::geometry::Rgb;
 use crate::guiding::{PdfQuery, SampleQuery};
@@ -118,33 +119,31 @@ fn param(g: &mut NisGuide, network: usize, j: usize) -> &mut f32 {
     }
 }
 
-#[test]
-fn step_gradients_are_those_of_the_kl_loss() {
-    let (mut guide, ..) = random_guide(GuideFrame::World);
-    let (batch, scales) = random_batch(256, 6);
-    let loss = |g: &NisGuide| g.gradients(&batch, &scales, true, 64).unwrap().0.loss;
-    let grads = guide
-        .gradients(&batch, &scales, true, 64)
-        .unwrap()
-        .1
-        .unwrap();
-    let selection = grads.selection.unwrap();
+/// Checks the gradients `grads` of `networks` (0 the flow, 1 the selection network) against
+/// central differences of `loss` at their eight steepest parameters and four at random.
+fn assert_finite_differences(
+    guide: &mut NisGuide,
+    grads: &StepGradients,
+    networks: &[usize],
+    loss: &dyn Fn(&NisGuide) -> f64,
+) {
+    let selection = grads.selection.as_ref().unwrap();
     let mut rng = Pcg64Mcg::seed_from_u64(9);
     let h = 1e-3f32;
-    for (network, grad) in [(0, &grads.flow), (1, &selection)] {
-        // The eight steepest parameters, and four at random.
+    for &network in networks {
+        let grad = if network == 0 { &grads.flow } else { selection };
         let mut order: Vec<usize> = (0..grad.len()).collect();
         order.sort_by(|&a, &b| grad[b].abs().total_cmp(&grad[a].abs()));
         order.truncate(8);
         order.extend((0..4).map(|_| rng.random_range(0..grad.len())));
         assert!(grad[order[7]].abs() > 1e-2, "too flat to test");
         for j in order {
-            let x = *param(&mut guide, network, j);
-            *param(&mut guide, network, j) = x + h;
-            let up = loss(&guide);
-            *param(&mut guide, network, j) = x - h;
-            let down = loss(&guide);
-            *param(&mut guide, network, j) = x;
+            let x = *param(guide, network, j);
+            *param(guide, network, j) = x + h;
+            let up = loss(guide);
+            *param(guide, network, j) = x - h;
+            let down = loss(guide);
+            *param(guide, network, j) = x;
             let fd = (up - down) / (2.0 * f64::from(h));
             // Central differences of an f32 network: truncation O(h²), rounding ≈ 1e-7/h.
             let g = f64::from(grad[j]);
@@ -153,6 +152,86 @@ fn step_gradients_are_those_of_the_kl_loss() {
                 "network {network}, parameter {j}: {g} against finite differences {fd}"
             );
         }
+    }
+}
+
+#[test]
+fn step_gradients_are_those_of_the_kl_loss() {
+    let (mut guide, ..) = random_guide(GuideFrame::World);
+    guide.config.selection_chi2_share = 0.0;
+    let (batch, scales) = random_batch(256, 6);
+    let loss = |g: &NisGuide| g.gradients(&batch, &scales, true, 64).unwrap().0.loss;
+    let grads = guide
+        .gradients(&batch, &scales, true, 64)
+        .unwrap()
+        .1
+        .unwrap();
+    assert_finite_differences(&mut guide, &grads, &[0, 1], &loss);
+}
+
+/// The mean χ² weight `F²/(p_s·q_mix·scale)` of `batch` under the guide's mixture: the χ²
+/// divergence up to a constant (computed here from the networks, apart from the training code).
+fn chi_square_mean(g: &NisGuide, batch: &[Sample], scales: &[f64]) -> f64 {
+    let scalars: Vec<_> = batch.iter().map(|s| s.context).collect();
+    let context = g.encode(&scalars);
+    let x: Vec<f32> = batch.iter().flat_map(|s| s.x).collect();
+    let log_q = g.flow.log_density(&x, Some(&context)).unwrap();
+    let (_, c) = g.selection.forward(&context);
+    let total: f64 = batch
+        .iter()
+        .zip(&log_q)
+        .zip(c.iter().zip(scales))
+        .map(|((s, l), (&c, scale))| {
+            let q = l.exp() * f64::from(s.jacobian);
+            let q_mix = f64::from(c) * q + (1.0 - f64::from(c)) * f64::from(s.bsdf_pdf);
+            f64::from(s.f).powi(2) / (f64::from(s.pdf) * q_mix * scale)
+        })
+        .sum();
+    total / batch.len() as f64
+}
+
+#[test]
+fn the_selection_learns_from_kl_and_a_share_of_chi_square() {
+    // With share λ the selection network descends (1 − λ)·(KL / mean KL weight) + λ·ln χ²
+    // (the χ² gradient divided by the χ² itself); the flow keeps the KL gradient alone.
+    let (mut guide, ..) = random_guide(GuideFrame::World);
+    let share = 0.2;
+    guide.config.selection_chi2_share = share;
+    let (batch, scales) = random_batch(256, 6);
+    let kl = |g: &NisGuide| g.gradients(&batch, &scales, true, 64).unwrap().0.loss;
+    let blend = |g: &NisGuide| {
+        (1.0 - share as f64) * kl(g) + share as f64 * chi_square_mean(g, &batch, &scales).ln()
+    };
+    let grads = guide
+        .gradients(&batch, &scales, true, 64)
+        .unwrap()
+        .1
+        .unwrap();
+    assert_finite_differences(&mut guide, &grads, &[0], &kl);
+    assert_finite_differences(&mut guide, &grads, &[1], &blend);
+    // And the blend is not the KL gradient: the χ² share moved the selection's.
+    guide.config.selection_chi2_share = 0.0;
+    let plain = guide
+        .gradients(&batch, &scales, true, 64)
+        .unwrap()
+        .1
+        .unwrap();
+    assert_eq!(plain.flow, grads.flow);
+    let moved = plain
+        .selection
+        .unwrap()
+        .iter()
+        .zip(grads.selection.as_ref().unwrap())
+        .map(|(a, b)| (a - b).abs())
+        .fold(0.0f32, f32::max);
+    assert!(moved > 1e-3, "{moved}");
+    for bad in [-0.1, 1.5, f32::NAN] {
+        let config = NisGuideConfig {
+            selection_chi2_share: bad,
+            ..NisGuideConfig::default()
+        };
+        let e = unit_box_guide(config).err().expect("rejected");
+        assert!(e.to_string().contains("χ² share"), "{e}");
     }
 }
 

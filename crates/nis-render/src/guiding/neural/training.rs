@@ -34,12 +34,17 @@ pub(super) struct StepGradients {
 struct PartGradients {
     /// Sum of the records' weights.
     weight: f64,
+    /// Sum of the records' χ² weights, when part of the selection network's loss is the χ²
+    /// divergence ([`NisGuideConfig::selection_chi2_share`](super::NisGuideConfig)).
+    weight_chi: f64,
     /// Sum of the records' weighted losses.
     loss: f64,
     /// Sum of the selection probabilities.
     selection_sum: f64,
     flow: Vec<f32>,
     selection: Option<Vec<f32>>,
+    /// The selection network's gradient of the χ² divergence (weights `weight_chi`).
+    selection_chi: Option<Vec<f32>>,
 }
 
 /// What one training phase did.
@@ -122,17 +127,33 @@ impl NisGuide {
             return Ok((stats, None));
         }
         stats.loss = parts.iter().map(|p| p.loss).sum::<f64>() / mean / n as f64;
+        let mean_chi = parts.iter().map(|p| p.weight_chi).sum::<f64>() / n as f64;
         let mut g_flow = vec![0.0f32; self.flow.params().len()];
         let mut g_sel = selection.then(|| vec![0.0f32; self.selection.params.len()]);
+        let mut g_chi = g_sel
+            .clone()
+            .filter(|_| mean_chi > 0.0 && mean_chi.is_finite());
         for p in parts {
             g_flow.iter_mut().zip(&p.flow).for_each(|(a, b)| *a += b);
             if let (Some(sum), Some(s)) = (&mut g_sel, p.selection) {
+                sum.iter_mut().zip(&s).for_each(|(a, b)| *a += b);
+            }
+            if let (Some(sum), Some(s)) = (&mut g_chi, p.selection_chi) {
                 sum.iter_mut().zip(&s).for_each(|(a, b)| *a += b);
             }
         }
         let inv_mean = (1.0 / mean) as f32;
         for g in g_flow.iter_mut().chain(g_sel.iter_mut().flatten()) {
             *g *= inv_mean;
+        }
+        // The selection's loss: (1 − λ) of the guide's own, λ of the χ² divergence, each
+        // normalised by its batch's mean weight.
+        if let (Some(sel), Some(chi)) = (&mut g_sel, &g_chi) {
+            let share = self.config.selection_chi2_share;
+            let inv_chi = (1.0 / mean_chi) as f32;
+            for (a, b) in sel.iter_mut().zip(chi) {
+                *a = (1.0 - share) * *a + share * inv_chi * b;
+            }
         }
         Ok((
             stats,
@@ -163,8 +184,10 @@ impl NisGuide {
             selection_sum: c.iter().map(|&c| f64::from(c)).sum(),
             ..PartGradients::default()
         };
+        let mixed = selection && self.config.selection_chi2_share > 0.0;
         let mut w_flow = vec![0.0f32; batch.len()];
         let mut g_logit = vec![0.0f32; batch.len()];
+        let mut g_logit_chi = vec![0.0f32; if mixed { batch.len() } else { 0 }];
         for (i, (s, &log_q)) in batch.iter().zip(&evaluated.log_q).enumerate() {
             let q = (log_q.exp() as f32) * s.jacobian;
             let q_mix = c[i] * q + (1.0 - c[i]) * s.bsdf_pdf;
@@ -185,12 +208,20 @@ impl NisGuide {
                 // The logit's sigmoid, and the mixture's derivative in c.
                 let sig = (c[i] - m) / (1.0 - 2.0 * m);
                 let d_c = (f64::from(q - s.bsdf_pdf) / f64::from(q_mix)) as f32;
-                g_logit[i] =
-                    (-w * f64::from(d_c * (1.0 - 2.0 * m) * sig * (1.0 - sig)) / n as f64) as f32;
+                let d_z = f64::from(d_c * (1.0 - 2.0 * m) * sig * (1.0 - sig)) / n as f64;
+                g_logit[i] = (-w * d_z) as f32;
+                if mixed {
+                    let w_chi = f64::from(s.f) * f64::from(s.f)
+                        / (f64::from(s.pdf) * f64::from(q_mix) * scales[i]);
+                    let w_chi = if w_chi.is_finite() { w_chi } else { 0.0 };
+                    out.weight_chi += w_chi;
+                    g_logit_chi[i] = (-w_chi * d_z) as f32;
+                }
             }
         }
         out.flow = self.flow.backward(&evaluated.tape, &w_flow)?;
         out.selection = selection.then(|| self.selection.backward(&forward, &g_logit));
+        out.selection_chi = mixed.then(|| self.selection.backward(&forward, &g_logit_chi));
         Ok(out)
     }
 
